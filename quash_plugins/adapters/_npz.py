@@ -1,0 +1,113 @@
+"""``npz``: quash-plugins' portable map format.
+
+Arrays: ``embeddings (N, D)`` (required), ``positions (N, 3)`` metres, ``colors (N, 3)``
+uint8, ``labels (N,)`` int, ``label_names (L,)`` str, ``voxel_size`` scalar,
+``grid_index (N, 3)`` int and ``kind`` str. Never unpickled.
+"""
+
+from __future__ import annotations
+
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import MapFormatError
+from ..interfaces import MapAdapter
+from ..types import LatentMap
+
+OPTIONAL = ("positions", "colors", "labels", "label_names", "voxel_size", "grid_index", "kind",
+            "normalize")
+
+
+class NpzAdapter(MapAdapter):
+    """Read quash-plugins' portable NPZ map (see :func:`write_npz_map`)."""
+
+    name = "npz"
+    priority = 10
+
+    def sniff(self, source: Any) -> bool:
+        if not isinstance(source, (str, Path)):
+            return False
+        p = Path(source)
+        if not p.is_file() or not zipfile.is_zipfile(p):
+            return False
+        try:
+            with zipfile.ZipFile(p) as z:
+                return "embeddings.npy" in z.namelist()
+        except (OSError, zipfile.BadZipFile):
+            return False
+
+    def read(self, source: Any, **options: Any) -> LatentMap:
+        path = Path(source)
+        if not path.exists():
+            raise MapFormatError(f"Map not found: {path}")
+        try:
+            z = np.load(path, allow_pickle=False)
+        except ValueError as exc:
+            raise MapFormatError(
+                f"{path}: holds pickled objects, which are never loaded. Store strings as "
+                f"fixed-width unicode arrays ({exc})."
+            ) from None
+        except (OSError, zipfile.BadZipFile, EOFError) as exc:
+            raise MapFormatError(f"{path}: not a readable NPZ file ({exc}).") from None
+        with z:
+            if "embeddings" not in z.files:
+                raise MapFormatError(
+                    f"{path}: missing array 'embeddings' (N, D). Found: {', '.join(z.files)}."
+                )
+            try:
+                data = {k: z[k] for k in ("embeddings", *OPTIONAL) if k in z.files}
+            except ValueError as exc:
+                raise MapFormatError(f"{path}: an array holds pickled objects ({exc}).") from None
+        kind = str(data.pop("kind")) if "kind" in data else None
+        voxel = float(data.pop("voxel_size")) if "voxel_size" in data else None
+        normalize = bool(data.pop("normalize")) if "normalize" in data else False
+        names = data.pop("label_names", None)
+        if kind is None:
+            kind = "voxels" if voxel else "points"
+        return LatentMap(
+            embeddings=data["embeddings"],
+            kind=kind,
+            positions=data.get("positions"),
+            colors=data.get("colors"),
+            labels=data.get("labels"),
+            label_names=[str(n) for n in names] if names is not None else None,
+            voxel_size=voxel,
+            grid_index=data.get("grid_index"),
+            normalize=normalize,
+            source={"adapter": self.name, "path": str(path)},
+        )
+
+    def write_example(self, directory: Path) -> Path:
+        rng = np.random.default_rng(0)
+        lmap = LatentMap(
+            rng.normal(size=(40, 8)).astype(np.float32),
+            positions=rng.uniform(0, 2, size=(40, 3)).astype(np.float32),
+            colors=rng.integers(0, 255, size=(40, 3), dtype=np.uint8),
+            labels=rng.integers(0, 3, size=40),
+            label_names=["floor", "chair", "table"],
+        )
+        return write_npz_map(Path(directory) / "example.npz", lmap)
+
+
+def write_npz_map(path: str | Path, lmap: LatentMap, compress: bool = False) -> Path:
+    """Write ``lmap`` as a portable NPZ atomically. Embeddings are read chunk-free here."""
+    from .._io import atomic_write
+
+    path = Path(path)
+    arrays: dict[str, Any] = {"embeddings": np.asarray(lmap.embeddings), "kind": lmap.kind}
+    for key in ("positions", "colors", "labels", "grid_index"):
+        v = getattr(lmap, key)
+        if v is not None:
+            arrays[key] = np.asarray(v)
+    if lmap.label_names is not None:
+        arrays["label_names"] = np.asarray(lmap.label_names, dtype=str)
+    if lmap.voxel_size is not None:
+        arrays["voxel_size"] = np.float32(lmap.voxel_size)
+    if lmap.normalize:
+        arrays["normalize"] = True
+    with atomic_write(path, suffix=".npz") as tmp:
+        (np.savez_compressed if compress else np.savez)(tmp, **arrays)
+    return path

@@ -1,0 +1,78 @@
+"""``quash query``: answer text queries against a map."""
+
+from __future__ import annotations
+
+import argparse
+
+NAME = "query"
+HELP = "Answer queries against a map; print matches, write masks and scores."
+ORDER = 10
+EPILOG = """\
+examples:
+  quash query vlmap/vlmaps.h5df chair sofa -c quash.yaml --out result.npz
+  quash query map.npz chair --adapter npz --rrd chair.rrd
+The --out file holds queries (Q,) str, masks (Q, N) bool, scores (Q, N) float32 and
+display_scores (Q, N) float32 in [0, 1]."""
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    from ._backend_opts import add_backend_arguments
+    from ._common import add_config_option, add_runtime_options
+    from ._viewer_opts import add_viewer_arguments
+
+    p.add_argument("map", help="Map file or directory.")
+    p.add_argument("queries", nargs="+", metavar="QUERY", help="One or more queries.")
+    add_config_option(p)
+    p.add_argument("--adapter", default=None,
+                   help="Adapter name, or 'auto' to sniff the format (default: the config's).")
+    p.add_argument("--out", metavar="RESULT.npz", help="Write masks and scores (atomically).")
+    p.add_argument("--json", action="store_true", help="Print the per-query summary as JSON.")
+    add_runtime_options(p)
+    add_viewer_arguments(p)
+    add_backend_arguments(p)
+
+
+def run(args: argparse.Namespace) -> int:
+    from .._progress import progress
+    from ..pipeline import Quash, write_results_npz
+    from ._backend_opts import backend_overrides
+    from ._common import apply_runtime_options, console, load_config, print_json
+    from ._viewer_opts import open_viewer
+
+    cfg = apply_runtime_options(load_config(args.config), args)
+    quash = Quash.from_config(cfg, **backend_overrides(args))
+    lmap = quash.read_map(args.map, adapter=args.adapter)
+    with progress(lmap.n, f"classifying {lmap.n} items") as advance:
+        results = quash.query_many(lmap, args.queries, progress=advance)
+    if args.out:
+        write_results_npz(args.out, results)
+    viewer = open_viewer(args, app_id="quash-query")
+    if viewer is not None:
+        viewer.log_map(lmap)
+        for i, r in enumerate(results):
+            viewer.log_result(lmap, r, index=i)
+        viewer.close()
+    if args.json:
+        print_json({"map": lmap.source, "n": lmap.n, "config": cfg.name,
+                    "results": [r.summary() for r in results]})
+        return 0
+    from rich.table import Table
+
+    table = Table(title=f"{lmap.describe()} | config {cfg.name}")
+    for col in ("query", "matched", "share", "instances", "positives", "negatives", "time"):
+        table.add_column(col, justify="right" if col not in ("query",) else "left")
+    for r in results:
+        table.add_row(
+            r.query, f"{r.n_matched}", f"{100 * r.share:.2f}%", f"{len(r.instances)}",
+            f"{len(r.queryset.positives)}", f"{len(r.queryset.negatives)}",
+            f"{r.timings.get('total', 0.0) * 1000:.0f} ms",
+        )
+    out = console()
+    out.print(table)
+    stages = ("read", "expand", "encode", "fit", "classify", "postprocess", "instances")
+    for r in results:
+        parts = [f"{s} {r.timings[s] * 1000:.1f} ms" for s in stages if s in r.timings]
+        out.print(f"[dim]{r.query}: " + ", ".join(parts) + "[/]")
+    if args.out:
+        out.print(f"wrote {args.out}")
+    return 0

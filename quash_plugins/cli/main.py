@@ -1,0 +1,107 @@
+"""``quash``: query visual-language maps with QuASH.
+
+Subcommands are discovered from the ``cmd_*`` modules of this package. Each defines
+``NAME``, ``HELP``, ``ORDER``, ``add_arguments(parser)`` and ``run(args) -> int``.
+
+Exit status: 0 on success, 2 for usage errors, 1 for other errors. Errors print one
+message and no traceback unless ``--debug`` is given.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import pkgutil
+import sys
+from collections.abc import Sequence
+
+from .. import __version__
+from ..errors import QuashError, UsageError
+from ._common import setup_logging
+
+log = logging.getLogger("quash_plugins.cli")
+
+DESCRIPTION = """\
+QuASH: Query Augmentation using Semantic Heuristics, for the maps robots already build.
+A query is expanded into synonyms and antonyms, embedded with the map's own text
+encoder, used to train a classifier, and every voxel, point or pixel is labelled."""
+
+EPILOG = """\
+examples:
+  quash demo                                   # offline demo on a generated scene
+  quash query map.npz chair sofa -c cfg.yaml --out result.npz --rrd result.rrd
+  quash expand chair -c cfg.yaml --json
+  quash plugins
+Run 'quash COMMAND --help' for the options of each command."""
+
+
+def _commands():
+    import quash_plugins.cli as pkg
+
+    mods = []
+    for info in pkgutil.iter_modules(pkg.__path__):
+        if info.name.startswith("cmd_"):
+            mods.append(importlib.import_module(f"{pkg.__name__}.{info.name}"))
+    return sorted(mods, key=lambda m: (getattr(m, "ORDER", 50), m.NAME))
+
+
+def build_parser() -> argparse.ArgumentParser:
+    common = argparse.ArgumentParser(add_help=False)
+    g = common.add_argument_group("output")
+    g.add_argument("-v", "--verbose", action="count", default=0, help="More log output (-vv: most).")
+    g.add_argument("-q", "--quiet", action="store_true", help="Only warnings and errors.")
+    g.add_argument("--debug", action="store_true", help="Show tracebacks on errors.")
+
+    parser = argparse.ArgumentParser(
+        prog="quash", description=DESCRIPTION, epilog=EPILOG, parents=[common],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--version", action="version", version=f"quash-plugins {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for mod in _commands():
+        p = sub.add_parser(
+            mod.NAME, help=mod.HELP, description=getattr(mod, "DESCRIPTION", mod.HELP),
+            parents=[common], formatter_class=argparse.RawDescriptionHelpFormatter,
+            epilog=getattr(mod, "EPILOG", None),
+        )
+        mod.add_arguments(p)
+        p.set_defaults(_run=mod.run)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "command", None):
+        parser.print_help()
+        return 2
+    setup_logging(args.verbose, args.quiet)
+    try:
+        return int(args._run(args) or 0)
+    except UsageError as exc:
+        if args.debug:
+            raise
+        print(f"quash {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except QuashError as exc:
+        if args.debug:
+            raise
+        print(f"quash {args.command}: error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:
+        if args.debug:
+            raise
+        print(
+            f"quash {args.command}: unexpected error: {type(exc).__name__}: {exc}\n"
+            "Re-run with --debug for the traceback.",
+            file=sys.stderr,
+        )
+        return 1
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

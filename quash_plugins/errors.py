@@ -1,0 +1,59 @@
+"""Exceptions raised for user-facing problems.
+
+Every error a user can cause derives from :class:`QuashError`. The CLI prints the
+message (no traceback unless ``--debug``) and exits with status 1; a
+:class:`UsageError` exits with status 2.
+"""
+
+from __future__ import annotations
+
+import difflib
+from collections.abc import Iterable
+
+
+class QuashError(Exception):
+    """Base class for errors caused by input, configuration or environment."""
+
+
+class UsageError(QuashError):
+    """The command line or API call itself is malformed (CLI exit status 2)."""
+
+
+class ConfigError(QuashError):
+    """A configuration file or parameter is invalid."""
+
+
+class PluginError(QuashError):
+    """A plugin is unknown, ambiguous, failed to import or breaks its interface."""
+
+
+class MapFormatError(QuashError):
+    """A map file or object does not follow the format its adapter expects."""
+
+
+class DimensionMismatchError(QuashError):
+    """The encoder's embedding dimension differs from the map's."""
+
+
+class EncoderError(QuashError):
+    """An encoder cannot produce an embedding (missing weights, missing table entry...)."""
+
+
+class HeuristicError(QuashError):
+    """A heuristic cannot expand a query (unknown label, unreachable LLM...)."""
+
+
+def closest(name: str, known: Iterable[str]) -> str | None:
+    """Return the known name closest to ``name``, or None when nothing is close."""
+    matches = difflib.get_close_matches(name, list(known), n=1, cutoff=0.5)
+    return matches[0] if matches else None
+
+
+def unknown_name_message(what: str, name: str, known: Iterable[str]) -> str:
+    """Format "<what> 'x' is not registered. Known: a, b. Did you mean 'a'?"."""
+    known = sorted(set(known))
+    msg = f"{what} {name!r} is not registered. Known: {', '.join(known) or '(none)'}."
+    guess = closest(name, known)
+    if guess is not None:
+        msg += f" Did you mean {guess!r}?"
+    return msg

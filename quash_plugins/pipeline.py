@@ -1,0 +1,377 @@
+"""The QuASH pipeline: expand, encode, fit, classify, group.
+
+Examples
+--------
+>>> import numpy as np
+>>> from quash_plugins import Quash, LatentMap, registry
+>>> from quash_plugins.encoders import TableEncoder
+>>> enc = TableEncoder(table={"chair": [1, 0, 0], "other": [0, 1, 0],
+...                           "background": [0, 0, 1], "nothing": [0, 1, 1]})
+>>> q = Quash(enc, classifier=registry.create("classifiers", "contrast"))
+>>> m = LatentMap(np.array([[1, .1, 0], [0, 1, .2]], dtype=np.float32))
+>>> q.query(m, "chair").mask.tolist()
+[True, False]
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from sklearn.base import clone
+
+from . import registry
+from ._classify import classify_local
+from ._encoding import load_templates, training_set
+from .config import PluginSpec, QuashConfig
+from .errors import ConfigError, DimensionMismatchError, QuashError
+from .interfaces import Encoder, ExpansionContext, Heuristic
+from .types import DEFAULT_NEGATIVES, LatentMap, QueryResult, QuerySet, check_query
+
+log = logging.getLogger(__name__)
+
+#: Encoder presets by embedding dimension, suggested on a dimension mismatch.
+PRESETS_BY_DIM = {
+    384: "minilm (sentence-transformers all-MiniLM-L6-v2)",
+    512: "open-clip preset 'lseg' (CLIP ViT-B/32, for LSeg/VLMaps maps)",
+    768: "open-clip preset 'openseg' (ViT-L/14@336, for OpenSeg maps)",
+    1024: "open-clip preset 'conceptfusion' (ViT-H-14 laion2b, for ConceptFusion maps)",
+}
+
+
+class Quash:
+    """Answer text queries against latent-semantic maps.
+
+    Parameters
+    ----------
+    encoder
+        Text encoder matching the map's embedding space.
+    heuristic
+        Expands a query into positives and negatives; default ``none``.
+    classifier
+        Unfitted scikit-learn estimator; cloned and fitted per query. Default ``svm-rbf``.
+    negatives
+        Generic negatives always added to the antonyms.
+    threshold
+        Items with ``score > threshold`` match.
+    prompt_templates
+        ``{"mode": "mean"|"all", "templates": "default"|list|path}`` or None.
+    map_negatives
+        Options for map-mined negatives, or None.
+    instances
+        Options for instance grouping (True for defaults), or None/False to skip it.
+    cache
+        A text-embedding cache object, True for the default on-disk cache, or False.
+    chunk_mb
+        Working-set budget of the classification pass.
+    backend
+        ``"numpy"`` (in-process chunks) or ``"dask"``.
+    client
+        A ``dask.distributed.Client`` for the dask backend.
+    """
+
+    def __init__(
+        self,
+        encoder: Encoder,
+        heuristic: Heuristic | None = None,
+        classifier: Any = None,
+        *,
+        negatives: Sequence[str] = DEFAULT_NEGATIVES,
+        threshold: float = 0.0,
+        prompt_templates: dict[str, Any] | None = None,
+        map_negatives: dict[str, Any] | None = None,
+        adapter: str | PluginSpec = "auto",
+        instances: dict[str, Any] | bool | None = True,
+        seed: int = 0,
+        cache: Any = False,
+        chunk_mb: float = 256.0,
+        name: str = "quash",
+        backend: str = "numpy",
+        client: Any = None,
+        device: str = "auto",
+    ) -> None:
+        self.encoder = encoder
+        self.heuristic = heuristic if heuristic is not None else registry.create("heuristics", "none")
+        self.classifier = (
+            classifier if classifier is not None else registry.create("classifiers", "svm-rbf")
+        )
+        self.negatives = list(negatives)
+        self.threshold = float(threshold)
+        self.prompt_templates = prompt_templates
+        self._templates = None
+        if prompt_templates is not None:
+            unknown = set(prompt_templates) - {"mode", "templates"}
+            if unknown:
+                raise ConfigError(
+                    f"prompt_templates does not accept {sorted(unknown)}; it takes mode and templates."
+                )
+            self._templates = load_templates(prompt_templates.get("templates", "default"))
+        self.map_negatives = map_negatives
+        self.adapter = adapter if isinstance(adapter, PluginSpec) else PluginSpec(str(adapter))
+        if instances is True:
+            instances = {}
+        self.instances = dict(instances) if isinstance(instances, dict) else None
+        self.seed = seed
+        self.cache = _open_cache(cache)
+        self.chunk_mb = float(chunk_mb)
+        self.name = name
+        self.backend = backend
+        self.client = client
+        self.device = device
+        self._maps: dict[Any, LatentMap] = {}
+        self._querysets: dict[tuple[str, int], QuerySet] = {}
+
+    # ------------------------------------------------------------------ building
+    @classmethod
+    def from_config(
+        cls, config: str | Path | dict[str, Any] | QuashConfig, **overrides: Any
+    ) -> Quash:
+        """Build from a :class:`QuashConfig`, a dict or a YAML file.
+
+        ``overrides`` replace constructor arguments (e.g. ``cache=False``, ``backend="dask"``).
+        """
+        cfg = QuashConfig.load(config)
+        where = f"{cfg.source}: " if cfg.source else ""
+
+        def build(kind: str, spec: PluginSpec, section: str) -> Any:
+            params = dict(spec.params)
+            obj = registry.load(kind, spec.name) if spec.name else None
+            accepted = registry.accepted_params(obj) if obj is not None else None
+            if "device" not in params and accepted is not None and "device" in accepted:
+                params["device"] = cfg.device
+            try:
+                return registry.create(kind, spec.name, **params)
+            except QuashError as exc:
+                raise type(exc)(f"{where}{section}: {exc}") from None
+
+        try:
+            encoder = build("encoders", cfg.encoder, "encoder")
+            heuristic = build("heuristics", cfg.heuristic, "heuristic")
+            classifier = build("classifiers", cfg.classifier, "classifier")
+        except QuashError as exc:
+            if where and not str(exc).startswith(where):
+                raise type(exc)(f"{where}{exc}") from None
+            raise
+        kwargs: dict[str, Any] = dict(
+            negatives=cfg.negatives,
+            threshold=cfg.threshold,
+            prompt_templates=cfg.prompt_templates,
+            map_negatives=cfg.map_negatives,
+            adapter=cfg.adapter,
+            instances=cfg.instances,
+            seed=cfg.seed,
+            cache=cfg.cache,
+            chunk_mb=cfg.chunk_mb,
+            name=cfg.name,
+            device=cfg.device,
+        )
+        kwargs.update(overrides)
+        return cls(encoder, heuristic, classifier, **kwargs)
+
+    # ------------------------------------------------------------------ maps
+    def read_map(self, source: Any, adapter: str | None = None, **options: Any) -> LatentMap:
+        """Read a map once; later calls with the same unchanged file reuse it."""
+        from .adapters import read_map
+
+        if isinstance(source, LatentMap):
+            return source
+        name = adapter or self.adapter.name
+        opts = {**self.adapter.params, **options} if name == self.adapter.name else options
+        key: Any
+        if isinstance(source, (str, Path)):
+            p = Path(source).expanduser()
+            try:
+                key = (str(p.resolve()), p.stat().st_mtime_ns, name, repr(sorted(opts.items())))
+            except OSError:
+                key = None
+        else:
+            key = (id(source), name)
+        if key is not None and key in self._maps:
+            return self._maps[key]
+        lmap = read_map(source, name, **opts)
+        if key is not None:
+            self._maps[key] = lmap
+        return lmap
+
+    def check_dimension(self, lmap: LatentMap) -> None:
+        """Fail up front when the encoder's dimension differs from the map's."""
+        enc_dim = int(self.encoder.dim)
+        if enc_dim != lmap.dim:
+            where = lmap.source.get("path", "the map")
+            hint = PRESETS_BY_DIM.get(lmap.dim)
+            suggestion = f" A matching encoder: {hint}." if hint else ""
+            raise DimensionMismatchError(
+                f"{where} has {lmap.dim}-dimensional embeddings, but encoder "
+                f"{self.encoder.name!r} produces {enc_dim}-dimensional ones. Use the text "
+                f"encoder that built the map.{suggestion}"
+            )
+
+    # ------------------------------------------------------------------ steps
+    def context(self, lmap: LatentMap | None = None) -> ExpansionContext:
+        return ExpansionContext(
+            encoder=self.encoder,
+            label_names=list(lmap.label_names) if lmap is not None and lmap.label_names else None,
+            map=lmap,
+            seed=self.seed,
+            negatives=tuple(self.negatives),
+            extra={"cache": self.cache},
+        )
+
+    def expand(self, text: str, lmap: LatentMap | None = None) -> QuerySet:
+        """Expand ``text`` into a query set, adding the generic negatives."""
+        text = check_query(text)
+        key = (text, id(lmap) if lmap is not None else 0)
+        if key in self._querysets:
+            return self._querysets[key]
+        qs = self.heuristic.expand(text, self.context(lmap))
+        if not isinstance(qs, QuerySet):
+            raise QuashError(
+                f"Heuristic {getattr(self.heuristic, 'name', '?')!r} returned "
+                f"{type(qs).__name__}, not a QuerySet."
+            )
+        qs = qs.with_negatives(self.negatives)
+        if self.map_negatives is not None and lmap is not None:
+            from .heuristics.mined import add_map_negatives
+
+            qs = add_map_negatives(qs, lmap, self.encoder, cache=self.cache, **self.map_negatives)
+        if not qs.negatives:
+            raise QuashError(
+                f"Query set for {text!r} has no negatives; configure 'negatives' or a heuristic "
+                "that produces antonyms."
+            )
+        if self.prompt_templates is not None:
+            qs.provenance["prompt_templates"] = {
+                "mode": self.prompt_templates.get("mode", "mean"),
+                "count": len(self._templates or []),
+            }
+        self._querysets[key] = qs
+        return qs
+
+    def training_set(self, qs: QuerySet) -> tuple[np.ndarray, np.ndarray, list[str]]:
+        mode = (self.prompt_templates or {}).get("mode", "mean")
+        return training_set(self.encoder, qs, self.cache, self._templates, mode)
+
+    def fit(self, qs: QuerySet) -> Any:
+        """Clone the classifier template and fit it on the query set's embeddings."""
+        X, y, _ = self.training_set(qs)
+        clf = clone(self.classifier)
+        return clf.fit(X, y)
+
+    # ------------------------------------------------------------------ queries
+    def query(self, source: Any, text: str, **read_options: Any) -> QueryResult:
+        """Answer one query. ``source`` is a path, a live map object or a LatentMap."""
+        return self.query_many(source, [text], **read_options)[0]
+
+    def query_many(
+        self, source: Any, texts: Sequence[str], progress: Any = None, **read_options: Any
+    ) -> list[QueryResult]:
+        """Answer several queries with one pass over the map's embeddings."""
+        if isinstance(texts, str):
+            texts = [texts]
+        texts = [check_query(t) for t in texts]
+        if not texts:
+            raise QuashError("No query given.")
+        t0 = time.perf_counter()
+        lmap = self.read_map(source, **read_options)
+        t_read = time.perf_counter() - t0
+        self.check_dimension(lmap)
+        prepared = []
+        for text in texts:
+            timings: dict[str, float] = {"read": t_read / len(texts)}
+            t = time.perf_counter()
+            qs = self.expand(text, lmap)
+            timings["expand"] = time.perf_counter() - t
+            t = time.perf_counter()
+            X, y, _ = self.training_set(qs)
+            timings["encode"] = time.perf_counter() - t
+            t = time.perf_counter()
+            clf = clone(self.classifier).fit(X, y)
+            timings["fit"] = time.perf_counter() - t
+            prepared.append((qs, clf, timings))
+        t = time.perf_counter()
+        classifiers = [p[1] for p in prepared]
+        scores, observed = self._classify(lmap, classifiers, progress)
+        t_cls = (time.perf_counter() - t) / len(texts)
+        results = []
+        for (qs, clf, timings), raw in zip(prepared, scores):
+            timings["classify"] = t_cls
+            t = time.perf_counter()
+            raw = np.asarray(raw, dtype=np.float32)
+            if observed.any():
+                raw[observed] = np.asarray(clf.postprocess_scores(raw[observed]), np.float32)
+                floor = min(float(raw[observed].min()), self.threshold) - 1.0
+            else:
+                floor = self.threshold - 1.0
+            raw[~observed] = floor
+            mask = (raw > self.threshold) & observed
+            display = np.asarray(clf.display_scores(raw, self.threshold), dtype=np.float32)
+            display[~observed] = 0.0
+            timings["postprocess"] = time.perf_counter() - t
+            instances = []
+            if self.instances is not None:
+                from .instances import find_instances
+
+                t = time.perf_counter()
+                instances = find_instances(lmap, mask, display, **self.instances)
+                timings["instances"] = time.perf_counter() - t
+            timings["total"] = sum(timings.values())
+            describe = getattr(clf, "describe", None)
+            results.append(
+                QueryResult(
+                    queryset=qs,
+                    mask=mask,
+                    scores=raw,
+                    display_scores=display,
+                    threshold=self.threshold,
+                    instances=instances,
+                    timings=timings,
+                    classifier=describe() if callable(describe) else type(clf).__name__,
+                    config_name=self.name,
+                    map_source=dict(lmap.source),
+                )
+            )
+        return results
+
+    def _classify(self, lmap: LatentMap, classifiers: list[Any], progress: Any):
+        chunk_bytes = int(self.chunk_mb * 2**20)
+        if self.backend == "dask":
+            from .scale import classify_dask
+
+            return classify_dask(lmap, classifiers, chunk_bytes=chunk_bytes, client=self.client)
+        if self.backend not in ("numpy", "local", None):
+            raise ConfigError(f"Unknown backend {self.backend!r}. Known: numpy, dask.")
+        return classify_local(lmap, classifiers, chunk_bytes, progress)
+
+
+def _open_cache(cache: Any) -> Any:
+    """Turn the ``cache`` setting into a cache object (or None)."""
+    if cache is None or cache is False:
+        return None
+    if os.environ.get("QUASH_NO_CACHE"):
+        return None
+    if cache is True:
+        try:
+            from .encoders.cache import TextEmbeddingCache
+        except ImportError:
+            return None
+        return TextEmbeddingCache()
+    return cache
+
+
+def write_results_npz(path: str | Path, results: Sequence[QueryResult]) -> Path:
+    """Write ``queries (Q,) str``, ``masks (Q, N) bool``, ``scores (Q, N) float32`` atomically."""
+    from ._io import atomic_write
+
+    path = Path(path)
+    queries = np.asarray([r.query for r in results], dtype=str)
+    masks = np.stack([r.mask for r in results]).astype(bool)
+    scores = np.stack([r.scores for r in results]).astype(np.float32)
+    display = np.stack([r.display_scores for r in results]).astype(np.float32)
+    with atomic_write(path, suffix=".npz") as tmp:
+        np.savez(tmp, queries=queries, masks=masks, scores=scores, display_scores=display)
+    return path

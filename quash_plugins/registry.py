@@ -1,0 +1,326 @@
+"""Plugin registry: one entry-point group per plugin kind.
+
+Built-ins register exactly as third parties do, through ``pyproject.toml``::
+
+    [project.entry-points."quash_plugins.encoders"]
+    my-encoder = "my_package.encoder:MyEncoder"
+
+Listing reads distribution metadata only; a plugin is imported on first use and the
+class is cached. An unknown name is answered with the known ones, a plugin that fails
+to import is reported with its distribution while the others keep working, and a name
+claimed by two distributions is an error unless qualified as ``dist:name``.
+
+Examples
+--------
+>>> from quash_plugins import registry
+>>> "svm-rbf" in registry.available("classifiers")
+True
+>>> clf = registry.create("classifiers", "svm-rbf", C=2.0)
+>>> clf.C
+2.0
+"""
+
+from __future__ import annotations
+
+import inspect
+import logging
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from importlib import metadata
+from typing import Any
+
+from .errors import ConfigError, PluginError, closest, unknown_name_message
+
+log = logging.getLogger(__name__)
+
+KINDS: tuple[str, ...] = ("encoders", "heuristics", "classifiers", "adapters")
+GROUP_PREFIX = "quash_plugins."
+_SINGULAR = {k[:-1]: k for k in KINDS}
+_TITLE = {"encoders": "Encoder", "heuristics": "Heuristic", "classifiers": "Classifier",
+          "adapters": "Adapter"}
+
+
+@dataclass
+class PluginInfo:
+    """One registered plugin, as listed by ``quash plugins``."""
+
+    kind: str
+    name: str
+    target: str
+    dist: str
+    version: str
+    status: str = "not loaded"
+    error: str | None = None
+    _loader: Callable[[], Any] | None = field(default=None, repr=False)
+    _obj: Any = field(default=None, repr=False)
+
+    @property
+    def qualified(self) -> str:
+        return f"{self.dist}:{self.name}"
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "kind": self.kind,
+            "name": self.name,
+            "target": self.target,
+            "distribution": self.dist,
+            "version": self.version,
+            "status": self.status,
+            "error": self.error,
+        }
+
+
+_lock = threading.RLock()
+_scanned: dict[str, list[PluginInfo]] = {}
+_manual: dict[str, list[PluginInfo]] = {k: [] for k in KINDS}
+
+
+def normalize_kind(kind: str) -> str:
+    """Accept ``"encoders"`` or ``"encoder"``; reject anything else with the known kinds."""
+    k = str(kind).strip().lower()
+    k = _SINGULAR.get(k, k)
+    if k not in KINDS:
+        raise PluginError(f"Unknown plugin kind {kind!r}. Known: {', '.join(KINDS)}.")
+    return k
+
+
+def _scan(kind: str) -> list[PluginInfo]:
+    with _lock:
+        if kind in _scanned:
+            return _scanned[kind]
+        infos: list[PluginInfo] = []
+        for ep in metadata.entry_points(group=GROUP_PREFIX + kind):
+            dist = getattr(ep, "dist", None)
+            dist_name = dist.metadata["Name"] if dist is not None else "<unknown>"
+            version = dist.version if dist is not None else "?"
+            # The same distribution can be visible twice on sys.path (e.g. an editable
+            # install plus a source checkout): keep one entry per (dist, name).
+            if any(i.name == ep.name and i.dist == dist_name for i in infos):
+                continue
+            infos.append(PluginInfo(kind, ep.name, ep.value, dist_name, version,
+                                    _loader=ep.load))
+        _scanned[kind] = infos
+        return infos
+
+
+def refresh() -> None:
+    """Forget scanned entry points (after installing a plugin at run time)."""
+    with _lock:
+        _scanned.clear()
+
+
+def _all(kind: str) -> list[PluginInfo]:
+    return [*_scan(kind), *_manual[kind]]
+
+
+def register(
+    kind: str, name: str, obj: Any, *, dist: str = "__main__", replace: bool = False
+) -> None:
+    """Register a plugin class (or factory) in this process, for notebooks and tests.
+
+    Parameters
+    ----------
+    kind
+        ``"encoders"``, ``"heuristics"``, ``"classifiers"`` or ``"adapters"``.
+    name
+        The name configs will use.
+    obj
+        The plugin class, or a callable returning an instance.
+    dist
+        Label shown as the distribution; defaults to ``"__main__"``.
+    replace
+        Replace an earlier registration of the same name from the same ``dist``.
+    """
+    kind = normalize_kind(kind)
+    with _lock:
+        existing = [i for i in _manual[kind] if i.name == name and i.dist == dist]
+        if existing and not replace:
+            raise PluginError(
+                f"{_TITLE[kind]} {name!r} is already registered by {dist!r}; "
+                "pass replace=True to replace it."
+            )
+        _manual[kind] = [i for i in _manual[kind] if i not in existing]
+        target = f"{getattr(obj, '__module__', '?')}:{getattr(obj, '__qualname__', repr(obj))}"
+        info = PluginInfo(kind, name, target, dist, "", _obj=obj)
+        _validate(info, obj)
+        _manual[kind].append(info)
+
+
+def unregister(kind: str, name: str, *, dist: str = "__main__") -> None:
+    """Remove a plugin registered with :func:`register`."""
+    kind = normalize_kind(kind)
+    with _lock:
+        _manual[kind] = [i for i in _manual[kind] if not (i.name == name and i.dist == dist)]
+
+
+def available(kind: str) -> list[str]:
+    """Sorted names registered for ``kind``; reads metadata only, imports nothing."""
+    return sorted({i.name for i in _all(normalize_kind(kind))})
+
+
+def plugins(kind: str | None = None, *, load: bool = False) -> list[PluginInfo]:
+    """Every registered plugin (optionally loading each to report its status)."""
+    kinds = KINDS if kind is None else (normalize_kind(kind),)
+    out: list[PluginInfo] = []
+    for k in kinds:
+        for info in _all(k):
+            if load:
+                try:
+                    _load_info(info)
+                except PluginError:
+                    pass
+            out.append(info)
+    return out
+
+
+def _resolve(kind: str, name: str) -> PluginInfo:
+    kind = normalize_kind(kind)
+    name = str(name).strip()
+    infos = _all(kind)
+    if ":" in name:
+        dist, short = name.split(":", 1)
+        for i in infos:
+            if i.name == short and _same_dist(i.dist, dist):
+                return i
+        claims = [i.qualified for i in infos if i.name == short]
+        if claims:
+            raise PluginError(
+                f"{_TITLE[kind]} {short!r} is not provided by distribution {dist!r}. "
+                f"It is provided by: {', '.join(claims)}."
+            )
+        raise PluginError(unknown_name_message(_TITLE[kind], name, available(kind)))
+    matches = [i for i in infos if i.name == name]
+    if not matches:
+        raise PluginError(unknown_name_message(_TITLE[kind], name, available(kind)))
+    dists = {i.dist for i in matches}
+    if len(dists) > 1:
+        raise PluginError(
+            f"{_TITLE[kind]} {name!r} is claimed by several distributions: "
+            f"{', '.join(sorted(dists))}. Qualify it as one of: "
+            f"{', '.join(sorted(i.qualified for i in matches))}."
+        )
+    return matches[0]
+
+
+def _same_dist(a: str, b: str) -> bool:
+    def norm(s: str) -> str:
+        return s.lower().replace("_", "-").replace(".", "-")
+
+    return norm(a) == norm(b)
+
+
+_BASES: dict[str, tuple[str, ...]] = {
+    "encoders": ("encode_text", "dim"),
+    "heuristics": ("expand",),
+    "classifiers": ("fit", "decision_function", "get_params", "set_params"),
+    "adapters": ("sniff", "read"),
+}
+
+
+def _validate(info: PluginInfo, obj: Any) -> None:
+    if not callable(obj):
+        raise PluginError(
+            f"{_TITLE[info.kind]} plugin {info.name!r} from distribution {info.dist!r} "
+            f"points at {info.target}, which is not a class or factory."
+        )
+    if inspect.isclass(obj):
+        missing = [a for a in _BASES[info.kind] if not hasattr(obj, a)]
+        if missing:
+            raise PluginError(
+                f"{_TITLE[info.kind]} plugin {info.name!r} from distribution {info.dist!r} "
+                f"({info.target}) breaks the {info.kind[:-1]} interface: it lacks "
+                f"{', '.join(missing)}."
+            )
+
+
+def _load_info(info: PluginInfo) -> Any:
+    with _lock:
+        if info._obj is not None:
+            info.status = "ok"
+            return info._obj
+        if info.error is not None:
+            raise PluginError(info.error)
+        try:
+            obj = info._loader() if info._loader else None
+        except Exception as exc:  # noqa: BLE001 - any import failure is reported, not raised raw
+            info.status = "error"
+            info.error = (
+                f"{_TITLE[info.kind]} plugin {info.name!r} from distribution "
+                f"{info.dist!r} {info.version} failed to import ({info.target}): "
+                f"{type(exc).__name__}: {exc}"
+            )
+            log.debug("%s", info.error)
+            raise PluginError(info.error) from exc
+        try:
+            _validate(info, obj)
+        except PluginError as exc:
+            info.status = "error"
+            info.error = str(exc)
+            raise
+        info._obj = obj
+        info.status = "ok"
+        return obj
+
+
+def load(kind: str, name: str) -> Any:
+    """Import (once) and return the plugin class or factory registered as ``name``."""
+    return _load_info(_resolve(kind, name))
+
+
+def info(kind: str, name: str) -> PluginInfo:
+    """The :class:`PluginInfo` for ``name`` (without loading it)."""
+    return _resolve(kind, name)
+
+
+def accepted_params(obj: Any) -> list[str] | None:
+    """Keyword parameters a plugin accepts, or None when it takes ``**kwargs``."""
+    target = obj.__init__ if inspect.isclass(obj) else obj
+    try:
+        sig = inspect.signature(target)
+    except (TypeError, ValueError):
+        return None
+    names = []
+    for p in sig.parameters.values():
+        if p.kind is p.VAR_KEYWORD:
+            return None
+        if p.name != "self" and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY):
+            names.append(p.name)
+    return names
+
+
+def create(kind: str, name: str, /, **params: Any) -> Any:
+    """Build the plugin ``name`` of ``kind`` with ``params`` as keyword arguments.
+
+    An unknown parameter is rejected with the list of accepted ones.
+
+    Examples
+    --------
+    >>> from quash_plugins import registry
+    >>> registry.create("heuristics", "none").expand("chair").positives
+    ['chair']
+    """
+    kind = normalize_kind(kind)
+    entry = _resolve(kind, name)
+    obj = _load_info(entry)
+    accepted = accepted_params(obj)
+    if accepted is not None:
+        unknown = [p for p in params if p not in accepted]
+        if unknown:
+            bad = unknown[0]
+            guess = closest(bad, accepted)
+            hint = f" Did you mean {guess!r}?" if guess else ""
+            raise ConfigError(
+                f"{_TITLE[kind]} {entry.name!r} does not accept parameter {bad!r}. "
+                f"Accepted: {', '.join(accepted) or '(none)'}.{hint}"
+            )
+    try:
+        instance = obj(**params)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"{_TITLE[kind]} {entry.name!r}: {exc}") from exc
+    if getattr(instance, "name", None) in (None, "encoder", "heuristic", "adapter"):
+        try:
+            instance.name = entry.name
+        except AttributeError:
+            pass
+    return instance
