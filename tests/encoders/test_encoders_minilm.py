@@ -1,0 +1,148 @@
+"""The ``minilm`` and ``sentence-transformers`` encoders: real model, fully offline."""
+
+from __future__ import annotations
+
+import os
+import socket
+
+import numpy as np
+import pytest
+
+from quash_plugins import registry
+from quash_plugins.errors import EncoderError
+
+pytest.importorskip("sentence_transformers")
+
+
+def _cos(a: np.ndarray, b: np.ndarray) -> float:
+    return float(a @ b / (np.linalg.norm(a) * np.linalg.norm(b)))
+
+
+def test_minilm_semantics(minilm):
+    emb = minilm.encode_text(["chair", "armchair", "bathtub"])
+    assert emb.shape == (3, 384) and emb.dtype == np.float32
+    np.testing.assert_allclose(np.linalg.norm(emb, axis=1), 1.0, atol=1e-5)
+    assert _cos(emb[0], emb[1]) > _cos(emb[0], emb[2]) + 0.1
+
+
+def test_minilm_batches_agree_and_are_deterministic(minilm):
+    texts = ["a red sofa", "kitchen sink", "toilet", "chair", "a lamp on the desk"]
+    whole = minilm.encode_text(texts)
+    one_by_one = np.concatenate([minilm.encode_text([t]) for t in texts])
+    np.testing.assert_allclose(whole, one_by_one, atol=1e-5)
+    assert minilm.encode_text([]).shape == (0, 384)
+
+
+def test_minilm_loads_offline_without_network(monkeypatch):
+    """A fresh MiniLM loads and encodes with every socket connect refused."""
+    from quash_plugins.encoders._sentence_transformers import MiniLMEncoder
+
+    def refuse(*args, **kwargs):
+        raise AssertionError(f"network access attempted: {args!r}")
+
+    monkeypatch.setattr(socket.socket, "connect", refuse)
+    monkeypatch.setattr(socket, "create_connection", refuse)
+    monkeypatch.delenv("HF_HUB_OFFLINE", raising=False)
+    monkeypatch.delenv("TRANSFORMERS_OFFLINE", raising=False)
+    enc = MiniLMEncoder(device="cpu")
+    assert enc.encode_text(["chair"]).shape == (1, 384)
+    # The offline switch is set for the load only, then the environment is restored.
+    assert "HF_HUB_OFFLINE" not in os.environ
+    assert "TRANSFORMERS_OFFLINE" not in os.environ
+
+
+def test_dim_and_fingerprint_without_loading():
+    from quash_plugins.encoders._sentence_transformers import MiniLMEncoder
+
+    enc = MiniLMEncoder(device="cpu")
+    assert enc.dim == 384
+    fp = enc.fingerprint()
+    assert enc._model is None  # neither dim nor fingerprint loaded the model
+    assert fp == MiniLMEncoder(device="cpu", batch_size=3).fingerprint()  # batching is not identity
+    assert fp != MiniLMEncoder(device="cpu", normalize=False).fingerprint()
+
+
+def test_registry_creates_minilm_and_rejects_unknown_params():
+    enc = registry.create("encoders", "minilm", device="cpu")
+    assert enc.name == "minilm" and enc.dim == 384
+    with pytest.raises(Exception, match="nope"):
+        registry.create("encoders", "minilm", nope=1)
+
+
+def test_sentence_transformers_by_path_matches_minilm(minilm, tmp_path):
+    """The generic encoder on a copy of the shipped directory gives the same vectors."""
+    import shutil
+
+    from quash_plugins.encoders._sentence_transformers import (
+        SentenceTransformerEncoder,
+        minilm_model_dir,
+    )
+
+    copy = tmp_path / "model"
+    shutil.copytree(minilm_model_dir(), copy)
+    enc = SentenceTransformerEncoder(model=str(copy), device="cpu")
+    assert enc.dim == 384
+    texts = ["chair", "bathtub"]
+    np.testing.assert_allclose(enc.encode_text(texts), minilm.encode_text(texts), atol=1e-5)
+    # Same weights in another place, another identity string: a different fingerprint is
+    # conservative and fine; a changed weight file must change it.
+    fp = enc.fingerprint()
+    (copy / "config.json").write_text((copy / "config.json").read_text() + "\n")
+    assert SentenceTransformerEncoder(model=str(copy), device="cpu").fingerprint() != fp
+
+
+def test_sentence_transformers_missing_model_says_how_to_fix():
+    from quash_plugins.encoders._sentence_transformers import SentenceTransformerEncoder
+
+    enc = SentenceTransformerEncoder(model="no-such-org/no-such-model", device="cpu")
+    with pytest.raises(EncoderError, match="local Hugging Face cache"):
+        enc.encode_text(["chair"])
+
+
+def test_bad_device_is_a_clear_error():
+    from quash_plugins.encoders._sentence_transformers import MiniLMEncoder
+    from quash_plugins.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="not a torch device"):
+        MiniLMEncoder(device="toaster").encode_text(["x"])
+
+
+def test_auto_device_picks_cpu_without_accelerators(monkeypatch):
+    import torch
+
+    from quash_plugins.encoders._common import resolve_device
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    monkeypatch.setattr(torch.backends.mps, "is_available", lambda: False)
+    assert resolve_device("auto") == "cpu"
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    assert resolve_device("auto") == "cuda"
+    assert resolve_device(None) == "cuda"
+
+
+def test_cuda_requested_without_cuda_fails_clearly(monkeypatch):
+    import torch
+
+    from quash_plugins.encoders._common import resolve_device
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    with pytest.raises(EncoderError, match="CUDA is not available"):
+        resolve_device("cuda")
+
+
+def test_long_encode_reports_progress(minilm, monkeypatch):
+    from quash_plugins.encoders import _sentence_transformers as mod
+
+    calls = []
+    monkeypatch.setattr(mod, "PROGRESS_MIN", 3)
+    import quash_plugins._progress as prog
+
+    real = prog.progress
+
+    def spy(total, description):
+        calls.append(total)
+        return real(total, description)
+
+    monkeypatch.setattr(prog, "progress", spy)
+    minilm.encode_text(["a", "b", "c", "d"])
+    assert calls == [4]
