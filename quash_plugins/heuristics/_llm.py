@@ -1,0 +1,386 @@
+"""``llm`` heuristic: synonyms and antonyms from any OpenAI-compatible chat endpoint.
+
+Works with hosted APIs and with local vLLM, Ollama (``/v1``) and llama.cpp servers: all
+of them speak ``POST {base_url}/chat/completions``. Query sets are cached on disk, so an
+experiment can be re-run with ``offline: true`` and no server at all.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import time
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+from urllib.parse import urlsplit, urlunsplit
+
+from ..errors import ConfigError, HeuristicError
+from ..interfaces import ExpansionContext, Heuristic
+from ..types import QuerySet
+from ._parse import clean_lists, parse_reply
+
+log = logging.getLogger(__name__)
+
+#: Bumped whenever the prompt wording changes; part of every cache key.
+PROMPT_VERSION = "quash-llm-2"
+
+SYSTEM_PROMPT = (
+    "You help a robot find things in a map of an indoor or outdoor scene. "
+    "You reply with a single JSON object and no other text."
+)
+
+USER_PROMPT = """The robot was asked to find: "{query}".
+
+1. List {n_synonyms} semantic synonyms: words or short noun phrases that refer to the same \
+thing or to things a person would accept as a match, such as closely related words, more \
+specific kinds (sub-classes), more general kinds (super-classes) and objects that are part \
+of it or usually attached to it.
+2. List {n_antonyms} semantic antonyms: objects, furniture, structures, surfaces or places \
+that plausibly appear in the same environment as "{query}" but are clearly not it.
+
+Use lowercase singular nouns or short noun phrases, with no explanations and no duplicates. \
+Reply exactly in this form:
+{{"synonyms": ["...", "..."], "antonyms": ["...", "..."]}}"""
+
+#: HTTP statuses worth retrying.
+RETRY_STATUSES = frozenset({408, 409, 425, 429, 500, 502, 503, 504})
+
+
+def default_cache_dir() -> Path:
+    """``$QUASH_CACHE_DIR/llm``, else the user cache dir of quash-plugins, ``/llm``."""
+    root = os.environ.get("QUASH_CACHE_DIR")
+    if root:
+        return Path(root).expanduser() / "llm"
+    import platformdirs
+
+    return Path(platformdirs.user_cache_dir("quash-plugins")) / "llm"
+
+
+def chat_endpoint(base_url: str) -> str:
+    """The chat-completions URL for ``base_url``, without credentials or query string."""
+    parts = urlsplit(base_url.strip())
+    if parts.scheme not in ("http", "https") or not parts.hostname:
+        raise ConfigError(
+            f"Heuristic 'llm': base_url {base_url!r} is not an http(s) URL; e.g. "
+            "http://127.0.0.1:8000/v1 (vLLM), http://127.0.0.1:11434/v1 (Ollama), "
+            "http://127.0.0.1:8080/v1 (llama.cpp)."
+        )
+    netloc = parts.hostname if ":" not in parts.hostname else f"[{parts.hostname}]"
+    if parts.port:
+        netloc += f":{parts.port}"
+    path = parts.path.rstrip("/")
+    if not path.endswith("/chat/completions"):
+        path += "/chat/completions"
+    return urlunsplit((parts.scheme, netloc, path, "", ""))
+
+
+def _import_httpx() -> Any:
+    try:
+        import httpx
+    except ImportError:
+        raise HeuristicError(
+            "Heuristic 'llm' needs httpx: pip install \"quash-plugins[llm]\""
+        ) from None
+    return httpx
+
+
+class LLMHeuristic(Heuristic):
+    """Ask a chat model for synonyms and antonyms of the query.
+
+    Parameters
+    ----------
+    model
+        Model name as the server knows it (``"gpt-4o"``, ``"llama3.1:8b"``...).
+    base_url
+        OpenAI-compatible base URL ending in ``/v1`` (or the full chat-completions URL).
+    api_key_env
+        Name of the environment variable holding the API key, sent as a Bearer token.
+        None for local servers without authentication. The key itself is never logged,
+        cached or recorded.
+    n_synonyms, n_antonyms
+        How many of each to ask for (the paper: 20 and 20).
+    temperature
+        Sampling temperature sent to the server.
+    timeout
+        Seconds per HTTP request.
+    max_retries
+        Retries after the first attempt on 429, 5xx, time-outs, connection errors and
+        unparseable replies.
+    backoff
+        Base delay in seconds; attempt ``k`` waits ``backoff * 2**k`` (or the server's
+        ``Retry-After``, at most 60 s).
+    offline
+        Serve from the cache only; a miss is an error. Needs no server and no key.
+    cache_dir
+        Where query sets are cached; default ``$QUASH_CACHE_DIR/llm`` or the user cache.
+    cache
+        False disables the cache (neither read nor written).
+    json_mode
+        Send ``response_format: {"type": "json_object"}`` (not every server supports it).
+    send_seed
+        Send the config's seed in the request (honoured by most servers).
+
+    Examples
+    --------
+    >>> h = LLMHeuristic(model="llama3.1:8b", base_url="http://127.0.0.1:11434/v1")
+    >>> h.endpoint
+    'http://127.0.0.1:11434/v1/chat/completions'
+    """
+
+    name = "llm"
+
+    def __init__(
+        self,
+        model: str | None = None,
+        base_url: str = "http://127.0.0.1:8000/v1",
+        api_key_env: str | None = None,
+        n_synonyms: int = 20,
+        n_antonyms: int = 20,
+        temperature: float = 0.0,
+        timeout: float = 60.0,
+        max_retries: int = 4,
+        backoff: float = 1.0,
+        offline: bool = False,
+        cache_dir: str | None = None,
+        cache: bool = True,
+        json_mode: bool = False,
+        send_seed: bool = True,
+    ) -> None:
+        if not model:
+            raise ConfigError(
+                "Heuristic 'llm' needs 'model', e.g. heuristic: {name: llm, model: gpt-4o, "
+                "base_url: http://127.0.0.1:8000/v1}."
+            )
+        for field, value in (
+            ("n_synonyms", n_synonyms),
+            ("n_antonyms", n_antonyms),
+            ("max_retries", max_retries),
+        ):
+            if int(value) < 0:
+                raise ConfigError(f"Heuristic 'llm': {field!r} must be >= 0; got {value!r}.")
+        if float(timeout) <= 0:
+            raise ConfigError(f"Heuristic 'llm': 'timeout' must be positive; got {timeout!r}.")
+        self.model = str(model)
+        self.base_url = base_url
+        self.api_key_env = api_key_env
+        self.n_synonyms = int(n_synonyms)
+        self.n_antonyms = int(n_antonyms)
+        self.temperature = float(temperature)
+        self.timeout = float(timeout)
+        self.max_retries = int(max_retries)
+        self.backoff = float(backoff)
+        self.offline = bool(offline)
+        self.cache_dir = cache_dir
+        self.cache = bool(cache)
+        self.json_mode = bool(json_mode)
+        self.send_seed = bool(send_seed)
+        self.endpoint = chat_endpoint(base_url)
+
+    # ------------------------------------------------------------------ provenance
+    def params(self) -> dict[str, Any]:
+        return {
+            "model": self.model,
+            "endpoint": self.endpoint,
+            "api_key_env": self.api_key_env,
+            "n_synonyms": self.n_synonyms,
+            "n_antonyms": self.n_antonyms,
+            "temperature": self.temperature,
+            "offline": self.offline,
+            "json_mode": self.json_mode,
+            "prompt_version": PROMPT_VERSION,
+        }
+
+    # ------------------------------------------------------------------ cache
+    def _cache_root(self) -> Path:
+        return Path(self.cache_dir).expanduser() if self.cache_dir else default_cache_dir()
+
+    def cache_key(self, query: str) -> dict[str, Any]:
+        """What identifies a cached query set (no secrets)."""
+        return {
+            "endpoint": self.endpoint,
+            "model": self.model,
+            "prompt_version": PROMPT_VERSION,
+            "query": query,
+            "n_synonyms": self.n_synonyms,
+            "n_antonyms": self.n_antonyms,
+        }
+
+    def cache_path(self, query: str) -> Path:
+        blob = json.dumps(self.cache_key(query), sort_keys=True).encode()
+        return self._cache_root() / f"{hashlib.sha256(blob).hexdigest()[:32]}.json"
+
+    def _read_cache(self, query: str) -> dict[str, Any] | None:
+        path = self.cache_path(query)
+        if not path.exists():
+            return None
+        try:
+            data = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, ValueError) as exc:
+            log.warning("ignoring unreadable LLM cache file %s: %s", path, exc)
+            return None
+        if data.get("key") != self.cache_key(query):
+            return None
+        return data
+
+    def _write_cache(self, query: str, synonyms: list[str], antonyms: list[str]) -> Path:
+        from .._io import atomic_write_text
+
+        path = self.cache_path(query)
+        record = {
+            "key": self.cache_key(query),
+            "synonyms": synonyms,
+            "antonyms": antonyms,
+            "temperature": self.temperature,
+            "created": datetime.now(UTC).isoformat(timespec="seconds"),
+        }
+        atomic_write_text(path, json.dumps(record, indent=1, ensure_ascii=False))
+        return path
+
+    # ------------------------------------------------------------------ expansion
+    def expand(self, query: str, context: ExpansionContext | None = None) -> QuerySet:
+        cached = self._read_cache(query) if self.cache else None
+        source = "cache"
+        if cached is not None:
+            synonyms, antonyms = list(cached["synonyms"]), list(cached["antonyms"])
+            log.info("llm: %r served from cache %s", query, self.cache_path(query))
+        elif self.offline:
+            where = self._cache_root() if self.cache else "(cache disabled)"
+            raise HeuristicError(
+                f"Heuristic 'llm' is offline and has no cached query set for {query!r} "
+                f"(model {self.model!r}, endpoint {self.endpoint}, prompt {PROMPT_VERSION}, "
+                f"n_synonyms {self.n_synonyms}, n_antonyms {self.n_antonyms}) in {where}. "
+                "Run once with offline: false, or point cache_dir at the cache that has it."
+            )
+        else:
+            seed = context.seed if context is not None else None
+            synonyms, antonyms = self.ask(query, seed)
+            source = "server"
+            if self.cache:
+                if synonyms or antonyms:
+                    self._write_cache(query, synonyms, antonyms)
+                else:
+                    log.warning("llm: empty reply for %r is not cached", query)
+        if not synonyms and not antonyms:
+            log.warning("llm: %s returned no synonyms and no antonyms for %r", self.model, query)
+        extra: dict[str, Any] = {"source": source, "prompt_version": PROMPT_VERSION}
+        if self.cache:
+            extra["cache_file"] = str(self.cache_path(query))
+        return QuerySet(query, [query, *synonyms], antonyms, self.provenance(context, **extra))
+
+    def request_body(self, query: str, seed: int | None = None) -> dict[str, Any]:
+        """The chat-completions request for ``query``."""
+        user = USER_PROMPT.format(
+            query=query, n_synonyms=self.n_synonyms, n_antonyms=self.n_antonyms
+        )
+        body: dict[str, Any] = {
+            "model": self.model,
+            "messages": [
+                {"role": "system", "content": SYSTEM_PROMPT},
+                {"role": "user", "content": user},
+            ],
+            "temperature": self.temperature,
+        }
+        if self.json_mode:
+            body["response_format"] = {"type": "json_object"}
+        if self.send_seed and seed is not None:
+            body["seed"] = int(seed)
+        return body
+
+    def _headers(self) -> dict[str, str]:
+        headers = {"Content-Type": "application/json", "Accept": "application/json"}
+        if self.api_key_env:
+            key = os.environ.get(self.api_key_env)
+            if not key:
+                raise HeuristicError(
+                    f"Heuristic 'llm': environment variable {self.api_key_env!r} (api_key_env) "
+                    "is not set. Export the API key there, or set api_key_env: null for a "
+                    "server without authentication."
+                )
+            headers["Authorization"] = f"Bearer {key}"
+        return headers
+
+    def ask(self, query: str, seed: int | None = None) -> tuple[list[str], list[str]]:
+        """Call the server (with retries) and return cleaned ``(synonyms, antonyms)``."""
+        httpx = _import_httpx()
+        body = self.request_body(query, seed)
+        headers = self._headers()
+        last = "no attempt made"
+        attempts = self.max_retries + 1
+        with httpx.Client(timeout=httpx.Timeout(self.timeout)) as client:
+            for attempt in range(attempts):
+                wait = self.backoff * (2**attempt)
+                log.info(
+                    "llm: asking %s (%s) for %r, attempt %d/%d",
+                    self.endpoint,
+                    self.model,
+                    query,
+                    attempt + 1,
+                    attempts,
+                )
+                try:
+                    resp = client.post(self.endpoint, json=body, headers=headers)
+                except httpx.TimeoutException:
+                    last = f"timed out after {self.timeout:g} s"
+                except httpx.TransportError as exc:
+                    last = f"connection failed ({type(exc).__name__})"
+                else:
+                    status = resp.status_code
+                    if status == 200:
+                        try:
+                            content = _content(resp)
+                            syn, ant = parse_reply(content)
+                            return clean_lists(query, syn, ant, self.n_synonyms, self.n_antonyms)
+                        except ValueError as exc:
+                            last = f"status 200 with an unusable reply ({exc})"
+                    elif status in RETRY_STATUSES:
+                        last = f"status {status}"
+                        wait = max(wait, _retry_after(resp))
+                    else:
+                        hint = {
+                            401: " Check the API key in api_key_env.",
+                            403: " Check the API key in api_key_env.",
+                            404: " Check base_url (it usually ends in /v1) and the model name.",
+                        }.get(status, "")
+                        raise HeuristicError(
+                            f"Heuristic 'llm': {self.endpoint} answered status {status}: "
+                            f"{_snippet(resp.text)}.{hint}"
+                        )
+                log.warning("llm: %s %s", self.endpoint, last)
+                if attempt + 1 < attempts:
+                    time.sleep(min(wait, 60.0))
+        raise HeuristicError(
+            f"Heuristic 'llm': no usable reply from {self.endpoint} (model {self.model!r}) for "
+            f"{query!r} after {attempts} attempt(s); last: {last}. Check that the server is "
+            "running, raise max_retries or timeout, or use offline: true with a filled cache."
+        )
+
+
+def _content(resp: Any) -> str:
+    """The assistant message of a chat-completions response; ValueError when malformed."""
+    try:
+        data = resp.json()
+    except ValueError:
+        raise ValueError(f"body is not JSON: {_snippet(resp.text)}") from None
+    try:
+        content = data["choices"][0]["message"]["content"]
+    except (KeyError, IndexError, TypeError):
+        raise ValueError(f"no choices[0].message.content in {_snippet(resp.text)}") from None
+    if not isinstance(content, str):
+        raise ValueError("message content is not text")
+    return content
+
+
+def _retry_after(resp: Any) -> float:
+    value = resp.headers.get("retry-after")
+    try:
+        return max(0.0, float(value)) if value is not None else 0.0
+    except ValueError:
+        return 0.0
+
+
+def _snippet(text: str, n: int = 160) -> str:
+    text = " ".join(str(text).split())
+    return repr(text if len(text) <= n else text[:n] + "...")

@@ -1,0 +1,202 @@
+"""Robust parsing of a language model's synonym/antonym reply.
+
+Accepted forms, tried in order:
+
+1. A JSON object ``{"synonyms": [...], "antonyms": [...]}``, bare, inside a
+   ```` ```json ```` fence, or embedded in prose (the first balanced ``{...}`` that parses).
+   ``positives``/``negatives`` are accepted as key aliases; a string value is split
+   like a list.
+2. Sections introduced by a heading that names synonyms or antonyms (``Synonyms:``,
+   ``**Antonyms**``, ``## Antonyms``), each holding a numbered or bulleted list, one
+   item per line, or a comma-separated list (also on the heading line itself).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from typing import Any
+
+_SYN_KEYS = ("synonyms", "synonym", "positives", "positive")
+_ANT_KEYS = ("antonyms", "antonym", "negatives", "negative")
+_FENCE = re.compile(r"```(?:json|JSON)?\s*(.*?)```", re.S)
+_HEADING = re.compile(
+    r"^[\s#>*_\-\d.)]*\b(synonyms?|antonyms?|positives?|negatives?)\b[\s*_:\-]*(.*)$", re.I
+)
+_BULLET = re.compile(r"^\s*(?:[-*+\u2022]|\(?\d{1,3}[.):]|[a-zA-Z][.)])\s+")
+_MAX_WORDS = 6
+_MAX_CHARS = 60
+
+
+def parse_reply(text: str) -> tuple[list[str], list[str]]:
+    """Return raw ``(synonyms, antonyms)`` from a reply; ValueError when neither is found.
+
+    Examples
+    --------
+    >>> parse_reply('Sure! ```json\\n{"synonyms": ["seat"], "antonyms": ["table"]}\\n```')
+    (['seat'], ['table'])
+    >>> parse_reply("Synonyms:\\n1. seat\\n2. stool\\nAntonyms: table, lamp")
+    (['seat', 'stool'], ['table', 'lamp'])
+    """
+    if not isinstance(text, str) or not text.strip():
+        raise ValueError("empty reply")
+    for obj in _json_candidates(text):
+        found = _from_json(obj)
+        if found is not None:
+            return found
+    found = _from_sections(text)
+    if found is not None:
+        return found
+    raise ValueError(f"no synonyms/antonyms lists found in {_short(text)}")
+
+
+def clean_lists(
+    query: str, synonyms: list[str], antonyms: list[str], n_syn: int, n_ant: int
+) -> tuple[list[str], list[str]]:
+    """Normalise, dedupe and cap; drop the query and synonyms from the antonyms.
+
+    Examples
+    --------
+    >>> clean_lists("chair", ["Seat", "seat", "chair"], ["chair", "seat", "table"], 5, 5)
+    (['seat'], ['table'])
+    """
+    q = _norm(query)
+    syn = [s for s in _dedupe(synonyms) if s != q][: max(0, n_syn)]
+    taken = {q, *syn}
+    ant = [a for a in _dedupe(antonyms) if a not in taken][: max(0, n_ant)]
+    return syn, ant
+
+
+# ---------------------------------------------------------------------- JSON
+def _json_candidates(text: str) -> list[Any]:
+    out: list[Any] = []
+    blocks = [m.group(1) for m in _FENCE.finditer(text)] + [text]
+    for block in blocks:
+        try:
+            out.append(json.loads(block))
+            continue
+        except ValueError:
+            pass
+        for start in [i for i, c in enumerate(block) if c == "{"][:20]:
+            sub = _balanced(block, start)
+            if sub is None:
+                continue
+            try:
+                out.append(json.loads(sub))
+                break
+            except ValueError:
+                continue
+    return out
+
+
+def _balanced(text: str, start: int) -> str | None:
+    depth, in_str, esc = 0, False, False
+    for i in range(start, len(text)):
+        c = text[i]
+        if in_str:
+            if esc:
+                esc = False
+            elif c == "\\":
+                esc = True
+            elif c == '"':
+                in_str = False
+        elif c == '"':
+            in_str = True
+        elif c == "{":
+            depth += 1
+        elif c == "}":
+            depth -= 1
+            if depth == 0:
+                return text[start : i + 1]
+    return None
+
+
+def _from_json(obj: Any) -> tuple[list[str], list[str]] | None:
+    if not isinstance(obj, dict):
+        return None
+    low = {str(k).strip().lower(): v for k, v in obj.items()}
+    syn_key = next((k for k in _SYN_KEYS if k in low), None)
+    ant_key = next((k for k in _ANT_KEYS if k in low), None)
+    if syn_key is None and ant_key is None:
+        return None
+    return _as_list(low.get(syn_key)), _as_list(low.get(ant_key))
+
+
+def _as_list(value: Any) -> list[str]:
+    if value is None:
+        return []
+    if isinstance(value, str):
+        return _split_items(value)
+    if isinstance(value, (list, tuple)):
+        out = []
+        for v in value:
+            if isinstance(v, str):
+                out.append(v)
+            elif isinstance(v, dict):  # e.g. {"word": "seat"} or {"name": ...}
+                text = next((x for x in v.values() if isinstance(x, str)), None)
+                if text:
+                    out.append(text)
+        return out
+    raise ValueError(f"expected a list, got {type(value).__name__}")
+
+
+# ---------------------------------------------------------------------- text lists
+def _from_sections(text: str) -> tuple[list[str], list[str]] | None:
+    sections: dict[str, list[str]] = {}
+    current: str | None = None
+    for line in text.splitlines():
+        head = _HEADING.match(line)
+        if head and _is_heading(line, head):
+            word = head.group(1).lower()
+            current = "syn" if word.startswith(("syn", "pos")) else "ant"
+            sections.setdefault(current, [])
+            rest = head.group(2).strip()
+            if rest:
+                sections[current].extend(_split_items(rest))
+            continue
+        if current is None or not line.strip():
+            continue
+        sections[current].extend(_split_items(line))
+    if not sections:
+        return None
+    return sections.get("syn", []), sections.get("ant", [])
+
+
+def _is_heading(line: str, match: re.Match) -> bool:
+    # "Synonyms:" / "**Antonyms**" / "## Synonyms (20)" but not "1. synonym dictionary"
+    before = line[: match.start(1)]
+    return not _BULLET.match(line) or bool(re.search(r"[#*]", before))
+
+
+def _split_items(line: str) -> list[str]:
+    line = _BULLET.sub("", line.strip())
+    parts = re.split(r"[,;\n]", line) if re.search(r"[,;]", line) else [line]
+    return [p for p in (x.strip() for x in parts) if p]
+
+
+# ---------------------------------------------------------------------- items
+def _norm(item: str) -> str:
+    s = _BULLET.sub("", str(item).strip())
+    s = re.sub(r"\s*[\(\[].*?[\)\]]\s*", " ", s)  # "(optional)" notes
+    s = re.sub(r"\s+[-\u2013\u2014:]\s+.*$", "", s)  # "seat - used for sitting"
+    s = s.strip().strip("\"'`*_.,;:!?").strip()
+    return " ".join(s.lower().split())
+
+
+def _dedupe(items: list[str]) -> list[str]:
+    out: list[str] = []
+    seen: set[str] = set()
+    for raw in items:
+        s = _norm(raw)
+        if not s or s in seen or len(s) > _MAX_CHARS or len(s.split()) > _MAX_WORDS:
+            continue
+        if not re.search(r"[a-z0-9]", s):
+            continue
+        seen.add(s)
+        out.append(s)
+    return out
+
+
+def _short(text: str, n: int = 120) -> str:
+    text = " ".join(text.split())
+    return repr(text if len(text) <= n else text[:n] + "...")

@@ -1,0 +1,342 @@
+"""The ``llm`` heuristic against a real chat-completions server on loopback."""
+
+from __future__ import annotations
+
+import json
+import logging
+import threading
+import time
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+
+import pytest
+
+from quash_plugins import registry
+from quash_plugins.errors import ConfigError, HeuristicError
+from quash_plugins.heuristics._llm import PROMPT_VERSION, LLMHeuristic, chat_endpoint
+from quash_plugins.interfaces import ExpansionContext
+
+SECRET = "sk-test-not-a-real-key-1234567890"
+
+
+def _completion(content: str) -> bytes:
+    return json.dumps(
+        {
+            "id": "chatcmpl-test",
+            "object": "chat.completion",
+            "model": "test-model",
+            "choices": [
+                {
+                    "index": 0,
+                    "message": {"role": "assistant", "content": content},
+                    "finish_reason": "stop",
+                }
+            ],
+        }
+    ).encode()
+
+
+GOOD = json.dumps(
+    {
+        "synonyms": ["seat", "armchair", "Seat", "stool", "chair"],
+        "antonyms": ["table", "chair", "lamp", "stool", "rug"],
+    }
+)
+
+
+class ChatServer:
+    """A tiny chat-completions server; ``script`` holds the replies to play, in order.
+
+    Each entry is ``(status, body_bytes, headers, delay_s)``; when the script is empty the
+    server answers ``default`` with status 200.
+    """
+
+    def __init__(self) -> None:
+        self.script: list[tuple[int, bytes, dict[str, str], float]] = []
+        self.default = GOOD
+        self.requests: list[dict] = []
+        self.times: list[float] = []
+        outer = self
+
+        class Handler(BaseHTTPRequestHandler):
+            def log_message(self, *args):  # keep test output clean
+                pass
+
+            def do_POST(self):  # noqa: N802 - http.server API
+                length = int(self.headers.get("Content-Length", 0))
+                body = json.loads(self.rfile.read(length) or b"{}")
+                outer.requests.append(
+                    {"path": self.path, "headers": dict(self.headers), "body": body}
+                )
+                outer.times.append(time.monotonic())
+                if outer.script:
+                    status, payload, headers, delay = outer.script.pop(0)
+                else:
+                    status, payload, headers, delay = 200, _completion(outer.default), {}, 0.0
+                if delay:
+                    time.sleep(delay)
+                try:
+                    self.send_response(status)
+                    self.send_header("Content-Type", "application/json")
+                    self.send_header("Content-Length", str(len(payload)))
+                    for k, v in headers.items():
+                        self.send_header(k, v)
+                    self.end_headers()
+                    self.wfile.write(payload)
+                except (BrokenPipeError, ConnectionResetError):
+                    pass
+
+        self.httpd = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+        self.httpd.daemon_threads = True
+        self.thread = threading.Thread(
+            target=self.httpd.serve_forever, kwargs={"poll_interval": 0.02}, daemon=True
+        )
+        self.thread.start()
+        self.base_url = f"http://127.0.0.1:{self.httpd.server_address[1]}/v1"
+
+    def play(
+        self,
+        status: int = 200,
+        content: str | None = None,
+        raw: bytes | None = None,
+        headers: dict[str, str] | None = None,
+        delay: float = 0.0,
+    ) -> None:
+        payload = raw if raw is not None else _completion(content if content is not None else GOOD)
+        self.script.append((status, payload, headers or {}, delay))
+
+    def close(self) -> None:
+        self.httpd.shutdown()
+        self.httpd.server_close()
+
+
+@pytest.fixture
+def server():
+    s = ChatServer()
+    yield s
+    s.close()
+
+
+@pytest.fixture(autouse=True)
+def _cache_env(tmp_path, monkeypatch):
+    monkeypatch.setenv("QUASH_CACHE_DIR", str(tmp_path / "quash-cache"))
+
+
+def make(server, tmp_path, **kw):
+    params = dict(
+        model="test-model",
+        base_url=server.base_url,
+        timeout=2.0,
+        max_retries=2,
+        backoff=0.01,
+        cache_dir=str(tmp_path / "llm"),
+    )
+    params.update(kw)
+    return registry.create("heuristics", "llm", **params)
+
+
+def test_success_parses_and_cleans(server, tmp_path):
+    qs = make(server, tmp_path).expand("chair", ExpansionContext(seed=3))
+    assert qs.positives == ["chair", "seat", "armchair", "stool"]
+    # query and synonyms removed from antonyms, order kept
+    assert qs.negatives == ["table", "lamp", "rug"]
+    req = server.requests[0]
+    assert req["path"] == "/v1/chat/completions"
+    assert req["body"]["model"] == "test-model"
+    assert req["body"]["seed"] == 3
+    assert [m["role"] for m in req["body"]["messages"]] == ["system", "user"]
+    assert '"chair"' in req["body"]["messages"][1]["content"]
+    assert "response_format" not in req["body"]
+    assert qs.provenance["heuristic"] == "llm"
+    assert qs.provenance["prompt_version"] == PROMPT_VERSION
+    assert qs.provenance["source"] == "server"
+
+
+def test_json_mode_and_counts_in_prompt(server, tmp_path):
+    make(server, tmp_path, json_mode=True, n_synonyms=7, n_antonyms=9).expand("sofa")
+    body = server.requests[0]["body"]
+    assert body["response_format"] == {"type": "json_object"}
+    assert "7" in body["messages"][1]["content"] and "9" in body["messages"][1]["content"]
+
+
+def test_counts_cap_the_lists(server, tmp_path):
+    qs = make(server, tmp_path, n_synonyms=1, n_antonyms=2).expand("chair")
+    assert qs.positives == ["chair", "seat"]
+    assert qs.negatives == ["table", "lamp"]
+
+
+def test_500_then_success(server, tmp_path):
+    server.play(500, raw=b'{"error": "boom"}')
+    qs = make(server, tmp_path).expand("chair")
+    assert len(server.requests) == 2
+    assert "seat" in qs.positives
+
+
+def test_429_honours_retry_after(server, tmp_path):
+    server.play(429, raw=b'{"error": "slow down"}', headers={"Retry-After": "0.3"})
+    qs = make(server, tmp_path, backoff=0.001).expand("chair")
+    assert len(server.requests) == 2
+    assert server.times[1] - server.times[0] >= 0.28
+    assert "seat" in qs.positives
+
+
+def test_timeout_then_success(server, tmp_path):
+    server.play(delay=1.0)  # longer than the client's time-out
+    t = time.monotonic()
+    qs = make(server, tmp_path, timeout=0.3).expand("chair")
+    assert time.monotonic() - t < 1.5
+    assert len(server.requests) == 2
+    assert "seat" in qs.positives
+
+
+def test_retries_exhausted_names_endpoint_and_status(server, tmp_path):
+    for _ in range(3):
+        server.play(503, raw=b"{}")
+    h = make(server, tmp_path, max_retries=2)
+    with pytest.raises(HeuristicError) as err:
+        h.expand("chair")
+    msg = str(err.value)
+    assert h.endpoint in msg and "status 503" in msg and "3 attempt" in msg
+    assert len(server.requests) == 3
+
+
+def test_timeouts_exhausted(server, tmp_path):
+    server.play(delay=0.6)
+    server.play(delay=0.6)
+    with pytest.raises(HeuristicError, match="timed out"):
+        make(server, tmp_path, timeout=0.2, max_retries=1).expand("chair")
+
+
+def test_malformed_reply_then_good(server, tmp_path):
+    server.play(raw=b"this is not json at all")
+    qs = make(server, tmp_path).expand("chair")
+    assert "seat" in qs.positives and len(server.requests) == 2
+
+
+def test_malformed_reply_error(server, tmp_path):
+    for _ in range(2):
+        server.play(content="I am sorry, I cannot help with that request.")
+    with pytest.raises(HeuristicError, match="unusable reply"):
+        make(server, tmp_path, max_retries=1).expand("chair")
+    # nothing cached for a failure
+    assert not list((tmp_path / "llm").glob("*.json"))
+
+
+def test_client_error_is_not_retried(server, tmp_path):
+    server.play(404, raw=b'{"error": "model not found"}')
+    with pytest.raises(HeuristicError, match="status 404.*model not found"):
+        make(server, tmp_path).expand("chair")
+    assert len(server.requests) == 1
+
+
+def test_empty_lists(server, tmp_path):
+    server.default = '{"synonyms": [], "antonyms": []}'
+    h = make(server, tmp_path)
+    qs = h.expand("chair")
+    assert qs.positives == ["chair"] and qs.negatives == []
+    assert not h.cache_path("chair").exists()  # an empty reply is not frozen in the cache
+
+
+def test_prose_around_json_block(server, tmp_path):
+    server.default = (
+        "Of course! Here are the words you asked for:\n```json\n"
+        '{"synonyms": ["seat", "stool"], "antonyms": ["desk"]}\n```\nLet me know if ...'
+    )
+    qs = make(server, tmp_path).expand("chair")
+    assert qs.positives == ["chair", "seat", "stool"] and qs.negatives == ["desk"]
+
+
+def test_numbered_list_reply(server, tmp_path):
+    server.default = "Synonyms:\n1. Seat\n2. stool\n\nAntonyms:\n1) table\n2) seat\n3) lamp"
+    qs = make(server, tmp_path).expand("chair")
+    assert qs.positives == ["chair", "seat", "stool"] and qs.negatives == ["table", "lamp"]
+
+
+def test_cache_and_offline(server, tmp_path):
+    h = make(server, tmp_path)
+    first = h.expand("chair")
+    assert h.cache_path("chair").exists()
+    again = make(server, tmp_path).expand("chair")
+    assert len(server.requests) == 1  # served from cache
+    assert again.positives == first.positives and again.negatives == first.negatives
+    assert again.provenance["source"] == "cache"
+    server.close()
+    offline = make(server, tmp_path, offline=True)
+    qs = offline.expand("chair")
+    assert qs.positives == first.positives
+    with pytest.raises(HeuristicError, match="offline.*'table'"):
+        offline.expand("table")
+    # a different model or prompt count is a different key
+    with pytest.raises(HeuristicError, match="offline"):
+        make(server, tmp_path, offline=True, model="other-model").expand("chair")
+    with pytest.raises(HeuristicError, match="offline"):
+        make(server, tmp_path, offline=True, n_synonyms=5).expand("chair")
+    server.httpd = _Dummy()  # already closed
+
+
+class _Dummy:
+    def shutdown(self):
+        pass
+
+    def server_close(self):
+        pass
+
+
+def test_server_down_is_clear(tmp_path):
+    s = ChatServer()
+    url = s.base_url
+    s.close()
+    h = registry.create(
+        "heuristics",
+        "llm",
+        model="m",
+        base_url=url,
+        timeout=0.5,
+        max_retries=1,
+        backoff=0.01,
+        cache_dir=str(tmp_path / "c"),
+    )
+    with pytest.raises(HeuristicError, match="connection failed"):
+        h.expand("chair")
+
+
+def test_default_cache_dir_honours_env(server, tmp_path):
+    h = make(server, tmp_path, cache_dir=None)
+    h.expand("chair")
+    assert h.cache_path("chair").parent == tmp_path / "quash-cache" / "llm"
+    assert h.cache_path("chair").exists()
+
+
+def test_api_key_sent_but_never_stored(server, tmp_path, monkeypatch, caplog):
+    monkeypatch.setenv("MY_LLM_KEY", SECRET)
+    caplog.set_level(logging.DEBUG)
+    h = make(server, tmp_path, api_key_env="MY_LLM_KEY")
+    qs = h.expand("chair")
+    assert server.requests[0]["headers"]["Authorization"] == f"Bearer {SECRET}"
+    for f in (tmp_path / "llm").rglob("*"):
+        if f.is_file():
+            assert SECRET not in f.read_text()
+    assert SECRET not in json.dumps(qs.to_dict())
+    assert SECRET not in qs.to_yaml()
+    assert SECRET not in caplog.text
+    assert SECRET not in repr(vars(h))
+
+
+def test_missing_key_env_is_clear(server, tmp_path, monkeypatch):
+    monkeypatch.delenv("NO_SUCH_KEY_VAR", raising=False)
+    with pytest.raises(HeuristicError, match="NO_SUCH_KEY_VAR"):
+        make(server, tmp_path, api_key_env="NO_SUCH_KEY_VAR").expand("chair")
+    assert not server.requests
+
+
+def test_config_errors():
+    with pytest.raises(ConfigError, match="model"):
+        LLMHeuristic()
+    with pytest.raises(ConfigError, match="base_url"):
+        LLMHeuristic(model="m", base_url="localhost:8000")
+
+
+def test_endpoint_forms():
+    assert chat_endpoint("http://h:1/v1/") == "http://h:1/v1/chat/completions"
+    assert chat_endpoint("http://h:1/v1/chat/completions") == "http://h:1/v1/chat/completions"
+    # credentials and query strings never reach cache keys or provenance
+    assert chat_endpoint("https://user:pw@h/v1?key=x") == "https://h/v1/chat/completions"
