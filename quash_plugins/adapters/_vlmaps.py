@@ -1,0 +1,333 @@
+"""``vlmaps``: the current VLMaps 3D package's HDF5 map (``vlmap/vlmaps.h5df``).
+
+VLMaps writes one HDF5 file per scene (``vlmap/vlmaps.h5df`` for mobile-base maps,
+``vlmap_cam/vlmaps_cam.h5df`` for camera-base maps; forks use names such as
+``vlmaps-lseg-0.05.h5df``). Datasets:
+
+================== ================ ===================================================
+``grid_feat``      (N, D) float     LSeg/CLIP features, arbitrary norms (required)
+``grid_pos``       (N, 3) int32     ``[row, col, height]`` cells (required)
+``grid_rgb``       (N, 3) uint8     colour (float 0-255 in some builds)
+``weight``         (N,) float32     accumulated fusion weight
+``occupied_ids``   (gs, gs, vh)     -1 where empty, else the row index
+``mapped_iter_list`` (F,) int32     frames already fused
+``pcd_min/pcd_max`` (3,) float      camera-base maps only
+``cs``             scalar           camera-base maps only: cell size in metres
+``grid_semantic``  (N,) int         forks: ground-truth class per row
+================== ================ ===================================================
+
+Only ``grid_feat`` and ``grid_pos`` are required. ``grid_feat`` stays an ``h5py.Dataset``
+(never copied; float16 stays float16) and is L2-normalised chunk by chunk when read
+(``LatentMap.normalize``). Zero rows are unobserved and never match.
+
+The ``h5py.File`` is opened read-only and stays open as long as the returned
+:class:`~quash_plugins.types.LatentMap` lives: it is kept on the attribute
+``lmap.h5file`` (not in ``source``, which must stay plain metadata that serialises to
+YAML/JSON) and closed by a ``weakref.finalize`` when the map is garbage-collected.
+Call ``lmap.h5file.close()`` to release it earlier.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import weakref
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import MapFormatError, QuashError
+from ..interfaces import MapAdapter
+from ..types import LatentMap
+from ._vlmaps_common import (
+    DEFAULT_CS,
+    DEFAULT_GS,
+    POSE_TYPES,
+    camera_base_positions,
+    check_labels,
+    find_obj2cls,
+    fit_label_names,
+    load_label_names,
+    mobile_base_positions,
+    rgb_to_uint8,
+    scan_finite,
+)
+
+log = logging.getLogger(__name__)
+
+REQUIRED = ("grid_feat", "grid_pos")
+SUFFIXES = (".h5df", ".h5", ".hdf5", ".hdf")
+#: File names VLMaps writes, looked up when the source is a directory.
+KNOWN_NAMES = ("vlmap/vlmaps.h5df", "vlmap_cam/vlmaps_cam.h5df", "vlmaps.h5df", "vlmaps_cam.h5df")
+
+
+def import_h5py() -> Any:
+    try:
+        import h5py
+    except ImportError:  # pragma: no cover - h5py is a dev dependency
+        raise QuashError(
+            'Reading VLMaps HDF5 maps needs h5py: pip install "quash-plugins[hdf5]"'
+        ) from None
+    return h5py
+
+
+def resolve_h5(source: Any) -> Path | None:
+    """The HDF5 file for ``source``: the file itself, or VLMaps' file inside a folder."""
+    if not isinstance(source, (str, Path)):
+        return None
+    p = Path(source).expanduser()
+    if p.is_file():
+        return p
+    if p.is_dir():
+        for name in KNOWN_NAMES:
+            if (p / name).is_file():
+                return p / name
+        hits = sorted(q for q in p.iterdir() if q.suffix in (".h5df",) and q.is_file())
+        if len(hits) == 1:
+            return hits[0]
+    return None
+
+
+class VLMapsAdapter(MapAdapter):
+    """Read a VLMaps 3D HDF5 map (``vlmaps.h5df``, ``vlmaps_cam.h5df``, any ``*.h5df``/``*.h5``
+    holding ``grid_feat`` and ``grid_pos``).
+
+    Parameters
+    ----------
+    gs
+        Grid size in cells for mobile-base maps (VLMaps ``map_config.grid_size``, 1000).
+    cs
+        Cell size in metres (``map_config.cell_size``, 0.05). Camera-base files store
+        their own ``cs``; an explicit value here overrides it.
+    pose_type
+        ``"auto"`` (camera-base when the file holds ``pcd_min``), ``"mobile_base"`` or
+        ``"camera_base"``.
+    label_names
+        Names of the ``grid_semantic`` class ids: a ``.txt`` (one per line, or VLMaps'
+        ``obj2cls_dict.txt``), ``.yaml``/``.json`` list or ``{id: name}``, or the
+        list/mapping itself. Default: an ``obj2cls_dict.txt`` next to the map, if any.
+    semantic_field
+        Dataset holding ground truth (``grid_semantic``); missing is fine.
+    check_finite
+        Scan ``grid_feat`` once at read time for NaN/Inf and unreadable (truncated)
+        chunks. Set False for very large maps: the query pass still rejects NaN/Inf.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> a = VLMapsAdapter()
+    >>> path = a.write_example(pathlib.Path(tempfile.mkdtemp()))
+    >>> m = a.read(path)
+    >>> m.kind, m.n, m.normalize
+    ('voxels', 60, True)
+    """
+
+    name = "vlmaps"
+    priority = 20
+
+    def __init__(
+        self,
+        gs: int | None = None,
+        cs: float | None = None,
+        pose_type: str = "auto",
+        label_names: Any = None,
+        semantic_field: str = "grid_semantic",
+        check_finite: bool = True,
+    ) -> None:
+        self.gs = gs
+        self.cs = cs
+        self.pose_type = pose_type
+        self.label_names = label_names
+        self.semantic_field = semantic_field
+        self.check_finite = check_finite
+
+    # ------------------------------------------------------------------ sniff
+    def sniff(self, source: Any) -> bool:
+        try:
+            path = resolve_h5(source)
+            if path is None:
+                return False
+            import h5py
+
+            if not h5py.is_hdf5(path):
+                return False
+            with h5py.File(path, "r") as f:
+                return all(k in f for k in REQUIRED)
+        except Exception:  # noqa: BLE001 - sniff never raises
+            return False
+
+    # ------------------------------------------------------------------ read
+    def read(self, source: Any, **options: Any) -> LatentMap:
+        opts = self._options(options)
+        path = resolve_h5(source)
+        if path is None:
+            raise MapFormatError(
+                f"{source}: not a VLMaps map file. Pass vlmap/vlmaps.h5df (or any .h5df/.h5 "
+                "holding 'grid_feat' and 'grid_pos') or the folder that holds it."
+            )
+        h5py = import_h5py()
+        try:
+            f = h5py.File(path, "r")
+        except OSError as exc:
+            raise MapFormatError(
+                f"{path}: not a readable HDF5 file ({exc}). It may be truncated or not HDF5."
+            ) from None
+        try:
+            lmap = self._read_open(f, path, opts)
+        except MapFormatError:
+            f.close()
+            raise
+        except (OSError, KeyError, ValueError, TypeError) as exc:
+            f.close()
+            raise MapFormatError(f"{path}: cannot read the VLMaps map ({exc}).") from None
+        lmap.h5file = f  # type: ignore[attr-defined]  # keeps grid_feat readable
+        weakref.finalize(lmap, _close_quietly, f)
+        return lmap
+
+    def _options(self, options: dict[str, Any]) -> dict[str, Any]:
+        known = ("gs", "cs", "pose_type", "label_names", "semantic_field", "check_finite")
+        unknown = set(options) - set(known)
+        if unknown:
+            raise QuashError(
+                f"Adapter 'vlmaps' does not accept {sorted(unknown)}; it takes {', '.join(known)}."
+            )
+        opts = {k: options.get(k, getattr(self, k)) for k in known}
+        if opts["pose_type"] not in POSE_TYPES:
+            raise QuashError(
+                f"Adapter 'vlmaps': pose_type must be one of {POSE_TYPES}; "
+                f"got {opts['pose_type']!r}."
+            )
+        return opts
+
+    def _read_open(self, f: Any, path: Path, opts: dict[str, Any]) -> LatentMap:
+        where = str(path)
+        missing = [k for k in REQUIRED if k not in f]
+        if missing:
+            raise MapFormatError(
+                f"{where}: missing dataset(s) {', '.join(map(repr, missing))}. A VLMaps map "
+                f"needs 'grid_feat' (N, D) and 'grid_pos' (N, 3). Found: {', '.join(f.keys())}."
+            )
+        feat = f["grid_feat"]
+        if not hasattr(feat, "shape") or len(feat.shape) != 2:
+            raise MapFormatError(
+                f"{where}: field 'grid_feat' must be 2-D (N, D); got shape "
+                f"{getattr(feat, 'shape', None)}."
+            )
+        n, d = (int(x) for x in feat.shape)
+        if n == 0 or d == 0:
+            raise MapFormatError(f"{where}: field 'grid_feat' is empty (shape {feat.shape}).")
+        if feat.dtype.kind not in "fiu":
+            raise MapFormatError(f"{where}: field 'grid_feat' must hold numbers; got {feat.dtype}.")
+        grid_pos = np.asarray(f["grid_pos"][()])
+        if grid_pos.shape != (n, 3):
+            raise MapFormatError(
+                f"{where}: field 'grid_pos' must have shape (N, 3) with N = {n} (rows of "
+                f"'grid_feat'); got {grid_pos.shape}."
+            )
+        if grid_pos.dtype.kind not in "fiu" or (
+            grid_pos.dtype.kind == "f" and not np.isfinite(grid_pos).all()
+        ):
+            raise MapFormatError(f"{where}: field 'grid_pos' must hold finite cell indices.")
+        if opts["check_finite"]:
+            scan_finite(feat, where, "grid_feat", rows=max(1, (64 * 2**20) // (4 * d)))
+
+        pose_type = opts["pose_type"]
+        if pose_type == "auto":
+            pose_type = "camera_base" if "pcd_min" in f else "mobile_base"
+        source: dict[str, Any] = {
+            "adapter": self.name,
+            "path": where,
+            "format": "vlmaps-h5df",
+            "pose_type": pose_type,
+            "encoder_hint": f"lseg CLIP ViT-B/32 {d}" if d == 512 else f"{d}-d features",
+        }
+        if pose_type == "camera_base":
+            if "pcd_min" not in f:
+                raise MapFormatError(
+                    f"{where}: pose_type 'camera_base' needs field 'pcd_min' (3,), which is "
+                    "missing. Use pose_type='mobile_base' for mobile-base maps."
+                )
+            pcd_min = np.asarray(f["pcd_min"][()], dtype=np.float64).reshape(-1)
+            if pcd_min.shape != (3,) or not np.isfinite(pcd_min).all():
+                raise MapFormatError(f"{where}: field 'pcd_min' must be 3 finite numbers.")
+            cs = opts["cs"]
+            if cs is None:
+                if "cs" not in f:
+                    raise MapFormatError(
+                        f"{where}: camera-base map lacks field 'cs'; pass the cell size as "
+                        "option cs."
+                    )
+                cs = float(np.asarray(f["cs"][()]).reshape(-1)[0])
+            positions = camera_base_positions(grid_pos, pcd_min, float(cs))
+            source["pcd_min"] = pcd_min.tolist()
+        else:
+            gs = DEFAULT_GS if opts["gs"] is None else opts["gs"]
+            cs = DEFAULT_CS if opts["cs"] is None else opts["cs"]
+            positions = mobile_base_positions(grid_pos, float(gs), float(cs))
+            source["gs"] = float(gs)
+        cs = float(cs)
+        if not np.isfinite(cs) or cs <= 0:
+            raise MapFormatError(f"{where}: cell size cs must be a positive number; got {cs}.")
+        source["cs"] = cs
+
+        colors = None
+        if "grid_rgb" in f:
+            rgb = np.asarray(f["grid_rgb"][()])
+            if rgb.shape != (n, 3):
+                raise MapFormatError(
+                    f"{where}: field 'grid_rgb' must have shape (N, 3) with N = {n}; got "
+                    f"{rgb.shape}."
+                )
+            colors = rgb_to_uint8(rgb, where)
+
+        labels = None
+        sem = opts["semantic_field"]
+        if sem and sem in f:
+            labels = check_labels(f[sem][()], n, where, sem)
+        names_spec = opts["label_names"]
+        if names_spec is None and labels is not None:
+            names_spec = find_obj2cls(path, levels=2)
+        names = load_label_names(names_spec)
+        names = fit_label_names(names, labels)
+        if "mapped_iter_list" in f:
+            source["frames_fused"] = int(np.asarray(f["mapped_iter_list"]).size)
+        return LatentMap(
+            embeddings=feat,
+            kind="voxels",
+            positions=positions,
+            colors=colors,
+            labels=labels,
+            label_names=names,
+            voxel_size=cs,
+            grid_index=grid_pos.astype(np.int64),
+            normalize=True,
+            source=source,
+        )
+
+    # ------------------------------------------------------------------ example
+    def write_example(self, directory: Path) -> Path:
+        """A small mobile-base ``vlmap/vlmaps.h5df`` written the way VLMaps writes it."""
+        h5py = import_h5py()
+        rng = np.random.default_rng(0)
+        path = Path(directory) / "vlmap" / "vlmaps.h5df"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        n, d, gs, vh = 60, 8, 40, 10
+        cells = rng.choice(gs * gs * vh, size=n, replace=False)
+        grid_pos = np.stack(np.unravel_index(cells, (gs, gs, vh)), axis=1).astype(np.int32)
+        occupied = -np.ones((gs, gs, vh), dtype=np.int32)
+        occupied[grid_pos[:, 0], grid_pos[:, 1], grid_pos[:, 2]] = np.arange(n, dtype=np.int32)
+        feat = rng.normal(size=(n, d)).astype(np.float32) * rng.uniform(0.1, 3, size=(n, 1))
+        with h5py.File(path, "w") as f:
+            f.create_dataset("mapped_iter_list", data=np.arange(5, dtype=np.int32))
+            f.create_dataset("grid_feat", data=feat.astype(np.float32))
+            f.create_dataset("grid_pos", data=grid_pos)
+            f.create_dataset("weight", data=rng.uniform(0.1, 2, size=n).astype(np.float32))
+            f.create_dataset("occupied_ids", data=occupied)
+            f.create_dataset("grid_rgb", data=rng.integers(0, 256, (n, 3), dtype=np.uint8))
+        return path
+
+
+def _close_quietly(f: Any) -> None:
+    with contextlib.suppress(Exception):  # closing at interpreter exit may fail harmlessly
+        f.close()

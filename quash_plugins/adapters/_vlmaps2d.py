@@ -1,0 +1,283 @@
+"""``vlmaps-2d``: the 2023 VLMaps top-down grids (``map/grid_lseg_1.npy``).
+
+VLMaps' original release (``create_lseg_map_batch``) writes, in ``<scene>/map/``:
+
+========================== =============== ========================================
+``grid_lseg_1.npy``        (gs, gs, D) f32 averaged LSeg features; zero = unobserved
+``color_top_down_1.npy``   (gs, gs, 3) u8  top-down colour
+``grid_1_gt.npy``          (gs, gs) int32  ground-truth class id (-1 = void)
+``obstacles.npy``          (gs, gs) u8     1 free, 0 obstacle
+``weight_lseg_1.npy``      (gs, gs) f64    fusion weight
+========================== =============== ========================================
+
+with ``gs = 1000`` and ``cs = 0.05`` (the defaults of ``create_lseg_map_batch``). A
+point at camera-frame ``(x, z)`` of the first frame lands in row ``gs/2 - z/cs`` and
+column ``gs/2 + x/cs``. We report each cell in the same right-handed, z-up frame as the
+3D mobile-base maps: ``x = (gs/2 - row) * cs`` (forward), ``y = (gs/2 - col) * cs``
+(left), ``z = 0``. This is VLMaps' own ``grid_id2pos`` with the axes renamed; because
+VLMaps truncates towards zero when binning, the value is the cell corner nearest the
+map origin (pass ``cell_offset=0.5`` to report geometric centres instead).
+
+Design choices:
+
+* ``kind = "voxels"`` with ``grid_index = (row, col, 0)`` and ``voxel_size = cs``: the map
+  is one flat layer of cells, so instance grouping uses grid connectivity (8-neighbour
+  in the plane) and viewers draw cells as boxes. ``"pixels"`` would require every cell
+  of the grid to be an item, which defeats dropping unobserved cells.
+* Only observed (non-zero) cells become items. The grid is opened with
+  ``np.load(mmap_mode="r")``; non-zero cells are found in row blocks, and the map's
+  embeddings are a lazy :class:`~quash_plugins.adapters._vlmaps_common.RowSubset` of the
+  memory map, so the grid is never loaded whole. ``keep_empty=True`` keeps all
+  ``gs * gs`` cells (zero rows never match).
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import MapFormatError, QuashError
+from ..interfaces import MapAdapter
+from ..types import LatentMap
+from ._vlmaps_common import (
+    DEFAULT_CS,
+    RowSubset,
+    check_labels,
+    find_obj2cls,
+    fit_label_names,
+    load_label_names,
+    rgb_to_uint8,
+)
+
+log = logging.getLogger(__name__)
+
+GRID = "grid_lseg_1.npy"
+COLOR = "color_top_down_1.npy"
+GT = "grid_1_gt.npy"
+OBSTACLES = "obstacles.npy"
+
+
+def resolve_grid(source: Any) -> Path | None:
+    """``grid_lseg_*.npy`` for a path to the file, its ``map/`` folder or the scene folder."""
+    if not isinstance(source, (str, Path)):
+        return None
+    p = Path(source).expanduser()
+    if p.is_file():
+        return p if p.suffix == ".npy" else None
+    for folder in (p, p / "map"):
+        if (folder / GRID).is_file():
+            return folder / GRID
+        if folder.is_dir():
+            hits = sorted(folder.glob("grid_lseg_*.npy"))
+            if len(hits) == 1:
+                return hits[0]
+    return None
+
+
+def _sibling(grid: Path, stem: str) -> Path:
+    """The companion file matching ``grid``'s mask version (``_1`` by default)."""
+    version = grid.stem.removeprefix("grid_lseg_")
+    name = stem.replace("_1", f"_{version}") if version and version != "1" else stem
+    return grid.with_name(name)
+
+
+class VLMaps2DAdapter(MapAdapter):
+    """Read a 2023 VLMaps top-down map (``grid_lseg_1.npy`` and its companions).
+
+    Parameters
+    ----------
+    cs
+        Cell size in metres (VLMaps default 0.05).
+    label_names
+        Names of the ``grid_1_gt.npy`` class ids (file or in-memory list/mapping; see
+        :func:`~quash_plugins.adapters._vlmaps_common.load_label_names`). Default: the
+        scene's ``obj2cls_dict.txt`` if present.
+    keep_empty
+        Keep unobserved (all-zero) cells as items instead of dropping them.
+    cell_offset
+        Fraction of a cell added to ``row``/``col`` before converting to metres.
+    block_rows
+        Grid rows scanned per block when finding observed cells.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> a = VLMaps2DAdapter()
+    >>> m = a.read(a.write_example(pathlib.Path(tempfile.mkdtemp())))
+    >>> m.kind, m.positions[:, 2].max()
+    ('voxels', 0.0)
+    """
+
+    name = "vlmaps-2d"
+    priority = 20
+
+    def __init__(
+        self,
+        cs: float = DEFAULT_CS,
+        label_names: Any = None,
+        keep_empty: bool = False,
+        cell_offset: float = 0.0,
+        block_rows: int = 64,
+    ) -> None:
+        self.cs = cs
+        self.label_names = label_names
+        self.keep_empty = keep_empty
+        self.cell_offset = cell_offset
+        self.block_rows = block_rows
+
+    def sniff(self, source: Any) -> bool:
+        try:
+            grid = resolve_grid(source)
+            if grid is None:
+                return False
+            arr = np.load(grid, mmap_mode="r", allow_pickle=False)
+            return arr.ndim == 3 and arr.shape[0] == arr.shape[1] and arr.dtype.kind == "f"
+        except Exception:  # noqa: BLE001 - sniff never raises
+            return False
+
+    def read(self, source: Any, **options: Any) -> LatentMap:
+        known = ("cs", "label_names", "keep_empty", "cell_offset", "block_rows")
+        unknown = set(options) - set(known)
+        if unknown:
+            raise QuashError(
+                f"Adapter 'vlmaps-2d' does not accept {sorted(unknown)}; it takes "
+                f"{', '.join(known)}."
+            )
+        opts = {k: options.get(k, getattr(self, k)) for k in known}
+        grid_path = resolve_grid(source)
+        if grid_path is None:
+            raise MapFormatError(
+                f"{source}: no {GRID} found. Pass the .npy file or the map/ folder that holds it."
+            )
+        where = str(grid_path)
+        grid = _load_npy(grid_path)
+        if grid.ndim != 3 or grid.shape[0] != grid.shape[1]:
+            raise MapFormatError(
+                f"{where}: the feature grid must have shape (gs, gs, D); got {grid.shape}."
+            )
+        if grid.dtype.kind not in "fiu":
+            raise MapFormatError(f"{where}: the feature grid must hold numbers; got {grid.dtype}.")
+        gs, _, d = (int(x) for x in grid.shape)
+        if gs == 0 or d == 0:
+            raise MapFormatError(f"{where}: the feature grid is empty (shape {grid.shape}).")
+        flat = grid.reshape(gs * gs, d)  # a view of the memory map, not a copy
+        observed = _observed_cells(grid, where, int(opts["block_rows"]))
+        if observed.size == 0 and not opts["keep_empty"]:
+            raise MapFormatError(f"{where}: every cell is zero (unobserved); the map is empty.")
+        index = np.arange(gs * gs, dtype=np.int64) if opts["keep_empty"] else observed
+        embeddings: Any = flat if opts["keep_empty"] else RowSubset(flat, index)
+        rows, cols = np.divmod(index, gs)
+        cs = float(opts["cs"])
+        if not np.isfinite(cs) or cs <= 0:
+            raise MapFormatError(f"{where}: cell size cs must be positive; got {cs}.")
+        off = float(opts["cell_offset"])
+        positions = np.zeros((len(index), 3), dtype=np.float32)
+        positions[:, 0] = (gs / 2.0 - (rows + off)) * cs
+        positions[:, 1] = (gs / 2.0 - (cols + off)) * cs
+        grid_index = np.stack([rows, cols, np.zeros_like(rows)], axis=1)
+
+        colors = labels = None
+        color_path = _sibling(grid_path, COLOR)
+        if color_path.is_file():
+            rgb = _load_npy(color_path)
+            _expect(rgb, (gs, gs, 3), color_path, "colour grid")
+            colors = rgb_to_uint8(rgb.reshape(gs * gs, 3)[index], str(color_path), "colour grid")
+        gt_path = _sibling(grid_path, GT)
+        if gt_path.is_file():
+            gt = _load_npy(gt_path)
+            _expect(gt, (gs, gs), gt_path, "ground-truth grid")
+            labels = check_labels(gt.reshape(gs * gs)[index], len(index), str(gt_path), "gt")
+        obstacles_path = grid_path.with_name(OBSTACLES)
+        source: dict[str, Any] = {
+            "adapter": self.name,
+            "path": where,
+            "format": "vlmaps-2d",
+            "gs": gs,
+            "cs": cs,
+            "observed_cells": int(observed.size),
+            "encoder_hint": f"lseg CLIP ViT-B/32 {d}" if d == 512 else f"{d}-d features",
+        }
+        if obstacles_path.is_file():
+            obstacles = _load_npy(obstacles_path)
+            _expect(obstacles, (gs, gs), obstacles_path, "obstacle grid")
+            source["obstacles"] = str(obstacles_path)
+        names_spec = opts["label_names"]
+        if names_spec is None and labels is not None:
+            names_spec = find_obj2cls(grid_path.parent, levels=1)
+        names = fit_label_names(load_label_names(names_spec), labels)
+        return LatentMap(
+            embeddings=embeddings,
+            kind="voxels",
+            positions=positions,
+            colors=colors,
+            labels=labels,
+            label_names=names,
+            voxel_size=cs,
+            grid_index=grid_index,
+            normalize=True,
+            source=source,
+        )
+
+    def write_example(self, directory: Path) -> Path:
+        """A small ``map/`` folder written the way ``create_lseg_map_batch`` writes it."""
+        rng = np.random.default_rng(0)
+        folder = Path(directory) / "map"
+        folder.mkdir(parents=True, exist_ok=True)
+        gs, d = 24, 8
+        grid = np.zeros((gs, gs, d), dtype=np.float32)
+        seen = rng.random((gs, gs)) < 0.4
+        grid[seen] = rng.normal(size=(int(seen.sum()), d)).astype(np.float32)
+        color = np.zeros((gs, gs, 3), dtype=np.uint8)
+        color[seen] = rng.integers(0, 256, (int(seen.sum()), 3), dtype=np.uint8)
+        gt = np.zeros((gs, gs), dtype=np.int32)
+        gt[seen] = rng.integers(0, 3, int(seen.sum()))
+        obstacles = np.ones((gs, gs), dtype=np.uint8)
+        obstacles[seen] = 0
+        for name, arr in ((GRID, grid), (COLOR, color), (GT, gt), (OBSTACLES, obstacles)):
+            with open(folder / name, "wb") as fh:
+                np.save(fh, arr)
+        return folder
+
+
+def _load_npy(path: Path) -> np.ndarray:
+    try:
+        return np.load(path, mmap_mode="r", allow_pickle=False)
+    except ValueError as exc:
+        raise MapFormatError(
+            f"{path}: not a complete, plain .npy array ({exc}). The file may be truncated; "
+            "pickled arrays are never loaded."
+        ) from None
+    except (OSError, EOFError) as exc:
+        raise MapFormatError(f"{path}: not a readable .npy file ({exc}); truncated?") from None
+
+
+def _expect(arr: np.ndarray, shape: tuple[int, ...], path: Path, what: str) -> None:
+    if arr.shape != shape:
+        raise MapFormatError(f"{path}: the {what} must have shape {shape}; got {arr.shape}.")
+
+
+def _observed_cells(grid: np.ndarray, where: str, block_rows: int) -> np.ndarray:
+    """Sorted flat indices of non-zero cells, found in blocks of grid rows.
+
+    Also rejects NaN/Inf. Memory: one block of ``block_rows * gs * D`` values.
+    """
+    gs, _, d = grid.shape
+    block_rows = max(1, block_rows)
+    found = []
+    for r0 in range(0, gs, block_rows):
+        try:
+            block = np.asarray(grid[r0 : r0 + block_rows])
+        except (OSError, ValueError) as exc:
+            raise MapFormatError(f"{where}: cannot read grid rows from {r0} ({exc}).") from None
+        if block.dtype.kind == "f" and not np.isfinite(block).all():
+            r, c = np.argwhere(~np.isfinite(block).all(axis=-1))[0]
+            raise MapFormatError(
+                f"{where}: the feature grid contains NaN or Inf (first at cell "
+                f"row {r0 + int(r)}, col {int(c)})."
+            )
+        nz = np.flatnonzero(block.any(axis=-1))
+        found.append(nz + r0 * gs)
+    return np.concatenate(found) if found else np.empty(0, dtype=np.int64)

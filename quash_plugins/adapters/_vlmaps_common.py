@@ -1,0 +1,240 @@
+"""Helpers shared by the VLMaps adapters (3D file, 2D grids, live object).
+
+Coordinate conventions follow VLMaps' own ``vlmaps/utils/mapping_utils.py``:
+
+* mobile-base 3D maps store ``grid_pos`` as ``[row, col, height]`` and convert with
+  ``x = (gs/2 - row) * cs``, ``y = (gs/2 - col) * cs``, ``z = height * cs`` (x forward,
+  y left, z up, origin at the first base pose);
+* camera-base 3D maps store ``pcd_min`` and ``cs`` and ``grid_pos = round((p - pcd_min) / cs)``
+  per axis, so ``p = pcd_min + grid_pos * cs``.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import MapFormatError
+
+log = logging.getLogger(__name__)
+
+#: VLMaps' default map config (``config/map_config/vlmaps.yaml``): grid_size, cell_size.
+DEFAULT_GS = 1000
+DEFAULT_CS = 0.05
+POSE_TYPES = ("auto", "mobile_base", "camera_base")
+
+
+def mobile_base_positions(grid_pos: np.ndarray, gs: float, cs: float) -> np.ndarray:
+    """``(N, 3)`` float32 metres from VLMaps mobile-base ``[row, col, height]`` cells."""
+    g = np.asarray(grid_pos, dtype=np.float64)
+    out = np.empty((len(g), 3), dtype=np.float64)
+    out[:, 0] = (gs / 2.0 - g[:, 0]) * cs
+    out[:, 1] = (gs / 2.0 - g[:, 1]) * cs
+    out[:, 2] = g[:, 2] * cs
+    return out.astype(np.float32)
+
+
+def camera_base_positions(grid_pos: np.ndarray, pcd_min: np.ndarray, cs: float) -> np.ndarray:
+    """``(N, 3)`` float32 metres from VLMaps camera-base cells: ``pcd_min + grid_pos * cs``."""
+    g = np.asarray(grid_pos, dtype=np.float64)
+    return (np.asarray(pcd_min, dtype=np.float64).reshape(1, 3) + g * float(cs)).astype(np.float32)
+
+
+def rgb_to_uint8(rgb: Any, where: str, field: str = "grid_rgb") -> np.ndarray:
+    """VLMaps colours (uint8, or float 0-255 after weighted averaging) as uint8."""
+    arr = np.asarray(rgb)
+    if arr.dtype == np.uint8:
+        return arr
+    if arr.dtype.kind not in "fiu":
+        raise MapFormatError(f"{where}: field {field!r} must hold numbers; got dtype {arr.dtype}.")
+    if arr.dtype.kind == "f" and not np.isfinite(arr).all():
+        raise MapFormatError(f"{where}: field {field!r} contains NaN or Inf.")
+    return np.clip(np.rint(arr), 0, 255).astype(np.uint8)
+
+
+def load_label_names(spec: Any, where: str = "label_names") -> list[str] | None:
+    """Label names from a file or an in-memory object.
+
+    Accepted: ``None``; a list/tuple of names (index = label id); a mapping
+    ``{id: name}``; a path to ``.txt`` (one name per line, or VLMaps'
+    ``obj2cls_dict.txt`` lines ``obj_id: cls_id, name``), ``.yaml``/``.yml`` or ``.json``
+    holding a list or a mapping. Missing ids in a mapping become ``"label_<id>"``.
+    """
+    if spec is None:
+        return None
+    if isinstance(spec, (str, Path)):
+        return _names_from_file(Path(spec).expanduser())
+    if isinstance(spec, Mapping):
+        return _names_from_mapping(spec, where)
+    if isinstance(spec, (Sequence, np.ndarray)):
+        return [str(x) for x in spec]
+    raise MapFormatError(
+        f"{where}: expected a file path, a list of names or a mapping {{id: name}}; "
+        f"got {type(spec).__name__}."
+    )
+
+
+def _names_from_mapping(mapping: Mapping[Any, Any], where: str) -> list[str]:
+    try:
+        items = {int(k): str(v) for k, v in mapping.items()}
+    except (TypeError, ValueError):
+        raise MapFormatError(
+            f"{where}: a label mapping must be {{integer id: name}}; got keys {list(mapping)[:5]}."
+        ) from None
+    if not items:
+        return []
+    if min(items) < 0:
+        raise MapFormatError(f"{where}: label ids must be >= 0; got {min(items)}.")
+    return [items.get(i, f"label_{i}") for i in range(max(items) + 1)]
+
+
+def _names_from_file(path: Path) -> list[str]:
+    if not path.is_file():
+        raise MapFormatError(f"Label-name file not found: {path}. Check the 'label_names' option.")
+    text = path.read_text(encoding="utf-8")
+    suffix = path.suffix.lower()
+    if suffix in (".yaml", ".yml", ".json"):
+        try:
+            if suffix == ".json":
+                data = json.loads(text)
+            else:
+                import yaml
+
+                data = yaml.safe_load(text)
+        except Exception as exc:  # noqa: BLE001 - any parse error is a format error
+            raise MapFormatError(f"{path}: cannot parse label names ({exc}).") from None
+        if isinstance(data, Mapping):
+            return _names_from_mapping(data, str(path))
+        if isinstance(data, list):
+            return [str(x) for x in data]
+        raise MapFormatError(f"{path}: expected a list of names or a mapping {{id: name}}.")
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
+    if lines and all(_is_obj2cls_line(ln) for ln in lines):
+        mapping = {}
+        for ln in lines:
+            _, rest = ln.split(":", 1)
+            cls_id, name = rest.split(",", 1)
+            mapping[int(cls_id.strip())] = name.strip()
+        return _names_from_mapping(mapping, str(path))
+    return lines
+
+
+def _is_obj2cls_line(line: str) -> bool:
+    if ":" not in line:
+        return False
+    head, rest = line.split(":", 1)
+    if "," not in rest:
+        return False
+    try:
+        int(head.strip())
+        int(rest.split(",", 1)[0].strip())
+    except ValueError:
+        return False
+    return True
+
+
+def find_obj2cls(start: Path, levels: int = 2) -> Path | None:
+    """VLMaps' ``obj2cls_dict.txt`` in ``start`` or up to ``levels`` parents, if any."""
+    here = start if start.is_dir() else start.parent
+    for _ in range(levels + 1):
+        cand = here / "obj2cls_dict.txt"
+        if cand.is_file():
+            return cand
+        here = here.parent
+    return None
+
+
+def check_labels(labels: Any, n: int, where: str, field: str) -> np.ndarray:
+    """``(N,)`` int64 ground truth from ``(N,)`` or ``(N, 1)`` integer data."""
+    arr = np.asarray(labels)
+    if arr.ndim == 2 and arr.shape[1] == 1:
+        arr = arr[:, 0]
+    if arr.ndim != 1 or len(arr) != n:
+        raise MapFormatError(
+            f"{where}: field {field!r} must have shape (N,) with N = {n} rows; got {arr.shape}."
+        )
+    if arr.dtype.kind == "f":
+        if not np.isfinite(arr).all() or not np.array_equal(arr, np.rint(arr)):
+            raise MapFormatError(f"{where}: field {field!r} must hold integer class ids.")
+    elif arr.dtype.kind not in "iu":
+        raise MapFormatError(f"{where}: field {field!r} must hold integers; got {arr.dtype}.")
+    return arr.astype(np.int64)
+
+
+def fit_label_names(names: list[str] | None, labels: np.ndarray | None) -> list[str] | None:
+    """Pad ``names`` with ``label_<id>`` so every label id in ``labels`` has a name."""
+    if names is None or labels is None or labels.size == 0:
+        return names
+    top = int(labels.max())
+    if top >= len(names):
+        log.warning(
+            "label ids reach %d but only %d label names were given; padding with label_<id>",
+            top,
+            len(names),
+        )
+        names = [*names, *(f"label_{i}" for i in range(len(names), top + 1))]
+    return names
+
+
+def scan_finite(data: Any, where: str, field: str, rows: int = 65536) -> None:
+    """Raise :class:`MapFormatError` naming ``field`` when ``data`` holds NaN/Inf.
+
+    Reads ``data`` (any sliceable ``(N, D)`` array) in row chunks; a read error (e.g. a
+    truncated HDF5 file) is reported the same way.
+    """
+    n = int(data.shape[0])
+    for start in range(0, n, rows):
+        try:
+            block = np.asarray(data[start : start + rows])
+        except (OSError, ValueError, RuntimeError) as exc:
+            raise MapFormatError(
+                f"{where}: cannot read field {field!r} rows {start}..{min(n, start + rows)} "
+                f"({exc}). The file may be truncated or corrupt."
+            ) from None
+        if block.dtype.kind == "f" and not np.isfinite(block).all():
+            bad = int(np.argwhere(~np.isfinite(block))[0][0]) + start
+            raise MapFormatError(
+                f"{where}: field {field!r} contains NaN or Inf (first at row {bad}). "
+                "Fix or drop those rows, or pass check_finite=False to defer the check."
+            )
+
+
+class RowSubset:
+    """A lazy ``(len(index), D)`` view of ``base[index]`` for a 2-D array-like ``base``.
+
+    Used to keep only the observed cells of a memory-mapped grid without loading it:
+    slicing reads just the selected rows. Supports ``shape``, ``dtype``, ``ndim``,
+    ``len``, ``__getitem__`` (slices, integer arrays, boolean masks, ``(rows, cols)``
+    tuples) and ``__array__``.
+    """
+
+    def __init__(self, base: Any, index: np.ndarray) -> None:
+        self.base = base
+        self.index = np.asarray(index, dtype=np.int64)
+        self.dtype = np.dtype(base.dtype)
+        self.shape = (len(self.index), int(base.shape[1]))
+        self.ndim = 2
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def __getitem__(self, key: Any) -> np.ndarray:
+        cols: Any = slice(None)
+        if isinstance(key, tuple):
+            key, cols = (key + (slice(None),))[:2]
+        rows = self.index[key]
+        if np.ndim(rows) == 0:
+            return np.asarray(self.base[int(rows)])[cols]
+        return np.asarray(self.base[rows])[:, cols]
+
+    def __array__(self, dtype: Any = None, copy: Any = None) -> np.ndarray:
+        out = self[:]
+        return out if dtype is None else out.astype(dtype, copy=False)
+
+    def __repr__(self) -> str:
+        return f"RowSubset({self.shape[0]} of {self.base.shape[0]} rows, dtype={self.dtype})"

@@ -1,0 +1,220 @@
+"""``vlmaps-live``: a VLMaps ``VLMap`` object already in memory, recognised by duck typing.
+
+Any object with ``grid_feat`` (N, D) and ``grid_pos`` (N, 3) attributes is accepted.
+Optional attributes: ``grid_rgb`` (N, 3), ``gs``, ``cs``, ``pcd_min`` (camera-base maps)
+and ``map_config.pose_info.pose_type`` (``"mobile_base"`` or ``"camera_base"``; an
+OmegaConf config or a plain dict). VLMaps itself is never imported.
+
+``grid_feat`` is used as it is (no copy; a torch tensor is viewed through ``.numpy()``),
+rows are L2-normalised chunk by chunk when read, and zero rows never match. Positions
+follow the same formulas as the ``vlmaps`` file adapter.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import MapFormatError, QuashError
+from ..interfaces import MapAdapter
+from ..types import LatentMap
+from ._vlmaps_common import (
+    DEFAULT_CS,
+    DEFAULT_GS,
+    POSE_TYPES,
+    camera_base_positions,
+    check_labels,
+    fit_label_names,
+    load_label_names,
+    mobile_base_positions,
+    rgb_to_uint8,
+    scan_finite,
+)
+
+
+def _lookup(obj: Any, *names: str) -> Any:
+    """``obj.a.b.c`` that also walks dicts; None when any step is missing."""
+    for name in names:
+        if obj is None:
+            return None
+        if isinstance(obj, dict):
+            obj = obj.get(name)
+        else:
+            try:
+                obj = getattr(obj, name, None)
+            except Exception:  # noqa: BLE001 - OmegaConf may raise on missing keys
+                return None
+    return obj
+
+
+def as_array(value: Any) -> Any:
+    """A numpy-compatible view of ``value`` (torch tensors are moved to CPU numpy)."""
+    if type(value).__module__.startswith("torch"):
+        return value.detach().cpu().numpy()
+    if hasattr(value, "shape") and hasattr(value, "dtype") and hasattr(value, "__getitem__"):
+        return value
+    return np.asarray(value)
+
+
+def pose_type_of(vlmap: Any) -> str | None:
+    value = _lookup(vlmap, "map_config", "pose_info", "pose_type")
+    return str(value) if value is not None else None
+
+
+class VLMapsLiveAdapter(MapAdapter):
+    """Read a live VLMaps ``VLMap`` (or any object with ``grid_feat`` and ``grid_pos``).
+
+    Parameters
+    ----------
+    gs, cs
+        Override the object's ``gs``/``cs`` (defaults 1000 and 0.05 when it has none).
+    pose_type
+        ``"auto"`` (the object's ``map_config.pose_info.pose_type``; camera-base when it
+        has ``pcd_min``), ``"mobile_base"`` or ``"camera_base"``.
+    label_names
+        Names for an optional ``grid_semantic`` attribute (see the ``vlmaps`` adapter).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from types import SimpleNamespace
+    >>> vlmap = SimpleNamespace(grid_feat=np.eye(3, dtype=np.float32),
+    ...                         grid_pos=np.array([[500, 500, 0], [499, 500, 2], [500, 498, 1]]))
+    >>> m = VLMapsLiveAdapter().read(vlmap)
+    >>> m.positions[1].round(2).tolist()
+    [0.05, 0.0, 0.1]
+    """
+
+    name = "vlmaps-live"
+    priority = 30
+
+    def __init__(
+        self,
+        gs: int | None = None,
+        cs: float | None = None,
+        pose_type: str = "auto",
+        label_names: Any = None,
+    ) -> None:
+        self.gs = gs
+        self.cs = cs
+        self.pose_type = pose_type
+        self.label_names = label_names
+
+    def sniff(self, source: Any) -> bool:
+        try:
+            if isinstance(source, (str, Path, LatentMap, dict)):
+                return False
+            feat = getattr(source, "grid_feat", None)
+            pos = getattr(source, "grid_pos", None)
+            return (
+                feat is not None
+                and pos is not None
+                and len(getattr(feat, "shape", ())) == 2
+                and len(getattr(pos, "shape", ())) == 2
+            )
+        except Exception:  # noqa: BLE001 - sniff never raises
+            return False
+
+    def read(self, source: Any, **options: Any) -> LatentMap:
+        known = ("gs", "cs", "pose_type", "label_names")
+        unknown = set(options) - set(known)
+        if unknown:
+            raise QuashError(
+                f"Adapter 'vlmaps-live' does not accept {sorted(unknown)}; it takes "
+                f"{', '.join(known)}."
+            )
+        opts = {k: options.get(k, getattr(self, k)) for k in known}
+        where = f"live {type(source).__name__} object"
+        for field in ("grid_feat", "grid_pos"):
+            if getattr(source, field, None) is None:
+                raise MapFormatError(
+                    f"{where}: attribute {field!r} is missing or None. Load or build the map "
+                    "first (VLMap.load_map / create_map)."
+                )
+        feat = as_array(source.grid_feat)
+        if len(feat.shape) != 2 or 0 in feat.shape:
+            raise MapFormatError(
+                f"{where}: 'grid_feat' must be a non-empty (N, D); got {feat.shape}."
+            )
+        n = int(feat.shape[0])
+        scan_finite(feat, where, "grid_feat")
+        grid_pos = np.asarray(as_array(source.grid_pos))
+        if grid_pos.shape != (n, 3) or grid_pos.dtype.kind not in "fiu":
+            raise MapFormatError(
+                f"{where}: 'grid_pos' must be numeric with shape (N, 3), N = {n}; got "
+                f"{grid_pos.shape} {grid_pos.dtype}."
+            )
+        pose_type = opts["pose_type"]
+        if pose_type not in POSE_TYPES:
+            raise QuashError(f"pose_type must be one of {POSE_TYPES}; got {pose_type!r}.")
+        if pose_type == "auto":
+            pose_type = pose_type_of(source) or (
+                "camera_base" if getattr(source, "pcd_min", None) is not None else "mobile_base"
+            )
+        cs = opts["cs"] if opts["cs"] is not None else getattr(source, "cs", None)
+        cs = float(DEFAULT_CS if cs is None else np.asarray(cs).reshape(-1)[0])
+        source_meta: dict[str, Any] = {
+            "adapter": self.name,
+            "live": type(source).__name__,
+            "pose_type": pose_type,
+            "cs": cs,
+        }
+        if pose_type == "camera_base":
+            pcd_min = getattr(source, "pcd_min", None)
+            if pcd_min is None:
+                raise MapFormatError(
+                    f"{where}: a camera_base map needs attribute 'pcd_min' (3,); it is missing."
+                )
+            positions = camera_base_positions(grid_pos, np.asarray(pcd_min).reshape(3), cs)
+        elif pose_type == "mobile_base":
+            gs = opts["gs"] if opts["gs"] is not None else getattr(source, "gs", None)
+            gs = float(DEFAULT_GS if gs is None else gs)
+            positions = mobile_base_positions(grid_pos, gs, cs)
+            source_meta["gs"] = gs
+        else:
+            raise MapFormatError(f"{where}: unknown map_config.pose_info.pose_type {pose_type!r}.")
+        colors = None
+        rgb = getattr(source, "grid_rgb", None)
+        if rgb is not None:
+            rgb = np.asarray(as_array(rgb))
+            if rgb.shape != (n, 3):
+                raise MapFormatError(
+                    f"{where}: 'grid_rgb' must be (N, 3), N = {n}; got {rgb.shape}."
+                )
+            colors = rgb_to_uint8(rgb, where)
+        labels = None
+        sem = getattr(source, "grid_semantic", None)
+        if sem is not None:
+            labels = check_labels(as_array(sem), n, where, "grid_semantic")
+        names = fit_label_names(load_label_names(opts["label_names"]), labels)
+        return LatentMap(
+            embeddings=feat,
+            kind="voxels",
+            positions=positions,
+            colors=colors,
+            labels=labels,
+            label_names=names,
+            voxel_size=cs,
+            grid_index=grid_pos.astype(np.int64),
+            normalize=True,
+            source=source_meta,
+        )
+
+    def write_example(self, directory: Path) -> Any:
+        """A small duck-typed VLMap-like object (live adapters return the object)."""
+        from types import SimpleNamespace
+
+        rng = np.random.default_rng(0)
+        n, d = 50, 8
+        return SimpleNamespace(
+            grid_feat=rng.normal(size=(n, d)).astype(np.float32),
+            grid_pos=np.column_stack(
+                [rng.integers(480, 520, n), rng.integers(480, 520, n), rng.integers(0, 30, n)]
+            ).astype(np.int32),
+            grid_rgb=rng.integers(0, 256, (n, 3), dtype=np.uint8),
+            gs=1000,
+            cs=0.05,
+            map_config={"pose_info": {"pose_type": "mobile_base"}},
+        )
