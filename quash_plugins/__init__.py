@@ -37,7 +37,23 @@ _EXPORTS = {
     "registry": None,
 }
 
-__all__ = sorted(_EXPORTS)
+__all__ = [
+    "DEFAULT_NEGATIVES",
+    "Classifier",
+    "Encoder",
+    "ExpansionContext",
+    "FrameInfo",
+    "Heuristic",
+    "Instance",
+    "LatentMap",
+    "MapAdapter",
+    "Quash",
+    "QuashConfig",
+    "QuashError",
+    "QueryResult",
+    "QuerySet",
+    "registry",
+]
 
 if TYPE_CHECKING:  # pragma: no cover
     from . import registry

@@ -61,8 +61,10 @@ def encode_texts(
 def load_templates(spec: Any) -> list[str]:
     """Resolve a ``templates`` setting: ``"default"``, a list, or a text/YAML file path."""
     if spec is None or spec == "default":
-        text = resources.files("quash_plugins.data").joinpath("prompt_templates.txt").read_text(
-            encoding="utf-8"
+        text = (
+            resources.files("quash_plugins.data")
+            .joinpath("prompt_templates.txt")
+            .read_text(encoding="utf-8")
         )
         templates = [ln.strip() for ln in text.splitlines()]
     elif isinstance(spec, (list, tuple)):

@@ -30,8 +30,11 @@ def progress(total: int, description: str) -> Iterator[Callable[[int], None]]:
         )
 
         with Progress(
-            TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
-            TimeRemainingColumn(), transient=True,
+            TextColumn("[bold]{task.description}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TimeRemainingColumn(),
+            transient=True,
         ) as bar:
             task = bar.add_task(description, total=total)
             yield lambda n: bar.advance(task, n)
@@ -41,8 +44,14 @@ def progress(total: int, description: str) -> Iterator[Callable[[int], None]]:
     def advance(n: int) -> None:
         state["done"] += n
         if state["done"] >= state["next"] or state["done"] >= total:
-            log.info("%s: %d/%d (%.0f%%, %.1fs)", description, state["done"], total,
-                     100.0 * state["done"] / total, time.perf_counter() - state["t0"])
+            log.info(
+                "%s: %d/%d (%.0f%%, %.1fs)",
+                description,
+                state["done"],
+                total,
+                100.0 * state["done"] / total,
+                time.perf_counter() - state["t0"],
+            )
             state["next"] = state["done"] + max(1, total // 10)
 
     yield advance

@@ -61,18 +61,24 @@ class QuashConfig:
     )
     threshold: float = field(
         default=0.0,
-        metadata={"help": "Decision threshold: items with score > threshold match. Raise it "
-                  "for precision, lower it for recall."},
+        metadata={
+            "help": "Decision threshold: items with score > threshold match. Raise it "
+            "for precision, lower it for recall."
+        },
     )
     prompt_templates: dict[str, Any] | None = field(
         default=None,
-        metadata={"help": "Prompt engineering for any heuristic: {mode: mean|all, templates: "
-                  "default|[...]|FILE}. null turns it off."},
+        metadata={
+            "help": "Prompt engineering for any heuristic: {mode: mean|all, templates: "
+            "default|[...]|FILE}. null turns it off."
+        },
     )
     map_negatives: dict[str, Any] | None = field(
         default=None,
-        metadata={"help": "Map-mined negatives: vocabulary names that win many map items but "
-                  "are not the query ({n: 5, min_share: 0.01}). null turns it off."},
+        metadata={
+            "help": "Map-mined negatives: vocabulary names that win many map items but "
+            "are not the query ({n: 5, min_share: 0.01}). null turns it off."
+        },
     )
     adapter: PluginSpec = field(
         default_factory=lambda: PluginSpec("auto"),
@@ -93,7 +99,10 @@ class QuashConfig:
     # ------------------------------------------------------------------ loading
     @classmethod
     def from_dict(
-        cls, data: dict[str, Any], *, path: str | Path | None = None,
+        cls,
+        data: dict[str, Any],
+        *,
+        path: str | Path | None = None,
         lines: dict[tuple, int] | None = None,
     ) -> QuashConfig:
         """Build from a plain dict, rejecting unknown keys."""
@@ -180,8 +189,14 @@ def _convert(cls, key: str, value: Any, where: _Where, path) -> Any:
             if isinstance(tpl, str) and tpl != "default":
                 value["templates"] = _resolve_path(tpl, path)
         return dict(value)
-    typ = {"name": str, "threshold": float, "seed": int, "device": str, "cache": bool,
-           "chunk_mb": float}[key]
+    typ = {
+        "name": str,
+        "threshold": float,
+        "seed": int,
+        "device": str,
+        "cache": bool,
+        "chunk_mb": float,
+    }[key]
     if typ is bool and not isinstance(value, bool):
         raise ConfigError(f"{where.at((key,))}{key!r} must be true or false; got {value!r}.")
     try:
@@ -223,7 +238,7 @@ def _resolve_path(value: str, config_path) -> str:
     p = Path(value)
     if p.is_absolute():
         return value
-    return str((Path(config_path).resolve().parent / p))
+    return str(Path(config_path).resolve().parent / p)
 
 
 def load_yaml(path: str | Path) -> tuple[Any, dict[tuple, int]]:
@@ -246,7 +261,9 @@ def load_yaml(path: str | Path) -> tuple[Any, dict[tuple, int]]:
         mark = getattr(exc, "problem_mark", None) or getattr(exc, "context_mark", None)
         problem = getattr(exc, "problem", None) or str(exc)
         loc = f"{p}:{mark.line + 1}:{mark.column + 1}" if mark else str(p)
-        raise ConfigError(f"{loc}: malformed YAML: {problem}. Check indentation and quoting.") from None
+        raise ConfigError(
+            f"{loc}: malformed YAML: {problem}. Check indentation and quoting."
+        ) from None
     lines: dict[tuple, int] = {}
     _walk(node, (), lines)
     return data, lines

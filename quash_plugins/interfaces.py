@@ -185,7 +185,9 @@ def check_training_set(X: Any, y: Any) -> tuple[np.ndarray, np.ndarray]:
         raise ValueError(f"X must be (n, D) with n == len(y); got X {X.shape}, y {y.shape}.")
     values = set(np.unique(y).tolist())
     if not values <= {0, 1} or len(values) < 2:
-        raise ValueError(f"y must contain both 1 (positive) and 0 (negative); got {sorted(values)}.")
+        raise ValueError(
+            f"y must contain both 1 (positive) and 0 (negative); got {sorted(values)}."
+        )
     return X, y
 
 

@@ -96,7 +96,9 @@ class Quash:
         device: str = "auto",
     ) -> None:
         self.encoder = encoder
-        self.heuristic = heuristic if heuristic is not None else registry.create("heuristics", "none")
+        self.heuristic = (
+            heuristic if heuristic is not None else registry.create("heuristics", "none")
+        )
         self.classifier = (
             classifier if classifier is not None else registry.create("classifiers", "svm-rbf")
         )

@@ -22,6 +22,7 @@ True
 
 from __future__ import annotations
 
+import contextlib
 import inspect
 import logging
 import threading
@@ -37,8 +38,12 @@ log = logging.getLogger(__name__)
 KINDS: tuple[str, ...] = ("encoders", "heuristics", "classifiers", "adapters")
 GROUP_PREFIX = "quash_plugins."
 _SINGULAR = {k[:-1]: k for k in KINDS}
-_TITLE = {"encoders": "Encoder", "heuristics": "Heuristic", "classifiers": "Classifier",
-          "adapters": "Adapter"}
+_TITLE = {
+    "encoders": "Encoder",
+    "heuristics": "Heuristic",
+    "classifiers": "Classifier",
+    "adapters": "Adapter",
+}
 
 
 @dataclass
@@ -98,8 +103,7 @@ def _scan(kind: str) -> list[PluginInfo]:
             # install plus a source checkout): keep one entry per (dist, name).
             if any(i.name == ep.name and i.dist == dist_name for i in infos):
                 continue
-            infos.append(PluginInfo(kind, ep.name, ep.value, dist_name, version,
-                                    _loader=ep.load))
+            infos.append(PluginInfo(kind, ep.name, ep.value, dist_name, version, _loader=ep.load))
         _scanned[kind] = infos
         return infos
 
@@ -166,10 +170,8 @@ def plugins(kind: str | None = None, *, load: bool = False) -> list[PluginInfo]:
     for k in kinds:
         for info in _all(k):
             if load:
-                try:
+                with contextlib.suppress(PluginError):
                     _load_info(info)
-                except PluginError:
-                    pass
             out.append(info)
     return out
 
@@ -319,8 +321,6 @@ def create(kind: str, name: str, /, **params: Any) -> Any:
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"{_TITLE[kind]} {entry.name!r}: {exc}") from exc
     if getattr(instance, "name", None) in (None, "encoder", "heuristic", "adapter"):
-        try:
+        with contextlib.suppress(AttributeError):
             instance.name = entry.name
-        except AttributeError:
-            pass
     return instance

@@ -112,9 +112,7 @@ class LatentMap:
             )
         dtype = np.dtype(self.embeddings.dtype)
         if dtype.kind not in "fiu":
-            raise MapFormatError(
-                f"Field 'embeddings'{where} must hold numbers; got dtype {dtype}."
-            )
+            raise MapFormatError(f"Field 'embeddings'{where} must hold numbers; got dtype {dtype}.")
         if self.kind not in MAP_KINDS:
             raise MapFormatError(f"LatentMap kind must be one of {MAP_KINDS}; got {self.kind!r}.")
         self.positions = self._check_rows("positions", self.positions, n, (3,), np.float32, where)

@@ -17,8 +17,16 @@ from ..errors import MapFormatError
 from ..interfaces import MapAdapter
 from ..types import LatentMap
 
-OPTIONAL = ("positions", "colors", "labels", "label_names", "voxel_size", "grid_index", "kind",
-            "normalize")
+OPTIONAL = (
+    "positions",
+    "colors",
+    "labels",
+    "label_names",
+    "voxel_size",
+    "grid_index",
+    "kind",
+    "normalize",
+)
 
 
 class NpzAdapter(MapAdapter):

@@ -25,7 +25,10 @@ def setup_logging(verbose: int, quiet: bool) -> None:
     level = logging.WARNING if quiet else (logging.DEBUG if verbose else logging.INFO)
     _progress.QUIET = quiet
     handler = RichHandler(
-        console=Console(stderr=True), show_time=False, show_path=verbose > 1, markup=False,
+        console=Console(stderr=True),
+        show_time=False,
+        show_path=verbose > 1,
+        markup=False,
         rich_tracebacks=False,
     )
     root = logging.getLogger("quash_plugins")
@@ -37,12 +40,20 @@ def setup_logging(verbose: int, quiet: bool) -> None:
 def add_config_option(parser: argparse.ArgumentParser, multiple: bool = False) -> None:
     if multiple:
         parser.add_argument(
-            "-c", "--config", action="append", metavar="CONFIG", dest="configs", default=None,
+            "-c",
+            "--config",
+            action="append",
+            metavar="CONFIG",
+            dest="configs",
+            default=None,
             help="Method config (YAML); repeat to compare methods side by side.",
         )
     else:
         parser.add_argument(
-            "-c", "--config", metavar="CONFIG", default=None,
+            "-c",
+            "--config",
+            metavar="CONFIG",
+            default=None,
             help="Method config (YAML). Default: the built-in minilm + none + svm-rbf.",
         )
 

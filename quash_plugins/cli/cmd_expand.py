@@ -14,9 +14,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
     p.add_argument("query", help="The query text, e.g. 'chair'.")
     add_config_option(p)
-    p.add_argument("--map", metavar="MAP", help="Map to give the heuristic (labels, mined negatives).")
-    p.add_argument("--json", action="store_true",
-                   help='Print {"query", "positives", "negatives", "provenance"} as JSON.')
+    p.add_argument(
+        "--map", metavar="MAP", help="Map to give the heuristic (labels, mined negatives)."
+    )
+    p.add_argument(
+        "--json",
+        action="store_true",
+        help='Print {"query", "positives", "negatives", "provenance"} as JSON.',
+    )
     add_runtime_options(p)
 
 

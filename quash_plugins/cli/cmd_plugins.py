@@ -11,8 +11,11 @@ ORDER = 90
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="Print JSON instead of a table.")
-    p.add_argument("--kind", choices=("encoders", "heuristics", "classifiers", "adapters"),
-                   help="Only this kind.")
+    p.add_argument(
+        "--kind",
+        choices=("encoders", "heuristics", "classifiers", "adapters"),
+        help="Only this kind.",
+    )
 
 
 def run(args: argparse.Namespace) -> int:

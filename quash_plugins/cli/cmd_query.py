@@ -23,8 +23,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("map", help="Map file or directory.")
     p.add_argument("queries", nargs="+", metavar="QUERY", help="One or more queries.")
     add_config_option(p)
-    p.add_argument("--adapter", default=None,
-                   help="Adapter name, or 'auto' to sniff the format (default: the config's).")
+    p.add_argument(
+        "--adapter",
+        default=None,
+        help="Adapter name, or 'auto' to sniff the format (default: the config's).",
+    )
     p.add_argument("--out", metavar="RESULT.npz", help="Write masks and scores (atomically).")
     p.add_argument("--json", action="store_true", help="Print the per-query summary as JSON.")
     add_runtime_options(p)
@@ -53,8 +56,14 @@ def run(args: argparse.Namespace) -> int:
             viewer.log_result(lmap, r, index=i)
         viewer.close()
     if args.json:
-        print_json({"map": lmap.source, "n": lmap.n, "config": cfg.name,
-                    "results": [r.summary() for r in results]})
+        print_json(
+            {
+                "map": lmap.source,
+                "n": lmap.n,
+                "config": cfg.name,
+                "results": [r.summary() for r in results],
+            }
+        )
         return 0
     from rich.table import Table
 
@@ -63,8 +72,12 @@ def run(args: argparse.Namespace) -> int:
         table.add_column(col, justify="right" if col not in ("query",) else "left")
     for r in results:
         table.add_row(
-            r.query, f"{r.n_matched}", f"{100 * r.share:.2f}%", f"{len(r.instances)}",
-            f"{len(r.queryset.positives)}", f"{len(r.queryset.negatives)}",
+            r.query,
+            f"{r.n_matched}",
+            f"{100 * r.share:.2f}%",
+            f"{len(r.instances)}",
+            f"{len(r.queryset.positives)}",
+            f"{len(r.queryset.negatives)}",
             f"{r.timings.get('total', 0.0) * 1000:.0f} ms",
         )
     out = console()

@@ -49,20 +49,28 @@ def _commands():
 def build_parser() -> argparse.ArgumentParser:
     common = argparse.ArgumentParser(add_help=False)
     g = common.add_argument_group("output")
-    g.add_argument("-v", "--verbose", action="count", default=0, help="More log output (-vv: most).")
+    g.add_argument(
+        "-v", "--verbose", action="count", default=0, help="More log output (-vv: most)."
+    )
     g.add_argument("-q", "--quiet", action="store_true", help="Only warnings and errors.")
     g.add_argument("--debug", action="store_true", help="Show tracebacks on errors.")
 
     parser = argparse.ArgumentParser(
-        prog="quash", description=DESCRIPTION, epilog=EPILOG, parents=[common],
+        prog="quash",
+        description=DESCRIPTION,
+        epilog=EPILOG,
+        parents=[common],
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--version", action="version", version=f"quash-plugins {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for mod in _commands():
         p = sub.add_parser(
-            mod.NAME, help=mod.HELP, description=getattr(mod, "DESCRIPTION", mod.HELP),
-            parents=[common], formatter_class=argparse.RawDescriptionHelpFormatter,
+            mod.NAME,
+            help=mod.HELP,
+            description=getattr(mod, "DESCRIPTION", mod.HELP),
+            parents=[common],
+            formatter_class=argparse.RawDescriptionHelpFormatter,
             epilog=getattr(mod, "EPILOG", None),
         )
         mod.add_arguments(p)

@@ -109,6 +109,15 @@ class TableEncoder(Encoder):
             )
         return self._emb[[self._index[t] for t in texts]].copy()
 
+    @classmethod
+    def conformance_params(cls, tmp_path: Path) -> dict[str, Any]:
+        """A small table covering the conformance kit's strings."""
+        rng = np.random.default_rng(0)
+        texts = ["chair", "a red chair", "kitchen sink", "table"]
+        path = Path(tmp_path) / "table.npz"
+        np.savez(path, texts=np.asarray(texts), embeddings=rng.normal(size=(4, 16)))
+        return {"file": str(path)}
+
     def config(self) -> dict[str, Any]:
         digest = hashlib.sha256(self._emb.tobytes()).hexdigest()[:16]
         return {"file": str(self.file) if self.file else None, "sha": digest}

@@ -90,9 +90,15 @@ class StaticHeuristic(Heuristic):
                 f"Known queries: {', '.join(sorted(self._sets)) or '(none)'}.{hint}"
             )
         return QuerySet(
-            query, [query, *entry["positives"]], list(entry["negatives"]),
+            query,
+            [query, *entry["positives"]],
+            list(entry["negatives"]),
             self.provenance(context, file=self.file),
         )
 
     def params(self) -> dict[str, Any]:
         return {"file": self.file}
+
+    @classmethod
+    def conformance_params(cls, tmp_path: Path) -> dict[str, Any]:
+        return {"querysets": {"chair": {"positives": ["armchair"], "negatives": ["table"]}}}

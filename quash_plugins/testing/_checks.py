@@ -1,0 +1,360 @@
+"""The individual conformance checks."""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .. import registry
+from ..errors import QuashError
+from ..interfaces import Encoder, ExpansionContext
+from ..types import LatentMap, QuerySet
+
+_WORDS = [
+    "chair",
+    "table",
+    "sofa",
+    "bed",
+    "lamp",
+    "window",
+    "door",
+    "floor",
+    "wall",
+    "sink",
+    "armchair",
+    "stool",
+    "bench",
+    "desk",
+    "shelf",
+    "plant",
+    "other",
+    "background",
+]
+
+
+class HashingEncoder(Encoder):
+    """Deterministic test encoder: each string maps to a fixed random unit vector.
+
+    Strings sharing words share components, so related phrases are closer than
+    unrelated ones. Used by the kit to exercise heuristics without a real model.
+    """
+
+    name = "hashing-test"
+
+    def __init__(self, dim: int = 32) -> None:
+        self._dim = int(dim)
+
+    @property
+    def dim(self) -> int:
+        return self._dim
+
+    def _word(self, word: str) -> np.ndarray:
+        seed = int.from_bytes(hashlib.sha256(word.encode()).digest()[:8], "little")
+        return np.random.default_rng(seed).normal(size=self._dim)
+
+    def encode_text(self, texts):
+        out = np.zeros((len(texts), self._dim), dtype=np.float64)
+        for i, t in enumerate(texts):
+            for w in str(t).lower().split() or [""]:
+                out[i] += self._word(w)
+        out /= np.linalg.norm(out, axis=1, keepdims=True)
+        return out.astype(np.float32)
+
+    def config(self):
+        return {"dim": self._dim}
+
+
+@dataclass
+class PluginCheck:
+    """One check bound to one plugin; call it with a temporary directory."""
+
+    kind: str
+    name: str
+    check: Callable[[Any, Path], None]
+
+    @property
+    def id(self) -> str:
+        return f"{self.kind}:{self.name}-{self.check.__name__}"
+
+    def __call__(self, tmp_path: Path) -> None:
+        import pytest
+
+        cls = registry.load(self.kind, self.name)
+        reason = getattr(cls, "conformance_skip", None)
+        if reason:
+            pytest.skip(f"{self.kind}:{self.name}: {reason}")
+        tmp_path = Path(tmp_path)
+        tmp_path.mkdir(parents=True, exist_ok=True)
+        plugin = build(self.kind, self.name, tmp_path)
+        self.check(plugin, tmp_path)
+
+
+def build(kind: str, name: str, tmp_path: Path) -> Any:
+    """Build a plugin with its ``conformance_params`` (if any)."""
+    cls = registry.load(kind, name)
+    params = {}
+    factory = getattr(cls, "conformance_params", None)
+    if callable(factory):
+        params = dict(factory(Path(tmp_path)))
+    return registry.create(kind, name, **params)
+
+
+# ---------------------------------------------------------------- encoders
+def check_encoder_output(enc: Any, tmp_path: Path) -> None:
+    dim = enc.dim
+    assert isinstance(dim, (int, np.integer)) and dim > 0, (
+        f"dim must be a positive int; got {dim!r}"
+    )
+    texts = ["chair", "a red chair", "kitchen sink"]
+    e = np.asarray(enc.encode_text(texts))
+    assert e.shape == (3, dim), f"encode_text shape {e.shape}, expected (3, {dim})"
+    assert e.dtype == np.float32, f"encode_text dtype {e.dtype}, expected float32"
+    assert np.isfinite(e).all(), "encode_text returned NaN/Inf"
+    np.testing.assert_allclose(
+        np.linalg.norm(e, axis=1), 1.0, atol=1e-3, err_msg="rows must be L2-normalised"
+    )
+
+
+def check_encoder_deterministic(enc: Any, tmp_path: Path) -> None:
+    a = np.asarray(enc.encode_text(["chair", "table"]))
+    b = np.asarray(enc.encode_text(["chair", "table"]))
+    np.testing.assert_allclose(a, b, atol=1e-5, err_msg="encode_text must be deterministic")
+    single = np.asarray(enc.encode_text(["table"]))
+    np.testing.assert_allclose(
+        a[1], single[0], atol=1e-3, err_msg="an embedding must not depend on its batch"
+    )
+
+
+def check_encoder_empty(enc: Any, tmp_path: Path) -> None:
+    e = np.asarray(enc.encode_text([]))
+    assert e.shape == (0, enc.dim), f"encode_text([]) must be (0, dim); got {e.shape}"
+
+
+def check_encoder_fingerprint(enc: Any, tmp_path: Path) -> None:
+    fp = enc.fingerprint()
+    assert isinstance(fp, str) and fp, "fingerprint() must be a non-empty string"
+    assert fp == enc.fingerprint(), "fingerprint() must be stable"
+    assert isinstance(enc.name, str) and enc.name, "name must be a non-empty string"
+
+
+# ---------------------------------------------------------------- heuristics
+def _context(seed: int = 0) -> ExpansionContext:
+    return ExpansionContext(
+        encoder=HashingEncoder(), label_names=["chair", "table", "sofa"], seed=seed
+    )
+
+
+def check_heuristic_queryset(h: Any, tmp_path: Path) -> None:
+    qs = h.expand("chair", _context())
+    assert isinstance(qs, QuerySet), f"expand must return a QuerySet; got {type(qs).__name__}"
+    assert qs.positives, "a query set needs at least one positive"
+    assert all(isinstance(p, str) and p for p in [*qs.positives, *qs.negatives])
+    assert not set(qs.positives) & set(qs.negatives), "a string cannot be positive and negative"
+    assert isinstance(qs.provenance, dict) and qs.provenance.get("heuristic"), (
+        "provenance must record the heuristic"
+    )
+    QuerySet.from_dict(qs.to_dict())
+
+
+def check_heuristic_seeded(h: Any, tmp_path: Path) -> None:
+    a = h.expand("chair", _context(seed=7)).to_dict()
+    b = h.expand("chair", _context(seed=7)).to_dict()
+    assert a == b, "the same seed must give the same query set"
+
+
+# ---------------------------------------------------------------- classifiers
+def _toy(rng: np.random.Generator, d: int = 32) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    centre_p, centre_n = rng.normal(size=d), rng.normal(size=d)
+    X = np.concatenate(
+        [centre_p + 0.3 * rng.normal(size=(12, d)), centre_n + 0.3 * rng.normal(size=(20, d))]
+    )
+    X /= np.linalg.norm(X, axis=1, keepdims=True)
+    y = np.array([1] * 12 + [0] * 20)
+    E = np.concatenate(
+        [centre_p + 0.3 * rng.normal(size=(50, d)), centre_n + 0.3 * rng.normal(size=(50, d))]
+    )
+    E /= np.linalg.norm(E, axis=1, keepdims=True)
+    return X.astype(np.float32), y, E.astype(np.float32)
+
+
+def check_classifier_params(clf: Any, tmp_path: Path) -> None:
+    from sklearn.base import clone
+
+    params = clf.get_params(deep=False)
+    twin = clone(clf)
+    assert twin.get_params(deep=False).keys() == params.keys(), "clone must keep the parameters"
+    clf.set_params(**params)
+
+
+def check_classifier_fit_predict(clf: Any, tmp_path: Path) -> None:
+    from sklearn.base import clone
+
+    X, y, E = _toy(np.random.default_rng(0))
+    X0, E0 = X.copy(), E.copy()
+    fitted = clone(clf).fit(X, y)
+    assert fitted is not None, "fit must return self"
+    np.testing.assert_array_equal(X, X0, err_msg="fit must not modify X")
+    s = np.asarray(fitted.decision_function(E))
+    np.testing.assert_array_equal(E, E0, err_msg="decision_function must not modify E")
+    assert s.shape == (len(E),), f"decision_function shape {s.shape}, expected ({len(E)},)"
+    assert np.isfinite(s).all(), "decision_function returned NaN/Inf"
+    s = np.asarray(fitted.postprocess_scores(s)) if hasattr(fitted, "postprocess_scores") else s
+    assert s[:50].mean() > s[50:].mean(), "items near the positives must score higher"
+    pred = np.asarray(fitted.predict(E))
+    assert pred.shape == (len(E),)
+
+
+def check_classifier_chunk_invariant(clf: Any, tmp_path: Path) -> None:
+    from sklearn.base import clone
+
+    X, y, E = _toy(np.random.default_rng(1))
+    fitted = clone(clf).fit(X, y)
+    whole = np.asarray(fitted.decision_function(E), dtype=np.float64)
+    parts = np.concatenate(
+        [
+            np.asarray(fitted.decision_function(E[i : i + 17]), dtype=np.float64)
+            for i in range(0, len(E), 17)
+        ]
+    )
+    np.testing.assert_allclose(
+        whole, parts, atol=1e-4, err_msg="decision_function must not depend on the chunking"
+    )
+
+
+# ---------------------------------------------------------------- adapters
+def _digest(source: Any) -> str | None:
+    if not isinstance(source, (str, Path)):
+        return None
+    p = Path(source)
+    h = hashlib.sha256()
+    files = sorted(p.rglob("*")) if p.is_dir() else [p]
+    for f in files:
+        if f.is_file():
+            h.update(str(f.relative_to(p if p.is_dir() else p.parent)).encode())
+            h.update(f.read_bytes())
+    return h.hexdigest()
+
+
+def check_adapter_roundtrip(adapter: Any, tmp_path: Path) -> None:
+    try:
+        source = adapter.write_example(tmp_path / "example")
+    except NotImplementedError:
+        import pytest
+
+        pytest.skip(f"adapter {adapter.name!r} provides no write_example()")
+    before = _digest(source)
+    assert adapter.sniff(source) is True, "sniff must accept the adapter's own example"
+    lmap = adapter.read(source)
+    assert isinstance(lmap, LatentMap), f"read must return a LatentMap; got {type(lmap).__name__}"
+    assert lmap.n > 0 and lmap.dim > 0
+    block = np.asarray(lmap.embeddings[: min(lmap.n, 8)])
+    assert block.shape == (min(lmap.n, 8), lmap.dim)
+    assert _digest(source) == before, "read must not modify the source"
+
+
+def check_adapter_sniff_rejects(adapter: Any, tmp_path: Path) -> None:
+    junk = tmp_path / "junk.bin"
+    junk.write_bytes(b"\x00not a map\x00" * 10)
+    for source in (junk, tmp_path / "missing.file", object(), 42):
+        try:
+            ok = adapter.sniff(source)
+        except Exception as exc:  # noqa: BLE001
+            raise AssertionError(
+                f"sniff must never raise; got {type(exc).__name__}: {exc}"
+            ) from exc
+        assert ok is False, f"sniff must reject {source!r}"
+
+
+def check_adapter_bad_input(adapter: Any, tmp_path: Path) -> None:
+    junk = tmp_path / "junk.bin"
+    junk.write_bytes(b"\x00not a map\x00" * 10)
+    try:
+        adapter.read(junk)
+    except QuashError:
+        return
+    except Exception as exc:  # noqa: BLE001
+        raise AssertionError(
+            f"read of a malformed file must raise a QuashError; got {type(exc).__name__}: {exc}"
+        ) from exc
+    raise AssertionError("read of a malformed file must raise a QuashError")
+
+
+_CHECKS: dict[str, list[Callable[[Any, Path], None]]] = {
+    "encoders": [
+        check_encoder_output,
+        check_encoder_deterministic,
+        check_encoder_empty,
+        check_encoder_fingerprint,
+    ],
+    "heuristics": [check_heuristic_queryset, check_heuristic_seeded],
+    "classifiers": [
+        check_classifier_params,
+        check_classifier_fit_predict,
+        check_classifier_chunk_invariant,
+    ],
+    "adapters": [check_adapter_roundtrip, check_adapter_sniff_rejects, check_adapter_bad_input],
+}
+
+
+def plugin_checks(
+    kinds: str | list[str] | None = None, names: list[str] | None = None, dist: str | None = None
+) -> list[PluginCheck]:
+    """Every (plugin, check) pair for the selected kinds, names and distribution."""
+    if isinstance(kinds, str):
+        kinds = [kinds]
+    selected = [registry.normalize_kind(k) for k in kinds] if kinds else list(registry.KINDS)
+    out = []
+    for kind in selected:
+        for info in registry.plugins(kind):
+            if names is not None and info.name not in names:
+                continue
+            if dist is not None and not registry._same_dist(info.dist, dist):
+                continue
+            qualified = info.qualified if _ambiguous(kind, info.name) else info.name
+            out.extend(PluginCheck(kind, qualified, c) for c in _CHECKS[kind])
+    return out
+
+
+def _ambiguous(kind: str, name: str) -> bool:
+    return len({i.dist for i in registry.plugins(kind) if i.name == name}) > 1
+
+
+def check_plugin(kind: str, name: str, tmp_path: str | Path) -> None:
+    """Run every check for one plugin; raise AssertionError on the first failure."""
+    for c in plugin_checks(kinds=kind, names=[name.split(":")[-1]]):
+        c(Path(tmp_path) / c.check.__name__)
+
+
+def _run_all(kind: str, plugin: Any, tmp_path: str | Path | None) -> None:
+    import tempfile
+
+    base = Path(tmp_path) if tmp_path is not None else Path(tempfile.mkdtemp(prefix="quash-kit-"))
+    for c in _CHECKS[kind]:
+        d = base / c.__name__
+        d.mkdir(parents=True, exist_ok=True)
+        c(plugin, d)
+
+
+def check_encoder(encoder: Any, tmp_path: str | Path | None = None) -> None:
+    """Run every encoder check on an instance."""
+    _run_all("encoders", encoder, tmp_path)
+
+
+def check_heuristic(heuristic: Any, tmp_path: str | Path | None = None) -> None:
+    """Run every heuristic check on an instance."""
+    _run_all("heuristics", heuristic, tmp_path)
+
+
+def check_classifier(classifier: Any, tmp_path: str | Path | None = None) -> None:
+    """Run every classifier check on an (unfitted) instance."""
+    _run_all("classifiers", classifier, tmp_path)
+
+
+def check_adapter(adapter: Any, tmp_path: str | Path | None = None) -> None:
+    """Run every adapter check on an instance."""
+    _run_all("adapters", adapter, tmp_path)

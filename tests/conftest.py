@@ -1,0 +1,76 @@
+"""Shared test set-up: an isolated cache, no network, and small synthetic worlds."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+
+os.environ.setdefault("HF_HUB_OFFLINE", "1")
+os.environ.setdefault("TRANSFORMERS_OFFLINE", "1")
+
+
+@pytest.fixture(autouse=True)
+def _isolated_cache(tmp_path_factory, monkeypatch):
+    """Every test gets its own empty QuASH cache directory (never the user's)."""
+    monkeypatch.setenv("QUASH_CACHE_DIR", str(tmp_path_factory.mktemp("quash-cache")))
+
+
+WORDS = [
+    "chair",
+    "sofa",
+    "table",
+    "lamp",
+    "other",
+    "background",
+    "nothing",
+    "armchair",
+    "couch",
+    "desk",
+]
+
+
+@pytest.fixture
+def tiny_world(tmp_path):
+    """A 16-d text table and a 600-item NPZ map whose items sit near their label's word.
+
+    Returns a dict with paths and the arrays used to build them, so tests can compute
+    expectations independently.
+    """
+    from quash_plugins.adapters._npz import write_npz_map
+    from quash_plugins.types import LatentMap
+
+    rng = np.random.default_rng(42)
+    T = rng.normal(size=(len(WORDS), 16)).astype(np.float32)
+    T /= np.linalg.norm(T, axis=1, keepdims=True)
+    table = tmp_path / "text.npz"
+    np.savez(table, texts=np.asarray(WORDS), embeddings=T)
+    label_names = ["chair", "sofa", "table"]
+    labels = rng.integers(0, 3, size=600)
+    E = T[labels] + 0.25 * rng.normal(size=(600, 16))
+    E = (E / np.linalg.norm(E, axis=1, keepdims=True)).astype(np.float32)
+    positions = rng.uniform(0, 5, size=(600, 3)).astype(np.float32)
+    map_path = write_npz_map(
+        tmp_path / "map.npz",
+        LatentMap(E, positions=positions, labels=labels, label_names=label_names),
+    )
+    config = tmp_path / "contrast.yaml"
+    config.write_text(
+        "name: vlmaps-contrast\n"
+        f"encoder: {{name: table, file: {table.name}}}\n"
+        "heuristic: none\n"
+        "negatives: [other, background, nothing]\n"
+        "classifier: contrast\n"
+    )
+    return {
+        "dir": tmp_path,
+        "table": table,
+        "map": map_path,
+        "config": config,
+        "T": T,
+        "E": E,
+        "labels": labels,
+        "label_names": label_names,
+        "words": WORDS,
+    }

@@ -1,0 +1,178 @@
+"""The CLI as a user meets it: exit codes, messages without tracebacks, outputs."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from quash_plugins.cli.main import main
+
+
+def run_cli(*args, capsys):
+    code = main([str(a) for a in args])
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def test_help_for_every_subcommand(capsys):
+    from quash_plugins.cli.main import _commands
+
+    for mod in _commands():
+        with pytest.raises(SystemExit) as exc:
+            main([mod.NAME, "--help"])
+        assert exc.value.code == 0
+        assert mod.NAME in capsys.readouterr().out
+
+
+def test_no_command_prints_help_and_exits_2(capsys):
+    code, out, _ = run_cli(capsys=capsys)
+    assert code == 2 and "COMMAND" in out
+
+
+def test_query_writes_masks_and_scores(tiny_world, tmp_path, capsys):
+    out_path = tmp_path / "result.npz"
+    code, out, err = run_cli(
+        "query",
+        tiny_world["map"],
+        "chair",
+        "sofa",
+        "-c",
+        tiny_world["config"],
+        "--out",
+        out_path,
+        capsys=capsys,
+    )
+    assert code == 0, err
+    assert "chair" in out and "sofa" in out
+    with np.load(out_path, allow_pickle=False) as z:
+        assert z["queries"].tolist() == ["chair", "sofa"]
+        assert z["masks"].shape == (2, 600) and z["masks"].dtype == bool
+        assert z["scores"].shape == (2, 600) and z["scores"].dtype == np.float32
+        assert (z["masks"] == (z["scores"] > 0)).all()
+    assert not list(tmp_path.glob(".result.npz*")), "no temporary file may be left behind"
+
+
+def test_query_json_summary(tiny_world, capsys):
+    code, out, _ = run_cli(
+        "query",
+        tiny_world["map"],
+        "chair",
+        "-c",
+        tiny_world["config"],
+        "--json",
+        "--adapter",
+        "npz",
+        capsys=capsys,
+    )
+    assert code == 0
+    data = json.loads(out)
+    assert data["n"] == 600 and data["results"][0]["query"] == "chair"
+    assert 0 < data["results"][0]["matched"] < 600
+
+
+def test_expand_json(tiny_world, capsys):
+    code, out, _ = run_cli("expand", "chair", "-c", tiny_world["config"], "--json", capsys=capsys)
+    assert code == 0
+    data = json.loads(out)
+    assert set(data) == {"query", "positives", "negatives", "provenance"}
+    assert data["positives"] == ["chair"] and data["negatives"] == [
+        "other",
+        "background",
+        "nothing",
+    ]
+
+
+def test_plugins_json_lists_distribution_and_status(capsys):
+    code, out, _ = run_cli("plugins", "--json", capsys=capsys)
+    assert code == 0
+    rows = json.loads(out)
+    byname = {(r["kind"], r["name"]): r for r in rows}
+    row = byname[("classifiers", "svm-rbf")]
+    assert row["distribution"] == "quash-plugins" and row["status"] == "ok" and row["version"]
+
+
+def _digest(path):
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+@pytest.mark.parametrize(
+    "case",
+    [
+        "missing_map",
+        "unknown_plugin",
+        "malformed_yaml",
+        "empty_query",
+        "nan",
+        "bad_param",
+        "dimension",
+        "missing_config",
+    ],
+)
+def test_bad_input_clear_message_no_traceback(case, tiny_world, tmp_path, capsys):
+    map_path, cfg = tiny_world["map"], tiny_world["config"]
+    args = ["query", map_path, "chair", "-c", cfg]
+    expect = ""
+    if case == "missing_map":
+        args[1] = tmp_path / "nope.npz"
+        expect = "Map not found"
+    elif case == "unknown_plugin":
+        cfg = tmp_path / "u.yaml"
+        cfg.write_text(f"encoder: {{name: table, file: {tiny_world['table']}}}\nheuristic: llmm\n")
+        args[4] = cfg
+        expect = "'llmm' is not registered"
+    elif case == "malformed_yaml":
+        cfg = tmp_path / "m.yaml"
+        cfg.write_text("encoder: [table\n")
+        args[4] = cfg
+        expect = f"{cfg}:"
+    elif case == "empty_query":
+        args[2] = "  "
+        expect = "query is empty"
+    elif case == "nan":
+        bad = tmp_path / "nan.npz"
+        E = tiny_world["E"].copy()
+        E[5, 0] = np.nan
+        np.savez(bad, embeddings=E)
+        args[1] = bad
+        expect = "NaN"
+    elif case == "bad_param":
+        cfg = tmp_path / "p.yaml"
+        cfg.write_text(
+            f"encoder: {{name: table, file: {tiny_world['table']}}}\n"
+            "classifier: {name: svm-rbf, gama: 2}\n"
+        )
+        args[4] = cfg
+        expect = "'gama'"
+    elif case == "dimension":
+        bad = tmp_path / "wide.npz"
+        np.savez(bad, embeddings=np.ones((5, 512), np.float32))
+        args[1] = bad
+        expect = "512"
+    elif case == "missing_config":
+        args[4] = tmp_path / "nope.yaml"
+        expect = "Config file not found"
+    before = _digest(map_path)
+    code, out, err = run_cli(*args, capsys=capsys)
+    assert code == (2 if case == "missing_config" else 1), err
+    assert expect in err
+    assert "Traceback" not in err and "Traceback" not in out
+    assert _digest(map_path) == before
+
+
+def test_console_script_entry_point(tiny_world):
+    exe = subprocess.run(
+        [sys.executable, "-m", "quash_plugins.cli.main", "--version"],
+        capture_output=True,
+        text=True,
+    )
+    assert exe.returncode == 0 and "quash-plugins" in exe.stdout
+
+
+def test_debug_shows_traceback(tmp_path, capsys):
+    with pytest.raises(Exception, match="Map not found"):
+        main(["query", str(tmp_path / "nope.npz"), "chair", "--debug"])

@@ -1,0 +1,65 @@
+from __future__ import annotations
+
+import pytest
+
+from quash_plugins import Quash, QuashConfig
+from quash_plugins.errors import ConfigError, PluginError
+
+
+def test_yaml_round_trip_and_relative_paths(tiny_world):
+    cfg = QuashConfig.from_yaml(tiny_world["config"])
+    assert cfg.name == "vlmaps-contrast"
+    assert cfg.encoder.name == "table"
+    # the table path is resolved against the config's folder
+    assert cfg.encoder.params["file"] == str(tiny_world["table"].resolve())
+    assert cfg.negatives == ["other", "background", "nothing"]
+    again = QuashConfig.from_dict(cfg.to_dict())
+    assert again.to_dict() == cfg.to_dict()
+
+
+def test_unknown_key_names_file_line_and_suggestion(tmp_path):
+    p = tmp_path / "c.yaml"
+    p.write_text("name: x\nclassifer: svm-rbf\n")
+    with pytest.raises(ConfigError) as err:
+        QuashConfig.from_yaml(p)
+    msg = str(err.value)
+    assert f"{p}:2:" in msg and "'classifer'" in msg and "Did you mean 'classifier'" in msg
+
+
+def test_malformed_yaml_names_file_and_line(tmp_path):
+    p = tmp_path / "bad.yaml"
+    p.write_text("name: x\nencoder: {name: table\nclassifier: svm-rbf\n")
+    with pytest.raises(ConfigError) as err:
+        QuashConfig.from_yaml(p)
+    assert str(p) in str(err.value) and "malformed YAML" in str(err.value)
+    assert ":3:" in str(err.value) or ":2:" in str(err.value)
+
+
+def test_wrong_types_are_rejected(tmp_path):
+    with pytest.raises(ConfigError, match="'threshold' must be a float"):
+        QuashConfig.from_dict({"threshold": "high"})
+    with pytest.raises(ConfigError, match="'cache' must be true or false"):
+        QuashConfig.from_dict({"cache": "yes"})
+    with pytest.raises(ConfigError, match="'negatives' must be a list"):
+        QuashConfig.from_dict({"negatives": "other"})
+    with pytest.raises(ConfigError, match="plugin name or a mapping with 'name'"):
+        QuashConfig.from_dict({"classifier": {"C": 1}})
+
+
+def test_unaccepted_plugin_parameter_names_the_file(tiny_world, tmp_path):
+    p = tmp_path / "c.yaml"
+    p.write_text(
+        f"encoder: {{name: table, file: {tiny_world['table']}}}\n"
+        "classifier: {name: svm-rbf, C: 1.0, kernel: poly}\n"
+    )
+    with pytest.raises(ConfigError) as err:
+        Quash.from_config(p)
+    msg = str(err.value)
+    assert str(p) in msg and "'kernel'" in msg and "Accepted: C, gamma" in msg
+
+
+def test_unknown_plugin_in_config(tiny_world):
+    with pytest.raises(PluginError, match="Heuristic 'llmm' is not registered"):
+        Quash.from_config(
+            {"encoder": {"name": "table", "file": str(tiny_world["table"])}, "heuristic": "llmm"}
+        )

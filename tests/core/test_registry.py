@@ -1,0 +1,79 @@
+from __future__ import annotations
+
+import pytest
+
+from quash_plugins import registry
+from quash_plugins.errors import ConfigError, PluginError
+
+
+def test_builtins_are_listed_from_metadata():
+    assert {"npz"} <= set(registry.available("adapters"))
+    assert {"svm-rbf", "contrast"} <= set(registry.available("classifiers"))
+    assert {"none", "static"} <= set(registry.available("heuristics"))
+    assert "table" in registry.available("encoders")
+    infos = {i.name: i for i in registry.plugins("classifiers")}
+    assert infos["svm-rbf"].dist == "quash-plugins"
+
+
+def test_singular_kind_is_accepted_and_unknown_kind_rejected():
+    assert registry.available("classifier") == registry.available("classifiers")
+    with pytest.raises(PluginError, match="Unknown plugin kind 'widgets'"):
+        registry.available("widgets")
+
+
+def test_unknown_name_lists_known_and_closest():
+    with pytest.raises(PluginError) as err:
+        registry.create("classifiers", "svm-rfb")
+    msg = str(err.value)
+    assert "'svm-rfb' is not registered" in msg
+    assert "contrast" in msg and "Did you mean 'svm-rbf'" in msg
+
+
+def test_unknown_parameter_is_rejected_with_accepted_list():
+    with pytest.raises(ConfigError) as err:
+        registry.create("classifiers", "svm-rbf", gama=1.0)
+    assert "'gama'" in str(err.value) and "gamma" in str(err.value)
+
+
+def test_create_passes_params():
+    clf = registry.create("classifiers", "svm-rbf", C=3.0)
+    assert clf.C == 3.0
+
+
+class _Enc:
+    name = "mine"
+    dim = 2
+
+    def encode_text(self, texts):  # pragma: no cover - not called
+        raise AssertionError
+
+
+def test_register_duplicate_and_qualified_names():
+    registry.register("encoders", "dup", _Enc, dist="pkg-a")
+    registry.register("encoders", "dup", _Enc, dist="pkg-b")
+    try:
+        with pytest.raises(PluginError, match="several distributions: pkg-a, pkg-b"):
+            registry.load("encoders", "dup")
+        assert registry.load("encoders", "pkg-a:dup") is _Enc
+        with pytest.raises(PluginError, match="already registered"):
+            registry.register("encoders", "dup", _Enc, dist="pkg-a")
+        with pytest.raises(PluginError, match="not provided by distribution 'pkg-c'"):
+            registry.load("encoders", "pkg-c:dup")
+    finally:
+        registry.unregister("encoders", "dup", dist="pkg-a")
+        registry.unregister("encoders", "dup", dist="pkg-b")
+    assert "dup" not in registry.available("encoders")
+
+
+def test_register_rejects_interface_breakers():
+    class NotAnEncoder:
+        pass
+
+    with pytest.raises(PluginError, match="lacks encode_text, dim"):
+        registry.register("encoders", "bad", NotAnEncoder)
+
+
+def test_loading_is_cached():
+    a = registry.load("classifiers", "contrast")
+    b = registry.load("classifiers", "contrast")
+    assert a is b

@@ -1,0 +1,115 @@
+"""A real third-party distribution, pip-installed, is discovered like a built-in."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from quash_plugins import Quash, registry
+from quash_plugins.errors import PluginError
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
+
+
+def _pip_install(project: Path, target: Path) -> None:
+    subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "install",
+            "--quiet",
+            "--no-deps",
+            "--no-build-isolation",
+            "--no-index",
+            "--target",
+            str(target),
+            str(project),
+        ],
+        check=True,
+        capture_output=True,
+        text=True,
+    )
+
+
+@pytest.fixture(scope="module")
+def installed(tmp_path_factory):
+    """pip-install the example plugin and the broken plugin into a private target dir."""
+    target = tmp_path_factory.mktemp("site")
+    _pip_install(EXAMPLES / "quash-char-ngram", target)
+    _pip_install(EXAMPLES / "quash-broken-plugin", target)
+    sys.path.insert(0, str(target))
+    registry.refresh()
+    yield target
+    sys.path.remove(str(target))
+    for name in [m for m in sys.modules if m.startswith(("quash_char_ngram", "quash_broken"))]:
+        del sys.modules[name]
+    registry.refresh()
+
+
+def test_discovered_and_listed_with_distribution(installed):
+    assert "char-ngram" in registry.available("encoders")
+    info = registry.info("encoders", "char-ngram")
+    assert info.dist == "quash-char-ngram" and info.version == "0.2.0"
+
+
+def test_usable_by_name_from_a_config(installed, tmp_path):
+    rng = np.random.default_rng(0)
+    from quash_char_ngram import CharNgramEncoder
+
+    enc = CharNgramEncoder(dim=64)
+    T = enc.encode_text(["chair", "table"])
+    E = np.concatenate(
+        [T[0] + 0.05 * rng.normal(size=(20, 64)), T[1] + 0.05 * rng.normal(size=(20, 64))]
+    ).astype(np.float32)
+    np.savez(tmp_path / "m.npz", embeddings=E)
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(
+        "encoder: {name: char-ngram, dim: 64}\nclassifier: contrast\nnegatives: [table, other]\n"
+    )
+    r = Quash.from_config(cfg).query(tmp_path / "m.npz", "chair")
+    assert r.mask[:20].all() and not r.mask[20:].any()
+
+
+def test_passes_the_conformance_kit(installed, tmp_path):
+    from quash_plugins.testing import plugin_checks
+
+    checks = plugin_checks(dist="quash-char-ngram")
+    assert len(checks) == 4
+    for c in checks:
+        c(tmp_path / c.check.__name__)
+
+
+def test_broken_plugin_is_reported_and_others_keep_working(installed):
+    with pytest.raises(PluginError) as err:
+        registry.load("encoders", "broken-encoder")
+    msg = str(err.value)
+    assert "quash-broken-plugin" in msg and "a_dependency_that_is_not_installed" in msg
+    with pytest.raises(PluginError, match="breaks the classifier interface"):
+        registry.load("classifiers", "not-a-classifier")
+    # everything else still loads
+    assert registry.create("encoders", "char-ngram").dim == 256
+    assert registry.create("classifiers", "contrast") is not None
+
+
+def test_cli_lists_plugin_and_broken_status(installed):
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(installed), *sys.path])}
+    out = subprocess.run(
+        [sys.executable, "-m", "quash_plugins.cli.main", "plugins", "--json"],
+        capture_output=True,
+        text=True,
+        env=env,
+        check=True,
+    )
+    rows = {(r["kind"], r["name"]): r for r in json.loads(out.stdout)}
+    assert rows[("encoders", "char-ngram")]["distribution"] == "quash-char-ngram"
+    assert rows[("encoders", "char-ngram")]["status"] == "ok"
+    broken = rows[("encoders", "broken-encoder")]
+    assert broken["status"] == "error" and "quash-broken-plugin" in broken["error"]
+    assert rows[("classifiers", "svm-rbf")]["status"] == "ok"
