@@ -107,7 +107,7 @@ class VLMaps2DAdapter(MapAdapter):
     >>> import tempfile, pathlib
     >>> a = VLMaps2DAdapter()
     >>> m = a.read(a.write_example(pathlib.Path(tempfile.mkdtemp())))
-    >>> m.kind, m.positions[:, 2].max()
+    >>> m.kind, float(m.positions[:, 2].max())
     ('voxels', 0.0)
     """
 

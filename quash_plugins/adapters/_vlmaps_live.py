@@ -83,7 +83,7 @@ class VLMapsLiveAdapter(MapAdapter):
     >>> vlmap = SimpleNamespace(grid_feat=np.eye(3, dtype=np.float32),
     ...                         grid_pos=np.array([[500, 500, 0], [499, 500, 2], [500, 498, 1]]))
     >>> m = VLMapsLiveAdapter().read(vlmap)
-    >>> m.positions[1].round(2).tolist()
+    >>> [round(float(x), 2) for x in m.positions[1]]
     [0.05, 0.0, 0.1]
     """
 
