@@ -1,0 +1,82 @@
+"""``zarr``: maps stored as zarr (written by ``quash convert SRC DST.zarr``), read lazily.
+
+Embeddings stay on disk: a ``zarr.Array`` by default, or a dask array with ``dask: true``.
+Other zarr stores work too: a group holding a 2-D ``embeddings`` array, or a bare 2-D
+array (an embeddings-only map).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..interfaces import MapAdapter
+from ..types import LatentMap
+
+
+def _is_array(meta: Path) -> bool:
+    try:
+        doc = json.loads(meta.read_text())
+    except (OSError, ValueError):
+        return False
+    shape = doc.get("shape")
+    is_array = doc.get("node_type", "array") == "array" or meta.name == ".zarray"
+    return bool(is_array and isinstance(shape, list) and len(shape) == 2)
+
+
+class ZarrAdapter(MapAdapter):
+    """Read a zarr map store lazily.
+
+    Parameters
+    ----------
+    dask
+        Give the embeddings as a ``dask.array`` (``da.from_zarr``) instead of a
+        ``zarr.Array``. Both are read chunk by chunk.
+    chunk_rows
+        Row chunking of the dask array (default: the store's chunks).
+    """
+
+    name = "zarr"
+    priority = 10
+
+    def __init__(self, dask: bool = False, chunk_rows: int | None = None) -> None:
+        self.dask = dask
+        self.chunk_rows = chunk_rows
+
+    def sniff(self, source: Any) -> bool:
+        if not isinstance(source, (str, Path)):
+            return False
+        p = Path(source)
+        if not p.is_dir():
+            return False
+        for meta in ("zarr.json", ".zarray"):
+            if (p / meta).is_file() and _is_array(p / meta):
+                return True
+        for meta in ("zarr.json", ".zarray"):
+            if (p / "embeddings" / meta).is_file():
+                return _is_array(p / "embeddings" / meta)
+        return False
+
+    def read(self, source: Any, **options: Any) -> LatentMap:
+        from ..scale._zarr_store import read_zarr_map
+
+        opts = {"dask": self.dask, "chunk_rows": self.chunk_rows, **options}
+        return read_zarr_map(Path(source), **opts)
+
+    def write_example(self, directory: Path) -> Path:
+        from ..scale._zarr_store import write_zarr_map
+
+        rng = np.random.default_rng(0)
+        lmap = LatentMap(
+            rng.normal(size=(40, 8)).astype(np.float16),
+            kind="voxels",
+            positions=rng.uniform(0, 2, size=(40, 3)).astype(np.float32),
+            colors=rng.integers(0, 255, size=(40, 3), dtype=np.uint8),
+            labels=rng.integers(0, 3, size=40),
+            label_names=["floor", "chair", "table"],
+            voxel_size=0.05,
+        )
+        return write_zarr_map(lmap, Path(directory) / "example.zarr")
