@@ -339,6 +339,16 @@ class Quash:
             )
         return results
 
+    def query_many_lazy(self, source: Any, texts: Sequence[str], **read_options: Any) -> Any:
+        """Like :meth:`query_many`, but masks and scores stay dask arrays until written.
+
+        Returns a :class:`quash_plugins.scale.LazyQuery` (``.masks``, ``.scores``,
+        ``.to_zarr(path)``); runs on :attr:`client` when set. Needs the ``[dask]`` extra.
+        """
+        from .scale import query_lazy
+
+        return query_lazy(self, source, texts, self.client, **read_options)
+
     def _classify(self, lmap: LatentMap, classifiers: list[Any], progress: Any):
         chunk_bytes = int(self.chunk_mb * 2**20)
         if self.backend == "dask":
