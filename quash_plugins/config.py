@@ -295,3 +295,7 @@ def config_reference() -> str:
             default = default.to_dict()
         rows.append(f"| `{f.name}` | `{default!r}` | {f.metadata.get('help', '')} |")
     return "\n".join(rows)
+
+
+if __name__ == "__main__":  # pragma: no cover - regenerates the table in docs/config.md
+    print(config_reference())

@@ -1,0 +1,47 @@
+#!/usr/bin/env bash
+# Set up everything quash-plugins needs on a fresh machine, into ./.venv.
+# Idempotent: re-running only installs what changed. Used by `make demo` and `make test`.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+PYTHON="${PYTHON:-python3}"
+VENV="${VENV:-.venv}"
+
+"$PYTHON" - <<'PY' || { echo "quash-plugins needs Python >= 3.11 (set PYTHON=python3.11)"; exit 1; }
+import sys
+sys.exit(0 if sys.version_info >= (3, 11) else 1)
+PY
+
+# OS packages: libusb for open3d, Chromium for the web-viewer test. Best effort: skipped
+# without root or apt (the browser test then skips with a reason).
+if command -v apt-get >/dev/null 2>&1 && [ "$(id -u)" = 0 ]; then
+  missing=()
+  dpkg -s libusb-1.0-0 >/dev/null 2>&1 || missing+=(libusb-1.0-0)
+  command -v chromium >/dev/null 2>&1 || missing+=(chromium)
+  if [ ${#missing[@]} -gt 0 ]; then
+    echo "[setup] apt-get install ${missing[*]}"
+    apt-get update -qq >/dev/null && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${missing[@]}" >/dev/null
+  fi
+fi
+
+if [ ! -x "$VENV/bin/python" ]; then
+  echo "[setup] creating $VENV"
+  "$PYTHON" -m venv "$VENV"
+fi
+PIP=("$VENV/bin/python" -m pip install --quiet --disable-pip-version-check)
+
+# torch first, pinned: open_clip needs torchvision, and this pair is known to import
+# together (a bare `torch` would pull several GB of other builds).
+if ! "$VENV/bin/python" -c "import torch, torchvision" >/dev/null 2>&1; then
+  echo "[setup] installing torch + torchvision"
+  "${PIP[@]}" "torch==2.14.1" "torchvision==0.29.1"
+fi
+
+# open3d-cpu instead of the [open3d] extra's open3d (never both).
+stamp="$VENV/.quash-installed"
+if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
+  echo "[setup] installing quash-plugins and its extras"
+  "${PIP[@]}" -e ".[clip,st,rerun,llm,dask,hdf5,plots,dev]" "open3d-cpu>=0.18"
+  touch "$stamp"
+fi
+echo "[setup] ready: $VENV/bin/quash"
