@@ -1,0 +1,139 @@
+"""Convert any readable map to quash-plugins' portable NPZ (or a Zarr store).
+
+:func:`convert_map` reads with any adapter and writes atomically. In-memory maps go
+through :func:`~quash_plugins.adapters._npz.write_npz_map`; lazy maps (HDF5 datasets,
+per-frame feature maps, memmaps gathered through an index) are streamed into the NPZ
+block by block by :func:`write_npz_streaming`, so the map is never held whole.
+
+Pixel maps keep their frames as three extra arrays (``frame_ids (F,) str``,
+``frame_hw (F, 2) int64``, ``frame_offsets (F,) int64``), which :func:`frames_from_npz`
+turns back into :class:`~quash_plugins.types.FrameInfo`.
+"""
+
+from __future__ import annotations
+
+import logging
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import QuashError, UsageError
+from ..types import FrameInfo, LatentMap
+
+log = logging.getLogger(__name__)
+
+
+def _frame_arrays(lmap: LatentMap) -> dict[str, np.ndarray]:
+    if not lmap.frames:
+        return {}
+    return {
+        "frame_ids": np.asarray([f.frame_id for f in lmap.frames], dtype=str),
+        "frame_hw": np.asarray([(f.height, f.width) for f in lmap.frames], dtype=np.int64),
+        "frame_offsets": np.asarray([f.offset for f in lmap.frames], dtype=np.int64),
+    }
+
+
+def frames_from_npz(path: str | Path) -> list[FrameInfo] | None:
+    """The frames stored by :func:`write_npz_streaming` in ``path``, or None."""
+    with np.load(path, allow_pickle=False) as z:
+        if "frame_ids" not in z.files:
+            return None
+        ids, hw, off = z["frame_ids"], z["frame_hw"], z["frame_offsets"]
+    return [FrameInfo(str(i), int(h), int(w), int(o)) for i, (h, w), o in zip(ids, hw, off)]
+
+
+def _small_arrays(lmap: LatentMap) -> dict[str, Any]:
+    arrays: dict[str, Any] = {"kind": np.asarray(lmap.kind)}
+    for key in ("positions", "colors", "labels", "grid_index"):
+        value = getattr(lmap, key)
+        if value is not None:
+            arrays[key] = np.asarray(value)
+    if lmap.label_names is not None:
+        arrays["label_names"] = np.asarray(lmap.label_names, dtype=str)
+    if lmap.voxel_size is not None:
+        arrays["voxel_size"] = np.float32(lmap.voxel_size)
+    if lmap.normalize:
+        arrays["normalize"] = np.asarray(True)
+    arrays.update(_frame_arrays(lmap))
+    return arrays
+
+
+def write_npz_streaming(path: str | Path, lmap: LatentMap, chunk_rows: int = 65536) -> Path:
+    """Write ``lmap`` as a portable NPZ, copying embeddings ``chunk_rows`` rows at a time.
+
+    Values and dtype are kept as stored (float16 stays float16, rows are not normalised;
+    the ``normalize`` flag is recorded instead). The file appears atomically.
+    """
+    from .._io import atomic_write
+
+    path = Path(path)
+    emb = lmap.embeddings
+    n, d = lmap.n, lmap.dim
+    dtype = np.dtype(emb.dtype)
+    header = {"descr": np.lib.format.dtype_to_descr(dtype), "fortran_order": False, "shape": (n, d)}
+    with (
+        atomic_write(path, suffix=".npz") as tmp,
+        zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_STORED, allowZip64=True) as zf,
+    ):
+        with zf.open("embeddings.npy", "w", force_zip64=True) as fp:
+            np.lib.format.write_array_header_2_0(fp, header)
+            for start in range(0, n, chunk_rows):
+                block = np.ascontiguousarray(emb[start : min(n, start + chunk_rows)], dtype=dtype)
+                fp.write(block.tobytes())
+        for key, value in _small_arrays(lmap).items():
+            with zf.open(f"{key}.npy", "w", force_zip64=True) as fp:
+                np.lib.format.write_array(fp, np.asarray(value), allow_pickle=False)
+    return path
+
+
+def convert_map(
+    source: Any,
+    destination: str | Path,
+    adapter: str = "auto",
+    compress: bool = False,
+    **options: Any,
+) -> Path:
+    """Read ``source`` with ``adapter`` and write it to ``destination`` (``.npz`` or ``.zarr``).
+
+    The source is never written to; ``destination`` must differ from it.
+
+    Examples
+    --------
+    >>> convert_map("saved-map", "room0.npz")  # doctest: +SKIP
+    PosixPath('room0.npz')
+    """
+    from . import read_map
+
+    dst = Path(destination).expanduser()
+    if isinstance(source, (str, Path)):
+        src = Path(source).expanduser()
+        if src.exists() and (
+            dst.resolve() == src.resolve() or src.resolve() in dst.resolve().parents
+        ):
+            raise UsageError(f"Destination {dst} would overwrite or sit inside the input {src}.")
+    suffix = dst.suffix.lower()
+    if suffix not in (".npz", ".zarr"):
+        raise UsageError(
+            f"Destination {dst} must end in .npz (portable map) or .zarr (Zarr store)."
+        )
+    lmap = read_map(source, adapter, **options)
+    if suffix == ".zarr":
+        try:
+            from ..scale import write_zarr_map
+        except ImportError as exc:
+            raise QuashError(
+                "Writing a .zarr store needs quash_plugins.scale.write_zarr_map and zarr: "
+                f'pip install "quash-plugins[dask]" ({exc}).'
+            ) from None
+        return Path(write_zarr_map(lmap, dst))
+    if isinstance(lmap.embeddings, np.ndarray) and not lmap.frames:
+        from ._npz import write_npz_map
+
+        written = write_npz_map(dst, lmap, compress=compress)
+    else:
+        if compress:
+            log.info("--compress is ignored for streamed maps (written uncompressed)")
+        written = write_npz_streaming(dst, lmap)
+    return written

@@ -1,0 +1,277 @@
+"""``openlex3d``: OpenLex3D's neutral prediction layout (and, opt-in, ConceptGraphs pickles).
+
+OpenLex3D evaluates any method from a folder of three files:
+
+- ``point_cloud.pcd``: the RGB point cloud, ``n_points`` points (read through open3d;
+  ``pointcloud.pcd`` and ``input.ply`` are accepted too, as written by some converters).
+- ``embeddings.npy``: ``(n_objects, D)`` features, one row per object (per point for
+  dense methods).
+- ``index.npy``: ``(n_points,)`` int; ``embeddings[index[i]]`` is the feature of point
+  ``i``. Dense methods store ``np.arange(n_points)``.
+
+The embeddings are memory-mapped. A dense map (``index == arange``) uses the memmap
+directly; otherwise rows are gathered through the index block by block
+(:class:`~quash_plugins.adapters._lazy.IndexedRows`). A negative index marks a point
+with no object: its row is zero, so it never matches. Rows are L2-normalised when read.
+
+Pickles (ConceptGraphs ``*.pkl.gz``) are never unpickled unless ``allow_pickle=True``:
+unpickling runs code from the file. With the opt-in, ConceptGraphs' ``objects`` list is
+read the same way (``clip_ft`` per object, ``pcd_np`` / ``pcd_color_np`` per point).
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import MapFormatError, QuashError
+from ..interfaces import MapAdapter
+from ..types import LatentMap
+from ._lazy import IndexedRows, colors_to_uint8, scan_finite, should_scan
+
+log = logging.getLogger(__name__)
+
+CLOUD_NAMES = ("point_cloud.pcd", "pointcloud.pcd", "point_cloud.ply", "input.ply")
+PICKLE_SUFFIXES = (".pkl", ".pickle", ".pkl.gz", ".pickle.gz")
+
+
+def is_pickle_path(source: Any) -> bool:
+    return isinstance(source, (str, Path)) and str(source).lower().endswith(PICKLE_SUFFIXES)
+
+
+def pickle_refusal(path: Path) -> MapFormatError:
+    return MapFormatError(
+        f"{path}: is a pickle (e.g. a ConceptGraphs map). Pickles are never loaded by default "
+        "because unpickling runs code from the file. If you trust it, opt in with the "
+        "'openlex3d' adapter option allow_pickle=True (config: adapter: {name: openlex3d, "
+        "allow_pickle: true}; CLI: quash convert SRC DST.npz --allow-pickle), then keep the "
+        "converted .npz."
+    )
+
+
+def _open3d():
+    try:
+        import open3d as o3d
+    except ImportError:
+        raise QuashError(
+            'Reading point_cloud.pcd needs open3d: pip install "quash-plugins[open3d]"'
+        ) from None
+    return o3d
+
+
+def _find_cloud(folder: Path) -> Path | None:
+    for name in CLOUD_NAMES:
+        if (folder / name).is_file():
+            return folder / name
+    return None
+
+
+def _load_npy(path: Path, field: str) -> np.ndarray:
+    if not path.is_file():
+        raise MapFormatError(
+            f"{path}: missing file; OpenLex3D predictions need point_cloud.pcd, "
+            f"embeddings.npy and index.npy ({field})."
+        )
+    try:
+        return np.load(path, mmap_mode="r", allow_pickle=False)
+    except ValueError as exc:
+        raise MapFormatError(f"{path}: field {field!r} holds pickled objects ({exc}).") from None
+    except (OSError, EOFError) as exc:
+        raise MapFormatError(f"{path}: not a readable .npy array ({exc}).") from None
+
+
+class OpenLex3DAdapter(MapAdapter):
+    """Read OpenLex3D's ``point_cloud.pcd`` + ``embeddings.npy`` + ``index.npy`` folder.
+
+    Parameters
+    ----------
+    allow_pickle
+        Allow reading ConceptGraphs ``.pkl`` / ``.pkl.gz`` files. Only for files you trust.
+    check_finite
+        Scan the embeddings for NaN/Inf while reading: True, False or ``"auto"`` (only up
+        to ``finite_check_mb``; larger maps are checked block by block at query time).
+    finite_check_mb
+        Size limit of the ``"auto"`` scan, in MiB.
+
+    Examples
+    --------
+    >>> from quash_plugins import registry
+    >>> lmap = registry.create("adapters", "openlex3d").read("preds/replica/office0")  # doctest: +SKIP
+    """
+
+    name = "openlex3d"
+    priority = 40
+
+    def __init__(
+        self,
+        allow_pickle: bool = False,
+        check_finite: bool | str = "auto",
+        finite_check_mb: float = 512.0,
+    ) -> None:
+        self.allow_pickle = allow_pickle
+        self.check_finite = check_finite
+        self.finite_check_mb = finite_check_mb
+
+    def sniff(self, source: Any) -> bool:
+        try:
+            if not isinstance(source, (str, Path)):
+                return False
+            p = Path(source)
+            if p.is_file():
+                return is_pickle_path(p) or (p.name in CLOUD_NAMES and self.sniff(p.parent))
+            return (
+                p.is_dir()
+                and (p / "embeddings.npy").is_file()
+                and (p / "index.npy").is_file()
+                and _find_cloud(p) is not None
+            )
+        except OSError:
+            return False
+
+    def read(self, source: Any, **options: Any) -> LatentMap:
+        opts = {
+            "allow_pickle": self.allow_pickle,
+            "check_finite": self.check_finite,
+            "finite_check_mb": self.finite_check_mb,
+            **options,
+        }
+        unknown = set(opts) - {"allow_pickle", "check_finite", "finite_check_mb"}
+        if unknown:
+            raise MapFormatError(f"Adapter 'openlex3d' has no option(s) {sorted(unknown)}.")
+        path = Path(source).expanduser()
+        if is_pickle_path(path):
+            if not opts["allow_pickle"]:
+                raise pickle_refusal(path)
+            from ._conceptgraphs import read_conceptgraphs
+
+            return read_conceptgraphs(path)
+        folder = path.parent if path.is_file() else path
+        if not folder.is_dir():
+            raise MapFormatError(f"Map not found: {path}")
+        cloud = _find_cloud(folder)
+        if cloud is None:
+            raise MapFormatError(
+                f"{folder / 'point_cloud.pcd'}: missing file; OpenLex3D predictions need "
+                "point_cloud.pcd, embeddings.npy and index.npy."
+            )
+        table = _load_npy(folder / "embeddings.npy", "embeddings")
+        index = _load_npy(folder / "index.npy", "index")
+        emb_label, idx_label = folder / "embeddings.npy", folder / "index.npy"
+        if table.ndim != 2:
+            raise MapFormatError(
+                f"{emb_label}: field 'embeddings' must be 2-D (n_objects, D); got shape {table.shape}."
+            )
+        if table.shape[0] == 0 or table.shape[1] == 0:
+            raise MapFormatError(f"{emb_label}: field 'embeddings' is empty (shape {table.shape}).")
+        if table.dtype.kind not in "fiu":
+            raise MapFormatError(
+                f"{emb_label}: field 'embeddings' must hold numbers; got {table.dtype}."
+            )
+        if index.ndim != 1:
+            raise MapFormatError(
+                f"{idx_label}: field 'index' must be 1-D (n_points,); got shape {index.shape}."
+            )
+        index = self._check_index(np.asarray(index), idx_label, table.shape[0])
+
+        positions, colors = self._read_cloud(cloud)
+        if len(positions) != len(index):
+            raise MapFormatError(
+                f"{idx_label}: field 'index' has {len(index)} entries but {cloud.name} has "
+                f"{len(positions)} points; row counts must match."
+            )
+        if should_scan(
+            opts["check_finite"], table.size * table.dtype.itemsize, opts["finite_check_mb"]
+        ):
+            scan_finite(table, str(emb_label), "embeddings")
+        dense = len(index) == table.shape[0] and np.array_equal(index, np.arange(len(index)))
+        embeddings = table if dense else IndexedRows(table, index)
+        return LatentMap(
+            embeddings=embeddings,
+            kind="points",
+            positions=positions,
+            colors=colors,
+            normalize=True,
+            source={
+                "adapter": self.name,
+                "path": str(folder),
+                "cloud": cloud.name,
+                "objects": int(table.shape[0]),
+                "dense": bool(dense),
+            },
+        )
+
+    @staticmethod
+    def _check_index(index: np.ndarray, label: Path, n_objects: int) -> np.ndarray:
+        if index.size == 0:
+            raise MapFormatError(f"{label}: field 'index' is empty; the map has no points.")
+        if index.dtype.kind == "f":
+            if not np.isfinite(index).all() or not np.array_equal(index, np.round(index)):
+                raise MapFormatError(
+                    f"{label}: field 'index' must hold integers; got non-integral floats."
+                )
+        elif index.dtype.kind not in "iu":
+            raise MapFormatError(f"{label}: field 'index' must hold integers; got {index.dtype}.")
+        index = index.astype(np.int64)
+        top = int(index.max())
+        if top >= n_objects:
+            raise MapFormatError(
+                f"{label}: field 'index' refers to row {top}, but embeddings.npy has only "
+                f"{n_objects} rows."
+            )
+        if int(index.min()) < -1:
+            raise MapFormatError(f"{label}: field 'index' must be >= -1 (-1 = no object).")
+        return index
+
+    @staticmethod
+    def _read_cloud(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
+        o3d = _open3d()
+        pcd = o3d.io.read_point_cloud(str(path))
+        points = np.asarray(pcd.points, dtype=np.float32)
+        if points.ndim != 2 or len(points) == 0:
+            raise MapFormatError(
+                f"{path}: field 'points' is empty or unreadable (open3d read no points)."
+            )
+        if not np.isfinite(points).all():
+            bad = int(np.argwhere(~np.isfinite(points))[0][0])
+            raise MapFormatError(
+                f"{path}: field 'points' contains NaN or Inf (first at point {bad})."
+            )
+        colors = None
+        if pcd.has_colors():
+            colors = colors_to_uint8(np.asarray(pcd.colors), str(path), "0-1")
+        return points, colors
+
+    def write_example(self, directory: Path) -> Path:
+        """Write an object-level OpenLex3D folder (5 objects, 50 points, one unassigned)."""
+        rng = np.random.default_rng(0)
+        folder = Path(directory) / "openlex3d-example"
+        points = rng.uniform(-1, 1, size=(50, 3))
+        colors = rng.uniform(0, 1, size=(50, 3))
+        index = rng.integers(0, 5, size=50)
+        index[0] = -1
+        write_openlex3d(folder, points, colors, rng.normal(size=(5, 12)).astype(np.float32), index)
+        return folder
+
+
+def write_openlex3d(
+    folder: str | Path,
+    points: np.ndarray,
+    colors: np.ndarray | None,
+    embeddings: np.ndarray,
+    index: np.ndarray,
+) -> Path:
+    """Write OpenLex3D's layout: ``point_cloud.pcd`` (colours 0-1), ``embeddings.npy``, ``index.npy``."""
+    o3d = _open3d()
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    pcd = o3d.geometry.PointCloud()
+    pcd.points = o3d.utility.Vector3dVector(np.asarray(points, dtype=np.float64))
+    if colors is not None:
+        pcd.colors = o3d.utility.Vector3dVector(np.asarray(colors, dtype=np.float64))
+    o3d.io.write_point_cloud(str(folder / "point_cloud.pcd"), pcd)
+    np.save(folder / "embeddings.npy", np.asarray(embeddings))
+    np.save(folder / "index.npy", np.asarray(index))
+    return folder

@@ -1,0 +1,87 @@
+"""``quash convert``: any readable map to the portable NPZ format (or a Zarr store)."""
+
+from __future__ import annotations
+
+import argparse
+
+NAME = "convert"
+HELP = "Convert any readable map (VLMaps, ConceptFusion, OpenLex3D...) to a portable .npz."
+ORDER = 40
+DESCRIPTION = """\
+Read a map with any adapter and write it as quash-plugins' portable NPZ (embeddings,
+positions, colours, labels...), or as a Zarr store when DST ends in .zarr. The input is
+only read; the output appears atomically. Lazy maps (HDF5, per-image features) are
+streamed block by block, so the map is never held whole in memory."""
+EPILOG = """\
+examples:
+  quash convert saved-map room0.npz                 # ConceptFusion pointclouds/
+  quash convert vlmap/vlmaps.h5df office.npz --adapter vlmaps
+  quash convert saved-feat frames.npz --adapter image-features
+  quash convert map.pkl.gz map.npz --allow-pickle   # ConceptGraphs, trusted files only
+  quash convert saved-map room0.zarr                # chunked Zarr store (needs [dask])"""
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("source", metavar="SRC", help="Map file or directory to read.")
+    p.add_argument("destination", metavar="DST", help="Output: DST.npz or DST.zarr.")
+    p.add_argument(
+        "--adapter", default="auto", help="Adapter name, or 'auto' to sniff the format (default)."
+    )
+    p.add_argument(
+        "--allow-pickle",
+        action="store_true",
+        help="Allow unpickling a trusted .pkl/.pkl.gz map (ConceptGraphs). Never the default.",
+    )
+    p.add_argument(
+        "--option",
+        "-o",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="Adapter option, e.g. -o gs=1000 -o cs=0.05 (values parsed as YAML); repeatable.",
+    )
+    p.add_argument("--compress", action="store_true", help="Compress in-memory maps (slower).")
+    p.add_argument("--json", action="store_true", help="Print a JSON summary.")
+
+
+def _parse_options(items: list[str]) -> dict:
+    import yaml
+
+    from ..errors import UsageError
+
+    out = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise UsageError(f"--option expects KEY=VALUE; got {item!r}.")
+        out[key.strip()] = yaml.safe_load(value) if value else ""
+    return out
+
+
+def run(args: argparse.Namespace) -> int:
+    from .. import registry
+    from ..adapters import detect_adapter
+    from ..adapters._convert import convert_map
+    from ..errors import UsageError
+    from ._common import console, print_json
+
+    options = _parse_options(args.option)
+    name = args.adapter
+    if name in (None, "auto"):
+        from pathlib import Path
+
+        src = Path(args.source).expanduser()
+        if not src.exists():
+            raise UsageError(f"Map not found: {src}")
+        name = detect_adapter(src)
+    if args.allow_pickle:
+        accepted = registry.accepted_params(registry.load("adapters", name))
+        if accepted is not None and "allow_pickle" not in accepted:
+            raise UsageError(f"--allow-pickle: adapter {name!r} does not read pickles.")
+        options["allow_pickle"] = True
+    written = convert_map(args.source, args.destination, name, compress=args.compress, **options)
+    if args.json:
+        print_json({"source": args.source, "adapter": name, "destination": str(written)})
+    else:
+        console().print(f"wrote {written} (read with adapter {name!r})")
+    return 0
