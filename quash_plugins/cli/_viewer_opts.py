@@ -7,11 +7,40 @@ from typing import Any
 
 
 def add_viewer_arguments(parser: argparse.ArgumentParser) -> None:
-    g = parser.add_argument_group("Rerun viewer")
-    g.add_argument("--rrd", metavar="FILE.rrd", help="Write a Rerun recording to this file.")
-    g.add_argument("--spawn", action="store_true", help="Open the Rerun viewer.")
-    g.add_argument("--connect", metavar="URL", help="Stream to a running Rerun viewer.")
-    g.add_argument("--serve-web", action="store_true", help="Serve the web viewer.")
+    """Add ``--rrd``, ``--spawn``, ``--connect``, ``--serve-web``, ``--web-port``, ``--grpc-port``."""
+    g = parser.add_argument_group(
+        "Rerun viewer", "Log the map and every query to Rerun (needs the [rerun] extra)."
+    )
+    g.add_argument(
+        "--rrd",
+        metavar="FILE.rrd",
+        help="Write a Rerun recording to this file (atomically; open it with `rerun FILE.rrd`).",
+    )
+    g.add_argument("--spawn", action="store_true", help="Open the native Rerun viewer.")
+    g.add_argument(
+        "--connect",
+        metavar="URL",
+        help="Stream to a running Rerun viewer, e.g. rerun+http://127.0.0.1:9876/proxy.",
+    )
+    g.add_argument(
+        "--serve-web",
+        action="store_true",
+        help="Serve the web viewer on 127.0.0.1, print its URL and keep serving until Ctrl-C.",
+    )
+    g.add_argument(
+        "--web-port",
+        type=int,
+        default=9090,
+        metavar="PORT",
+        help="HTTP port of the web viewer for --serve-web (default: 9090).",
+    )
+    g.add_argument(
+        "--grpc-port",
+        type=int,
+        default=9876,
+        metavar="PORT",
+        help="gRPC port the web viewer reads the recording from (default: 9876).",
+    )
 
 
 def open_viewer(args: argparse.Namespace, app_id: str = "quash") -> Any:

@@ -1,0 +1,148 @@
+"""Display-only helpers: deterministic thinning, PCA colours, colormaps, slugs.
+
+Nothing here touches what a query computes; these functions only decide what is drawn.
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+
+from ..types import LatentMap
+
+#: Rows read per block when projecting embeddings for PCA colours.
+_PCA_BLOCK_ROWS = 65_536
+
+#: Small viridis-like lookup table used when matplotlib is not installed.
+_FALLBACK_LUT = np.array(
+    [
+        [68, 1, 84],
+        [72, 40, 120],
+        [62, 74, 137],
+        [49, 104, 142],
+        [38, 130, 142],
+        [31, 158, 137],
+        [53, 183, 121],
+        [109, 205, 89],
+        [180, 222, 44],
+        [253, 231, 37],
+    ],
+    dtype=np.float32,
+)
+
+
+def display_indices(n: int, limit: int) -> np.ndarray | None:
+    """Indices of the items drawn when a layer has ``n`` items and may draw ``limit``.
+
+    Returns None when every item is drawn. Otherwise returns ``(limit,)`` int64 sorted,
+    evenly strided indices: deterministic (the same map always shows the same items)
+    and spread over the whole map, including the last item.
+
+    >>> display_indices(10, 20) is None
+    True
+    >>> display_indices(10, 4).tolist()
+    [0, 3, 6, 9]
+    """
+    if limit <= 0 or n <= limit:
+        return None
+    return np.unique(np.linspace(0, n - 1, int(limit)).round().astype(np.int64))
+
+
+def thin(indices: np.ndarray, limit: int) -> np.ndarray:
+    """Keep at most ``limit`` entries of ``indices`` (evenly strided, deterministic)."""
+    keep = display_indices(len(indices), limit)
+    return indices if keep is None else indices[keep]
+
+
+def slugify(text: str, fallback: str = "query") -> str:
+    """Entity-path-safe name for a query: lowercase ASCII words joined by ``_``.
+
+    >>> slugify("Red  Chair!")
+    'red_chair'
+    """
+    slug = re.sub(r"[^a-z0-9]+", "_", text.lower()).strip("_")
+    return slug[:64] or fallback
+
+
+def _read_rows(lmap: LatentMap, idx: np.ndarray) -> np.ndarray:
+    """``(len(idx), D)`` float32 rows at sorted ``idx``, normalised when the map asks."""
+    from ..types import prepare_block
+
+    emb = lmap.embeddings
+    if len(idx) and idx[-1] - idx[0] + 1 == len(idx):
+        block = np.asarray(emb[int(idx[0]) : int(idx[-1]) + 1], dtype=np.float32)
+    else:
+        block = np.asarray(emb[idx], dtype=np.float32)
+    return prepare_block(np.array(block, dtype=np.float32), 0, lmap.normalize, lmap.source)
+
+
+def pca_colors(
+    lmap: LatentMap, items: np.ndarray | None = None, sample: int = 20_000, seed: int = 0
+) -> np.ndarray:
+    """Colour items by the first three principal components of their embeddings.
+
+    The components are fitted on at most ``sample`` rows (a seeded, sorted subsample)
+    and the projection is done in blocks, so the embeddings are never read whole.
+
+    Parameters
+    ----------
+    lmap
+        The map.
+    items
+        ``(M,)`` sorted item indices to colour, or None for all ``N`` items.
+
+    Returns
+    -------
+    ``(M, 3)`` uint8 colours; unobserved (all-zero) rows are mid grey.
+    """
+    n = lmap.n
+    items = np.arange(n, dtype=np.int64) if items is None else np.asarray(items, np.int64)
+    rng = np.random.default_rng(seed)
+    fit_idx = np.sort(rng.choice(n, size=min(n, sample), replace=False))
+    fit = _read_rows(lmap, fit_idx)
+    observed = np.abs(fit).sum(axis=1) > 0
+    fit = fit[observed] if observed.any() else fit
+    mean = fit.mean(axis=0)
+    centred = fit - mean
+    if len(fit) >= 2:
+        _, _, vt = np.linalg.svd(centred, full_matrices=False)
+        comps = vt[:3]
+    else:
+        comps = np.eye(3, lmap.dim, dtype=np.float32)
+    if comps.shape[0] < 3:
+        comps = np.vstack([comps, np.zeros((3 - comps.shape[0], lmap.dim), np.float32)])
+    proj_fit = centred @ comps.T
+    lo = np.percentile(proj_fit, 2, axis=0)
+    hi = np.percentile(proj_fit, 98, axis=0)
+    span = np.where(hi - lo > 1e-12, hi - lo, 1.0)
+    out = np.empty((len(items), 3), dtype=np.uint8)
+    for start in range(0, len(items), _PCA_BLOCK_ROWS):
+        idx = items[start : start + _PCA_BLOCK_ROWS]
+        rows = _read_rows(lmap, idx)
+        proj = (rows - mean) @ comps.T
+        rgb = np.clip((proj - lo) / span, 0.0, 1.0) * 255.0
+        rgb[np.abs(rows).sum(axis=1) == 0] = 128.0
+        out[start : start + len(idx)] = np.rint(rgb).astype(np.uint8)
+    return out
+
+
+def colormap(values: np.ndarray, name: str = "viridis") -> np.ndarray:
+    """``(M,)`` values in [0, 1] to ``(M, 3)`` uint8 colours under a colormap.
+
+    Uses matplotlib's colormap ``name`` when matplotlib is installed, else a built-in
+    viridis-like table.
+    """
+    v = np.clip(np.nan_to_num(np.asarray(values, dtype=np.float32), nan=0.0), 0.0, 1.0)
+    try:
+        from matplotlib import colormaps
+
+        rgba = colormaps[name](v)
+        return np.rint(np.asarray(rgba)[..., :3] * 255.0).astype(np.uint8)
+    except (ImportError, KeyError):
+        pos = v * (len(_FALLBACK_LUT) - 1)
+        lo = np.floor(pos).astype(np.int64)
+        hi = np.minimum(lo + 1, len(_FALLBACK_LUT) - 1)
+        t = (pos - lo)[..., None]
+        rgb = _FALLBACK_LUT[lo] * (1.0 - t) + _FALLBACK_LUT[hi] * t
+        return np.rint(rgb).astype(np.uint8)

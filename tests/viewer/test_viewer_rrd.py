@@ -1,0 +1,242 @@
+"""RerunLogger and ``quash query --rrd``: read each .rrd back with Rerun's own reader."""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+rr = pytest.importorskip("rerun")
+from _viewer_maps import make_quash, pixel_map, voxel_map, write_table_config  # noqa: E402
+from rerun.chunk import RrdReader  # noqa: E402
+
+from quash_plugins.types import Instance, QueryResult  # noqa: E402
+from quash_plugins.viewer import MATCH_COLOR, RerunLogger  # noqa: E402
+
+
+@pytest.fixture(autouse=True)
+def _strict():
+    rr.set_strict_mode(True)
+    yield
+    rr.set_strict_mode(False)
+
+
+def read_rrd(path: Path) -> tuple[RrdReader, dict[str, list]]:
+    reader = RrdReader(path)
+    by_path: dict[str, list] = defaultdict(list)
+    for chunk in reader.stream().to_chunks():
+        by_path[chunk.entity_path.lstrip("/")].append(chunk)
+    return reader, by_path
+
+
+def rows(chunks: list, column: str) -> list[tuple[int | None, object]]:
+    """(query index or None for static, value) for every row holding ``column``."""
+    out = []
+    for chunk in chunks:
+        rb = chunk.to_record_batch()
+        if column not in rb.schema.names:
+            continue
+        values = rb.column(column).to_pylist()
+        times = (
+            rb.column("query").to_pylist() if "query" in rb.schema.names else [None] * len(values)
+        )
+        out += [(t, v) for t, v in zip(times, values) if v is not None]
+    return sorted(out, key=lambda tv: -1 if tv[0] is None else tv[0])
+
+
+def blueprint_views(reader: RrdReader) -> set[tuple[str, str]]:
+    """(view class, origin) pairs of the blueprint stored in the file."""
+    views = set()
+    for store in reader.blueprints():
+        for chunk in reader.stream(store=store).to_chunks():
+            rb = chunk.to_record_batch()
+            if "ViewBlueprint:class_identifier" in rb.schema.names:
+                cls = rb.column("ViewBlueprint:class_identifier").to_pylist()
+                org = rb.column("ViewBlueprint:space_origin").to_pylist()
+                views |= {(c[0], o[0]) for c, o in zip(cls, org)}
+    return views
+
+
+def log_to_file(path: Path, lmap, results, **options) -> None:
+    rec = rr.RecordingStream("quash-test")
+    rec.save(path)
+    logger = RerunLogger(rec, **options)
+    logger.log_map(lmap)
+    for i, r in enumerate(results):
+        logger.log_result(lmap, r, index=i)
+    logger.close()
+    rec.disconnect()
+
+
+def test_voxel_map_layout_counts_and_blueprint(tmp_path):
+    lmap = voxel_map()
+    results = make_quash().query_many(lmap, ["chair", "sofa"])
+    # Ground truth is independent of the logger: the chair and sofa blocks.
+    assert results[0].mask.tolist() == (lmap.labels == 0).tolist()
+    out = tmp_path / "v.rrd"
+    log_to_file(out, lmap, results)
+    reader, by_path = read_rrd(out)
+    assert {
+        "world/map",
+        "world/queries/chair/mask",
+        "world/queries/sofa/scores",
+        "queries/chair/queryset",
+        "queries/sofa/queryset",
+    } <= set(by_path)
+    # The map: static boxes (voxel map under the box limit), its own colours.
+    [(t, centers)] = rows(by_path["world/map"], "Boxes3D:centers")
+    assert t is None and len(centers) == lmap.n
+    [(_, colors)] = rows(by_path["world/map"], "Boxes3D:colors")
+    rgba = np.array(colors, dtype=np.uint32)
+    assert ((rgba >> 24) & 255).tolist() == lmap.colors[:, 0].tolist()
+    for i, r in enumerate(results):
+        slug = r.query
+        [(t, mask_centers)] = rows(by_path[f"world/queries/{slug}/mask"], "Boxes3D:centers")
+        assert t == i
+        assert len(mask_centers) == r.n_matched
+        np.testing.assert_allclose(np.array(mask_centers), lmap.positions[r.mask], atol=1e-6)
+        [(_, mc)] = rows(by_path[f"world/queries/{slug}/mask"], "Boxes3D:colors")
+        assert {(c >> 24) & 255 for c in mc} == {MATCH_COLOR[0]}
+        [(_, score_centers)] = rows(by_path[f"world/queries/{slug}/scores"], "Boxes3D:centers")
+        assert len(score_centers) == lmap.n
+        [(t, [text])] = rows(by_path[f"queries/{slug}/queryset"], "TextDocument:text")
+        assert t == i and text.startswith(f"# {slug}")
+        assert "## Positives" in text and "background" in text and "Contrast" in text
+    # The previous query is cleared when the next one is shown.
+    [(t, flag)] = rows(by_path["world/queries/chair"], "Clear:is_recursive")
+    assert t == 1 and flag == [True]
+    views = blueprint_views(reader)
+    assert ("3D", "world") in views and ("TextDocument", "queries") in views
+
+
+def test_points_thinning_and_pca_colours(tmp_path):
+    lmap = voxel_map(shape=(10, 8, 4), colors=False)
+    results = make_quash().query_many(lmap, ["chair"])
+    out = tmp_path / "p.rrd"
+    log_to_file(out, lmap, results, max_display_points=100, max_boxes=0)
+    _, by_path = read_rrd(out)
+    [(_, pos)] = rows(by_path["world/map"], "Points3D:positions")
+    assert len(pos) == 100 < lmap.n  # thinned for display ...
+    [(_, radii)] = rows(by_path["world/map"], "Points3D:radii")
+    assert radii[0] == pytest.approx(0.5 * lmap.voxel_size)
+    [(_, colors)] = rows(by_path["world/map"], "Points3D:colors")
+    assert len(set(colors)) > 3  # PCA colouring, not one flat colour
+    r = results[0]
+    assert r.n_matched == int((lmap.labels == 0).sum())  # ... but the query used every item
+    [(_, mask_pos)] = rows(by_path["world/queries/chair/mask"], "Points3D:positions")
+    assert len(mask_pos) == r.n_matched  # the mask fits under the limit: all drawn
+    [(_, [text])] = rows(by_path["queries/chair/queryset"], "TextDocument:text")
+    assert "100 of 320" in text and "display only" in text and "PCA" in text
+
+
+def test_instances_are_labelled_boxes(tmp_path):
+    lmap = voxel_map()
+    r = make_quash().query(lmap, "chair")
+    idx = np.flatnonzero(r.mask)
+    pts = lmap.positions[idx]
+    inst = Instance(7, idx, pts.mean(0), pts.min(0), pts.max(0), 0.9)
+    r = QueryResult(r.queryset, r.mask, r.scores, r.display_scores, instances=[inst])
+    out = tmp_path / "i.rrd"
+    log_to_file(out, lmap, [r])
+    _, by_path = read_rrd(out)
+    [(_, labels)] = rows(by_path["world/queries/chair/instances"], "Boxes3D:labels")
+    assert labels == [f"chair #7 ({len(idx)}, 0.90)"]
+    [(_, half)] = rows(by_path["world/queries/chair/instances"], "Boxes3D:half_sizes")
+    expected = (pts.max(0) - pts.min(0)) / 2 + 0.5 * lmap.voxel_size
+    np.testing.assert_allclose(half[0], expected, atol=1e-6)
+    [(_, cent)] = rows(by_path["world/queries/chair/instances/centroids"], "Points3D:positions")
+    np.testing.assert_allclose(cent[0], pts.mean(0), atol=1e-6)
+
+
+def test_pixel_map_images_masks_and_2d_blueprint(tmp_path):
+    lmap = pixel_map()
+    results = make_quash().query_many(lmap, ["chair", "sofa"])
+    out = tmp_path / "px.rrd"
+    log_to_file(out, lmap, results)
+    reader, by_path = read_rrd(out)
+    assert not any(p.startswith("world") for p in by_path)  # no positions: no 3D layers
+    assert rows(by_path["images"], "AnnotationContext:context")
+    for frame in lmap.frames:
+        name = frame.frame_id.replace(" ", "_")
+        hw = (frame.height, frame.width)
+        [(t, [rgb])] = rows(by_path[f"images/{name}/rgb"], "Image:buffer")
+        assert t is None and len(rgb) == frame.size * 3
+        masks = rows(by_path[f"images/{name}/mask"], "SegmentationImage:buffer")
+        assert [t for t, _ in masks] == [0, 1]
+        for (_, [buf]), r in zip(masks, results):
+            got = np.array(buf, dtype=np.uint8).reshape(hw)
+            want = r.mask[frame.offset : frame.offset + frame.size].reshape(hw)
+            assert got.tolist() == want.astype(np.uint8).tolist()
+            assert got.sum() > 0
+        assert len(rows(by_path[f"images/{name}/scores"], "Image:buffer")) == 2
+    views = blueprint_views(reader)
+    assert ("2D", "images/frame_000") in views and ("2D", "images/frame_001") in views
+
+
+def test_eval_scalars(tmp_path):
+    rec = rr.RecordingStream("quash-eval-test")
+    out = tmp_path / "e.rrd"
+    rec.save(out)
+    logger = RerunLogger(rec)
+    logger.log_eval_scalars(
+        "svm rbf",
+        {"precision": 0.5, "recall": 1.0, "f1": 2 / 3, "iou": 0.5, "note": "text"},
+        "chair",
+    )
+    logger.log_eval_scalars("svm rbf", {"f1": 0.25, "iou": float("nan")}, "sofa")
+    logger.log_eval_scalars("contrast", {"f1": 0.1}, "chair")
+    logger.close()
+    rec.disconnect()
+    reader, by_path = read_rrd(out)
+    assert rows(by_path["eval/f1/svm_rbf"], "Scalars:scalars") == [
+        (0, [pytest.approx(2 / 3)]),
+        (1, [0.25]),
+    ]
+    assert rows(by_path["eval/f1/contrast"], "Scalars:scalars") == [(0, [pytest.approx(0.1)])]
+    assert rows(by_path["eval/iou/svm_rbf"], "Scalars:scalars") == [(0, [0.5])]
+    assert "eval/note/svm_rbf" not in by_path
+    assert ("TimeSeries", "eval") in blueprint_views(reader)
+
+
+def test_never_touches_the_global_recording(tmp_path):
+    assert rr.get_global_data_recording() is None
+    lmap = voxel_map()
+    logger = RerunLogger(app_id="mine")
+    logger.log_map(lmap)
+    logger.close()
+    assert rr.get_global_data_recording() is None
+    assert rr.get_thread_local_data_recording() is None
+    assert logger.recording.get_application_id() == "mine"
+
+
+def test_cli_query_rrd(tmp_path, capsys):
+    from quash_plugins.adapters._npz import write_npz_map
+    from quash_plugins.cli.main import main
+
+    lmap = voxel_map()
+    map_path = write_npz_map(tmp_path / "map.npz", lmap)
+    cfg = write_table_config(tmp_path)
+    out = tmp_path / "sub" / "out.rrd"
+    code = main(["query", str(map_path), "chair", "sofa", "-c", str(cfg), "--rrd", str(out)])
+    assert code == 0
+    assert out.is_file()
+    assert [p.name for p in out.parent.iterdir()] == ["out.rrd"]  # no temp file left
+    reader, by_path = read_rrd(out)
+    assert reader.recordings()[0].application_id == "quash-query"
+    for name, label in (("chair", 0), ("sofa", 1)):
+        [(_, centers)] = rows(by_path[f"world/queries/{name}/mask"], "Boxes3D:centers")
+        assert len(centers) == int((lmap.labels == label).sum())
+    assert reader.blueprints()
+
+
+def test_cli_rejects_bad_rrd_name(tmp_path):
+    from quash_plugins.adapters._npz import write_npz_map
+    from quash_plugins.cli.main import main
+
+    map_path = write_npz_map(tmp_path / "map.npz", voxel_map())
+    cfg = write_table_config(tmp_path)
+    code = main(["query", str(map_path), "chair", "-c", str(cfg), "--rrd", str(tmp_path / "x.txt")])
+    assert code == 2
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["map.npz", "quash.yaml", "table.npz"]
