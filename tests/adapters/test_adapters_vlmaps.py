@@ -1,0 +1,448 @@
+"""VLMaps adapters: 3D HDF5 (``vlmaps``), 2023 top-down grids (``vlmaps-2d``), live objects."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from types import SimpleNamespace
+
+import h5py
+import numpy as np
+import pytest
+import yaml
+from _vlmaps_writers import mobile_map, sha256, write_vlmaps_2d, write_vlmaps_h5df
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from quash_plugins import Quash, registry
+from quash_plugins.adapters import detect_adapter, read_map
+from quash_plugins.errors import MapFormatError, QuashError
+
+D = 8
+TABLE = {
+    w: np.eye(D)[i].tolist() for i, w in enumerate(["chair", "other", "background", "nothing"])
+}
+
+
+def vlmaps(**kw):
+    return registry.create("adapters", "vlmaps", **kw)
+
+
+def unit_rows(x):
+    x = np.asarray(x, dtype=np.float64)
+    n = np.linalg.norm(x, axis=1, keepdims=True)
+    return np.divide(x, n, out=np.zeros_like(x), where=n > 0)
+
+
+def read_all(lmap):
+    return np.concatenate([b for _, _, b in lmap.iter_chunks(7)])
+
+
+# ---------------------------------------------------------------------- 3D mobile base
+def test_mobile_base_rows_positions_colours(tmp_path):
+    arrays = mobile_map(n=40, d=D, gs=60)
+    path = write_vlmaps_h5df(tmp_path / "vlmap" / "vlmaps.h5df", arrays)
+    before = sha256(path)
+    lmap = vlmaps(gs=60, cs=0.1).read(path)
+    assert lmap.n == 40 and lmap.dim == D and lmap.kind == "voxels"
+    assert isinstance(lmap.embeddings, h5py.Dataset)
+    assert lmap.normalize is True
+    row, col, h = (arrays["grid_pos"][:, i].astype(np.float64) for i in range(3))
+    expected = np.column_stack([(30 - row) * 0.1, (30 - col) * 0.1, h * 0.1])
+    np.testing.assert_allclose(lmap.positions, expected, atol=1e-5)
+    np.testing.assert_array_equal(lmap.colors, arrays["grid_rgb"])
+    np.testing.assert_array_equal(lmap.grid_index, arrays["grid_pos"])
+    assert lmap.voxel_size == pytest.approx(0.1)
+    assert lmap.source["pose_type"] == "mobile_base"
+    assert sha256(path) == before
+
+
+def test_mobile_base_defaults_are_vlmaps_config(tmp_path):
+    arrays = mobile_map(n=10, d=D)
+    path = write_vlmaps_h5df(tmp_path / "m.h5df", arrays)
+    lmap = read_map(path)  # auto-detected, default gs=1000, cs=0.05
+    gp = arrays["grid_pos"].astype(np.float64)
+    np.testing.assert_allclose(lmap.positions[:, 0], (500 - gp[:, 0]) * 0.05, atol=1e-5)
+    np.testing.assert_allclose(lmap.positions[:, 1], (500 - gp[:, 1]) * 0.05, atol=1e-5)
+    np.testing.assert_allclose(lmap.positions[:, 2], gp[:, 2] * 0.05, atol=1e-5)
+    assert lmap.voxel_size == pytest.approx(0.05)
+
+
+def test_rows_are_normalised_and_zero_rows_stay_zero(tmp_path):
+    arrays = mobile_map(n=30, d=D)
+    arrays["grid_feat"][[3, 17]] = 0
+    path = write_vlmaps_h5df(tmp_path / "m.h5df", arrays)
+    got = read_all(vlmaps().read(path))
+    np.testing.assert_allclose(got, unit_rows(arrays["grid_feat"]), atol=1e-6)
+    assert not got[[3, 17]].any()
+
+
+def test_float16_stays_float16(tmp_path):
+    arrays = mobile_map(n=20, d=D, dtype=np.float16)
+    path = write_vlmaps_h5df(tmp_path / "m.h5", arrays)
+    lmap = vlmaps().read(path)
+    assert lmap.dtype == np.float16 and lmap.embeddings.dtype == np.float16
+    assert isinstance(lmap.embeddings, h5py.Dataset)
+
+
+def test_file_stays_open_for_map_lifetime(tmp_path):
+    path = write_vlmaps_h5df(tmp_path / "m.h5df", mobile_map(n=12, d=D))
+    lmap = vlmaps().read(path)
+    assert lmap.h5file.id.valid and lmap.h5file.mode == "r"
+    import gc
+
+    gc.collect()
+    assert np.asarray(lmap.embeddings[:2]).shape == (2, D)
+
+
+# ---------------------------------------------------------------------- 3D camera base
+def camera_arrays():
+    arrays = mobile_map(n=25, d=D, gs=20, vh=20, seed=3)
+    arrays["grid_rgb"] = arrays["grid_rgb"].astype(np.float32) + 0.4  # averaged colours
+    return arrays, {"pcd_min": [-2.5, -0.3, 1.25], "pcd_max": [4.0, 2.0, 6.0], "cs": 0.04}
+
+
+def test_camera_base_positions_use_stored_pcd_min_and_cs(tmp_path):
+    arrays, cam = camera_arrays()
+    path = write_vlmaps_h5df(tmp_path / "vlmap_cam" / "vlmaps_cam.h5df", arrays, camera=cam)
+    lmap = read_map(tmp_path)  # the scene folder resolves to vlmap_cam/vlmaps_cam.h5df
+    assert lmap.source["path"] == str(path)
+    expected = np.asarray(cam["pcd_min"]) + arrays["grid_pos"].astype(np.float64) * cam["cs"]
+    np.testing.assert_allclose(lmap.positions, expected, atol=1e-5)
+    assert lmap.voxel_size == pytest.approx(0.04)
+    np.testing.assert_array_equal(lmap.colors, np.rint(arrays["grid_rgb"]).astype(np.uint8))
+
+
+def test_pose_type_can_be_forced(tmp_path):
+    arrays, cam = camera_arrays()
+    cam_path = write_vlmaps_h5df(tmp_path / "c.h5df", arrays, camera=cam)
+    lmap = vlmaps(pose_type="mobile_base", gs=20, cs=0.04).read(cam_path)
+    gp = arrays["grid_pos"].astype(np.float64)
+    np.testing.assert_allclose(lmap.positions[:, 0], (10 - gp[:, 0]) * 0.04, atol=1e-5)
+    mob = write_vlmaps_h5df(tmp_path / "m.h5df", mobile_map(n=5, d=D))
+    with pytest.raises(MapFormatError, match=r"m\.h5df.*pcd_min"):
+        vlmaps(pose_type="camera_base").read(mob)
+    with pytest.raises(QuashError, match="pose_type"):
+        vlmaps(pose_type="sideways").read(mob)
+
+
+# ---------------------------------------------------------------------- labels
+@pytest.mark.parametrize("kind", ["txt", "yaml", "json-list", "json-map", "memory", "obj2cls"])
+def test_ground_truth_and_label_names(tmp_path, kind):
+    names = ["floor", "chair", "table", "sofa"]
+    arrays = mobile_map(n=30, d=D)
+    sem = np.random.default_rng(1).integers(0, 4, 30).astype(np.int32)
+    scene = tmp_path / "scene"
+    path = write_vlmaps_h5df(scene / "vlmap" / "vlmaps.h5df", arrays, semantic=sem)
+    opt: object
+    if kind == "txt":
+        opt = tmp_path / "names.txt"
+        opt.write_text("\n".join(names) + "\n")
+    elif kind == "yaml":
+        opt = tmp_path / "names.yaml"
+        opt.write_text(yaml.safe_dump(names))
+    elif kind == "json-list":
+        opt = tmp_path / "names.json"
+        opt.write_text(json.dumps(names))
+    elif kind == "json-map":
+        opt = tmp_path / "names.json"
+        opt.write_text(json.dumps({str(i): n for i, n in enumerate(names)}))
+    elif kind == "memory":
+        opt = dict(enumerate(names))
+    else:  # VLMaps' obj2cls_dict.txt beside the scene, found without an option
+        lines = [f"{100 + i}: {i}, {n}" for i, n in enumerate(names)]
+        (scene / "obj2cls_dict.txt").write_text("\n".join(lines) + "\n")
+        opt = None
+    lmap = vlmaps(label_names=opt).read(path)
+    np.testing.assert_array_equal(lmap.labels, sem)
+    assert lmap.label_names == names
+    assert lmap.label_index("Chair") == 1
+
+
+def test_missing_label_ids_are_padded(tmp_path):
+    arrays = mobile_map(n=6, d=D)
+    sem = np.array([0, 1, 5, 5, -1, 0], dtype=np.int32)
+    path = write_vlmaps_h5df(tmp_path / "m.h5df", arrays, semantic=sem)
+    lmap = vlmaps(label_names={0: "floor", 5: "chair"}).read(path)
+    assert lmap.label_names[0] == "floor" and lmap.label_names[5] == "chair"
+    assert lmap.label_names[1] == "label_1"
+
+
+# ---------------------------------------------------------------------- sniffing
+def test_sniff_by_content_not_suffix(tmp_path):
+    arrays = mobile_map(n=8, d=D)
+    odd = write_vlmaps_h5df(tmp_path / "mapdata.bin", arrays)
+    assert detect_adapter(odd) == "vlmaps"
+    other = tmp_path / "other.h5df"
+    with h5py.File(other, "w") as f:
+        f["features"] = np.zeros((3, 2))
+    assert not vlmaps().sniff(other)
+    assert not vlmaps().sniff(tmp_path / "missing.h5df")
+    text = tmp_path / "fake.h5df"
+    text.write_text("not hdf5")
+    assert not vlmaps().sniff(text)
+
+
+# ---------------------------------------------------------------------- bad input
+def _bad(tmp_path, name, mutate=None, **kw):
+    arrays = mobile_map(n=12, d=D)
+    if mutate:
+        mutate(arrays)
+    return write_vlmaps_h5df(tmp_path / name, arrays, **kw)
+
+
+@pytest.mark.parametrize(
+    "name,kw,mutate,field",
+    [
+        ("nofeat.h5df", {"drop": ("grid_feat",)}, None, "grid_feat"),
+        ("nopos.h5df", {"drop": ("grid_pos",)}, None, "grid_pos"),
+        ("rows.h5df", {}, lambda a: a.update(grid_pos=a["grid_pos"][:-2]), "grid_pos"),
+        (
+            "rank.h5df",
+            {},
+            lambda a: a.update(grid_feat=a["grid_feat"].reshape(12, 2, 4)),
+            "grid_feat",
+        ),
+        ("posrank.h5df", {}, lambda a: a.update(grid_pos=a["grid_pos"][:, :2]), "grid_pos"),
+        ("nan.h5df", {}, lambda a: a["grid_feat"].__setitem__((4, 1), np.nan), "grid_feat"),
+        ("inf.h5df", {}, lambda a: a["grid_feat"].__setitem__((9, 0), np.inf), "grid_feat"),
+        ("rgb.h5df", {}, lambda a: a.update(grid_rgb=a["grid_rgb"][:3]), "grid_rgb"),
+        ("sem.h5df", {"semantic": np.zeros(5, np.int32)}, None, "grid_semantic"),
+    ],
+)
+def test_malformed_maps_name_file_and_field(tmp_path, name, kw, mutate, field):
+    path = _bad(tmp_path, name, mutate, **kw)
+    before = sha256(path)
+    with pytest.raises(MapFormatError) as err:
+        vlmaps().read(path)
+    assert name in str(err.value) and field in str(err.value)
+    assert sha256(path) == before
+
+
+def test_empty_map(tmp_path):
+    arrays = mobile_map(n=5, d=D)
+    arrays.update(grid_feat=np.zeros((0, D), np.float32), grid_pos=np.zeros((0, 3), np.int32))
+    path = write_vlmaps_h5df(tmp_path / "empty.h5df", arrays)
+    with pytest.raises(MapFormatError, match=r"empty\.h5df.*grid_feat.*empty"):
+        vlmaps().read(path)
+
+
+@pytest.mark.parametrize("keep", [0.5, 0.97])
+def test_truncated_hdf5(tmp_path, keep):
+    arrays = mobile_map(n=400, d=64)
+    good = write_vlmaps_h5df(tmp_path / "good.h5df", arrays)
+    data = good.read_bytes()
+    cut = tmp_path / "cut.h5df"
+    cut.write_bytes(data[: int(len(data) * keep)])
+    before = sha256(cut)
+    with pytest.raises(MapFormatError, match=r"cut\.h5df"):
+        vlmaps().read(cut)
+    assert sha256(cut) == before
+
+
+def test_unknown_option_rejected(tmp_path):
+    path = write_vlmaps_h5df(tmp_path / "m.h5df", mobile_map(n=4, d=D))
+    with pytest.raises(QuashError, match="grid_size"):
+        vlmaps().read(path, grid_size=3)
+
+
+# ---------------------------------------------------------------------- end to end
+def chair_map(n=60, zero=(5, 6, 7), seed=0):
+    """Rows near 'chair' (e0) or near 'other' (e1), arbitrary norms, some zero rows."""
+    rng = np.random.default_rng(seed)
+    is_chair = rng.random(n) < 0.4
+    feat = np.where(is_chair[:, None], np.eye(D)[0], np.eye(D)[1]) + rng.normal(0, 0.05, (n, D))
+    feat *= rng.uniform(0.1, 10, (n, 1))
+    feat[list(zero)] = 0
+    expected = is_chair.copy()
+    expected[list(zero)] = False
+    return feat.astype(np.float32), expected
+
+
+def config(tmp_path):
+    (tmp_path / "table.yaml").write_text(yaml.safe_dump(TABLE))
+    cfg = tmp_path / "quash.yaml"
+    cfg.write_text(
+        yaml.safe_dump(
+            {
+                "encoder": {"name": "table", "file": "table.yaml"},
+                "classifier": "contrast",
+                "cache": False,
+            }
+        )
+    )
+    return cfg
+
+
+def test_quash_end_to_end_zero_rows_never_match(tmp_path):
+    feat, expected = chair_map()
+    arrays = mobile_map(n=len(feat), d=D)
+    arrays["grid_feat"] = feat
+    path = write_vlmaps_h5df(tmp_path / "vlmap" / "vlmaps.h5df", arrays)
+    before = sha256(path)
+    q = Quash.from_config(config(tmp_path))
+    res = q.query(path, "chair")
+    np.testing.assert_array_equal(res.mask, expected)
+    assert not res.mask[[5, 6, 7]].any()
+    assert sha256(path) == before
+
+
+def test_cli_query_auto_adapter(tmp_path):
+    from quash_plugins.cli.main import main
+
+    feat, expected = chair_map(seed=2)
+    arrays = mobile_map(n=len(feat), d=D)
+    arrays["grid_feat"] = feat.astype(np.float16)
+    path = write_vlmaps_h5df(tmp_path / "vlmaps-lseg-0.05.h5df", arrays)
+    out = tmp_path / "r.npz"
+    rc = main(
+        [
+            "query",
+            str(path),
+            "chair",
+            "-c",
+            str(config(tmp_path)),
+            "--adapter",
+            "auto",
+            "--out",
+            str(out),
+        ]
+    )
+    assert rc == 0
+    with np.load(out) as z:
+        np.testing.assert_array_equal(z["masks"][0], expected)
+
+
+# ---------------------------------------------------------------------- 2D grids
+def test_vlmaps_2d_observed_cells_positions_colours_labels(tmp_path):
+    folder, ref = write_vlmaps_2d(tmp_path / "scene", gs=30)
+    before = {p.name: sha256(p) for p in folder.iterdir()}
+    lmap = registry.create("adapters", "vlmaps-2d", cs=0.1).read(folder)
+    rows, cols = np.nonzero(ref["seen"])  # row-major, as the adapter orders cells
+    assert lmap.n == len(rows) and lmap.kind == "voxels" and lmap.normalize
+    assert not isinstance(lmap.embeddings, np.ndarray)  # lazy view of the memory map
+    expected = np.column_stack([(15 - rows) * 0.1, (15 - cols) * 0.1, np.zeros(len(rows))])
+    np.testing.assert_allclose(lmap.positions, expected, atol=1e-5)
+    np.testing.assert_array_equal(lmap.colors, ref["color"][rows, cols])
+    np.testing.assert_array_equal(lmap.labels, ref["gt"][rows, cols])
+    np.testing.assert_array_equal(lmap.grid_index[:, :2], np.column_stack([rows, cols]))
+    np.testing.assert_allclose(read_all(lmap), unit_rows(ref["grid"][rows, cols]), atol=1e-6)
+    assert lmap.voxel_size == pytest.approx(0.1)
+    assert {p.name: sha256(p) for p in folder.iterdir()} == before
+
+
+def test_vlmaps_2d_path_forms_and_default_cs(tmp_path):
+    folder, ref = write_vlmaps_2d(tmp_path / "scene", gs=20)
+    for src in (folder / "grid_lseg_1.npy", folder, tmp_path / "scene"):
+        assert detect_adapter(src) == "vlmaps-2d"
+        lmap = read_map(src)
+        r, c = np.nonzero(ref["seen"])
+        np.testing.assert_allclose(lmap.positions[:, 0], (10 - r) * 0.05, atol=1e-5)
+    full = registry.create("adapters", "vlmaps-2d", keep_empty=True).read(folder)
+    assert full.n == 400
+
+
+def test_vlmaps_2d_bad_input(tmp_path):
+    folder, ref = write_vlmaps_2d(tmp_path / "a", gs=10)
+    a2d = registry.create("adapters", "vlmaps-2d")
+    grid = ref["grid"].copy()
+    grid[2, 3, 1] = np.nan
+    np.save(folder / "grid_lseg_1.npy", grid)
+    with pytest.raises(MapFormatError, match=r"grid_lseg_1\.npy.*NaN.*row 2, col 3"):
+        a2d.read(folder)
+    np.save(folder / "grid_lseg_1.npy", np.zeros((10, 10, 4), np.float32))
+    with pytest.raises(MapFormatError, match="empty"):
+        a2d.read(folder)
+    np.save(folder / "grid_lseg_1.npy", np.ones((10, 4), np.float32))
+    with pytest.raises(MapFormatError, match=r"\(gs, gs, D\)"):
+        a2d.read(folder)
+    np.save(folder / "grid_lseg_1.npy", ref["grid"])
+    np.save(folder / "color_top_down_1.npy", ref["color"][:5])
+    with pytest.raises(MapFormatError, match=r"color_top_down_1\.npy"):
+        a2d.read(folder)
+    data = (folder / "grid_lseg_1.npy").read_bytes()
+    (folder / "grid_lseg_1.npy").write_bytes(data[: len(data) // 2])
+    with pytest.raises(MapFormatError, match=r"grid_lseg_1\.npy.*truncated"):
+        a2d.read(folder)
+
+
+# ---------------------------------------------------------------------- live objects
+class PoseInfo:
+    def __init__(self, pose_type):
+        self.pose_type = pose_type
+
+
+def test_live_vlmap_mobile_and_camera(tmp_path):
+    arrays = mobile_map(n=15, d=D)
+    live = SimpleNamespace(
+        grid_feat=arrays["grid_feat"],
+        grid_pos=arrays["grid_pos"],
+        grid_rgb=arrays["grid_rgb"],
+        gs=60,
+        cs=0.1,
+        map_config=SimpleNamespace(pose_info=PoseInfo("mobile_base")),
+    )
+    assert detect_adapter(live) == "vlmaps-live"
+    lmap = read_map(live)
+    assert lmap.embeddings is arrays["grid_feat"]  # not copied
+    gp = arrays["grid_pos"].astype(np.float64)
+    np.testing.assert_allclose(lmap.positions[:, 1], (30 - gp[:, 1]) * 0.1, atol=1e-5)
+    np.testing.assert_array_equal(lmap.colors, arrays["grid_rgb"])
+    cam = SimpleNamespace(
+        grid_feat=arrays["grid_feat"],
+        grid_pos=arrays["grid_pos"],
+        cs=0.03,
+        pcd_min=np.array([1.0, 2.0, 3.0]),
+        map_config={"pose_info": {"pose_type": "camera_base"}},
+    )
+    lmap = read_map(cam)
+    np.testing.assert_allclose(lmap.positions, [1, 2, 3] + gp * 0.03, atol=1e-5)
+    with pytest.raises(MapFormatError, match="grid_feat"):
+        read_map(SimpleNamespace(grid_feat=None, grid_pos=arrays["grid_pos"]), "vlmaps-live")
+    with pytest.raises(MapFormatError, match="pcd_min"):
+        read_map(
+            SimpleNamespace(grid_feat=arrays["grid_feat"], grid_pos=arrays["grid_pos"]),
+            "vlmaps-live",
+            pose_type="camera_base",
+        )
+
+
+# ---------------------------------------------------------------------- conformance
+@pytest.mark.parametrize("name", ["vlmaps", "vlmaps-2d", "vlmaps-live"])
+def test_write_example_round_trip(tmp_path, name):
+    adapter = registry.create("adapters", name)
+    src = adapter.write_example(tmp_path)
+    assert adapter.sniff(src)
+    assert detect_adapter(src) == name
+    lmap = adapter.read(src)
+    assert lmap.n > 0 and lmap.positions is not None and np.isfinite(read_all(lmap)).all()
+
+
+# ---------------------------------------------------------------------- properties
+@settings(
+    max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(
+    n=st.integers(1, 40),
+    d=st.integers(1, 12),
+    dtype=st.sampled_from([np.float16, np.float32, np.float64]),
+    gs=st.integers(20, 2000),
+    cs=st.floats(0.01, 0.5),
+    seed=st.integers(0, 2**16),
+)
+def test_property_shapes_and_dtypes(tmp_path_factory, n, d, dtype, gs, cs, seed):
+    arrays = mobile_map(n=n, d=d, gs=20, vh=5, seed=seed, dtype=dtype)
+    path = write_vlmaps_h5df(tmp_path_factory.mktemp("p") / "m.h5df", arrays)
+    lmap = vlmaps(gs=gs, cs=cs).read(path)
+    assert (lmap.n, lmap.dim, lmap.dtype) == (n, d, np.dtype(dtype))
+    gp = arrays["grid_pos"].astype(np.float64)
+    np.testing.assert_allclose(lmap.positions[:, 0], (gs / 2 - gp[:, 0]) * cs, rtol=1e-5, atol=1e-4)
+    got = read_all(lmap)
+    ref = unit_rows(arrays["grid_feat"].astype(np.float32))
+    np.testing.assert_allclose(got, ref, atol=2e-3 if dtype == np.float16 else 1e-5)
+    lmap.h5file.close()
+
+
+def test_path_objects_accepted(tmp_path):
+    path = write_vlmaps_h5df(tmp_path / "m.h5df", mobile_map(n=4, d=D))
+    assert vlmaps().read(str(path)).n == 4 and vlmaps().read(Path(path)).n == 4
