@@ -41,10 +41,20 @@ def classify_local(
     rows = lmap.chunk_rows(chunk_bytes, _extra_bytes_per_row(classifiers))
     scores = [np.empty(n, dtype=np.float32) for _ in classifiers]
     observed = np.empty(n, dtype=bool)
+    # Several fitted SVMs share one GEMM per block (their support vectors stacked).
+    from .classifiers import stack_classifiers
+
+    stack, stacked = stack_classifiers(list(classifiers), chunk_bytes)
     for start, stop, block in lmap.iter_chunks(rows):
-        observed[start:stop] = np.einsum("ij,ij->i", block, block) > 0
-        for out, clf in zip(scores, classifiers):
-            out[start:stop] = np.asarray(clf.decision_function(block), dtype=np.float32).ravel()
+        sq = np.einsum("ij,ij->i", block, block)
+        observed[start:stop] = sq > 0
+        if stack is not None:
+            multi = stack.evaluate(block, sq=None if stack.unit else sq, unit=stack.unit)
+            for j, i in enumerate(stacked):
+                scores[i][start:stop] = multi[:, j]
+        for i, (out, clf) in enumerate(zip(scores, classifiers)):
+            if i not in stacked:
+                out[start:stop] = np.asarray(clf.decision_function(block), dtype=np.float32).ravel()
         if progress is not None:
             progress(stop - start)
     return scores, observed

@@ -1,12 +1,29 @@
 """Built-in classifiers: the paper's SVMs and every peer's decision rule.
 
 All are scikit-learn estimators, so every method runs through the same pipeline and
-evaluation.
+evaluation. See ``docs/classifiers.md``.
 """
 
 from __future__ import annotations
 
-from ._baselines import ContrastClassifier
-from ._svm import RbfSvmClassifier
+from ._baselines import (
+    ContrastClassifier,
+    CosineThresholdClassifier,
+    LabelArgmaxClassifier,
+    LerfRelevancyClassifier,
+)
+from ._common import ClassifierParamError
+from ._sklearn import SklearnClassifier
+from ._svm import CosineSvmClassifier, RbfSvmClassifier, stack_classifiers
 
-__all__ = ["ContrastClassifier", "RbfSvmClassifier"]
+__all__ = [
+    "ClassifierParamError",
+    "ContrastClassifier",
+    "CosineSvmClassifier",
+    "CosineThresholdClassifier",
+    "LabelArgmaxClassifier",
+    "LerfRelevancyClassifier",
+    "RbfSvmClassifier",
+    "SklearnClassifier",
+    "stack_classifiers",
+]

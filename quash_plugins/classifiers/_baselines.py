@@ -1,35 +1,211 @@
-"""The peers' decision rules as scikit-learn estimators."""
+"""The peers' decision rules as scikit-learn estimators.
+
+Each rule runs through the same pipeline (expansion, encoding, chunked classification,
+threshold, instances) as the SVMs, so every method is evaluated the same way. All work
+on cosine similarities: map rows are normalised on the fly (zero rows have cosine 0 and
+are masked by the pipeline anyway), text rows at fit time.
+
+See ``docs/classifiers.md`` for the exact rules and their sources.
+"""
 
 from __future__ import annotations
+
+from typing import Any
 
 import numpy as np
 
 from ..interfaces import Classifier, check_training_set
+from ._common import (
+    ClassifierParamError,
+    check_choice,
+    check_positive,
+    iter_blocks,
+    piecewise_display,
+    unit_rows,
+)
+
+BLOCK_ROWS = 16384
 
 
-def _unit(a: np.ndarray) -> np.ndarray:
-    a = np.asarray(a, dtype=np.float32)
-    n = np.linalg.norm(a, axis=1, keepdims=True)
-    return np.divide(a, n, out=np.zeros_like(a), where=n > 0)
+class _CosineRule(Classifier):
+    """Stores unit positives ``P (p, D)`` and negatives ``N (n, D)``; scores in blocks."""
 
-
-class ContrastClassifier(Classifier):
-    """VLMaps' rule: an item matches when it is closer (cosine) to a positive than to
-    every negative.
-
-    ``decision_function`` is ``max_p cos(x, p) - max_n cos(x, n)``. With the ``none``
-    heuristic and negatives ``[other]`` this is VLMaps' argmax over ``[query, other]``.
-    """
-
-    def fit(self, X: np.ndarray, y: np.ndarray) -> ContrastClassifier:
+    def fit(self, X: np.ndarray, y: np.ndarray) -> _CosineRule:
         X, y = check_training_set(X, y)
-        self.positives_ = _unit(X[y == 1])
-        self.negatives_ = _unit(X[y == 0])
+        self.positives_ = unit_rows(X[y == 1])
+        self.negatives_ = unit_rows(X[y == 0])
+        self.labels_ = np.concatenate([self.positives_, self.negatives_])
+        self.labels_t_ = np.ascontiguousarray(self.labels_.T)
         self.classes_ = np.array([0, 1])
+        self.working_set_width_ = len(self.labels_)
         return self
 
-    def decision_function(self, E: np.ndarray) -> np.ndarray:
-        E = np.asarray(E, dtype=np.float32)
-        pos = (E @ self.positives_.T).max(axis=1)
-        neg = (E @ self.negatives_.T).max(axis=1)
-        return (pos - neg).astype(np.float32)
+    def cosines(self, E: Any) -> np.ndarray:
+        """``(N, p + n)`` float32 cosines of map rows with ``[positives..., negatives...]``."""
+        if not hasattr(self, "labels_"):
+            raise ClassifierParamError(f"{type(self).__name__}: call fit(X, y) first.")
+        out = np.empty((len(E), len(self.labels_)), dtype=np.float32)
+        for start, stop, x in iter_blocks(E, BLOCK_ROWS):
+            g = x @ self.labels_t_
+            n = np.sqrt(np.einsum("ij,ij->i", x, x))
+            np.divide(g, n[:, None], out=g, where=n[:, None] > 0)
+            g[n == 0] = 0.0
+            out[start:stop] = g
+        return out
+
+    def margin(self, E: Any) -> np.ndarray:
+        """``max_p cos(x, p) - max_n cos(x, n)`` ``(N,)`` float32."""
+        c = self.cosines(E)
+        k = len(self.positives_)
+        return (c[:, :k].max(axis=1) - c[:, k:].max(axis=1)).astype(np.float32)
+
+
+class ContrastClassifier(_CosineRule):
+    """VLMaps' rule: match when the item is closer (cosine) to the query than to every
+    negative. ``decision_function = max_p cos(x, p) - max_n cos(x, n)``.
+
+    With the ``none`` heuristic and negatives ``[other]`` this is VLMaps' argmax over
+    ``[query, other]``; prompt templates (VLMaps averages 63) come from the pipeline's
+    ``prompt_templates``.
+    """
+
+    def decision_function(self, E: Any) -> np.ndarray:
+        return self.margin(E)
+
+
+class LabelArgmaxClassifier(_CosineRule):
+    """OpenScene, and VLMaps with categories: argmax over a label set.
+
+    The label set is ``[positives..., negatives...]`` of the query set (so put the
+    other categories and ``other`` in ``negatives``); an item matches when its argmax is
+    a positive: ``decision_function = max_p cos - max_n cos`` (a tie is no match).
+    Display scores are the two-way softmax ``sigmoid(logit_scale * (margin - threshold))``
+    of the best positive against the best negative.
+
+    Parameters
+    ----------
+    logit_scale
+        Softmax temperature for display (CLIP's 100); it does not change the argmax.
+    """
+
+    def __init__(self, logit_scale: float = 100.0) -> None:
+        self.logit_scale = logit_scale
+        check_positive("label-argmax", "logit_scale", logit_scale)
+
+    def decision_function(self, E: Any) -> np.ndarray:
+        return self.margin(E)
+
+    def display_scores(self, scores: np.ndarray, threshold: float = 0.0) -> np.ndarray:
+        z = float(self.logit_scale) * (np.asarray(scores, np.float64) - threshold)
+        return (0.5 * (1.0 + np.tanh(0.5 * z))).astype(np.float32)
+
+
+class CosineThresholdClassifier(_CosineRule):
+    """ConceptFusion's rule: a threshold on the cosine with the query.
+
+    - ``mode: absolute``: match when ``max_p cos(x, p) > cut``.
+    - ``mode: relative`` (ConceptFusion's demo): ``s' = (s + 1) / 2``, min-max normalised
+      over the whole observed map, match when above ``cut`` (0.6). Map-level, so
+      ``decision_function`` returns the raw cosine and :meth:`postprocess_scores` (which
+      the pipeline calls on the full observed score vector) returns ``normalised - cut``.
+      It always highlights something. :meth:`predict` treats its input as the whole map.
+
+    Negatives of the query set are ignored.
+
+    Parameters
+    ----------
+    mode
+        ``"relative"`` or ``"absolute"``.
+    cut
+        Relative: the normalised cut in [0, 1] (default 0.6). Absolute: the cosine cut in
+        [-1, 1]; required (there is no published default).
+    """
+
+    def __init__(self, mode: str = "relative", cut: float | None = None) -> None:
+        self.mode = mode
+        self.cut = cut
+        self._check()
+
+    def _check(self) -> float:
+        who = "cosine-threshold"
+        check_choice(who, "mode", self.mode, ("relative", "absolute"))
+        if self.cut is None:
+            if self.mode == "absolute":
+                raise ClassifierParamError(
+                    f"{who}: mode 'absolute' needs 'cut' (a cosine in [-1, 1], e.g. 0.25)."
+                )
+            return 0.6
+        lo = 0.0 if self.mode == "relative" else -1.0
+        if (
+            isinstance(self.cut, bool)
+            or not isinstance(self.cut, (int, float))
+            or not (lo <= float(self.cut) <= 1.0)
+        ):
+            raise ClassifierParamError(
+                f"{who}: 'cut' must be a number in [{lo:g}, 1] for mode {self.mode!r}; "
+                f"got {self.cut!r}."
+            )
+        return float(self.cut)
+
+    def decision_function(self, E: Any) -> np.ndarray:
+        c = self.cosines(E)[:, : len(self.positives_)].max(axis=1)
+        if self.mode == "absolute":
+            return (c - self._check()).astype(np.float32)
+        return c.astype(np.float32)
+
+    def postprocess_scores(self, scores: np.ndarray) -> np.ndarray:
+        if self.mode == "absolute":
+            return scores
+        s = (np.asarray(scores, dtype=np.float64) + 1.0) / 2.0
+        if s.size == 0:
+            return s.astype(np.float32)
+        rel = (s - s.min()) / (s.max() - s.min() + 1e-12)
+        return (rel - self._check()).astype(np.float32)
+
+    def predict(self, E: Any) -> np.ndarray:
+        return np.asarray(self.postprocess_scores(self.decision_function(E))) > 0
+
+    def display_scores(self, scores: np.ndarray, threshold: float = 0.0) -> np.ndarray:
+        cut = self._check()
+        s = np.asarray(scores, dtype=np.float32)
+        if self.mode == "relative":
+            return piecewise_display(s + cut, cut + threshold)
+        return piecewise_display((s + cut + 1.0) / 2.0, (cut + threshold + 1.0) / 2.0)
+
+
+class LerfRelevancyClassifier(_CosineRule):
+    """LERF's relevancy: ``min_n softmax(T * [q.x, n.x])[0]``, match above ``cut``.
+
+    With several positives the best one counts: ``max_q min_n``. The negatives are the
+    query set's (LERF's canonical ``object, things, stuff, texture``: set them with
+    ``negatives:`` in the config, see ``examples/configs/lerf.yaml``).
+    ``decision_function = relevancy - cut``; display scores are the relevancy itself at
+    the default threshold.
+
+    Parameters
+    ----------
+    temperature
+        The softmax scale (LERF: 10).
+    cut
+        Relevancy cut in (0, 1) (0.5).
+    """
+
+    def __init__(self, temperature: float = 10.0, cut: float = 0.5) -> None:
+        self.temperature = temperature
+        self.cut = cut
+        check_positive("lerf-relevancy", "temperature", temperature)
+        if isinstance(cut, bool) or not isinstance(cut, (int, float)) or not 0 < cut < 1:
+            raise ClassifierParamError(f"lerf-relevancy: 'cut' must be in (0, 1); got {cut!r}.")
+
+    def relevancy(self, E: Any) -> np.ndarray:
+        """``(N,)`` relevancy in [0, 1]. Since softmax over two is a sigmoid of the
+        difference, ``min_n`` picks the largest negative cosine."""
+        z = float(self.temperature) * self.margin(E).astype(np.float64)
+        return (0.5 * (1.0 + np.tanh(0.5 * z))).astype(np.float32)
+
+    def decision_function(self, E: Any) -> np.ndarray:
+        return (self.relevancy(E) - np.float32(self.cut)).astype(np.float32)
+
+    def display_scores(self, scores: np.ndarray, threshold: float = 0.0) -> np.ndarray:
+        s = np.asarray(scores, dtype=np.float32)
+        return piecewise_display(s + self.cut, self.cut + threshold)

@@ -1,40 +1,311 @@
-"""SVM classifiers (the paper's choice)."""
+"""SVM classifiers (the paper's choice), fitted with scikit-learn, evaluated fast.
+
+``fit`` trains a :class:`sklearn.svm.SVC`. ``decision_function`` does not call it:
+the support vectors, dual coefficients and intercept are extracted once and evaluated
+as chunked float32 GEMMs by :class:`~quash_plugins.classifiers._kernels.KernelStack`
+(numpy BLAS on the CPU, torch on a GPU). The result equals scikit-learn's
+``decision_function`` to 1e-4 (see ``tests/classifiers/test_classifiers_svm.py``).
+"""
 
 from __future__ import annotations
 
+import logging
 from typing import Any
 
 import numpy as np
 from sklearn.svm import SVC
 
 from ..interfaces import Classifier, check_training_set
+from ._common import (
+    ClassifierParamError,
+    check_choice,
+    check_class_weight,
+    check_positive,
+    unit_rows,
+)
+from ._kernels import KernelPart, KernelStack, reference_kernel, resolve_backend
+
+log = logging.getLogger(__name__)
+
+BACKENDS = ("auto", "numpy", "torch")
+DEVICES = ("auto", "cpu", "cuda")
 
 
-class RbfSvmClassifier(Classifier):
-    """SVC with an RBF kernel: the paper's default classifier.
+def _check_gamma(who: str, gamma: Any) -> Any:
+    if isinstance(gamma, str):
+        if gamma in ("scale", "auto"):
+            return gamma
+        raise ClassifierParamError(
+            f"{who}: parameter 'gamma' is the string {gamma!r}; use 'scale', 'auto' or a "
+            "positive number (a string gamma is never silently ignored)."
+        )
+    return check_positive(who, "gamma", gamma)
+
+
+class _FastSvm(Classifier):
+    """Shared parameters, validation and fast inference of the SVM classifiers."""
+
+    _who = "svm"
+
+    def _check_common(self) -> None:
+        who = self._who
+        check_positive(who, "C", self.C)
+        _check_gamma(who, self.gamma)
+        check_class_weight(who, self.class_weight)
+        check_choice(who, "backend", self.backend, BACKENDS)
+        check_choice(who, "device", self.device, DEVICES)
+        if self.backend == "numpy" and self.device == "cuda":
+            raise ClassifierParamError(f"{who}: backend 'numpy' cannot run on device 'cuda'.")
+        check_positive(who, "working_set_mb", self.working_set_mb)
+        if self.block_rows is not None:
+            if isinstance(self.block_rows, bool) or not isinstance(self.block_rows, int):
+                raise ClassifierParamError(f"{who}: 'block_rows' must be a positive integer.")
+            check_positive(who, "block_rows", self.block_rows)
+        if not isinstance(self.unit_rows, bool):
+            raise ClassifierParamError(f"{who}: 'unit_rows' must be true or false.")
+
+    def _make_stack(self, part: KernelPart) -> None:
+        backend, device = resolve_backend(self.backend, self.device)
+        self.backend_, self.device_ = backend, device
+        self.stack_ = KernelStack(
+            [part], backend, device, int(self.working_set_mb * 2**20), self.block_rows
+        )
+        self.working_set_width_ = self.stack_.width
+        self.kernel_part_ = part
+
+    def _check_input(self, E: Any) -> None:
+        if not hasattr(self, "stack_"):
+            raise ClassifierParamError(f"{self._who}: call fit(X, y) before decision_function.")
+        shape = getattr(E, "shape", None)
+        if shape is None or len(shape) != 2 or shape[1] != self.stack_.dim:
+            raise ValueError(
+                f"{self._who}: expected embeddings of shape (N, {self.stack_.dim}); got {shape}."
+            )
+
+    def decision_function(self, E: Any, sq_norms: np.ndarray | None = None) -> np.ndarray:
+        """Decision values ``(N,)`` float32, > 0 for matches.
+
+        Parameters
+        ----------
+        E
+            ``(N, D)`` map embeddings, any float dtype (float16 is up-cast block by block).
+        sq_norms
+            Optional ``(N,)`` squared row norms, when the caller computed them already.
+        """
+        if not hasattr(E, "shape"):
+            E = np.asarray(E, dtype=np.float32)
+        self._check_input(E)
+        return self.stack_.evaluate(E, sq=sq_norms, unit=self.unit_rows)[:, 0]
+
+    def sklearn_decision_function(self, E: Any) -> np.ndarray:
+        """scikit-learn's own (slow, float64) decision function, for checks and benchmarks."""
+        E = np.asarray(E, dtype=np.float64)
+        return self.svc_.decision_function(self._sklearn_input(E))
+
+    def _sklearn_input(self, E: np.ndarray) -> np.ndarray:  # pragma: no cover - overridden
+        return E
+
+
+class RbfSvmClassifier(_FastSvm):
+    """SVC with an RBF kernel ``exp(-gamma |x - s|^2)``: the paper's default classifier.
 
     Parameters
     ----------
     C
-        Regularisation strength.
+        Regularisation strength (> 0).
     gamma
-        ``"scale"``, ``"auto"`` or a positive float.
+        ``"scale"`` (``1 / (D * X.var())``, scikit-learn's default), ``"auto"``
+        (``1 / D``) or a positive float. Any other string is rejected.
     class_weight
-        ``None``, ``"balanced"`` or ``{0: w0, 1: w1}``.
+        ``None``, ``"balanced"`` or ``{0: w_negatives, 1: w_positives}``.
+    backend
+        ``"auto"`` (torch on a visible CUDA GPU, else numpy), ``"numpy"`` or ``"torch"``.
+    device
+        ``"auto"``, ``"cpu"`` or ``"cuda"`` (torch backend).
+    working_set_mb
+        Budget of one block's float32 rows plus its ``(rows, n_support)`` intermediate.
+    block_rows
+        Rows per block (``None``: cache-sized on the CPU, the whole budget on a GPU).
+    unit_rows
+        The map's rows are known to be L2-unit: skip computing ``|x|^2``.
     """
 
-    def __init__(self, C: float = 1.0, gamma: Any = "scale", class_weight: Any = None) -> None:
+    _who = "svm-rbf"
+
+    def __init__(
+        self,
+        C: float = 1.0,
+        gamma: Any = "scale",
+        class_weight: Any = None,
+        backend: str = "auto",
+        device: str = "auto",
+        working_set_mb: float = 256.0,
+        block_rows: int | None = None,
+        unit_rows: bool = False,
+    ) -> None:
         self.C = C
         self.gamma = gamma
         self.class_weight = class_weight
+        self.backend = backend
+        self.device = device
+        self.working_set_mb = working_set_mb
+        self.block_rows = block_rows
+        self.unit_rows = unit_rows
+        self._check_common()
 
     def fit(self, X: np.ndarray, y: np.ndarray) -> RbfSvmClassifier:
+        self._check_common()
         X, y = check_training_set(X, y)
-        self.svc_ = SVC(kernel="rbf", C=self.C, gamma=self.gamma, class_weight=self.class_weight)
-        self.svc_.fit(X, y)
-        self.support_vectors_ = self.svc_.support_vectors_
+        self.svc_ = SVC(
+            kernel="rbf",
+            C=float(self.C),
+            gamma=_check_gamma(self._who, self.gamma),
+            class_weight=check_class_weight(self._who, self.class_weight),
+        )
+        self.svc_.fit(X.astype(np.float64), y)
         self.classes_ = self.svc_.classes_
+        self.gamma_ = float(self.svc_._gamma)
+        self.support_vectors_ = self.svc_.support_vectors_.astype(np.float32)
+        self.dual_coef_ = self.svc_.dual_coef_[0].astype(np.float64)
+        self.intercept_ = float(self.svc_.intercept_[0])
+        self._make_stack(
+            KernelPart("rbf", self.support_vectors_, self.dual_coef_, self.intercept_, self.gamma_)
+        )
         return self
 
-    def decision_function(self, E: np.ndarray) -> np.ndarray:
-        return self.svc_.decision_function(np.asarray(E, dtype=np.float32)).astype(np.float32)
+
+class CosineSvmClassifier(_FastSvm):
+    """SVC with a kernel over cosine distance (the paper's C-SVM).
+
+    Kernels, with ``c = cos(x, s)`` and ``d = 1 - c`` (a zero row has ``c = 0``):
+
+    - ``"rbf-cosine"``: ``exp(-gamma d^2)`` (``distance: squared``) or ``exp(-gamma d)``
+      (``distance: plain``);
+    - ``"linear-cosine"``: ``c``. ``gamma`` and ``distance`` do not apply and are rejected
+      when set.
+
+    ``gamma``: a positive float, ``"scale"`` (``1 / mean(d^p)`` over the distinct
+    training pairs, so the kernel is ``exp(-1)`` at the mean distance) or ``"auto"``
+    (``1 / D``, as in scikit-learn). Other parameters as in :class:`RbfSvmClassifier`.
+    The SVC is trained on the precomputed float64 kernel matrix.
+    """
+
+    _who = "svm-cosine"
+
+    def __init__(
+        self,
+        kernel: str = "rbf-cosine",
+        distance: str = "squared",
+        C: float = 1.0,
+        gamma: Any = "scale",
+        class_weight: Any = None,
+        backend: str = "auto",
+        device: str = "auto",
+        working_set_mb: float = 256.0,
+        block_rows: int | None = None,
+        unit_rows: bool = False,
+    ) -> None:
+        self.kernel = kernel
+        self.distance = distance
+        self.C = C
+        self.gamma = gamma
+        self.class_weight = class_weight
+        self.backend = backend
+        self.device = device
+        self.working_set_mb = working_set_mb
+        self.block_rows = block_rows
+        self.unit_rows = unit_rows
+        self._check_all()
+
+    def _check_all(self) -> None:
+        self._check_common()
+        check_choice(self._who, "kernel", self.kernel, ("rbf-cosine", "linear-cosine"))
+        check_choice(self._who, "distance", self.distance, ("squared", "plain"))
+        if self.kernel == "linear-cosine":
+            for field, default in (("gamma", "scale"), ("distance", "squared")):
+                if getattr(self, field) != default:
+                    raise ClassifierParamError(
+                        f"{self._who}: parameter {field!r} does not apply to kernel "
+                        "'linear-cosine'; remove it or use kernel 'rbf-cosine'."
+                    )
+
+    @property
+    def _power(self) -> int:
+        return 2 if self.distance == "squared" else 1
+
+    def _resolve_gamma(self, Xu: np.ndarray) -> float:
+        if self.kernel == "linear-cosine":
+            return 1.0
+        gamma = _check_gamma(self._who, self.gamma)
+        if gamma == "auto":
+            return 1.0 / Xu.shape[1]
+        if gamma == "scale":
+            d = np.maximum(1.0 - Xu.astype(np.float64) @ Xu.T.astype(np.float64), 0.0)
+            dp = d**self._power
+            n = len(Xu)
+            mean = (dp.sum() - np.trace(dp)) / max(1, n * (n - 1))
+            return float(1.0 / mean) if mean > 1e-12 else 1.0
+        return float(gamma)
+
+    def fit(self, X: np.ndarray, y: np.ndarray) -> CosineSvmClassifier:
+        self._check_all()
+        X, y = check_training_set(X, y)
+        Xu = unit_rows(X)
+        self.gamma_ = self._resolve_gamma(Xu)
+        K = reference_kernel(self.kernel, Xu, Xu, self.gamma_, self._power)
+        self.svc_ = SVC(
+            kernel="precomputed",
+            C=float(self.C),
+            class_weight=check_class_weight(self._who, self.class_weight),
+        )
+        self.svc_.fit(K, y)
+        self.X_fit_ = Xu
+        self.classes_ = self.svc_.classes_
+        self.support_vectors_ = Xu[self.svc_.support_]
+        self.dual_coef_ = self.svc_.dual_coef_[0].astype(np.float64)
+        self.intercept_ = float(self.svc_.intercept_[0])
+        if self.kernel == "linear-cosine":
+            w = self.dual_coef_ @ self.support_vectors_.astype(np.float64)
+            part = KernelPart(
+                "linear-cosine", w[None, :].astype(np.float32), np.ones(1), self.intercept_
+            )
+        else:
+            part = KernelPart(
+                "rbf-cosine",
+                self.support_vectors_,
+                self.dual_coef_,
+                self.intercept_,
+                self.gamma_,
+                self._power,
+            )
+        self._make_stack(part)
+        return self
+
+    def _sklearn_input(self, E: np.ndarray) -> np.ndarray:
+        return reference_kernel(self.kernel, E, self.X_fit_, self.gamma_, self._power)
+
+
+def stack_classifiers(
+    classifiers: list[Any], working_set_bytes: int = 256 * 2**20
+) -> tuple[KernelStack | None, list[int]]:
+    """One :class:`KernelStack` for the fitted fast SVMs in ``classifiers``.
+
+    Returns the stack (``None`` when none qualifies) and the indices of the
+    classifiers it evaluates, in output-column order. Only classifiers that share the
+    backend, device and ``unit_rows`` of the first are stacked.
+    """
+    idx = [i for i, c in enumerate(classifiers) if isinstance(c, _FastSvm) and hasattr(c, "stack_")]
+    if not idx:
+        return None, []
+    first = classifiers[idx[0]]
+    key = (first.backend_, first.device_, first.unit_rows)
+    idx = [
+        i
+        for i in idx
+        if (classifiers[i].backend_, classifiers[i].device_, classifiers[i].unit_rows) == key
+    ]
+    stack = KernelStack(
+        [classifiers[i].kernel_part_ for i in idx], key[0], key[1], working_set_bytes
+    )
+    stack.unit = key[2]
+    return stack, idx
