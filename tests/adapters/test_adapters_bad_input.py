@@ -1,0 +1,216 @@
+"""Malformed maps raise MapFormatError naming the file and the field, and are never written."""
+
+from __future__ import annotations
+
+import gzip
+import pickle
+
+import h5py
+import numpy as np
+import pytest
+from _cf_writers import cf_arrays, save_feat_pt, save_openlex3d, save_pointclouds, tree_hash
+
+from quash_plugins import registry
+from quash_plugins.adapters import read_map
+from quash_plugins.errors import MapFormatError
+
+
+def _cf(tmp_path, **changes):
+    arrays = cf_arrays(n=20, d=6)
+    for k, v in changes.items():
+        if v is None:
+            arrays.pop(k)
+        else:
+            arrays[k] = v
+    return save_pointclouds(tmp_path / "m", **arrays).parent
+
+
+def _check(source, *needles, adapter="auto", **options):
+    before = tree_hash(source)
+    with pytest.raises(MapFormatError) as info:
+        lmap = read_map(source, adapter, **options)
+        # NaN/Inf in large lazy maps is found when rows are read.
+        for _ in lmap.iter_chunks(7):
+            pass
+    msg = str(info.value)
+    for needle in needles:
+        assert needle in msg, msg
+    assert tree_hash(source) == before
+    return msg
+
+
+# ----------------------------------------------------------------- conceptfusion
+def test_cf_missing_embeddings_file(tmp_path):
+    _check(
+        _cf(tmp_path, pc_embeddings=None),
+        "pc_embeddings.h5",
+        "missing file",
+        adapter="conceptfusion",
+    )
+
+
+def test_cf_missing_dataset(tmp_path):
+    root = _cf(tmp_path)
+    path = root / "pointclouds" / "pc_embeddings.h5"
+    with h5py.File(path, "w") as f:
+        f.create_dataset("embeddings", data=np.ones((20, 6), np.float32))
+    _check(root, "pc_embeddings.h5", "'pc_embeddings'", "missing dataset")
+
+
+def test_cf_mismatched_rows(tmp_path):
+    root = _cf(tmp_path, pc_embeddings=np.ones((19, 6), np.float16))
+    _check(root, "pc_embeddings.h5", "19 rows", "20 points")
+
+
+def test_cf_mismatched_colors(tmp_path):
+    _check(_cf(tmp_path, pc_colors=np.ones((5, 3), np.float32)), "pc_colors.h5", "'colors'")
+
+
+@pytest.mark.parametrize("shape", [(20,), (20, 6, 1)])
+def test_cf_wrong_rank_embeddings(tmp_path, shape):
+    _check(
+        _cf(tmp_path, pc_embeddings=np.ones(shape, np.float32)),
+        "pc_embeddings.h5",
+        "'embeddings'",
+        "2-D",
+    )
+
+
+def test_cf_wrong_rank_points(tmp_path):
+    _check(_cf(tmp_path, pc_points=np.ones((20, 2), np.float32)), "pc_points.h5", "'positions'")
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf])
+def test_cf_nan_inf_embeddings(tmp_path, bad):
+    emb = cf_arrays(n=20, d=6)["pc_embeddings"]
+    emb[13, 2] = bad
+    _check(
+        _cf(tmp_path, pc_embeddings=emb), "pc_embeddings.h5", "'embeddings'", "NaN or Inf", "row 13"
+    )
+
+
+def test_cf_nan_found_at_query_time_when_not_scanned(tmp_path):
+    emb = cf_arrays(n=20, d=6)["pc_embeddings"]
+    emb[5, 0] = np.nan
+    root = _cf(tmp_path, pc_embeddings=emb)
+    _check(root, "'embeddings'", "NaN or Inf", "row 5", check_finite=False)
+
+
+def test_cf_nan_points(tmp_path):
+    pts = cf_arrays(n=20, d=6)["pc_points"]
+    pts[4, 1] = np.nan
+    _check(_cf(tmp_path, pc_points=pts), "pc_points.h5", "'positions'", "NaN")
+
+
+def test_cf_empty(tmp_path):
+    root = _cf(
+        tmp_path,
+        pc_points=np.zeros((0, 3), np.float32),
+        pc_embeddings=np.zeros((0, 6), np.float16),
+        pc_colors=None,
+        pc_features=None,
+        pc_confidences=None,
+    )
+    _check(root, "pc_embeddings.h5", "empty")
+
+
+def test_cf_truncated_hdf5(tmp_path):
+    root = _cf(tmp_path, pc_embeddings=np.ones((2000, 64), np.float32))
+    path = root / "pointclouds" / "pc_embeddings.h5"
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])
+    _check(root, "pc_embeddings.h5", "truncated")
+
+
+def test_cf_garbage_file(tmp_path):
+    root = _cf(tmp_path)
+    (root / "pointclouds" / "pc_points.h5").write_bytes(b"not hdf5 at all")
+    _check(root, "pc_points.h5", "HDF5")
+
+
+# ----------------------------------------------------------------- image features
+def test_feat_wrong_rank(tmp_path):
+    save_feat_pt(tmp_path, "f0", np.ones((4, 5), np.float16))
+    _check(tmp_path, "f0.pt", "'embeddings'", "rank 2", adapter="image-features")
+
+
+def test_feat_mismatched_dims(tmp_path):
+    save_feat_pt(tmp_path, "f0", np.ones((2, 2, 5), np.float16))
+    save_feat_pt(tmp_path, "f1", np.ones((2, 2, 6), np.float16))
+    _check(tmp_path, "f1.pt", "dimension 6")
+
+
+def test_feat_nan(tmp_path):
+    feat = np.ones((3, 4, 5), np.float16)
+    feat[2, 1, 0] = np.inf
+    save_feat_pt(tmp_path, "f0", np.ones((3, 4, 5), np.float16))
+    save_feat_pt(tmp_path, "f1", feat)
+    _check(tmp_path, "f1.pt", "'embeddings'", "NaN or Inf", "x=1, y=2")
+
+
+def test_feat_empty_dir(tmp_path):
+    (tmp_path / "saved-feat").mkdir()
+    _check(tmp_path / "saved-feat", "saved-feat", "empty", adapter="image-features")
+
+
+def test_feat_pickled_object_refused(tmp_path):
+    import torch
+
+    torch.save({"feat": torch.ones(2, 2, 3), "meta": object()}, tmp_path / "f0.pt")
+    _check(tmp_path, "f0.pt", adapter="image-features")
+
+
+def test_feat_truncated_pt(tmp_path):
+    path = save_feat_pt(tmp_path, "f0", np.ones((8, 8, 16), np.float16))
+    path.write_bytes(path.read_bytes()[:200])
+    _check(tmp_path, "f0.pt", "not a readable tensor file", adapter="image-features")
+
+
+# ----------------------------------------------------------------- openlex3d / pickles
+def _ol(tmp_path, n=10, table=None, index=None):
+    rng = np.random.default_rng(0)
+    table = rng.normal(size=(3, 4)).astype(np.float32) if table is None else table
+    index = rng.integers(0, 3, size=n) if index is None else index
+    return save_openlex3d(tmp_path / "p", rng.normal(size=(n, 3)), None, table, index)
+
+
+def test_ol_mismatched_rows(tmp_path):
+    _check(_ol(tmp_path, index=np.zeros(7, int)), "index.npy", "'index'", "7 entries", "10 points")
+
+
+def test_ol_index_out_of_range(tmp_path):
+    _check(_ol(tmp_path, index=np.full(10, 3)), "index.npy", "'index'", "row 3")
+
+
+def test_ol_wrong_rank(tmp_path):
+    _check(
+        _ol(tmp_path, table=np.ones((3, 4, 1), np.float32)), "embeddings.npy", "'embeddings'", "2-D"
+    )
+
+
+def test_ol_nan(tmp_path):
+    table = np.ones((3, 4), np.float32)
+    table[1, 1] = np.nan
+    _check(_ol(tmp_path, table=table), "embeddings.npy", "'embeddings'", "NaN")
+
+
+def test_ol_missing_index(tmp_path):
+    folder = _ol(tmp_path)
+    (folder / "index.npy").unlink()
+    _check(folder, "index.npy", "missing", adapter="openlex3d")
+
+
+@pytest.mark.parametrize("name", ["map.pkl.gz", "objects.pkl"])
+def test_pickle_needs_opt_in(tmp_path, name):
+    path = tmp_path / name
+    payload = {
+        "objects": [
+            {"clip_ft": np.ones(4), "pcd_np": np.zeros((2, 3)), "pcd_color_np": np.ones((2, 3))}
+        ]
+    }
+    with (gzip.open if name.endswith(".gz") else open)(path, "wb") as f:
+        pickle.dump(payload, f)
+    msg = _check(path, name, "allow_pickle")
+    assert "pickle" in msg
+    lmap = registry.create("adapters", "openlex3d", allow_pickle=True).read(path)
+    assert lmap.n == 2 and (lmap.colors == 255).all()

@@ -1,0 +1,117 @@
+"""ConceptFusion (gradslam pointclouds/) adapter: rows, colours, laziness, queries."""
+
+from __future__ import annotations
+
+import h5py
+import numpy as np
+import pytest
+from _cf_writers import cf_arrays, contrast_config, save_pointclouds, text_table, tree_hash
+
+from quash_plugins import Quash, registry
+from quash_plugins.adapters import detect_adapter, read_map
+from quash_plugins.cli.main import main
+
+
+@pytest.fixture
+def cf_map(tmp_path):
+    arrays = cf_arrays(n=90, d=16)
+    save_pointclouds(tmp_path / "saved-map", **arrays)
+    return tmp_path / "saved-map", arrays
+
+
+@pytest.mark.parametrize("which", ["parent", "pointclouds", "file"])
+def test_reads_directory_or_parent(cf_map, which):
+    root, arrays = cf_map
+    source = {
+        "parent": root,
+        "pointclouds": root / "pointclouds",
+        "file": root / "pointclouds" / "pc_points.h5",
+    }[which]
+    lmap = registry.create("adapters", "conceptfusion").read(source)
+    assert lmap.n == 90 and lmap.dim == 16 and lmap.kind == "points"
+    np.testing.assert_array_equal(lmap.positions, arrays["pc_points"])
+    expected = np.clip(np.rint(arrays["pc_colors"]), 0, 255).astype(np.uint8)
+    np.testing.assert_array_equal(lmap.colors, expected)
+    assert detect_adapter(source) == "conceptfusion"
+
+
+def test_float16_kept_lazily_and_rows_normalised(cf_map):
+    root, arrays = cf_map
+    lmap = read_map(root)
+    assert isinstance(lmap.embeddings, h5py.Dataset)
+    assert lmap.embeddings.dtype == np.float16
+    assert lmap.normalize is True
+    raw = arrays["pc_embeddings"].astype(np.float32)
+    norms = np.linalg.norm(raw, axis=1)
+    for start, stop, block in lmap.iter_chunks(17):
+        assert block.dtype == np.float32
+        for i, row in zip(range(start, stop), block):
+            if norms[i] == 0:
+                assert not row.any()
+            else:
+                np.testing.assert_allclose(row, raw[i] / norms[i], rtol=1e-5, atol=1e-6)
+
+
+def test_float32_embeddings_and_only_required_files(tmp_path):
+    arrays = cf_arrays(n=30, d=8, dtype=np.float32)
+    save_pointclouds(tmp_path, pc_points=arrays["pc_points"], pc_embeddings=arrays["pc_embeddings"])
+    lmap = read_map(tmp_path)
+    assert lmap.embeddings.dtype == np.float32 and lmap.colors is None
+    np.testing.assert_array_equal(np.asarray(lmap.embeddings[:]), arrays["pc_embeddings"])
+
+
+def test_zero_rows_never_match_end_to_end(tmp_path):
+    table, vecs = text_table(tmp_path, 16)
+    chair_rows = [1, 2, 4, 7, 8]
+    arrays = cf_arrays(n=40, d=16, vecs=vecs, chair_rows=chair_rows, zero_every=4)
+    save_pointclouds(tmp_path / "m", **arrays)
+    emb = arrays["pc_embeddings"].astype(np.float32)
+    # Independent expectation: closer to chair than to every negative, and non-zero.
+    unit = emb / np.maximum(np.linalg.norm(emb, axis=1, keepdims=True), 1e-12)
+    score = unit @ vecs["chair"] - np.max(
+        unit @ np.stack([vecs[w] for w in ("other", "background", "nothing")]).T, axis=1
+    )
+    expected = (score > 0) & (np.abs(emb).sum(axis=1) > 0)
+    assert expected.sum() == 3  # chair rows 4 and 8 are zeroed: only 1, 2, 7 remain
+    quash = Quash.from_config(contrast_config(tmp_path, table), cache=False)
+    result = quash.query(tmp_path / "m", "chair")
+    np.testing.assert_array_equal(result.mask, expected)
+    assert not result.mask[::4].any()
+
+
+def test_cli_query_auto(tmp_path):
+    table, vecs = text_table(tmp_path, 16)
+    arrays = cf_arrays(n=40, d=16, vecs=vecs, chair_rows=[1, 2, 3])
+    save_pointclouds(tmp_path / "m", **arrays)
+    before = tree_hash(tmp_path / "m")
+    out = tmp_path / "r.npz"
+    cfg = contrast_config(tmp_path, table)
+    rc = main(
+        [
+            "-q",
+            "query",
+            str(tmp_path / "m"),
+            "chair",
+            "-c",
+            str(cfg),
+            "--adapter",
+            "auto",
+            "--out",
+            str(out),
+        ]
+    )
+    assert rc == 0
+    with np.load(out) as z:
+        assert z["masks"].shape == (1, 40)
+        assert z["masks"][0, [1, 2, 3]].all() and z["masks"][0].sum() == 3
+    assert tree_hash(tmp_path / "m") == before
+
+
+def test_color_range_option(tmp_path):
+    arrays = cf_arrays(n=10, d=4)
+    arrays["pc_colors"] = np.full((10, 3), 0.5, dtype=np.float32)
+    save_pointclouds(tmp_path, **arrays)
+    lmap = registry.create("adapters", "conceptfusion", color_range="0-1").read(tmp_path)
+    assert (lmap.colors == 128).all()
+    # Default 0-255: a dark colour stays dark (no silent 0-1 guess).
+    assert (read_map(tmp_path).colors <= 1).all()

@@ -1,0 +1,152 @@
+"""Per-image feature maps: layouts, frames, colours, per-image masks."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from _cf_writers import contrast_config, save_feat_pt, save_png, text_table, tree_hash
+
+from quash_plugins import Quash, registry
+from quash_plugins.adapters import detect_adapter, read_map
+from quash_plugins.adapters._image_features import masks_per_frame, pixel_coordinates
+from quash_plugins.cli.main import main
+
+
+def cf_frame(vecs, h, w, chair_box, seed):
+    """ConceptFusion frame: unit pixels ('other' background, 'chair' in a box), zero strip."""
+    rng = np.random.default_rng(seed)
+    feat = np.tile(vecs["other"], (h, w, 1)) + 0.05 * rng.normal(size=(h, w, len(vecs["other"])))
+    y0, y1, x0, x1 = chair_box
+    feat[y0:y1, x0:x1] = vecs["chair"]
+    feat /= np.linalg.norm(feat, axis=-1, keepdims=True)
+    feat[:, 0] = 0  # pixels no mask covered
+    return feat.astype(np.float16)
+
+
+@pytest.fixture
+def cf_feat(tmp_path):
+    table, vecs = text_table(tmp_path, 16)
+    folder = tmp_path / "saved-feat"
+    boxes = {"frame000000": (1, 3, 2, 5), "frame000020": (0, 2, 4, 7), "frame000100": (3, 5, 0, 3)}
+    frames = {}
+    for i, (stem, box) in enumerate(boxes.items()):
+        frames[stem] = cf_frame(vecs, 5, 7, box, i)
+        save_feat_pt(folder, stem, frames[stem])
+        # Images at twice the feature resolution, as ConceptFusion extracts at reduced size.
+        rgb = np.zeros((10, 14, 3), np.uint8)
+        rgb[..., 0] = 40 * (i + 1)
+        save_png(folder / f"{stem}.png", rgb)
+    return tmp_path, folder, frames, boxes, table, vecs
+
+
+def test_frames_rows_and_colors(cf_feat):
+    _, folder, frames, _, _, _ = cf_feat
+    assert detect_adapter(folder) == "image-features"
+    lmap = registry.create("adapters", "image-features").read(folder)
+    assert lmap.kind == "pixels" and lmap.positions is None
+    assert [f.frame_id for f in lmap.frames] == ["frame000000", "frame000020", "frame000100"]
+    assert [f.offset for f in lmap.frames] == [0, 35, 70] and lmap.n == 105
+    assert all(f.image_path and f.image_path.endswith(".png") for f in lmap.frames)
+    # float16 stays float16 and is never one big ndarray.
+    assert lmap.embeddings.dtype == np.float16 and not isinstance(lmap.embeddings, np.ndarray)
+    stacked = np.concatenate([f.reshape(-1, 16) for f in frames.values()])
+    np.testing.assert_array_equal(lmap.embeddings[30:80], stacked[30:80])
+    np.testing.assert_array_equal(np.asarray(lmap.embeddings), stacked)
+    # Colours: images resized to the feature resolution (uniform colour per frame).
+    assert lmap.colors.shape == (105, 3)
+    assert (lmap.colors[:35, 0] == 40).all() and (lmap.colors[70:, 0] == 120).all()
+
+
+def test_masks_per_frame_recovered_end_to_end(cf_feat):
+    tmp, folder, frames, boxes, table, vecs = cf_feat
+    quash = Quash.from_config(contrast_config(tmp, table), cache=False)
+    lmap = quash.read_map(folder)
+    result = quash.query(lmap, "chair")
+    per_image = masks_per_frame(lmap, result.mask)
+    assert set(per_image) == set(boxes)
+    for stem, (y0, y1, x0, x1) in boxes.items():
+        expected = np.zeros((5, 7), bool)
+        expected[y0:y1, x0:x1] = True
+        expected[:, 0] = False  # zero pixels never match
+        np.testing.assert_array_equal(per_image[stem], expected)
+    coords = pixel_coordinates(lmap, np.flatnonzero(result.mask))
+    for x, y, f in coords:
+        assert per_image[lmap.frames[f].frame_id][y, x]
+
+
+def test_lseg_layout_and_npy(tmp_path):
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=(1, 6, 3, 4)).astype(np.float32)  # (1, D, h, w)
+    b = rng.normal(size=(3, 4, 6)).astype(np.float32)  # (H, W, D) as .npy
+    save_feat_pt(tmp_path / "feat", "f1", a)
+    np.save(tmp_path / "feat" / "f2.npy", b)
+    lmap = read_map(tmp_path / "feat", "image-features")
+    assert lmap.n == 24 and lmap.dim == 6 and lmap.colors is None
+    expected = np.concatenate([a[0].transpose(1, 2, 0).reshape(-1, 6), b.reshape(-1, 6)])
+    np.testing.assert_array_equal(np.asarray(lmap.embeddings), expected)
+    # Item offset + y*W + x is pixel (x, y): check one LSeg pixel directly.
+    assert np.array_equal(lmap.embeddings[1 * 4 + 2], a[0, :, 1, 2])
+
+
+def test_images_in_sibling_folder_and_option(tmp_path):
+    feat = np.ones((2, 3, 4), np.float16)
+    save_feat_pt(tmp_path / "saved-feat", "frame7", feat)
+    save_png(tmp_path / "rgb" / "frame7.jpg", np.full((2, 3, 3), 200, np.uint8))
+    lmap = read_map(tmp_path / "saved-feat", "image-features")
+    assert lmap.frames[0].image_path.endswith("rgb/frame7.jpg")
+    assert abs(int(lmap.colors[0, 0]) - 200) <= 3  # jpeg
+    other = tmp_path / "elsewhere"
+    save_png(other / "frame7.png", np.full((2, 3, 3), 9, np.uint8))
+    lmap = registry.create("adapters", "image-features", images=str(other)).read(
+        tmp_path / "saved-feat"
+    )
+    assert (lmap.colors == 9).all()
+    lmap = registry.create("adapters", "image-features", colors=False).read(tmp_path / "saved-feat")
+    assert lmap.colors is None
+
+
+def test_natural_frame_order(tmp_path):
+    for i in (10, 2, 1):
+        save_feat_pt(tmp_path, f"frame{i}", np.full((1, 2, 3), i, np.float16))
+    lmap = read_map(tmp_path, "image-features")
+    assert [f.frame_id for f in lmap.frames] == ["frame1", "frame2", "frame10"]
+
+
+def test_masks_per_frame_needs_frames_and_right_length(cf_feat):
+    from quash_plugins.errors import QuashError
+    from quash_plugins.types import LatentMap
+
+    with pytest.raises(QuashError, match="no frames"):
+        masks_per_frame(LatentMap(np.ones((3, 2), np.float32)), np.ones(3, bool))
+    lmap = read_map(cf_feat[1])
+    with pytest.raises(QuashError, match="shape"):
+        masks_per_frame(lmap, np.ones(3, bool))
+
+
+def test_cli_query_auto_input_unchanged(cf_feat):
+    tmp, folder, _, boxes, table, _ = cf_feat
+    before = tree_hash(folder)
+    out = tmp / "r.npz"
+    cfg = contrast_config(tmp, table)
+    assert (
+        main(
+            [
+                "-q",
+                "query",
+                str(folder),
+                "chair",
+                "-c",
+                str(cfg),
+                "--adapter",
+                "auto",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
+    with np.load(out) as z:
+        assert z["masks"].shape == (1, 105)
+        expected = sum((y1 - y0) * (x1 - x0 - (x0 == 0)) for y0, y1, x0, x1 in boxes.values())
+        assert z["masks"].sum() == expected
+    assert tree_hash(folder) == before

@@ -1,0 +1,72 @@
+"""OpenLex3D neutral layout: point_cloud.pcd + embeddings.npy + index.npy."""
+
+from __future__ import annotations
+
+import numpy as np
+from _cf_writers import contrast_config, save_openlex3d, text_table, tree_hash
+
+from quash_plugins import registry
+from quash_plugins.adapters import detect_adapter, read_map
+from quash_plugins.adapters._lazy import IndexedRows
+from quash_plugins.cli.main import main
+
+
+def test_object_level_index(tmp_path):
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(-2, 2, size=(40, 3))
+    cols = rng.uniform(0, 1, size=(40, 3))
+    table = rng.normal(size=(6, 8)).astype(np.float32)
+    index = rng.integers(0, 6, size=40)
+    index[[3, 9]] = -1
+    save_openlex3d(tmp_path / "p", pts, cols, table, index)
+    assert detect_adapter(tmp_path / "p") == "openlex3d"
+    lmap = registry.create("adapters", "openlex3d").read(tmp_path / "p")
+    assert lmap.n == 40 and lmap.dim == 8 and isinstance(lmap.embeddings, IndexedRows)
+    np.testing.assert_allclose(lmap.positions, pts.astype(np.float32), atol=1e-6)
+    np.testing.assert_array_equal(
+        lmap.colors, np.clip(np.rint(cols * 255), 0, 255).astype(np.uint8)
+    )
+    expected = table[np.clip(index, 0, None)]
+    expected[index < 0] = 0
+    np.testing.assert_array_equal(lmap.embeddings[0:40], expected)
+    np.testing.assert_array_equal(lmap.embeddings[[9, 1, 3]], expected[[9, 1, 3]])
+    assert lmap.normalize
+
+
+def test_dense_index_uses_memmap(tmp_path):
+    rng = np.random.default_rng(1)
+    table = rng.normal(size=(25, 4)).astype(np.float16)
+    save_openlex3d(tmp_path, rng.normal(size=(25, 3)), None, table, np.arange(25))
+    lmap = read_map(tmp_path)
+    assert isinstance(lmap.embeddings, np.memmap) and lmap.embeddings.dtype == np.float16
+    assert lmap.colors is None and lmap.source["dense"]
+
+
+def test_cli_query_auto(tmp_path):
+    table_path, vecs = text_table(tmp_path, 16)
+    table = np.stack([vecs["other"], vecs["chair"], vecs["sofa"]]) * np.array([[2.0], [5.0], [1.0]])
+    index = np.array([0, 1, 1, 2, -1, 1, 0, 0])
+    save_openlex3d(tmp_path / "p", np.random.default_rng(0).normal(size=(8, 3)), None, table, index)
+    before = tree_hash(tmp_path / "p")
+    out = tmp_path / "r.npz"
+    cfg = contrast_config(tmp_path, table_path)
+    assert (
+        main(
+            [
+                "-q",
+                "query",
+                str(tmp_path / "p"),
+                "chair",
+                "-c",
+                str(cfg),
+                "--adapter",
+                "auto",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
+    with np.load(out) as z:
+        np.testing.assert_array_equal(z["masks"][0], index == 1)
+    assert tree_hash(tmp_path / "p") == before
