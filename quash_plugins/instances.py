@@ -69,7 +69,7 @@ def find_instances(
         Voxels: 26 (default), 18 or 6. Pixels: 8 (default) or 4.
     radius
         Point maps: linking distance in metres. Default: ``1.5 * voxel_size`` when known,
-        else 2.5 times the median nearest-neighbour distance of the matched points.
+        else twice the 90th percentile of the matched points' nearest-neighbour distances.
     min_samples
         DBSCAN only: neighbours needed for a core point (default 3).
     min_size
@@ -211,7 +211,7 @@ def _default_radius(lmap: LatentMap, pts: np.ndarray) -> float:
     dist, _ = cKDTree(pts).query(sample, k=2)
     nn = dist[:, 1]
     nn = nn[nn > 0]
-    return float(2.5 * np.median(nn)) if nn.size else 1e-6
+    return float(2.0 * np.percentile(nn, 90)) if nn.size else 1e-6
 
 
 def _radius_labels(pts: np.ndarray, radius: float, chunk: int) -> np.ndarray:
