@@ -104,6 +104,9 @@ class Quash:
         )
         self.negatives = list(negatives)
         self.threshold = float(threshold)
+        if prompt_templates is None:
+            # A heuristic may ask for templates (the `templates` heuristic); config wins.
+            prompt_templates = getattr(self.heuristic, "prompt_templates", None)
         self.prompt_templates = prompt_templates
         self._templates = None
         if prompt_templates is not None:

@@ -1,0 +1,73 @@
+"""Loading the word lists that heuristics ship with or read from the user."""
+
+from __future__ import annotations
+
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from ..errors import ConfigError
+
+
+def read_word_list(spec: str | list[str] | None, default: str, what: str) -> list[str]:
+    """Names from ``spec``: None for the shipped ``default`` file, a list, or a path.
+
+    Text files hold one entry per line; blank lines and lines starting with ``#`` are
+    skipped; duplicates are dropped (first kept). YAML files hold a list.
+    """
+    if spec is None or spec == "default":
+        text = resources.files("quash_plugins.data").joinpath(default).read_text(encoding="utf-8")
+        items = _lines(text)
+        where = f"the shipped {default}"
+    elif isinstance(spec, (list, tuple)):
+        items = [" ".join(str(s).split()) for s in spec]
+        where = f"the {what} list"
+    else:
+        path = Path(str(spec)).expanduser()
+        where = str(path)
+        if not path.exists():
+            raise ConfigError(f"{what.capitalize()} file not found: {path}")
+        if path.suffix in (".yaml", ".yml"):
+            from ..config import load_yaml
+
+            data, _ = load_yaml(path)
+            if not isinstance(data, list):
+                raise ConfigError(f"{path}: expected a YAML list of {what} entries.")
+            items = [" ".join(str(s).split()) for s in data]
+        else:
+            items = _lines(path.read_text(encoding="utf-8"))
+    items = list(dict.fromkeys(s for s in items if s))
+    if not items:
+        raise ConfigError(f"{where}: the {what} list is empty.")
+    return items
+
+
+def read_mapping(spec: str | dict[str, Any] | None, default: str | None, what: str) -> dict:
+    """A YAML mapping from ``spec`` (path, dict) or the shipped ``default`` file."""
+    import yaml
+
+    if isinstance(spec, dict):
+        return dict(spec)
+    if spec is None:
+        if default is None:
+            raise ConfigError(f"No {what} given.")
+        text = resources.files("quash_plugins.data").joinpath(default).read_text(encoding="utf-8")
+        return yaml.safe_load(text)
+    from ..config import load_yaml
+
+    path = Path(str(spec)).expanduser()
+    if not path.exists():
+        raise ConfigError(f"{what.capitalize()} file not found: {path}")
+    data, _ = load_yaml(path)
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: expected a YAML mapping for the {what}.")
+    return data
+
+
+def _lines(text: str) -> list[str]:
+    out = []
+    for line in text.splitlines():
+        line = line.split("#", 1)[0].strip() if not line.lstrip().startswith("#") else ""
+        if line:
+            out.append(" ".join(line.split()))
+    return out
