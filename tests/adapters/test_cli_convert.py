@@ -1,0 +1,120 @@
+"""``quash convert SRC DST.npz``: any readable map to the portable format."""
+
+from __future__ import annotations
+
+import gzip
+import pickle
+import sys
+
+import numpy as np
+import pytest
+from _cf_writers import cf_arrays, save_feat_pt, save_openlex3d, save_pointclouds, tree_hash
+
+from quash_plugins.adapters import read_map
+from quash_plugins.adapters._convert import convert_map, frames_from_npz
+from quash_plugins.cli.main import main
+
+
+def test_convert_conceptfusion_streams_float16(tmp_path):
+    arrays = cf_arrays(n=50, d=8)
+    save_pointclouds(tmp_path / "saved-map", **arrays)
+    before = tree_hash(tmp_path / "saved-map")
+    out = tmp_path / "room.npz"
+    assert main(["-q", "convert", str(tmp_path / "saved-map"), str(out)]) == 0
+    assert tree_hash(tmp_path / "saved-map") == before
+    with np.load(out, allow_pickle=False) as z:
+        assert z["embeddings"].dtype == np.float16
+        np.testing.assert_array_equal(z["embeddings"], arrays["pc_embeddings"])
+        np.testing.assert_array_equal(z["positions"], arrays["pc_points"])
+        np.testing.assert_array_equal(z["colors"], np.rint(arrays["pc_colors"]).astype(np.uint8))
+        assert bool(z["normalize"]) and str(z["kind"]) == "points"
+    back = read_map(out)
+    assert back.source["adapter"] == "npz" and back.normalize and back.n == 50
+
+
+def test_convert_image_features_keeps_frames(tmp_path):
+    save_feat_pt(tmp_path / "feat", "a", np.ones((2, 3, 4), np.float16))
+    save_feat_pt(tmp_path / "feat", "b", np.full((1, 4, 3, 2), 2.0, np.float32))
+    out = tmp_path / "f.npz"
+    assert (
+        main(["-q", "convert", str(tmp_path / "feat"), str(out), "--adapter", "image-features"])
+        == 0
+    )
+    frames = frames_from_npz(out)
+    assert [(f.frame_id, f.height, f.width, f.offset) for f in frames] == [
+        ("a", 2, 3, 0),
+        ("b", 3, 2, 6),
+    ]
+    lmap = read_map(out)
+    assert lmap.n == 12 and lmap.kind == "pixels"
+    np.testing.assert_array_equal(np.asarray(lmap.embeddings)[6:], np.full((6, 4), 2.0))
+
+
+def test_convert_openlex3d_in_memory_path(tmp_path):
+    rng = np.random.default_rng(0)
+    table = rng.normal(size=(9, 5)).astype(np.float32)
+    save_openlex3d(tmp_path / "p", rng.normal(size=(9, 3)), None, table, np.arange(9))
+    out = convert_map(tmp_path / "p", tmp_path / "p.npz")
+    with np.load(out) as z:
+        np.testing.assert_array_equal(z["embeddings"], table)
+
+
+def test_convert_pickle_needs_flag(tmp_path, capsys):
+    src = tmp_path / "cg.pkl.gz"
+    with gzip.open(src, "wb") as f:
+        pickle.dump({"objects": [{"clip_ft": np.ones(3), "pcd_np": np.zeros((4, 3))}]}, f)
+    out = tmp_path / "cg.npz"
+    assert main(["convert", str(src), str(out)]) == 1
+    err = capsys.readouterr().err
+    assert "cg.pkl.gz" in err and "allow_pickle" in err and not out.exists()
+    assert main(["-q", "convert", str(src), str(out), "--allow-pickle"]) == 0
+    assert read_map(out).n == 4
+
+
+def test_convert_refuses_to_write_into_input_or_bad_suffix(tmp_path, capsys):
+    save_pointclouds(tmp_path / "m", **cf_arrays(n=5, d=3))
+    before = tree_hash(tmp_path / "m")
+    assert main(["convert", str(tmp_path / "m"), str(tmp_path / "m" / "x.npz")]) == 2
+    assert main(["convert", str(tmp_path / "m"), str(tmp_path / "x.h5")]) == 2
+    assert main(["convert", str(tmp_path / "missing"), str(tmp_path / "x.npz")]) == 2
+    assert tree_hash(tmp_path / "m") == before
+    assert ".npz" in capsys.readouterr().err
+
+
+def test_convert_adapter_options(tmp_path):
+    arrays = cf_arrays(n=5, d=3)
+    arrays["pc_colors"] = np.full((5, 3), 0.5, np.float32)
+    save_pointclouds(tmp_path / "m", **arrays)
+    out = tmp_path / "o.npz"
+    assert main(["-q", "convert", str(tmp_path / "m"), str(out), "-o", "color_range=0-1"]) == 0
+    with np.load(out) as z:
+        assert (z["colors"] == 128).all()
+
+
+def test_convert_to_zarr_delegates(tmp_path, monkeypatch):
+    import quash_plugins.scale as scale
+
+    calls = []
+    monkeypatch.setattr(
+        scale,
+        "write_zarr_map",
+        lambda lmap, path: calls.append((lmap.n, path)) or path,
+        raising=False,
+    )
+    save_pointclouds(tmp_path / "m", **cf_arrays(n=6, d=3))
+    assert main(["-q", "convert", str(tmp_path / "m"), str(tmp_path / "m.zarr")]) == 0
+    assert calls and calls[0][0] == 6
+
+
+def test_convert_to_zarr_missing_writer_is_clear(tmp_path, monkeypatch, capsys):
+    monkeypatch.setitem(sys.modules, "quash_plugins.scale", None)
+    save_pointclouds(tmp_path / "m", **cf_arrays(n=6, d=3))
+    assert main(["convert", str(tmp_path / "m"), str(tmp_path / "m.zarr")]) == 1
+    assert "write_zarr_map" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("name", ["convert"])
+def test_help_lists_convert(name, capsys):
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    assert name in capsys.readouterr().out
