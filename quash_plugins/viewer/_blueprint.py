@@ -9,13 +9,15 @@ from typing import Any
 def build_blueprint(
     *,
     has_world: bool,
+    slugs: Sequence[str] = (),
     frames: Sequence[str] = (),
     has_eval: bool = False,
 ) -> Any:
     """A :class:`rerun.blueprint.Blueprint` for what the recording holds.
 
     Layout: on the left a 3D view of ``world`` (map, matches, instances) and a second
-    3D view of the score colormap; for pixel maps, one tab of 2D views per logged frame
+    3D view of the score colormap (Rerun's view queries only accept a trailing ``/**``
+    wildcard, so the query slugs are listed explicitly); for pixel maps, one tab of 2D views per logged frame
     (RGB with the mask over it, and the score heatmap); on the right the query-set
     document of the current query and, for ``quash eval``, a time series of the metrics.
     The time panel is set to the ``query`` timeline so a person scrubs through queries.
@@ -24,6 +26,8 @@ def build_blueprint(
     ----------
     has_world
         The map has 3D positions (``world/...`` entities exist).
+    slugs
+        Entity names of the queries logged so far (``world/queries/<slug>``).
     frames
         Entity-safe frame names logged under ``images/<frame>``.
     has_eval
@@ -33,24 +37,25 @@ def build_blueprint(
 
     left: list[Any] = []
     if has_world:
-        left.append(
-            rrb.Horizontal(
-                rrb.Spatial3DView(
-                    name="Map and matches",
-                    origin="world",
-                    contents=[
-                        "+ world/map/**",
-                        "+ world/queries/*/mask/**",
-                        "+ world/queries/*/instances/**",
-                    ],
-                ),
+        views = [
+            rrb.Spatial3DView(
+                name="Map and matches",
+                origin="world",
+                contents=["+ world/**", *[f"- world/queries/{q}/scores/**" for q in slugs]],
+            )
+        ]
+        if slugs:
+            views.append(
                 rrb.Spatial3DView(
                     name="Scores",
                     origin="world",
-                    contents=["+ world/queries/*/scores/**", "+ world/queries/*/instances/**"],
-                ),
+                    contents=[
+                        *[f"+ world/queries/{q}/scores/**" for q in slugs],
+                        *[f"+ world/queries/{q}/instances/**" for q in slugs],
+                    ],
+                )
             )
-        )
+        left.append(rrb.Horizontal(*views))
     if frames:
         tabs = []
         for frame in frames:

@@ -115,6 +115,8 @@ class RerunLogger:
         rr, rec = self.rr, self.recording
         self._map_key = id(lmap)
         self._notes = []
+        self._slugs = {}
+        self._current = None
         self._has_world = lmap.positions is not None
         self._frames = []
         if self._has_world:
@@ -134,7 +136,7 @@ class RerunLogger:
             else:
                 colors = pca_colors(lmap, self._display)
                 self._notes.append("The map has no RGB; it is coloured by a PCA of its embeddings.")
-            rec.log("world/map", self._primitive(lmap, pos, colors, 0.5), static=True)
+            rec.log("world/map", self._primitive(lmap, pos, colors, 0.45, 0.5), static=True)
         if lmap.kind == "pixels" and lmap.frames:
             rec.log(
                 "images",
@@ -166,19 +168,26 @@ class RerunLogger:
                 )
         self._send_blueprint()
 
-    def _primitive(self, lmap: LatentMap, pos: np.ndarray, colors: Any, scale: float) -> Any:
-        """Boxes3D for small voxel layers, Points3D (voxel radius) otherwise."""
+    def _primitive(
+        self, lmap: LatentMap, pos: np.ndarray, colors: Any, box_scale: float, point_scale: float
+    ) -> Any:
+        """Boxes3D for small voxel layers, Points3D otherwise.
+
+        Box half sizes are ``box_scale * voxel_size`` and point radii
+        ``point_scale * voxel_size`` (0.5: the voxel radius); matches use a slightly
+        larger scale than the map so they show through it.
+        """
         rr = self.rr
         pos = np.asarray(pos, dtype=np.float32)
         if self._as_boxes:
-            half = np.full(3, float(lmap.voxel_size) * scale, dtype=np.float32)
+            half = np.full(3, float(lmap.voxel_size) * box_scale, dtype=np.float32)
             return rr.Boxes3D(
                 centers=pos,
                 half_sizes=np.broadcast_to(half, pos.shape),
                 colors=colors,
                 fill_mode="solid",
             )
-        radius = float(lmap.voxel_size) * scale if lmap.voxel_size else None
+        radius = float(lmap.voxel_size) * point_scale if lmap.voxel_size else None
         return rr.Points3D(pos, colors=colors, radii=radius)
 
     # ------------------------------------------------------------------ results
@@ -216,6 +225,7 @@ class RerunLogger:
             rec.log(f"images/{name}/scores", rr.Image(heat.reshape(*hw, 3)))
         text = queryset_markdown(lmap, result, index, notes)
         rec.log(f"queries/{slug}/queryset", rr.TextDocument(text, media_type=rr.MediaType.MARKDOWN))
+        self._send_blueprint()
 
     def _log_world(self, lmap: LatentMap, result: QueryResult, slug: str, notes: list[str]) -> None:
         rr, rec = self.rr, self.recording
@@ -227,11 +237,15 @@ class RerunLogger:
                 f"The mask layer shows {len(shown):,} of {len(matched):,} matched items "
                 "(display only)."
             )
-        rec.log(f"{base}/mask", self._primitive(lmap, lmap.positions[shown], MATCH_COLOR, 0.6))
+        rec.log(
+            f"{base}/mask", self._primitive(lmap, lmap.positions[shown], MATCH_COLOR, 0.55, 0.6)
+        )
         idx = self._display
         pos = lmap.positions if idx is None else lmap.positions[idx]
         values = result.display_scores if idx is None else result.display_scores[idx]
-        rec.log(f"{base}/scores", self._primitive(lmap, pos, colormap(values, self.colormap), 0.5))
+        rec.log(
+            f"{base}/scores", self._primitive(lmap, pos, colormap(values, self.colormap), 0.45, 0.5)
+        )
         insts = [i for i in result.instances if i.frame_id is None]
         if insts:
             lo = np.array([i.bbox_min for i in insts], dtype=np.float32).reshape(-1, 3)
@@ -309,11 +323,14 @@ class RerunLogger:
     def _send_blueprint(self) -> None:
         from ._blueprint import build_blueprint
 
-        layout = (self._has_world, tuple(n for n, _ in self._frames), self._has_eval)
+        slugs = tuple(self._slugs[i] for i in sorted(self._slugs))
+        layout = (self._has_world, slugs, tuple(n for n, _ in self._frames), self._has_eval)
         if layout == self._layout_sent:
             return
         self._layout_sent = layout
-        bp = build_blueprint(has_world=layout[0], frames=layout[1], has_eval=layout[2])
+        bp = build_blueprint(
+            has_world=layout[0], slugs=layout[1], frames=layout[2], has_eval=layout[3]
+        )
         self.recording.send_blueprint(bp, make_active=True, make_default=True)
 
     def flush(self) -> None:

@@ -43,13 +43,21 @@ def _labelled_embeddings(labels: np.ndarray, rng: np.random.Generator) -> np.nda
 
 
 def voxel_map(shape=(6, 5, 3), voxel=0.1, colors=True, seed=0) -> LatentMap:
-    """A voxel map: a chair block, a sofa block and floor."""
+    """A voxel map: a chair block, a sofa block and floor.
+
+    ``colors``: True for random RGB, ``"gray"`` for grey levels, False for none.
+    """
     rng = np.random.default_rng(seed)
     grid = np.stack(np.meshgrid(*[np.arange(s) for s in shape], indexing="ij"), -1).reshape(-1, 3)
     labels = np.full(len(grid), 2, dtype=np.int64)
     labels[(grid[:, 0] < 2) & (grid[:, 1] < 2)] = 0
     labels[(grid[:, 0] >= 4) & (grid[:, 1] >= 3)] = 1
-    cols = rng.integers(0, 255, (len(grid), 3), dtype=np.uint8) if colors else None
+    if colors == "gray":
+        cols = np.repeat(rng.integers(60, 200, (len(grid), 1), dtype=np.uint8), 3, axis=1)
+    elif colors:
+        cols = rng.integers(0, 255, (len(grid), 3), dtype=np.uint8)
+    else:
+        cols = None
     return LatentMap(
         _labelled_embeddings(labels, rng),
         kind="voxels",

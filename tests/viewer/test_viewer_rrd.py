@@ -59,6 +59,19 @@ def blueprint_views(reader: RrdReader) -> set[tuple[str, str]]:
     return views
 
 
+def blueprint_contents(reader: RrdReader) -> set[str]:
+    """Every view-content query expression of the stored blueprint."""
+    found = set()
+    for store in reader.blueprints():
+        for chunk in reader.stream(store=store).to_chunks():
+            rb = chunk.to_record_batch()
+            for name in rb.schema.names:
+                if name.startswith("ViewContents:"):
+                    for row in rb.column(name).to_pylist():
+                        found |= {str(x) for x in (row or [])}
+    return found
+
+
 def log_to_file(path: Path, lmap, results, **options) -> None:
     rec = rr.RecordingStream("quash-test")
     rec.save(path)
@@ -109,6 +122,9 @@ def test_voxel_map_layout_counts_and_blueprint(tmp_path):
     assert t == 1 and flag == [True]
     views = blueprint_views(reader)
     assert ("3D", "world") in views and ("TextDocument", "queries") in views
+    contents = blueprint_contents(reader)
+    assert "- world/queries/sofa/scores/**" in contents  # map view hides the score layers
+    assert "+ world/queries/chair/scores/**" in contents  # the scores view shows them
 
 
 def test_points_thinning_and_pca_colours(tmp_path):
