@@ -236,5 +236,21 @@ class RowSubset:
         out = self[:]
         return out if dtype is None else out.astype(dtype, copy=False)
 
+    def __getstate__(self) -> dict[str, Any]:
+        """Pickle a file-backed memory map by reference (for dask workers), not by value."""
+        base = self.base
+        if isinstance(base, np.memmap) and base.filename and base.flags.c_contiguous:
+            ref = (str(base.filename), int(base.offset), tuple(base.shape), base.dtype.str)
+            return {"memmap": ref, "index": self.index}
+        return {"base": base, "index": self.index}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        if "memmap" in state:
+            filename, offset, shape, dtype = state["memmap"]
+            base: Any = np.memmap(filename, np.dtype(dtype), "r", offset=offset, shape=shape)
+        else:
+            base = state["base"]
+        self.__init__(base, state["index"])  # type: ignore[misc]
+
     def __repr__(self) -> str:
         return f"RowSubset({self.shape[0]} of {self.base.shape[0]} rows, dtype={self.dtype})"

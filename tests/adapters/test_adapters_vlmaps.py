@@ -446,3 +446,41 @@ def test_property_shapes_and_dtypes(tmp_path_factory, n, d, dtype, gs, cs, seed)
 def test_path_objects_accepted(tmp_path):
     path = write_vlmaps_h5df(tmp_path / "m.h5df", mobile_map(n=4, d=D))
     assert vlmaps().read(str(path)).n == 4 and vlmaps().read(Path(path)).n == 4
+
+
+@settings(
+    max_examples=20, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(
+    gs=st.integers(1, 24),
+    d=st.integers(1, 10),
+    dtype=st.sampled_from([np.float16, np.float32]),
+    share=st.floats(0.05, 1.0),
+    cs=st.floats(0.01, 0.3),
+    block_rows=st.integers(1, 9),
+    seed=st.integers(0, 2**16),
+)
+def test_property_2d_grids(tmp_path_factory, gs, d, dtype, share, cs, block_rows, seed):
+    rng = np.random.default_rng(seed)
+    grid = np.zeros((gs, gs, d), dtype=dtype)
+    seen = rng.random((gs, gs)) < share
+    seen[0, 0] = True
+    grid[seen] = rng.uniform(0.5, 2, (int(seen.sum()), d)).astype(dtype)
+    folder = tmp_path_factory.mktemp("g") / "map"
+    folder.mkdir()
+    np.save(folder / "grid_lseg_1.npy", grid)
+    lmap = registry.create("adapters", "vlmaps-2d", cs=cs, block_rows=block_rows).read(folder)
+    r, c = np.nonzero(seen)
+    assert (lmap.n, lmap.dim, lmap.dtype) == (len(r), d, np.dtype(dtype))
+    np.testing.assert_allclose(lmap.positions[:, 1], (gs / 2 - c) * cs, rtol=1e-5, atol=1e-4)
+    np.testing.assert_array_equal(np.asarray(lmap.embeddings), grid[r, c])
+
+
+def test_2d_embeddings_pickle_by_reference(tmp_path):
+    import pickle
+
+    folder, ref = write_vlmaps_2d(tmp_path / "s", gs=40, d=16)
+    emb = registry.create("adapters", "vlmaps-2d").read(folder).embeddings
+    blob = pickle.dumps(emb)
+    assert len(blob) < ref["grid"].nbytes // 10
+    np.testing.assert_array_equal(pickle.loads(blob)[:], emb[:])
