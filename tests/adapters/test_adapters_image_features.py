@@ -150,3 +150,15 @@ def test_cli_query_auto_input_unchanged(cf_feat):
         expected = sum((y1 - y0) * (x1 - x0 - (x0 == 0)) for y0, y1, x0, x1 in boxes.values())
         assert z["masks"].sum() == expected
     assert tree_hash(folder) == before
+
+
+def test_docs_adapters_python_blocks_run(capsys):
+    import re
+    from pathlib import Path
+
+    doc = Path(__file__).resolve().parents[2] / "docs" / "adapters.md"
+    blocks = re.findall(r"```python\n(.*?)```", doc.read_text(), flags=re.S)
+    assert blocks
+    for block in blocks:
+        exec(compile(block, str(doc), "exec"), {"__name__": "adapters_doc"})
+    assert "(6, 8)" in capsys.readouterr().out
