@@ -144,6 +144,9 @@ class KernelStack:
         self.width = col
         self.has_cos = any(parts[j].kind != "rbf" for j in order)
         self.has_rbf = any(parts[j].kind == "rbf" for j in order)
+        gammas = {parts[j].gamma for j in order if parts[j].kind == "rbf"}
+        only_rbf = all(parts[j].kind == "rbf" for j in order)
+        self.one_gamma = np.float32(gammas.pop()) if only_rbf and len(gammas) == 1 else None
         A = np.zeros((col, len(parts)))
         for j, c0, coef in coef_rows:
             A[c0 : c0 + len(coef), j] = coef
@@ -176,7 +179,10 @@ class KernelStack:
         np.matmul(x, t["Vt"], out=G)
         G += t["bias"]
         if self.has_rbf and sq is not None:
-            G -= np.multiply.outer(sq, t["grbf"])
+            if self.one_gamma is not None:  # broadcast a column: no (rows, S) temporary
+                G -= (self.one_gamma * sq)[:, None]
+            else:
+                G -= np.multiply.outer(sq, t["grbf"])
         elif self.has_rbf:
             G -= t["grbf"]
         if self.has_cos:
