@@ -24,7 +24,20 @@ from ..types import LatentMap
 
 log = logging.getLogger(__name__)
 
-__all__ = ["read_map", "detect_adapter"]
+__all__ = ["read_map", "detect_adapter", "masks_per_frame", "pixel_coordinates", "convert_map"]
+
+
+def __getattr__(name: str) -> Any:
+    # Lazy re-exports of the pixel-map helpers and the converter (keeps import light).
+    if name in ("masks_per_frame", "pixel_coordinates"):
+        from . import _image_features
+
+        return getattr(_image_features, name)
+    if name == "convert_map":
+        from ._convert import convert_map
+
+        return convert_map
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def detect_adapter(source: Any) -> str:
