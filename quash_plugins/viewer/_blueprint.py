@@ -64,12 +64,12 @@ def build_blueprint(
                     rrb.Spatial2DView(
                         name=f"{frame}: image and mask",
                         origin=f"images/{frame}",
-                        contents=["+ $origin/rgb", "+ $origin/mask"],
+                        contents=["+ $origin/rgb", "+ $origin/mask", "+ $origin/instances"],
                     ),
                     rrb.Spatial2DView(
                         name=f"{frame}: scores",
                         origin=f"images/{frame}",
-                        contents=["+ $origin/scores"],
+                        contents=["+ $origin/scores", "+ $origin/instances"],
                     ),
                     name=str(frame),
                 )

@@ -223,6 +223,7 @@ class RerunLogger:
             rec.log(f"images/{name}/mask", rr.SegmentationImage(seg, opacity=0.5))
             heat = colormap(np.asarray(result.display_scores[sl]), self.colormap)
             rec.log(f"images/{name}/scores", rr.Image(heat.reshape(*hw, 3)))
+            self._log_pixel_instances(lmap, result, name, frame.frame_id)
         text = queryset_markdown(lmap, result, index, notes)
         rec.log(f"queries/{slug}/queryset", rr.TextDocument(text, media_type=rr.MediaType.MARKDOWN))
         self._send_blueprint()
@@ -264,6 +265,28 @@ class RerunLogger:
             )
             cents = np.array([i.centroid for i in insts], dtype=np.float32).reshape(-1, 3)
             rec.log(f"{base}/instances/centroids", rr.Points3D(cents, colors=INSTANCE_COLOR))
+
+    def _log_pixel_instances(
+        self, lmap: LatentMap, result: QueryResult, name: str, frame_id: str
+    ) -> None:
+        """Labelled 2D boxes for a pixel map's instances (pixel coordinates x=col, y=row)."""
+        rr, rec = self.rr, self.recording
+        path = f"images/{name}/instances"
+        insts = [i for i in result.instances if i.frame_id == frame_id]
+        if not insts or lmap.positions is not None:
+            rec.log(path, rr.Clear(recursive=False))
+            return
+        lo = np.array([i.bbox_min for i in insts], dtype=np.float32).reshape(-1, 3)[:, :2]
+        hi = np.array([i.bbox_max for i in insts], dtype=np.float32).reshape(-1, 3)[:, :2]
+        rec.log(
+            path,
+            rr.Boxes2D(
+                mins=lo,
+                sizes=hi - lo + 1.0,
+                colors=INSTANCE_COLOR,
+                labels=[f"{result.query} #{i.id} ({i.size})" for i in insts],
+            ),
+        )
 
     def _slug_for(self, query: str, index: int) -> str:
         if index in self._slugs:

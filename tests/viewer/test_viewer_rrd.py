@@ -256,3 +256,60 @@ def test_cli_rejects_bad_rrd_name(tmp_path):
     code = main(["query", str(map_path), "chair", "-c", str(cfg), "--rrd", str(tmp_path / "x.txt")])
     assert code == 2
     assert sorted(p.name for p in tmp_path.iterdir()) == ["map.npz", "quash.yaml", "table.npz"]
+
+
+def test_cli_query_rrd_per_image_feature_map(tmp_path):
+    pytest.importorskip("PIL")
+    from PIL import Image
+
+    from quash_plugins import registry
+    from quash_plugins.cli.main import main
+
+    if "image-features" not in registry.available("adapters"):
+        pytest.skip("the image-features adapter is not installed")
+    lmap = pixel_map()
+    folder = tmp_path / "saved-feat"
+    folder.mkdir()
+    emb = np.asarray(lmap.embeddings)
+    rng = np.random.default_rng(3)
+    for i, frame in enumerate(lmap.frames):
+        block = emb[frame.offset : frame.offset + frame.size]
+        np.save(folder / f"frame{i:06d}.npy", block.reshape(frame.height, frame.width, -1))
+        rgb = rng.integers(0, 255, (frame.height, frame.width, 3), dtype=np.uint8)
+        Image.fromarray(rgb).save(folder / f"frame{i:06d}.png")
+    cfg = write_table_config(tmp_path)
+    out = tmp_path / "px.rrd"
+    code = main(
+        [
+            "query",
+            str(folder),
+            "chair",
+            "sofa",
+            "-c",
+            str(cfg),
+            "--adapter",
+            "image-features",
+            "--rrd",
+            str(out),
+        ]
+    )
+    assert code == 0
+    reader, by_path = read_rrd(out)
+    for i, frame in enumerate(lmap.frames):
+        name = f"frame{i:06d}"
+        [(_, [rgb])] = rows(by_path[f"images/{name}/rgb"], "Image:buffer")
+        want_rgb = np.asarray(Image.open(folder / f"{name}.png")).ravel().tolist()
+        assert rgb == want_rgb
+        masks = rows(by_path[f"images/{name}/mask"], "SegmentationImage:buffer")
+        labels = lmap.labels[frame.offset : frame.offset + frame.size]
+        for (t, [buf]), label in zip(masks, (0, 1)):
+            assert (np.array(buf) == 1).tolist() == (labels == label).tolist(), (t, label)
+        # Instances come from quash_plugins.instances (connected pixels per frame).
+        boxes = rows(by_path[f"images/{name}/instances"], "Boxes2D:labels")
+        assert [t for t, _ in boxes] == [0, 1] and all(labels for _, labels in boxes)
+        # The chair block of frame i covers rows 1..2 and columns 1+i..3+i.
+        [(_, half), _] = rows(by_path[f"images/{name}/instances"], "Boxes2D:half_sizes")
+        [(_, centers), _] = rows(by_path[f"images/{name}/instances"], "Boxes2D:centers")
+        assert half == [[1.5, 1.0]] and centers == [[2.5 + i, 2.0]]
+    views = blueprint_views(reader)
+    assert ("2D", "images/frame000000") in views
