@@ -46,7 +46,7 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".PNG", ".JPG", ".JPEG")
 #: Sibling folders searched for RGB frames (relative to the feature directory's parent).
 IMAGE_DIRS = ("rgb", "color", "colors", "image", "images", "results", "frames")
 #: Files that belong to other layouts (VLMaps 2D grids, OpenLex3D) and are never frames.
-_NOT_FRAMES = re.compile(r"^(grid_|color_top_down|obstacles|embeddings$|index$)")
+_NOT_FRAMES = re.compile(r"^(grid_|weight_|color_top_down|obstacles|embeddings$|index$)")
 LAYOUTS = ("auto", "hwd", "1dhw")
 
 
