@@ -39,7 +39,7 @@ def run(args: argparse.Namespace) -> int:
     from .._progress import progress
     from ..pipeline import Quash, write_results_npz
     from ._backend_opts import backend_overrides
-    from ._common import apply_runtime_options, console, load_config, print_json
+    from ._common import apply_runtime_options, load_config
     from ._viewer_opts import open_viewer
 
     cfg = apply_runtime_options(load_config(args.config), args)
@@ -54,7 +54,17 @@ def run(args: argparse.Namespace) -> int:
         viewer.log_map(lmap)
         for i, r in enumerate(results):
             viewer.log_result(lmap, r, index=i)
-        viewer.close()
+    try:
+        _report(args, cfg, lmap, results)
+    finally:
+        if viewer is not None:
+            viewer.close()  # with --serve-web this serves until Ctrl-C
+    return 0
+
+
+def _report(args, cfg, lmap, results) -> None:
+    from ._common import console, print_json
+
     if args.json:
         print_json(
             {
@@ -64,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
                 "results": [r.summary() for r in results],
             }
         )
-        return 0
+        return
     from rich.table import Table
 
     table = Table(title=f"{lmap.describe()} | config {cfg.name}")
@@ -88,4 +98,3 @@ def run(args: argparse.Namespace) -> int:
         out.print(f"[dim]{r.query}: " + ", ".join(parts) + "[/]")
     if args.out:
         out.print(f"wrote {args.out}")
-    return 0
