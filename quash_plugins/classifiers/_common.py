@@ -80,7 +80,7 @@ def piecewise_display(p: np.ndarray, cut: float) -> np.ndarray:
     Linear on ``[0, cut]`` and on ``[cut, 1]``: with the default cut of 0.5 the display
     score *is* the probability; a moved threshold moves the 0.5 point with it.
     """
-    p = np.clip(np.asarray(p, dtype=np.float32), 0.0, 1.0)
+    p = np.clip(np.asarray(p, dtype=np.float64), 0.0, 1.0)
     c = float(np.clip(cut, 1e-6, 1.0 - 1e-6))
     low = 0.5 * p / c
     high = 0.5 + 0.5 * (p - c) / (1.0 - c)
