@@ -224,6 +224,14 @@ def _plugin_spec(key: str, value: Any, where: _Where, path) -> PluginSpec:
     for k, v in list(params.items()):
         if isinstance(v, str) and _is_path_key(k):
             params[k] = _resolve_path(v, path)
+        elif isinstance(v, dict) and "name" in v:  # nested spec (combine, templates base)
+            inner = _plugin_spec(k, v, where, path)
+            sub = dict(v.get("params") or {}) if isinstance(v.get("params"), dict) else None
+            if sub is not None:
+                inner = _plugin_spec(k, {"name": inner.name, **sub}, where, path)
+                params[k] = {"name": inner.name, "params": inner.params}
+            else:
+                params[k] = {"name": inner.name, **inner.params}
     return PluginSpec(str(value["name"]), params)
 
 

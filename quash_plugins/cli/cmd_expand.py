@@ -36,10 +36,54 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print_json(qs.to_dict())
         return 0
+    from rich.markup import escape
+
     out = console()
-    out.print(f"[bold]query[/]: {qs.query}")
-    out.print(f"[bold green]positives[/] ({len(qs.positives)}): " + ", ".join(qs.positives))
-    out.print(f"[bold red]negatives[/] ({len(qs.negatives)}): " + ", ".join(qs.negatives))
-    prov = qs.provenance
-    out.print(f"[dim]provenance: {prov}[/]")
+    out.print(f"[bold]query[/]: {escape(qs.query)}")
+    out.print(f"[bold green]positives[/] ({len(qs.positives)}): " + escape(", ".join(qs.positives)))
+    out.print(f"[bold red]negatives[/] ({len(qs.negatives)}): " + escape(", ".join(qs.negatives)))
+    out.print(f"[bold]heuristic[/]: {escape(_summary(qs.provenance))}")
+    out.print("[dim]provenance:[/]")
+    out.print(f"[dim]{escape(_provenance_yaml(qs))}[/]")
     return 0
+
+
+def _summary(prov: dict) -> str:
+    """One line: the heuristic and what a reader most wants to know about this set."""
+    name = str(prov.get("heuristic", "?"))
+    bits = []
+    if "seed" in prov:
+        bits.append(f"seed {prov['seed']}")
+    if "source" in prov:  # llm: server or cache
+        bits.append(f"from {prov['source']}")
+    params = prov.get("params") or {}
+    if name == "llm":
+        bits.append(f"model {params.get('model')} at {params.get('endpoint')}")
+        bits.append(f"prompt {prov.get('prompt_version')}")
+    if "label" in prov:
+        bits.append(f"label {prov['label']!r}")
+    resolved = prov.get("resolved")
+    if resolved:
+        bits.append(
+            f"query {resolved['from']!r} resolved to label {resolved['to']!r} "
+            f"(cosine {resolved['cosine']})"
+        )
+    if name == "combine":
+        syn, ant = prov.get("synonyms") or {}, prov.get("antonyms") or {}
+        bits.append(f"synonyms by {syn.get('heuristic')}, antonyms by {ant.get('heuristic')}")
+    tpl = prov.get("prompt_templates")
+    if tpl:
+        bits.append(f"{tpl.get('count')} prompt templates, mode {tpl.get('mode')}")
+    mined = prov.get("map_negatives")
+    if mined:
+        added = ", ".join(mined.get("added") or []) or "none"
+        bits.append(f"map-mined negatives: {added}")
+    return name + (f" ({'; '.join(bits)})" if bits else "")
+
+
+def _provenance_yaml(qs) -> str:
+    import yaml
+
+    data = qs.to_dict()["provenance"]
+    text = yaml.safe_dump(data, sort_keys=False, allow_unicode=True, width=100)
+    return "\n".join("  " + line for line in text.rstrip().splitlines())

@@ -385,3 +385,40 @@ def test_map_negatives_through_pipeline():
     q = Quash(enc, map_negatives={"vocabulary": ["chair", "table"], "n": 2})
     qs = q.expand("chair", LatentMap(emb))
     assert "table" in qs.negatives and qs.provenance["map_negatives"]["added"] == ["table"]
+
+
+# ---------------------------------------------------------------- config and conformance
+def test_combine_config_resolves_nested_paths(tmp_path):
+    from quash_plugins.config import QuashConfig
+
+    sub = tmp_path / "cfg"
+    sub.mkdir()
+    (sub / "tax.yaml").write_text(yaml.safe_dump(TAX))
+    (sub / "method.yaml").write_text(
+        "encoder: {name: table, table: {chair: [1, 0], other: [0, 1]}}\n"
+        "heuristic:\n  name: combine\n"
+        "  synonyms: {name: taxonomy, params: {file: tax.yaml, n_synonyms: 2}}\n"
+        "  antonyms: {name: taxonomy, file: tax.yaml}\n"
+    )
+    q = Quash.from_config(QuashConfig.from_yaml(sub / "method.yaml"))
+    qs = q.expand("lamp")
+    assert qs.positives == ["lamp", *TAX["lamp"]]
+    assert "coffee table" in qs.negatives and "armchair" in qs.negatives
+
+
+@pytest.mark.parametrize(
+    "name,params",
+    [
+        ("adjectives", {}),
+        ("lexicon", {}),
+        ("taxonomy", {"taxonomy": TAX}),
+        ("taxonomy", {}),
+        ("templates", {}),
+        ("vocabulary", {}),
+        ("combine", {"synonyms": "adjectives", "antonyms": {"name": "lexicon"}}),
+    ],
+)
+def test_conformance_kit(name, params, tmp_path):
+    from quash_plugins.testing import check_heuristic
+
+    check_heuristic(registry.create("heuristics", name, **params), tmp_path)

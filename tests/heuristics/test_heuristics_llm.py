@@ -340,3 +340,33 @@ def test_endpoint_forms():
     assert chat_endpoint("http://h:1/v1/chat/completions") == "http://h:1/v1/chat/completions"
     # credentials and query strings never reach cache keys or provenance
     assert chat_endpoint("https://user:pw@h/v1?key=x") == "https://h/v1/chat/completions"
+
+
+def test_conformance_kit(server, tmp_path):
+    from quash_plugins.testing import check_heuristic
+
+    check_heuristic(make(server, tmp_path), tmp_path)
+
+
+def test_quash_expand_cli(server, tmp_path, capsys):
+    from quash_plugins.cli.main import main
+
+    cfg = tmp_path / "llm.yaml"
+    cfg.write_text(
+        "encoder: {name: table, table: {chair: [1, 0], other: [0, 1]}}\n"
+        f"heuristic: {{name: llm, model: test-model, base_url: '{server.base_url}', "
+        "cache_dir: llm-cache, backoff: 0.01}\n"
+    )
+    assert main(["expand", "chair", "-c", str(cfg), "--json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert data["positives"][:2] == ["chair", "seat"]
+    assert (tmp_path / "llm-cache").is_dir()  # relative cache_dir resolved against the config
+    server.close()
+    server.httpd = _Dummy()
+    offline = tmp_path / "offline.yaml"
+    offline.write_text(cfg.read_text().replace("backoff: 0.01", "offline: true"))
+    assert main(["expand", "chair", "-c", str(offline)]) == 0
+    out = capsys.readouterr().out
+    assert "seat" in out and "from cache" in out
+    assert main(["expand", "sofa", "-c", str(offline)]) == 1
+    assert "no cached query set for 'sofa'" in capsys.readouterr().err
