@@ -167,3 +167,19 @@ def test_float16_and_zero_rows(world):
         b = clf.decision_function(E.astype(np.float16).astype(np.float32))
         np.testing.assert_allclose(a, b, atol=1e-6)
         assert np.isfinite(a).all()
+
+
+def test_example_configs_load_and_build_their_classifier():
+    from pathlib import Path
+
+    from quash_plugins.config import QuashConfig
+
+    folder = Path(__file__).resolve().parents[2] / "examples" / "configs"
+    files = sorted(folder.glob("*.yaml"))
+    assert {f.stem for f in files} >= {"lerf-relevancy", "conceptfusion-relative", "label-argmax"}
+    for f in files:
+        cfg = QuashConfig.from_yaml(f)
+        clf = registry.create("classifiers", cfg.classifier.name, **cfg.classifier.params)
+        assert clf.get_params() is not None
+        if cfg.classifier.name == "lerf-relevancy":
+            assert list(cfg.negatives) == ["object", "things", "stuff", "texture"]
