@@ -2,7 +2,8 @@
 
 Arrays: ``embeddings (N, D)`` (required), ``positions (N, 3)`` metres, ``colors (N, 3)``
 uint8, ``labels (N,)`` int, ``label_names (L,)`` str, ``voxel_size`` scalar,
-``grid_index (N, 3)`` int and ``kind`` str. Never unpickled.
+``grid_index (N, 3)`` int, ``kind`` str, and for pixel maps ``frame_ids (F,)`` str,
+``frame_hw (F, 2)`` and ``frame_offsets (F,)`` int. Never unpickled.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ import numpy as np
 
 from ..errors import MapFormatError
 from ..interfaces import MapAdapter
-from ..types import LatentMap
+from ..types import FrameInfo, LatentMap
 
 OPTIONAL = (
     "positions",
@@ -26,6 +27,9 @@ OPTIONAL = (
     "grid_index",
     "kind",
     "normalize",
+    "frame_ids",
+    "frame_hw",
+    "frame_offsets",
 )
 
 
@@ -73,6 +77,17 @@ class NpzAdapter(MapAdapter):
         voxel = float(data.pop("voxel_size")) if "voxel_size" in data else None
         normalize = bool(data.pop("normalize")) if "normalize" in data else False
         names = data.pop("label_names", None)
+        frames = None
+        if "frame_ids" in data:
+            ids, hw, off = data.pop("frame_ids"), data.pop("frame_hw"), data.pop("frame_offsets")
+            if hw.shape != (len(ids), 2) or off.shape != (len(ids),):
+                raise MapFormatError(
+                    f"{path}: 'frame_hw' must be (F, 2) and 'frame_offsets' (F,) for F = "
+                    f"{len(ids)} frame_ids; got {hw.shape} and {off.shape}."
+                )
+            frames = [
+                FrameInfo(str(i), int(h), int(w), int(o)) for i, (h, w), o in zip(ids, hw, off)
+            ]
         if kind is None:
             kind = "voxels" if voxel else "points"
         return LatentMap(
@@ -85,6 +100,7 @@ class NpzAdapter(MapAdapter):
             voxel_size=voxel,
             grid_index=data.get("grid_index"),
             normalize=normalize,
+            frames=frames,
             source={"adapter": self.name, "path": str(path)},
         )
 
@@ -116,6 +132,10 @@ def write_npz_map(path: str | Path, lmap: LatentMap, compress: bool = False) -> 
         arrays["voxel_size"] = np.float32(lmap.voxel_size)
     if lmap.normalize:
         arrays["normalize"] = True
+    if lmap.frames:
+        arrays["frame_ids"] = np.asarray([f.frame_id for f in lmap.frames], dtype=str)
+        arrays["frame_hw"] = np.asarray([(f.height, f.width) for f in lmap.frames], np.int64)
+        arrays["frame_offsets"] = np.asarray([f.offset for f in lmap.frames], np.int64)
     with atomic_write(path, suffix=".npz") as tmp:
         (np.savez_compressed if compress else np.savez)(tmp, **arrays)
     return path

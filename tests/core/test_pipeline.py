@@ -141,3 +141,19 @@ def test_templates_mean_and_all_and_zero_vector():
     X, y, texts = training_set(enc, qs, templates=["a {}", "the {}"], mode="all")
     assert X.shape == (6, 8) and y.tolist() == [1, 1, 0, 0, 0, 0]
     assert texts[:4] == words and not X[4:].any()
+
+
+def test_npz_round_trip_keeps_frames(tmp_path):
+    from quash_plugins import FrameInfo
+    from quash_plugins.adapters import read_map
+    from quash_plugins.adapters._npz import write_npz_map
+
+    frames = [FrameInfo("f0", 2, 3, 0), FrameInfo("f1", 1, 4, 6)]
+    E = np.random.default_rng(0).normal(size=(10, 4)).astype(np.float32)
+    path = write_npz_map(tmp_path / "px.npz", LatentMap(E, kind="pixels", frames=frames))
+    back = read_map(path)
+    assert back.kind == "pixels"
+    assert [(f.frame_id, f.height, f.width, f.offset) for f in back.frames] == [
+        ("f0", 2, 3, 0),
+        ("f1", 1, 4, 6),
+    ]
