@@ -60,6 +60,11 @@ class CombineHeuristic(Heuristic):
 
     name = "combine"
 
+    @staticmethod
+    def conformance_params(tmp_path: Any) -> dict[str, Any]:
+        """Parameters the conformance kit builds this heuristic with."""
+        return {"synonyms": "adjectives", "antonyms": {"name": "lexicon", "n_synonyms": 0}}
+
     def __init__(self, synonyms: Any = None, antonyms: Any = None) -> None:
         if synonyms is None or antonyms is None:
             raise ConfigError(

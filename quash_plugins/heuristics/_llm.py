@@ -132,6 +132,19 @@ class LLMHeuristic(Heuristic):
 
     name = "llm"
 
+    @staticmethod
+    def conformance_params(tmp_path: Path) -> dict[str, Any]:
+        """Offline parameters with a pre-filled cache, so the kit needs no server."""
+        params = {
+            "model": "conformance-model",
+            "base_url": "http://127.0.0.1:9/v1",
+            "offline": True,
+            "cache_dir": str(Path(tmp_path) / "llm-cache"),
+        }
+        h = LLMHeuristic(**params)
+        h._write_cache("chair", ["seat", "armchair"], ["table", "lamp"])
+        return params
+
     def __init__(
         self,
         model: str | None = None,
