@@ -271,7 +271,7 @@ class KernelStack:
             elif sq is not None:
                 s = np.asarray(sq[start:stop], dtype=np.float32)
             else:
-                s = np.einsum("ij,ij->i", x, x)
+                s = _sq_norms(x)
             out[start:stop] = self._numpy_block(x, s, G[: stop - start])
         return out
 
@@ -295,6 +295,12 @@ class KernelStack:
                     s = torch.einsum("ij,ij->i", x, x)
                 out[start:stop] = self._torch_block(x, s).cpu().numpy()
         return out
+
+
+def _sq_norms(x: np.ndarray) -> np.ndarray:
+    """Squared row norms ``(r,)``; ``np.vecdot`` (numpy >= 2) is about twice einsum's speed."""
+    vecdot = getattr(np, "vecdot", None)
+    return vecdot(x, x) if vecdot is not None else np.einsum("ij,ij->i", x, x)
 
 
 def _inv_norm(sq: np.ndarray | None, n: int) -> np.ndarray:
