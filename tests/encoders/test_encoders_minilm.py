@@ -157,3 +157,15 @@ def test_long_encode_reports_progress(minilm, monkeypatch):
     monkeypatch.setattr(prog, "progress", spy)
     minilm.encode_text(["a", "b", "c", "d"])
     assert calls == [4]
+
+
+def test_default_model_id_falls_back_to_shipped_copy(minilm):
+    from quash_plugins.encoders._sentence_transformers import (
+        SentenceTransformerEncoder,
+        minilm_model_dir,
+    )
+
+    enc = SentenceTransformerEncoder(model="all-MiniLM-L6-v2", device="cpu")
+    assert enc._path is not None
+    assert enc._path == minilm_model_dir() or (enc._path / "modules.json").exists()
+    np.testing.assert_allclose(enc.encode_text(["sofa"]), minilm.encode_text(["sofa"]), atol=1e-5)
