@@ -1,0 +1,101 @@
+"""``quash eval``: score method configs against a map's ground-truth labels."""
+
+from __future__ import annotations
+
+import argparse
+
+NAME = "eval"
+HELP = "Score configs on a labelled map: precision, recall, F1, IoU and absence queries."
+ORDER = 30
+DESCRIPTION = """\
+Scores each config's mask for every query label against the map's ground truth
+(labels == label): precision, recall, F1 and IoU per query and their macro mean.
+Unlabelled items (label < 0) and --exclude labels count neither as TP nor FP. Query
+labels that no item carries, and every --absent query, are absence queries: their score
+is the share that returns an empty mask (at most --empty-tolerance items)."""
+EPILOG = """\
+examples:
+  quash make-scene scene.npz
+  quash eval scene.npz -c vlmaps.yaml -c quash-taxonomy.yaml --all-labels \\
+      --absent piano,bathtub --json eval.json --markdown eval.md --plot eval.png
+The JSON holds {"configs": [{"name", "mean": {precision, recall, f1, iou},
+"per_query": {label: {...}}, "absence": {score, empty_tolerance, per_query}}]}."""
+
+
+def _split(text: str | None) -> list[str]:
+    return [t.strip() for t in (text or "").split(",") if t.strip()]
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    from ..evaluation.report import DEFAULT_EXCLUDE
+    from ._backend_opts import add_backend_arguments
+    from ._common import add_config_option, add_runtime_options
+    from ._viewer_opts import add_viewer_arguments
+
+    p.add_argument("map", help="Labelled map (labels + label_names), e.g. from make-scene.")
+    add_config_option(p, multiple=True)
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--queries", metavar="A,B,...", help="Comma-separated labels to score.")
+    g.add_argument("--all-labels", action="store_true",
+                   help="Score every label present in the map (the default).")
+    p.add_argument("--absent", metavar="X,Y,...", default=None,
+                   help="Absence queries: labels or free text that are not in the map.")
+    p.add_argument("--exclude", metavar="NAMES", default=",".join(DEFAULT_EXCLUDE),
+                   help="Labels ignored in TP/FP and never queried (default: %(default)s).")
+    p.add_argument("--empty-tolerance", type=int, default=0, metavar="N",
+                   help="An absence query counts as empty with at most N matches (default 0).")
+    p.add_argument("--adapter", default=None, help="Adapter name (default: the first config's).")
+    p.add_argument("--json", metavar="FILE", help="Write the report as JSON.")
+    p.add_argument("--markdown", metavar="FILE", help="Write the comparison as Markdown.")
+    p.add_argument("--plot", metavar="FILE.png", help="Plot precision vs recall per config.")
+    add_runtime_options(p)
+    add_viewer_arguments(p)
+    add_backend_arguments(p)
+
+
+def run(args: argparse.Namespace) -> int:
+    import json
+
+    from .._io import atomic_write_text
+    from .._progress import progress
+    from ..errors import UsageError
+    from ..evaluation.report import evaluate, plot_precision_recall
+    from ..pipeline import Quash
+    from ._backend_opts import backend_overrides
+    from ._common import apply_runtime_options, console, load_config
+    from ._viewer_opts import open_viewer
+
+    if not args.configs:
+        raise UsageError("quash eval needs at least one -c CONFIG (repeat to compare).")
+    overrides = backend_overrides(args)
+    quashes = [Quash.from_config(apply_runtime_options(load_config(c), args), **overrides)
+               for c in args.configs]
+    lmap = quashes[0].read_map(args.map, adapter=args.adapter)
+    queries = _split(args.queries) or None
+    with progress(len(quashes), f"evaluating {len(quashes)} config(s)") as advance:
+        report = evaluate(lmap, quashes, queries=queries, exclude=_split(args.exclude),
+                          absent=_split(args.absent), empty_tolerance=args.empty_tolerance,
+                          on_query=lambda name, n: advance(1))
+    if args.json:
+        atomic_write_text(args.json, json.dumps(report.to_json(), indent=2) + "\n")
+    md = report.to_markdown()
+    if args.markdown:
+        atomic_write_text(args.markdown, f"# quash eval: {lmap.describe()}\n\n{md}")
+    if args.plot:
+        plot_precision_recall(report.configs, args.plot, title=f"quash eval: {args.map}")
+    viewer = open_viewer(args, app_id="quash-eval")
+    if viewer is not None:
+        for step, c in enumerate(report.configs):
+            metrics = dict(c["mean"])
+            if c["absence"]["score"] is not None:
+                metrics["absence"] = c["absence"]["score"]
+            viewer.log_eval_scalars(c["name"], metrics, step)
+        viewer.close()
+    out = console()
+    out.print(f"{lmap.describe()}: {len(report.queries)} queries, "
+              f"{len(report.absent)} absence queries")
+    out.print(md, markup=False)
+    for f in (args.json, args.markdown, args.plot):
+        if f:
+            out.print(f"wrote {f}")
+    return 0
