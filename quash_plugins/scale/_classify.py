@@ -57,10 +57,13 @@ def score_block(
     return out
 
 
-def ship(fitted: FittedClassifiers, client: Any) -> Any:
-    """Put ``fitted`` on the cluster once: a broadcast future, or one graph key locally."""
-    if client is not None:
-        return client.scatter(fitted, broadcast=True, hash=False)
+def ship(fitted: FittedClassifiers, client: Any = None) -> Any:
+    """Hold ``fitted`` once in the graph: one task every chunk task depends on.
+
+    Each worker receives it once (from the client or a peer) and keeps it while the pass
+    runs. Unlike ``Client.scatter`` data, a graph task can be recomputed when the worker
+    holding it dies, so a killed worker never loses the classifiers.
+    """
     import dask
 
     return dask.delayed(fitted, pure=False)
@@ -98,21 +101,20 @@ def scores_graph(
 
 
 def _cluster_errors() -> tuple[type[BaseException], ...]:
+    import importlib
+
     errors: list[type[BaseException]] = [OSError, TimeoutError]
-    try:
-        from distributed import FutureCancelledError
-        from distributed.comm.core import CommClosedError
-        from distributed.scheduler import KilledWorker
-
-        errors += [KilledWorker, CommClosedError, FutureCancelledError]
-    except ImportError:  # pragma: no cover
-        pass
-    try:
-        from asyncio import CancelledError
-
-        errors.append(CancelledError)
-    except ImportError:  # pragma: no cover
-        pass
+    for module, name in (
+        ("distributed.scheduler", "KilledWorker"),
+        ("distributed.comm.core", "CommClosedError"),
+        ("distributed.client", "FutureCancelledError"),
+        ("asyncio", "CancelledError"),
+        ("concurrent.futures", "CancelledError"),
+    ):
+        try:
+            errors.append(getattr(importlib.import_module(module), name))
+        except (ImportError, AttributeError):  # pragma: no cover - older distributed
+            continue
     return tuple(errors)
 
 

@@ -97,13 +97,15 @@ def client_from_cli(address: str | None) -> Any:
         return local_cluster_client()
     distributed = _require_distributed()
     try:
-        return distributed.Client(address, timeout="20s")
+        client = distributed.Client(address, timeout="20s")
     except (OSError, TimeoutError) as exc:
         raise QuashError(
             f"Cannot reach the Dask scheduler at {address} ({exc}). Start one with "
             "`dask scheduler` and workers with `dask worker ADDRESS`, or leave out --scheduler "
             "to run a local cluster (see docs/scale.md)."
         ) from None
+    atexit.register(client.close)
+    return client
 
 
 def current_client(client: Any = None) -> Any:

@@ -65,44 +65,26 @@ def _global_post(clf: Any, raw: np.ndarray, observed: np.ndarray) -> np.ndarray:
     return out
 
 
-def _post_block(
-    raw: np.ndarray,
+def _minmax_block(
+    col: np.ndarray,
+    observed: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
     fitted: FittedClassifiers,
-    kinds: Sequence[str],
-    stats: Any,
-    block_info: Any = None,
+    i: int,
 ) -> np.ndarray:
-    """``(rows, Q)`` postprocessed scores; NaN marks unobserved rows."""
-    q = len(kinds)
-    start, stop = block_info[0]["array-location"][0] if block_info else (0, len(raw))
-    observed = raw[:, q] > 0
-    out = np.array(raw[:, :q], dtype=np.float32)
-    for i, (kind, clf) in enumerate(zip(kinds, fitted.classifiers)):
-        if kind == "minmax":
-            lo, hi = (float(x) for x in stats[i])
-            out[observed, i] = _minmax_post(clf, out[observed, i], lo, hi)
-        elif kind == "global":
-            out[:, i] = np.asarray(stats[i])[start:stop]
+    """One query's postprocessed block; NaN marks unobserved rows."""
+    out = np.full(col.shape, np.nan, dtype=np.float32)
+    out[observed] = _minmax_post(fitted.classifiers[i], col[observed], float(lo[0]), float(hi[0]))
+    return out
+
+
+def _global_block(
+    col: np.ndarray, observed: np.ndarray, fitted: FittedClassifiers, i: int
+) -> np.ndarray:
+    out = _global_post(fitted.classifiers[i], col, observed)
     out[~observed] = np.nan
     return out
-
-
-def _fill_block(post: np.ndarray, floors: Any) -> np.ndarray:
-    out = np.array(post, dtype=np.float32)
-    for i, f in enumerate(np.asarray(floors, np.float32).ravel()):
-        col = out[:, i]
-        col[np.isnan(col)] = f
-    return out
-
-
-def _floors(minima: np.ndarray, threshold: float) -> np.ndarray:
-    m = np.asarray(minima, np.float64)
-    base = np.where(np.isnan(m), threshold, np.minimum(m, threshold))
-    return (base - 1.0).astype(np.float32)
-
-
-def _stack(*xs: Any) -> list[Any]:
-    return list(xs)
 
 
 class LazyQuery:
@@ -133,53 +115,67 @@ class LazyQuery:
         """``(N,)`` bool dask array: False for zero rows."""
         return self.raw[:, len(self.classifiers)] > 0
 
-    def _stats(self, raw: Any, concrete: bool) -> Any:
-        import dask
+    def _post(self, raw: Any) -> Any:
+        """``(N, Q)`` float32 dask array of postprocessed scores, NaN where unobserved.
 
+        Min/max statistics are dask reductions passed to every block as one-element
+        arrays; a ``"global"`` postprocess sees its whole ``(N,)`` column in one task.
+        """
         da = require_dask()
         q = len(self.classifiers)
         obs = raw[:, q] > 0
-        items: list[Any] = []
-        for i, (kind, clf) in enumerate(zip(self.kinds, self.classifiers)):
-            if kind == "minmax":
-                col = da.where(obs, raw[:, i], np.nan)
-                items.append(da.stack([da.nanmin(col), da.nanmax(col)]))
-            elif kind == "global":
-                items.append(dask.delayed(_global_post)(clf, raw[:, i], obs))
+        cols = []
+        for i, kind in enumerate(self.kinds):
+            col = raw[:, i]
+            if kind == "identity":
+                cols.append(da.where(obs, col, np.float32(np.nan)))
+            elif kind == "minmax":
+                masked = da.where(obs, col, np.float32(np.nan))
+                lo, hi = da.nanmin(masked).reshape(1), da.nanmax(masked).reshape(1)
+                cols.append(
+                    da.map_blocks(
+                        _minmax_block,
+                        col,
+                        obs,
+                        lo,
+                        hi,
+                        self._held,
+                        i,
+                        dtype=np.float32,
+                        meta=np.empty((0,), np.float32),
+                    )
+                )
             else:
-                items.append(None)
-        if concrete:
-            return (
-                list(compute(self.client, *items)) if any(x is not None for x in items) else items
-            )
-        return dask.delayed(_stack)(*items)
-
-    def _post(self, raw: Any, stats: Any) -> Any:
-        q = len(self.classifiers)
-        return raw.map_blocks(
-            _post_block,
-            self._held,
-            list(self.kinds),
-            stats,
-            chunks=(raw.chunks[0], (q,)),
-            dtype=np.float32,
-            meta=np.empty((0, 0), np.float32),
-        )
+                whole = da.map_blocks(
+                    _global_block,
+                    col.rechunk(-1),
+                    obs.rechunk(-1),
+                    self._held,
+                    i,
+                    dtype=np.float32,
+                    meta=np.empty((0,), np.float32),
+                )
+                cols.append(whole.rechunk(col.chunks))
+        return da.stack(cols, axis=1).astype(np.float32)
 
     def _final(self, post: Any, floors: Any) -> tuple[Any, Any]:
-        scores = post.map_blocks(
-            _fill_block, floors, dtype=np.float32, meta=np.empty((0, 0), np.float32)
-        )
+        """``(Q, N)`` scores (unobserved rows at ``floors``) and masks."""
+        da = require_dask()
+        scores = da.where(da.isnan(post), floors[None, :], post).astype(np.float32)
         masks = post > np.float32(self.threshold)
         return scores.T, masks.T
 
-    def _lazy(self) -> tuple[Any, Any]:
-        import dask
-
+    def _floors(self, post: Any) -> Any:
+        """Per-query score given to unobserved rows: below every observed score and the
+        threshold, as in :meth:`Quash.query_many`."""
         da = require_dask()
-        post = self._post(self.raw, self._stats(self.raw, concrete=False))
-        floors = dask.delayed(_floors)(da.nanmin(post, axis=0), self.threshold)
-        return self._final(post, floors)
+        m = da.nanmin(post, axis=0)
+        thr = np.float32(self.threshold)
+        return (da.where(da.isnan(m), thr, da.minimum(m, thr)) - np.float32(1.0)).astype(np.float32)
+
+    def _lazy(self) -> tuple[Any, Any]:
+        post = self._post(self.raw)
+        return self._final(post, self._floors(post))
 
     @property
     def scores(self) -> Any:
@@ -220,9 +216,9 @@ class LazyQuery:
             )
             (_,) = compute(self.client, da.store(self.raw, zraw, lock=False, compute=False))
             raw = da.from_zarr(zraw, chunks=(rows, q + 1))
-            post = self._post(raw, self._stats(raw, concrete=True))
-            (minima,) = compute(self.client, da.nanmin(post, axis=0))
-            scores, masks = self._final(post, _floors(minima, self.threshold))
+            post = self._post(raw)
+            (floors,) = compute(self.client, self._floors(post))
+            scores, masks = self._final(post, np.asarray(floors, np.float32))
             zs = group.create_array("scores", shape=(q, n), chunks=(q, rows), dtype="float32")
             zm = group.create_array("masks", shape=(q, n), chunks=(q, rows), dtype="bool")
             zo = group.create_array("observed", shape=(n,), chunks=(rows,), dtype="bool")
