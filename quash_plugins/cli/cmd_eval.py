@@ -36,14 +36,30 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_config_option(p, multiple=True)
     g = p.add_mutually_exclusive_group()
     g.add_argument("--queries", metavar="A,B,...", help="Comma-separated labels to score.")
-    g.add_argument("--all-labels", action="store_true",
-                   help="Score every label present in the map (the default).")
-    p.add_argument("--absent", metavar="X,Y,...", default=None,
-                   help="Absence queries: labels or free text that are not in the map.")
-    p.add_argument("--exclude", metavar="NAMES", default=",".join(DEFAULT_EXCLUDE),
-                   help="Labels ignored in TP/FP and never queried (default: %(default)s).")
-    p.add_argument("--empty-tolerance", type=int, default=0, metavar="N",
-                   help="An absence query counts as empty with at most N matches (default 0).")
+    g.add_argument(
+        "--all-labels",
+        action="store_true",
+        help="Score every label present in the map (the default).",
+    )
+    p.add_argument(
+        "--absent",
+        metavar="X,Y,...",
+        default=None,
+        help="Absence queries: labels or free text that are not in the map.",
+    )
+    p.add_argument(
+        "--exclude",
+        metavar="NAMES",
+        default=",".join(DEFAULT_EXCLUDE),
+        help="Labels ignored in TP/FP and never queried (default: %(default)s).",
+    )
+    p.add_argument(
+        "--empty-tolerance",
+        type=int,
+        default=0,
+        metavar="N",
+        help="An absence query counts as empty with at most N matches (default 0).",
+    )
     p.add_argument("--adapter", default=None, help="Adapter name (default: the first config's).")
     p.add_argument("--json", metavar="FILE", help="Write the report as JSON.")
     p.add_argument("--markdown", metavar="FILE", help="Write the comparison as Markdown.")
@@ -68,14 +84,22 @@ def run(args: argparse.Namespace) -> int:
     if not args.configs:
         raise UsageError("quash eval needs at least one -c CONFIG (repeat to compare).")
     overrides = backend_overrides(args)
-    quashes = [Quash.from_config(apply_runtime_options(load_config(c), args), **overrides)
-               for c in args.configs]
+    quashes = [
+        Quash.from_config(apply_runtime_options(load_config(c), args), **overrides)
+        for c in args.configs
+    ]
     lmap = quashes[0].read_map(args.map, adapter=args.adapter)
     queries = _split(args.queries) or None
     with progress(len(quashes), f"evaluating {len(quashes)} config(s)") as advance:
-        report = evaluate(lmap, quashes, queries=queries, exclude=_split(args.exclude),
-                          absent=_split(args.absent), empty_tolerance=args.empty_tolerance,
-                          on_query=lambda name, n: advance(1))
+        report = evaluate(
+            lmap,
+            quashes,
+            queries=queries,
+            exclude=_split(args.exclude),
+            absent=_split(args.absent),
+            empty_tolerance=args.empty_tolerance,
+            on_query=lambda name, n: advance(1),
+        )
     if args.json:
         atomic_write_text(args.json, json.dumps(report.to_json(), indent=2) + "\n")
     md = report.to_markdown()
@@ -92,8 +116,9 @@ def run(args: argparse.Namespace) -> int:
             viewer.log_eval_scalars(c["name"], metrics, step)
         viewer.close()
     out = console()
-    out.print(f"{lmap.describe()}: {len(report.queries)} queries, "
-              f"{len(report.absent)} absence queries")
+    out.print(
+        f"{lmap.describe()}: {len(report.queries)} queries, {len(report.absent)} absence queries"
+    )
     out.print(md, markup=False)
     for f in (args.json, args.markdown, args.plot):
         if f:

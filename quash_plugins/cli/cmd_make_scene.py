@@ -26,16 +26,27 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from ..evaluation.scene import SceneOptions
 
     p.add_argument("out", metavar="OUT.npz", help="Output map (our NPZ format).")
-    p.add_argument("--encoder", default="minilm",
-                   help="Registered encoder that embeds the names (default: minilm).")
-    p.add_argument("--encoder-file", default=None,
-                   help="'file' parameter of the encoder (e.g. a table encoder's NPZ/YAML).")
+    p.add_argument(
+        "--encoder",
+        default="minilm",
+        help="Registered encoder that embeds the names (default: minilm).",
+    )
+    p.add_argument(
+        "--encoder-file",
+        default=None,
+        help="'file' parameter of the encoder (e.g. a table encoder's NPZ/YAML).",
+    )
     p.add_argument("--no-cache", action="store_true", help="Do not use the text-embedding cache.")
     defaults = SceneOptions()
     for f in dataclasses.fields(SceneOptions):
         v = getattr(defaults, f.name)
-        p.add_argument(f"--{f.name.replace('_', '-')}", type=type(v), default=v,
-                       metavar=type(v).__name__.upper(), help=f"(default: {v})")
+        p.add_argument(
+            f"--{f.name.replace('_', '-')}",
+            type=type(v),
+            default=v,
+            metavar=type(v).__name__.upper(),
+            help=f"(default: {v})",
+        )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -50,8 +61,10 @@ def run(args: argparse.Namespace) -> int:
     scene = make_scene(encoder, opts, cache=_open_cache(not args.no_cache))
     paths = write_scene(scene, args.out, opts)
     out = console()
-    out.print(f"{scene.map.n} voxels, {scene.n_objects} objects, rooms: "
-              f"{', '.join(scene.room_types)} (seed {opts.seed}, encoder {encoder.name})")
+    out.print(
+        f"{scene.map.n} voxels, {scene.n_objects} objects, rooms: "
+        f"{', '.join(scene.room_types)} (seed {opts.seed}, encoder {encoder.name})"
+    )
     for k, v in paths.items():
         out.print(f"wrote {k}: {v}")
     return 0

@@ -31,8 +31,9 @@ import numpy as np
 METRICS = ("precision", "recall", "f1", "iou")
 
 
-def query_metrics(mask: np.ndarray, truth: np.ndarray, valid: np.ndarray | None = None
-                  ) -> dict[str, Any]:
+def query_metrics(
+    mask: np.ndarray, truth: np.ndarray, valid: np.ndarray | None = None
+) -> dict[str, Any]:
     """Precision, recall, F1 and IoU of one query.
 
     Parameters
@@ -58,8 +59,17 @@ def query_metrics(mask: np.ndarray, truth: np.ndarray, valid: np.ndarray | None 
     f1 = 2 * precision * recall / (precision + recall) if precision + recall > 0 else 0.0
     union = tp + fp + fn
     iou = tp / union if union else 1.0
-    return {"tp": tp, "fp": fp, "fn": fn, "precision": precision, "recall": recall, "f1": f1,
-            "iou": iou, "n_true": gt, "n_pred": pred}
+    return {
+        "tp": tp,
+        "fp": fp,
+        "fn": fn,
+        "precision": precision,
+        "recall": recall,
+        "f1": f1,
+        "iou": iou,
+        "n_true": gt,
+        "n_pred": pred,
+    }
 
 
 def macro_mean(per_query: dict[str, dict[str, Any]]) -> dict[str, float]:
@@ -69,8 +79,9 @@ def macro_mean(per_query: dict[str, dict[str, Any]]) -> dict[str, float]:
     return {k: float(np.mean([q[k] for q in per_query.values()])) for k in METRICS}
 
 
-def valid_items(labels: np.ndarray, label_names: Sequence[str] | None,
-                exclude: Iterable[str] = ()) -> np.ndarray:
+def valid_items(
+    labels: np.ndarray, label_names: Sequence[str] | None, exclude: Iterable[str] = ()
+) -> np.ndarray:
     """``(N,) bool``: items with a label >= 0 whose name is not in ``exclude``."""
     labels = np.asarray(labels)
     valid = labels >= 0
@@ -81,8 +92,9 @@ def valid_items(labels: np.ndarray, label_names: Sequence[str] | None,
     return valid
 
 
-def absence_score(masks: dict[str, np.ndarray], valid: np.ndarray | None = None,
-                  empty_tolerance: int = 0) -> dict[str, Any]:
+def absence_score(
+    masks: dict[str, np.ndarray], valid: np.ndarray | None = None, empty_tolerance: int = 0
+) -> dict[str, Any]:
     """Score absence queries: the share whose mask matches at most ``empty_tolerance`` items.
 
     Returns ``{"score": share or None, "empty_tolerance": t, "per_query": {q: {"matched": n,

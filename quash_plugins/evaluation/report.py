@@ -33,8 +33,17 @@ from .metrics import METRICS, absence_score, macro_mean, query_metrics, valid_it
 log = logging.getLogger(__name__)
 
 #: Negative or aggregate labels the paper removes from the query set.
-DEFAULT_EXCLUDE = ("void", "unlabeled", "unlabelled", "misc", "objects", "seating", "furniture",
-                   "appliances", "other")
+DEFAULT_EXCLUDE = (
+    "void",
+    "unlabeled",
+    "unlabelled",
+    "misc",
+    "objects",
+    "seating",
+    "furniture",
+    "appliances",
+    "other",
+)
 
 
 @dataclass
@@ -45,7 +54,7 @@ class EvalReport:
     queries: list[str]
     absent: list[str]
     map_description: str = ""
-    masks: dict[str, dict[str, np.ndarray]] = field(default_factory=dict, repr=False)
+    results: dict[str, list[Any]] = field(default_factory=dict, repr=False)
 
     def to_json(self) -> dict[str, Any]:
         return {"configs": self.configs}
@@ -74,7 +83,7 @@ def evaluate(
     empty_tolerance: int = 0,
     overrides: dict[str, Any] | None = None,
     on_query: Callable[[str, int], None] | None = None,
-    keep_masks: bool = False,
+    keep_results: bool = False,
 ) -> EvalReport:
     """Score each config once over all queries (one :meth:`Quash.query_many` pass each).
 
@@ -95,6 +104,8 @@ def evaluate(
         An absence query counts as empty when at most this many items match.
     overrides
         Keyword overrides for :meth:`Quash.from_config` (``cache``, ``backend``...).
+    keep_results
+        Keep each config's :class:`QueryResult` list in ``report.results``.
     on_query
         Called as ``on_query(config_name, n_queries)`` after each config's pass.
     """
@@ -105,13 +116,18 @@ def evaluate(
     lmap = source if isinstance(source, LatentMap) else quashes[0].read_map(source)
     if lmap.labels is None or not lmap.label_names:
         where = lmap.source.get("path", "the map")
-        raise QuashError(f"{where} has no ground-truth labels (labels + label_names); "
-                         "evaluation needs them. Use a labelled map, e.g. `quash make-scene`.")
+        raise QuashError(
+            f"{where} has no ground-truth labels (labels + label_names); "
+            "evaluation needs them. Use a labelled map, e.g. `quash make-scene`."
+        )
     labels = np.asarray(lmap.labels)
     names = list(lmap.label_names)
     valid = valid_items(labels, names, exclude)
-    counts = np.bincount(labels[valid], minlength=len(names)) if valid.any() else np.zeros(
-        len(names), int)
+    counts = (
+        np.bincount(labels[valid], minlength=len(names))
+        if valid.any()
+        else np.zeros(len(names), int)
+    )
     if queries is None:
         queries = [n for i, n in enumerate(names) if counts[i] > 0 and n not in set(exclude)]
     queries = list(dict.fromkeys(queries))
@@ -120,12 +136,13 @@ def evaluate(
     absence = list(dict.fromkeys([*unknown_here, *absent]))
     absence = [a for a in absence if a not in presence]
     if unknown_here:
-        log.info("labels absent from the map, scored as absence queries: %s",
-                 ", ".join(unknown_here))
+        log.info(
+            "labels absent from the map, scored as absence queries: %s", ", ".join(unknown_here)
+        )
     if not presence and not absence:
         raise QuashError("No query to evaluate: the map has no label left after --exclude.")
     used: dict[str, int] = {}
-    out, all_masks = [], {}
+    out, all_results = [], {}
     for quash, config in zip(quashes, configs):
         name = quash.name
         if name in used:
@@ -141,55 +158,71 @@ def evaluate(
             per_query[q] = query_metrics(r.mask, truth, valid)
         masks = {q: r.mask for q, r in zip(texts, results)}
         ab = absence_score({q: masks[q] for q in absence}, valid, empty_tolerance)
-        out.append({"name": name, "mean": macro_mean(per_query), "per_query": per_query,
-                    "absence": ab})
-        if keep_masks:
-            all_masks[name] = masks
+        out.append(
+            {"name": name, "mean": macro_mean(per_query), "per_query": per_query, "absence": ab}
+        )
+        if keep_results:
+            all_results[name] = results
         if on_query is not None:
             on_query(name, len(texts))
-    return EvalReport(out, presence, absence, lmap.describe() if hasattr(lmap, "describe") else "",
-                      all_masks)
+    return EvalReport(
+        out, presence, absence, lmap.describe() if hasattr(lmap, "describe") else "", all_results
+    )
 
 
 def _fmt(v: Any) -> str:
     return "n/a" if v is None else f"{v:.3f}"
 
 
-def report_markdown(configs: Sequence[dict[str, Any]], per_query: bool = True,
-                    title: str | None = None) -> str:
+def report_markdown(
+    configs: Sequence[dict[str, Any]], per_query: bool = True, title: str | None = None
+) -> str:
     """Configs side by side: a summary table, then F1 per query (one column per config)."""
     lines = [f"### {title}", ""] if title else []
-    lines += ["| method | F1 | precision | recall | IoU | absence |",
-              "|---|---:|---:|---:|---:|---:|"]
+    lines += [
+        "| method | F1 | precision | recall | IoU | absence |",
+        "|---|---:|---:|---:|---:|---:|",
+    ]
     best = max((c["mean"]["f1"] for c in configs), default=0.0)
     for c in configs:
         f1 = _fmt(c["mean"]["f1"])
         if c["mean"]["f1"] == best and len(configs) > 1:
             f1 = f"**{f1}**"
         ab = c.get("absence", {}) or {}
-        lines.append(f"| {c['name']} | {f1} | {_fmt(c['mean']['precision'])} | "
-                     f"{_fmt(c['mean']['recall'])} | {_fmt(c['mean']['iou'])} | "
-                     f"{_fmt(ab.get('score'))} |")
+        lines.append(
+            f"| {c['name']} | {f1} | {_fmt(c['mean']['precision'])} | "
+            f"{_fmt(c['mean']['recall'])} | {_fmt(c['mean']['iou'])} | "
+            f"{_fmt(ab.get('score'))} |"
+        )
     if per_query and configs and configs[0]["per_query"]:
-        lines += ["", "F1 per query:", "",
-                  "| query | " + " | ".join(c["name"] for c in configs) + " |",
-                  "|---|" + "---:|" * len(configs)]
+        lines += [
+            "",
+            "F1 per query:",
+            "",
+            "| query | " + " | ".join(c["name"] for c in configs) + " |",
+            "|---|" + "---:|" * len(configs),
+        ]
         for q in configs[0]["per_query"]:
             row = [_fmt(c["per_query"].get(q, {}).get("f1")) for c in configs]
             lines.append(f"| {q} | " + " | ".join(row) + " |")
         ab_q = list((configs[0].get("absence") or {}).get("per_query", {}))
         if ab_q:
-            lines += ["", "Items matched by absence queries (0 = correct):", "",
-                      "| absence query | " + " | ".join(c["name"] for c in configs) + " |",
-                      "|---|" + "---:|" * len(configs)]
+            lines += [
+                "",
+                "Items matched by absence queries (0 = correct):",
+                "",
+                "| absence query | " + " | ".join(c["name"] for c in configs) + " |",
+                "|---|" + "---:|" * len(configs),
+            ]
             for q in ab_q:
                 row = [str(c["absence"]["per_query"][q]["matched"]) for c in configs]
                 lines.append(f"| {q} | " + " | ".join(row) + " |")
     return "\n".join(lines) + "\n"
 
 
-def plot_precision_recall(configs: Sequence[dict[str, Any]], path: str | Path,
-                          title: str = "precision vs recall") -> Path:
+def plot_precision_recall(
+    configs: Sequence[dict[str, Any]], path: str | Path, title: str = "precision vs recall"
+) -> Path:
     """Precision against recall per method (mean: large marker; per query: small dots)."""
     try:
         import matplotlib
@@ -206,10 +239,18 @@ def plot_precision_recall(configs: Sequence[dict[str, Any]], path: str | Path,
         color = cmap(i % cmap.N)
         pq = list(c["per_query"].values())
         if pq:
-            ax.scatter([q["recall"] for q in pq], [q["precision"] for q in pq], s=9, alpha=0.3,
-                       color=color)
-        ax.scatter([c["mean"]["recall"]], [c["mean"]["precision"]], s=90, color=color,
-                   edgecolor="black", label=f"{c['name']} (F1 {c['mean']['f1']:.2f})", zorder=3)
+            ax.scatter(
+                [q["recall"] for q in pq], [q["precision"] for q in pq], s=9, alpha=0.3, color=color
+            )
+        ax.scatter(
+            [c["mean"]["recall"]],
+            [c["mean"]["precision"]],
+            s=90,
+            color=color,
+            edgecolor="black",
+            label=f"{c['name']} (F1 {c['mean']['f1']:.2f})",
+            zorder=3,
+        )
     r = np.linspace(0.01, 1, 200)
     for f in (0.2, 0.4, 0.6, 0.8):
         p = f * r / (2 * r - f)
@@ -225,5 +266,11 @@ def plot_precision_recall(configs: Sequence[dict[str, Any]], path: str | Path,
     return path
 
 
-__all__ = ["DEFAULT_EXCLUDE", "METRICS", "EvalReport", "evaluate", "plot_precision_recall",
-           "report_markdown"]
+__all__ = [
+    "DEFAULT_EXCLUDE",
+    "METRICS",
+    "EvalReport",
+    "evaluate",
+    "plot_precision_recall",
+    "report_markdown",
+]

@@ -32,15 +32,62 @@ from ._classes import ABSENT, ABSENT_FREE_TEXT, CLASSES, SUPPORTS, SceneClass
 log = logging.getLogger(__name__)
 
 ROOM_TYPES: dict[str, tuple[str, ...]] = {
-    "living room": ("sofa", "table", "chair", "tv", "picture", "lamp", "plant", "cushion", "rug",
-                    "shelf", "book", "vase", "clock", "curtain", "radiator"),
-    "kitchen": ("counter", "refrigerator", "stove", "sink", "cabinet", "table", "chair",
-                "trash can", "clock", "vase", "towel"),
-    "bedroom": ("bed", "cabinet", "lamp", "picture", "mirror", "curtain", "rug", "cushion",
-                "book", "desk", "chair"),
+    "living room": (
+        "sofa",
+        "table",
+        "chair",
+        "tv",
+        "picture",
+        "lamp",
+        "plant",
+        "cushion",
+        "rug",
+        "shelf",
+        "book",
+        "vase",
+        "clock",
+        "curtain",
+        "radiator",
+    ),
+    "kitchen": (
+        "counter",
+        "refrigerator",
+        "stove",
+        "sink",
+        "cabinet",
+        "table",
+        "chair",
+        "trash can",
+        "clock",
+        "vase",
+        "towel",
+    ),
+    "bedroom": (
+        "bed",
+        "cabinet",
+        "lamp",
+        "picture",
+        "mirror",
+        "curtain",
+        "rug",
+        "cushion",
+        "book",
+        "desk",
+        "chair",
+    ),
     "bathroom": ("toilet", "sink", "mirror", "towel", "cabinet", "trash can", "radiator"),
-    "office": ("desk", "chair", "laptop", "shelf", "book", "lamp", "plant", "trash can",
-               "picture", "clock"),
+    "office": (
+        "desk",
+        "chair",
+        "laptop",
+        "shelf",
+        "book",
+        "lamp",
+        "plant",
+        "trash can",
+        "picture",
+        "clock",
+    ),
 }
 
 
@@ -61,7 +108,7 @@ class SceneOptions:
     names_per_voxel: int = 3
     boundary_blend: float = 0.45
     confusion: float = 0.5
-    noise: float = 0.9
+    noise: float = 3.0
     modality_offset: float = 0.8
     size_scale: float = 1.0
 
@@ -75,8 +122,9 @@ class SceneOptions:
         if not 0.0 <= self.boundary_blend < 1.0:
             raise ConfigError("scene option boundary_blend must be in [0, 1).")
         if self.noise < 0 or self.modality_offset < 0 or self.names_per_voxel < 1:
-            raise ConfigError("scene options noise, modality_offset must be >= 0 and "
-                              "names_per_voxel >= 1.")
+            raise ConfigError(
+                "scene options noise, modality_offset must be >= 0 and names_per_voxel >= 1."
+            )
 
 
 @dataclass
@@ -116,15 +164,21 @@ def _layout(opts: SceneOptions, rng: np.random.Generator):
             label[sl], inst[sl] = idx[cls], i
 
     types = list(ROOM_TYPES)
-    room_types = [types[(r + int(rng.integers(len(types)))) % len(types)] if r >= len(types)
-                  else types[r] for r in range(opts.rooms)]
+    room_types = [
+        types[(r + int(rng.integers(len(types)))) % len(types)] if r >= len(types) else types[r]
+        for r in range(opts.rooms)
+    ]
     for r in range(opts.rooms):
         x0, x1 = r * n_room, (r + 1) * n_room
         put((slice(x0, x1 + 1), slice(0, ny), 0), "floor", new_instance("floor"))
         put((slice(x0, x1 + 1), slice(0, ny), nz - 1), "ceiling", new_instance("ceiling"))
         w = new_instance("wall")
-        for sl in ((x0, slice(0, ny)), (x1, slice(0, ny)), (slice(x0, x1 + 1), 0),
-                   (slice(x0, x1 + 1), ny - 1)):
+        for sl in (
+            (x0, slice(0, ny)),
+            (x1, slice(0, ny)),
+            (slice(x0, x1 + 1), 0),
+            (slice(x0, x1 + 1), ny - 1),
+        ):
             put((*sl, slice(1, nz - 1)), "wall", w)
     boxes: list[tuple[int, int, int, int, int, int, int]] = []  # room-local support boxes
 
@@ -141,8 +195,9 @@ def _layout(opts: SceneOptions, rng: np.random.Generator):
         occupied: list[tuple[int, int, int, int]] = []
         supports: list[tuple[int, int, int, int, int]] = []
         wall_slots: list[tuple[int, int, int]] = []
-        for name in sorted(names, key=lambda n: ("structure", "floor", "wall", "top").index(
-                CLASSES[idx[n]].place)):
+        for name in sorted(
+            names, key=lambda n: ("structure", "floor", "wall", "top").index(CLASSES[idx[n]].place)
+        ):
             c = CLASSES[idx[name]]
             sx, sy, sz = size_cells(c)
             i = new_instance(name)
@@ -160,8 +215,10 @@ def _layout(opts: SceneOptions, rng: np.random.Generator):
                     ax = int(rng.integers(x0 + 1, max(x0 + 2, x1 - sx)))
                     ay = int(rng.integers(1, max(2, ny - 1 - sy)))
                     rect = (ax, ay, ax + sx, ay + sy)
-                    if any(rect[0] < o[2] and o[0] < rect[2] and rect[1] < o[3] and o[1] < rect[3]
-                           for o in occupied):
+                    if any(
+                        rect[0] < o[2] and o[0] < rect[2] and rect[1] < o[3] and o[1] < rect[3]
+                        for o in occupied
+                    ):
                         continue
                     occupied.append(rect)
                     zt = min(nz - 2, sz)
@@ -178,12 +235,16 @@ def _layout(opts: SceneOptions, rng: np.random.Generator):
                     side = int(rng.integers(4))
                     sz = min(sz, nz - 3)
                     a = int(rng.integers(1, max(2, n_room - sx)))
-                    zb = 1 if name in ("door", "radiator") else int(
-                        rng.integers(1, max(2, nz - 1 - sz)))
+                    zb = (
+                        1
+                        if name in ("door", "radiator")
+                        else int(rng.integers(1, max(2, nz - 1 - sz)))
+                    )
                     if name == "curtain":
                         zb = max(1, nz - 1 - sz)
-                    if any(s == side and abs(a - b) < sx and abs(zb - z) < sz
-                           for s, b, z in wall_slots):
+                    if any(
+                        s == side and abs(a - b) < sx and abs(zb - z) < sz for s, b, z in wall_slots
+                    ):
                         continue
                     wall_slots.append((side, a, zb))
                     zs = slice(zb, min(nz - 1, zb + sz))
@@ -192,11 +253,15 @@ def _layout(opts: SceneOptions, rng: np.random.Generator):
                     elif side == 1:
                         sls = [(x1, slice(a, a + sx), zs), (x1 - 1, slice(a, a + sx), zs)]
                     elif side == 2:
-                        sls = [(slice(x0 + a, x0 + a + sx), 0, zs),
-                               (slice(x0 + a, x0 + a + sx), 1, zs)]
+                        sls = [
+                            (slice(x0 + a, x0 + a + sx), 0, zs),
+                            (slice(x0 + a, x0 + a + sx), 1, zs),
+                        ]
                     else:
-                        sls = [(slice(x0 + a, x0 + a + sx), ny - 1, zs),
-                               (slice(x0 + a, x0 + a + sx), ny - 2, zs)]
+                        sls = [
+                            (slice(x0 + a, x0 + a + sx), ny - 1, zs),
+                            (slice(x0 + a, x0 + a + sx), ny - 2, zs),
+                        ]
                     put(sls[0], name, i)
                     put(sls[1], name, i)
                     placed = True
@@ -217,8 +282,13 @@ def _layout(opts: SceneOptions, rng: np.random.Generator):
     return label, inst, np.asarray(inst_class, np.int64), room_types, n_objects
 
 
-_OFFSETS = [(dx, dy, dz) for dx in (-1, 0, 1) for dy in (-1, 0, 1) for dz in (-1, 0, 1)
-            if (dx, dy, dz) != (0, 0, 0)]
+_OFFSETS = [
+    (dx, dy, dz)
+    for dx in (-1, 0, 1)
+    for dy in (-1, 0, 1)
+    for dz in (-1, 0, 1)
+    if (dx, dy, dz) != (0, 0, 0)
+]
 
 
 def _boundary_partner(inst: np.ndarray, cells: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -278,8 +348,9 @@ def make_scene(encoder: Any, options: SceneOptions | None = None, cache: Any = N
     if opts.noise > 0:
         E += rng.standard_normal(E.shape).astype(np.float32) * (opts.noise / np.sqrt(D))
     offset = rng.standard_normal(D).astype(np.float32)
-    E = E / np.linalg.norm(E, axis=1, keepdims=True) + opts.modality_offset * offset / np.linalg.norm(
-        offset)
+    E = E / np.linalg.norm(
+        E, axis=1, keepdims=True
+    ) + opts.modality_offset * offset / np.linalg.norm(offset)
     E = (E / np.linalg.norm(E, axis=1, keepdims=True)).astype(np.float32)
     colors = np.asarray([c.color for c in CLASSES], np.int16)[labels]
     colors = np.clip(colors + rng.integers(-12, 13, colors.shape), 0, 255).astype(np.uint8)
@@ -292,18 +363,28 @@ def make_scene(encoder: Any, options: SceneOptions | None = None, cache: Any = N
         label_names=[c.label for c in CLASSES],
         voxel_size=float(opts.voxel_size),
         grid_index=cells.astype(np.int32),
-        source={"adapter": "scene", "encoder_hint": f"{getattr(encoder, 'name', '?')} {D}",
-                "seed": opts.seed},
+        source={
+            "adapter": "scene",
+            "encoder_hint": f"{getattr(encoder, 'name', '?')} {D}",
+            "seed": opts.seed,
+        },
     )
     taxonomy = {c.label: list(c.language) for c in CLASSES}
     taxonomy.update({k: list(v) for k, v in ABSENT.items()})
     absent = [*ABSENT, *ABSENT_FREE_TEXT]
-    log.info("scene: %d rooms (%s), %d objects, %d voxels", opts.rooms, ", ".join(room_types),
-             n_objects, len(labels))
+    log.info(
+        "scene: %d rooms (%s), %d objects, %d voxels",
+        opts.rooms,
+        ", ".join(room_types),
+        n_objects,
+        len(labels),
+    )
     return Scene(lmap, taxonomy, absent, room_types, n_objects)
 
 
-def write_scene(scene: Scene, out: str | Path, options: SceneOptions | None = None) -> dict[str, Path]:
+def write_scene(
+    scene: Scene, out: str | Path, options: SceneOptions | None = None
+) -> dict[str, Path]:
     """Write ``OUT.npz``, ``OUT.taxonomy.yaml`` and ``OUT.queries.yaml``; return the paths."""
     import yaml
 
@@ -322,8 +403,12 @@ def write_scene(scene: Scene, out: str | Path, options: SceneOptions | None = No
     with atomic_write(tax, suffix=".yaml") as tmp:
         Path(tmp).write_text(head + yaml.safe_dump(scene.taxonomy, sort_keys=False), "utf-8")
     present = sorted({scene.map.label_names[i] for i in np.unique(scene.map.labels)})
-    info = {"present": present, "absent": scene.absent, "room_types": scene.room_types,
-            "options": dataclasses.asdict(options) if options else None}
+    info = {
+        "present": present,
+        "absent": scene.absent,
+        "room_types": scene.room_types,
+        "options": dataclasses.asdict(options) if options else None,
+    }
     with atomic_write(queries, suffix=".yaml") as tmp:
         Path(tmp).write_text(yaml.safe_dump(info, sort_keys=False), "utf-8")
     return {"map": out, "taxonomy": tax, "queries": queries}
