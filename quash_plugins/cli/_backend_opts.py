@@ -1,27 +1,60 @@
-"""Compute-backend options shared by query, eval and demo (owned by the scale module)."""
+"""Compute-backend options shared by query, eval and demo (owned by the scale module).
+
+``--backend dask`` runs the classification pass as ``map_blocks`` over row chunks on a
+Dask cluster: the one at ``--scheduler ADDRESS``, or else a LocalCluster of worker
+processes on 127.0.0.1 (``--workers N``, default one per core). See docs/scale.md.
+"""
 
 from __future__ import annotations
 
 import argparse
+import logging
 from typing import Any
+
+log = logging.getLogger(__name__)
 
 
 def add_backend_arguments(parser: argparse.ArgumentParser) -> None:
     g = parser.add_argument_group("compute backend")
     g.add_argument(
-        "--backend", choices=("numpy", "dask"), default="numpy",
+        "--backend",
+        choices=("numpy", "dask"),
+        default="numpy",
         help="numpy: in-process chunks (default); dask: map_blocks on a Dask cluster.",
     )
     g.add_argument(
-        "--scheduler", metavar="ADDRESS", default=None,
-        help="Dask scheduler address (tcp://host:8786); default starts a LocalCluster.",
+        "--scheduler",
+        metavar="ADDRESS",
+        default=None,
+        help="Dask scheduler address (tcp://host:8786); implies --backend dask. "
+        "Default: start a LocalCluster on this machine.",
+    )
+    g.add_argument(
+        "--workers",
+        metavar="N",
+        type=int,
+        default=None,
+        help="Worker processes of the LocalCluster (default: one per core).",
     )
 
 
 def backend_overrides(args: argparse.Namespace) -> dict[str, Any]:
     """Keyword overrides for :meth:`Quash.from_config` from the parsed options."""
-    if getattr(args, "backend", "numpy") != "dask":
-        return {}
-    from ..scale import client_from_cli
+    from ..errors import UsageError
 
-    return {"backend": "dask", "client": client_from_cli(args.scheduler)}
+    backend = getattr(args, "backend", "numpy")
+    address = getattr(args, "scheduler", None)
+    workers = getattr(args, "workers", None)
+    if address and backend != "dask":
+        log.info("--scheduler given: using --backend dask")
+        backend = "dask"
+    if backend != "dask":
+        if workers is not None:
+            raise UsageError("--workers needs --backend dask.")
+        return {}
+    if workers is not None and (workers < 1 or address):
+        raise UsageError("--workers takes N >= 1 and applies only without --scheduler.")
+    from ..scale import client_from_cli, local_cluster_client
+
+    client = local_cluster_client(workers) if workers else client_from_cli(address)
+    return {"backend": "dask", "client": client}

@@ -97,7 +97,10 @@ def client_from_cli(address: str | None) -> Any:
         return local_cluster_client()
     distributed = _require_distributed()
     try:
-        client = distributed.Client(address, timeout="20s")
+        import dask
+
+        timeout = dask.config.get("distributed.comm.timeouts.connect", "30s")
+        client = distributed.Client(address, timeout=timeout)
     except (OSError, TimeoutError) as exc:
         raise QuashError(
             f"Cannot reach the Dask scheduler at {address} ({exc}). Start one with "

@@ -145,3 +145,26 @@ def test_nan_row_is_reported_with_its_index():
     emb[77, 2] = np.nan
     with pytest.raises(MapFormatError, match="row 77"):
         classify_dask(LatentMap(emb), [clf], chunk_bytes=16 * 10)
+
+
+def test_backend_options_validate_without_starting_a_cluster():
+    import argparse
+
+    from quash_plugins.cli._backend_opts import add_backend_arguments, backend_overrides
+    from quash_plugins.errors import QuashError, UsageError
+
+    p = argparse.ArgumentParser()
+    add_backend_arguments(p)
+    assert backend_overrides(p.parse_args([])) == {}
+    with pytest.raises(UsageError, match="--workers needs --backend dask"):
+        backend_overrides(p.parse_args(["--workers", "2"]))
+    with pytest.raises(UsageError, match="N >= 1"):
+        backend_overrides(p.parse_args(["--backend", "dask", "--workers", "0"]))
+    # --scheduler implies dask; an unreachable scheduler is a clear QuashError
+    import dask
+
+    with (
+        dask.config.set({"distributed.comm.timeouts.connect": "1s"}),
+        pytest.raises(QuashError, match="Cannot reach the Dask scheduler"),
+    ):
+        backend_overrides(p.parse_args(["--scheduler", "tcp://127.0.0.1:1"]))
