@@ -12,7 +12,8 @@ examples:
   quash query vlmap/vlmaps.h5df chair sofa -c quash.yaml --out result.npz
   quash query map.npz chair --adapter npz --rrd chair.rrd
 The --out file holds queries (Q,) str, masks (Q, N) bool, scores (Q, N) float32 and
-display_scores (Q, N) float32 in [0, 1]."""
+display_scores (Q, N) float32 in [0, 1]. With --out RESULT.zarr the masks and scores
+stay lazy and stream to a zarr store (maps larger than memory; see docs/scale.md)."""
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -28,7 +29,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=None,
         help="Adapter name, or 'auto' to sniff the format (default: the config's).",
     )
-    p.add_argument("--out", metavar="RESULT.npz", help="Write masks and scores (atomically).")
+    p.add_argument("--out", metavar="RESULT.npz|.zarr", help="Write masks and scores (atomically).")
     p.add_argument("--json", action="store_true", help="Print the per-query summary as JSON.")
     add_runtime_options(p)
     add_viewer_arguments(p)
@@ -44,6 +45,8 @@ def run(args: argparse.Namespace) -> int:
 
     cfg = apply_runtime_options(load_config(args.config), args)
     quash = Quash.from_config(cfg, **backend_overrides(args))
+    if args.out and str(args.out).rstrip("/").endswith(".zarr"):
+        return _query_to_zarr(args, quash)
     lmap = quash.read_map(args.map, adapter=args.adapter)
     with progress(lmap.n, f"classifying {lmap.n} items") as advance:
         results = quash.query_many(lmap, args.queries, progress=advance)
@@ -59,6 +62,37 @@ def run(args: argparse.Namespace) -> int:
     finally:
         if viewer is not None:
             viewer.close()  # with --serve-web this serves until Ctrl-C
+    return 0
+
+
+def _query_to_zarr(args, quash) -> int:
+    """Results too large for memory: masks and scores stay lazy and stream into zarr."""
+    from ..errors import UsageError
+    from ._common import console, print_json
+
+    if args.rrd or args.spawn or args.connect or args.serve_web:
+        raise UsageError(
+            "--out *.zarr streams results to disk; drop the Rerun options or use .npz."
+        )
+    lazy = quash.query_many_lazy(args.map, args.queries, adapter=args.adapter)
+    path = lazy.to_zarr(args.out)
+    import dask.array as da
+    import zarr
+
+    store = zarr.open_group(str(path), mode="r")
+    counts = da.from_zarr(store["masks"]).sum(axis=1).compute().tolist()
+    n = int(store["masks"].shape[1])
+    rows = [
+        {"query": q, "matched": int(c), "share": c / max(1, n)}
+        for q, c in zip(args.queries, counts)
+    ]
+    if args.json:
+        print_json({"n": n, "out": str(path), "results": rows})
+        return 0
+    out = console()
+    for r in rows:
+        out.print(f"{r['query']}: {r['matched']} of {n} items ({100 * r['share']:.2f}%)")
+    out.print(f"wrote {path}")
     return 0
 
 

@@ -156,7 +156,9 @@ class LazyQuery:
                     meta=np.empty((0,), np.float32),
                 )
                 cols.append(whole.rechunk(col.chunks))
-        return da.stack(cols, axis=1).astype(np.float32)
+        # One chunk across the queries: the zarr stores are chunked (Q, rows), and two
+        # tasks writing parts of one zarr chunk without a lock would overwrite each other.
+        return da.stack(cols, axis=1).rechunk({1: -1}).astype(np.float32)
 
     def _final(self, post: Any, floors: Any) -> tuple[Any, Any]:
         """``(Q, N)`` scores (unobserved rows at ``floors``) and masks."""

@@ -176,3 +176,37 @@ def test_console_script_entry_point(tiny_world):
 def test_debug_shows_traceback(tmp_path, capsys):
     with pytest.raises(Exception, match="Map not found"):
         main(["query", str(tmp_path / "nope.npz"), "chair", "--debug"])
+
+
+def test_query_out_zarr_streams_same_results(tiny_world, tmp_path, capsys):
+    zarr = pytest.importorskip("zarr")
+    code, _, err = run_cli(
+        "query",
+        tiny_world["map"],
+        "chair",
+        "sofa",
+        "-c",
+        tiny_world["config"],
+        "--out",
+        tmp_path / "r.npz",
+        capsys=capsys,
+    )
+    assert code == 0, err
+    code, out, err = run_cli(
+        "query",
+        tiny_world["map"],
+        "chair",
+        "sofa",
+        "-c",
+        tiny_world["config"],
+        "--out",
+        tmp_path / "r.zarr",
+        "--json",
+        capsys=capsys,
+    )
+    assert code == 0, err
+    store = zarr.open_group(str(tmp_path / "r.zarr"), mode="r")
+    with np.load(tmp_path / "r.npz") as z:
+        np.testing.assert_array_equal(np.asarray(store["masks"]), z["masks"])
+        np.testing.assert_allclose(np.asarray(store["scores"]), z["scores"], atol=1e-5)
+        assert [r["matched"] for r in json.loads(out)["results"]] == z["masks"].sum(1).tolist()
