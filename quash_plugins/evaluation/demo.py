@@ -102,7 +102,7 @@ def _log_demo(viewer: Any, lmap: Any, quashes: list[Any], report: EvalReport) ->
     """The map once, then each method's result per query, then the scalars per method."""
     viewer.log_map(lmap)
     texts = [*report.queries, *report.absent]
-    for step, (quash, c) in enumerate(zip(quashes, report.configs)):
+    for step, c in enumerate(report.configs):
         for i, r in enumerate(report.results.get(c["name"], [])):
             viewer.log_result(lmap, r, index=step * len(texts) + i)
         metrics = dict(c["mean"])

@@ -180,7 +180,6 @@ def _layout(opts: SceneOptions, rng: np.random.Generator):
             (slice(x0, x1 + 1), ny - 1),
         ):
             put((*sl, slice(1, nz - 1)), "wall", w)
-    boxes: list[tuple[int, int, int, int, int, int, int]] = []  # room-local support boxes
 
     def size_cells(c: SceneClass) -> tuple[int, int, int]:
         j = rng.uniform(0.8, 1.2, 3) * opts.size_scale

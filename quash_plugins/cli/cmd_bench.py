@@ -1,0 +1,76 @@
+"""``quash bench``: the paper's ablation tables on a labelled map."""
+
+from __future__ import annotations
+
+import argparse
+
+NAME = "bench"
+HELP = "Ablations as in the paper: prompt engineering, antonyms, synonym x antonym source, classifiers."
+ORDER = 34
+DESCRIPTION = """\
+Runs each ablation table with `quash eval`'s metrics and writes bench.md, bench.json and
+one precision-vs-recall plot per table into --out. The llm source reads only its cache
+(offline: true); an empty cache skips those rows with a note."""
+EPILOG = """\
+examples:
+  quash make-scene scene.npz --seed 1
+  quash bench scene.npz --taxonomy scene.taxonomy.yaml --out bench/
+  quash bench scene.npz --taxonomy scene.taxonomy.yaml --tables antonyms,classifiers"""
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    from ..evaluation.bench import TABLES
+    from ._backend_opts import add_backend_arguments
+
+    p.add_argument("map", help="Labelled map (labels + label_names).")
+    p.add_argument(
+        "--taxonomy",
+        metavar="FILE",
+        default=None,
+        help="Taxonomy YAML {label: [sub-class, ...]} (make-scene writes one).",
+    )
+    p.add_argument("--out", metavar="DIR", default="quash-bench", help="Output folder.")
+    p.add_argument(
+        "--tables", default=",".join(TABLES), help="Comma-separated subset of: %(default)s."
+    )
+    p.add_argument("--encoder", default="minilm", help="Encoder name (default: minilm).")
+    p.add_argument("--queries", metavar="A,B,...", default=None, help="Labels to score.")
+    p.add_argument("--absent", metavar="X,Y,...", default=None, help="Absence queries.")
+    p.add_argument("--llm-model", default=None, help="Model name of the cached llm query sets.")
+    p.add_argument("--no-cache", action="store_true", help="Do not use the text-embedding cache.")
+    add_backend_arguments(p)
+
+
+def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from ..errors import UsageError
+    from ..evaluation.bench import TABLES, run_bench
+    from ._backend_opts import backend_overrides
+    from ._common import console
+
+    tables = tuple(t.strip() for t in args.tables.split(",") if t.strip())
+    bad = [t for t in tables if t not in TABLES]
+    if bad:
+        raise UsageError(f"Unknown table {bad[0]!r}; known: {', '.join(TABLES)}.")
+    if args.taxonomy and not Path(args.taxonomy).exists():
+        raise UsageError(f"Taxonomy file not found: {args.taxonomy}")
+    overrides = backend_overrides(args)
+    if args.no_cache:
+        overrides["cache"] = False
+    split = lambda s: [t.strip() for t in (s or "").split(",") if t.strip()]  # noqa: E731
+    out = console()
+    run_bench(
+        args.map,
+        str(Path(args.taxonomy).resolve()) if args.taxonomy else None,
+        args.out,
+        tables=tables,
+        encoder=args.encoder,
+        llm={"model": args.llm_model} if args.llm_model else None,
+        overrides=overrides,
+        queries=split(args.queries) or None,
+        absent=tuple(split(args.absent)),
+        on_table=lambda t: out.print(f"table {t}: done"),
+    )
+    out.print((Path(args.out) / "bench.md").read_text(encoding="utf-8"), markup=False)
+    return 0

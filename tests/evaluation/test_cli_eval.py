@@ -1,0 +1,155 @@
+"""quash eval and quash make-scene end to end, with a table encoder (fast, offline)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import yaml
+from _eval_table import table_for
+
+from quash_plugins.cli.main import main
+from quash_plugins.evaluation._classes import ABSENT, CLASSES
+from quash_plugins.evaluation.metrics import query_metrics
+
+NAMES = (
+    {n for c in CLASSES for n in (*c.appearance, *c.language, c.label)}
+    | {n for k, v in ABSENT.items() for n in (k, *v)}
+    | {"other", "background", "nothing", "an elephant"}
+)
+
+
+@pytest.fixture(scope="module")
+def world(tmp_path_factory):
+    d = tmp_path_factory.mktemp("eval")
+    table = table_for(sorted(NAMES))
+    np.savez(
+        d / "table.npz",
+        texts=np.asarray(list(table)),
+        embeddings=np.asarray(list(table.values()), np.float32),
+    )
+    rc = main(
+        [
+            "make-scene",
+            str(d / "scene.npz"),
+            "--encoder",
+            "table",
+            "--encoder-file",
+            str(d / "table.npz"),
+            "--rooms",
+            "1",
+            "--voxel-size",
+            "0.25",
+            "--no-cache",
+        ]
+    )
+    assert rc == 0
+    enc = {"name": "table", "file": "table.npz"}
+    (d / "base.yaml").write_text(
+        yaml.safe_dump(
+            {
+                "name": "vlmaps",
+                "encoder": enc,
+                "heuristic": "none",
+                "negatives": ["other"],
+                "classifier": "contrast",
+                "instances": False,
+                "cache": False,
+            }
+        )
+    )
+    (d / "quash.yaml").write_text(
+        yaml.safe_dump(
+            {
+                "name": "quash-taxonomy",
+                "encoder": enc,
+                "classifier": "contrast",
+                "heuristic": {"name": "taxonomy", "file": "scene.taxonomy.yaml"},
+                "instances": False,
+                "cache": False,
+            }
+        )
+    )
+    return d
+
+
+def test_eval_json_markdown_and_plot(world, tmp_path):
+    out = tmp_path / "r.json"
+    rc = main(
+        [
+            "eval",
+            str(world / "scene.npz"),
+            "-c",
+            str(world / "base.yaml"),
+            "-c",
+            str(world / "quash.yaml"),
+            "--absent",
+            "piano,an elephant",
+            "--json",
+            str(out),
+            "--markdown",
+            str(tmp_path / "r.md"),
+            "--plot",
+            str(tmp_path / "r.png"),
+        ]
+    )
+    assert rc == 0
+    data = json.loads(out.read_text())
+    assert list(data) == ["configs"]
+    names = [c["name"] for c in data["configs"]]
+    assert names == ["vlmaps", "quash-taxonomy"]
+    for c in data["configs"]:
+        assert set(c) == {"name", "mean", "per_query", "absence"}
+        assert set(c["mean"]) == {"precision", "recall", "f1", "iou"}
+        assert set(c["absence"]["per_query"]) == {"piano", "an elephant"}
+        f1 = [q["f1"] for q in c["per_query"].values()]
+        assert c["mean"]["f1"] == pytest.approx(float(np.mean(f1)))
+    md = (tmp_path / "r.md").read_text()
+    assert "| vlmaps |" in md and "| quash-taxonomy |" in md
+    assert (tmp_path / "r.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_eval_scores_match_an_independent_query(world, tmp_path):
+    """Recompute one query's metrics from `quash query`'s own mask."""
+    out = tmp_path / "r.json"
+    assert (
+        main(
+            [
+                "eval",
+                str(world / "scene.npz"),
+                "-c",
+                str(world / "base.yaml"),
+                "--queries",
+                "wall,floor,piano",
+                "--json",
+                str(out),
+            ]
+        )
+        == 0
+    )
+    data = json.loads(out.read_text())["configs"][0]
+    assert set(data["per_query"]) == {"wall", "floor"}
+    assert "piano" in data["absence"]["per_query"]  # a label absent from the map
+    assert (
+        main(
+            [
+                "query",
+                str(world / "scene.npz"),
+                "wall",
+                "-c",
+                str(world / "base.yaml"),
+                "--out",
+                str(tmp_path / "q.npz"),
+            ]
+        )
+        == 0
+    )
+    with np.load(tmp_path / "q.npz") as q, np.load(world / "scene.npz") as m:
+        names = [str(n) for n in m["label_names"]]
+        ref = query_metrics(q["masks"][0], m["labels"] == names.index("wall"))
+    assert data["per_query"]["wall"]["f1"] == pytest.approx(ref["f1"])
+
+
+def test_eval_needs_a_config(world):
+    assert main(["eval", str(world / "scene.npz")]) == 2
