@@ -147,11 +147,24 @@ def main() -> None:
     )
     ap.add_argument("--no-torch", action="store_true")
     ap.add_argument("--out", default=None, help="write the Markdown table here")
+    ap.add_argument(
+        "--threads",
+        type=int,
+        default=None,
+        help="BLAS/torch threads (default: the libraries' own, i.e. all cores)",
+    )
     args = ap.parse_args()
+    if args.threads:
+        from threadpoolctl import threadpool_limits
+
+        threadpool_limits(args.threads)
     torch_ok = not args.no_torch
     if torch_ok:
         try:
-            import torch  # noqa: F401
+            import torch
+
+            if args.threads:
+                torch.set_num_threads(args.threads)
         except ImportError:
             torch_ok = False
     rows = []
@@ -161,6 +174,7 @@ def main() -> None:
         print(rows[-1], flush=True)
     md = table(rows)
     host = f"{platform.machine()}, {os.cpu_count()} CPU cores, numpy {np.__version__}"
+    host += f", threads {args.threads or 'default'}"
     md += f"\n\nMachine: {host}; {platform.platform()}."
     print(md)
     if args.out:

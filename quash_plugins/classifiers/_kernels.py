@@ -33,7 +33,7 @@ from ..errors import QuashError
 log = logging.getLogger(__name__)
 
 #: CPU blocks target this many bytes of float32 rows (fits the last-level cache).
-CPU_BLOCK_BYTES = 8 * 2**20
+CPU_BLOCK_BYTES = 16 * 2**20
 KINDS = ("rbf", "rbf-cosine", "linear-cosine")
 
 
@@ -263,9 +263,16 @@ class KernelStack:
             return self._evaluate_torch(E, sq, unit, out)
         rows = self.block_rows
         G = np.empty((min(rows, n), self.width), dtype=np.float32)
+        # non-float32 input (float16 maps, h5py datasets) is cast into one reused buffer
+        cast = getattr(E, "dtype", None) != np.float32 or not isinstance(E, np.ndarray)
+        buf = np.empty((min(rows, n), self.dim), dtype=np.float32) if cast else None
         for start in range(0, n, rows):
             stop = min(n, start + rows)
-            x = np.asarray(E[start:stop], dtype=np.float32)
+            if buf is not None:
+                x = buf[: stop - start]
+                x[...] = E[start:stop]
+            else:
+                x = E[start:stop]
             if unit:
                 s = None
             elif sq is not None:
