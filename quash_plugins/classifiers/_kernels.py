@@ -262,11 +262,33 @@ class KernelStack:
         if self.backend == "torch":
             return self._evaluate_torch(E, sq, unit, out)
         rows = self.block_rows
+        starts = list(range(0, n, rows))
+        workers = min(_cpu_threads(), len(starts)) if isinstance(E, np.ndarray) else 1
+        if workers <= 1:
+            self._numpy_range(E, sq, unit, out, starts)
+            return out
+        # One single-threaded BLAS per worker on its own blocks: no per-call thread sync,
+        # which on a busy machine costs more than the GEMM itself (numpy releases the GIL).
+        from concurrent.futures import ThreadPoolExecutor
+
+        with _blas_single_thread(), ThreadPoolExecutor(workers) as pool:
+            jobs = [
+                pool.submit(self._numpy_range, E, sq, unit, out, starts[k::workers])
+                for k in range(workers)
+            ]
+            for job in jobs:
+                job.result()
+        return out
+
+    def _numpy_range(
+        self, E: Any, sq: Any, unit: bool, out: np.ndarray, starts: Sequence[int]
+    ) -> None:
+        n, rows = len(E), self.block_rows
         G = np.empty((min(rows, n), self.width), dtype=np.float32)
         # non-float32 input (float16 maps, h5py datasets) is cast into one reused buffer
         cast = getattr(E, "dtype", None) != np.float32 or not isinstance(E, np.ndarray)
         buf = np.empty((min(rows, n), self.dim), dtype=np.float32) if cast else None
-        for start in range(0, n, rows):
+        for start in starts:
             stop = min(n, start + rows)
             if buf is not None:
                 x = buf[: stop - start]
@@ -280,7 +302,6 @@ class KernelStack:
             else:
                 s = _sq_norms(x)
             out[start:stop] = self._numpy_block(x, s, G[: stop - start])
-        return out
 
     def _evaluate_torch(self, E: Any, sq: Any, unit: bool, out: np.ndarray) -> np.ndarray:
         t = self._torch_state()
@@ -302,6 +323,34 @@ class KernelStack:
                     s = torch.einsum("ij,ij->i", x, x)
                 out[start:stop] = self._torch_block(x, s).cpu().numpy()
         return out
+
+
+def _cpu_threads() -> int:
+    """CPU cores this process may use (``QUASH_CLASSIFY_THREADS`` overrides)."""
+    env = os.environ.get("QUASH_CLASSIFY_THREADS")
+    if env and env.isdigit() and int(env) > 0:
+        return int(env)
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not Linux
+        return max(1, os.cpu_count() or 1)
+
+
+_CONTROLLER: Any = None
+
+
+def _blas_single_thread() -> Any:
+    """Context manager limiting BLAS to one thread (no-op when threadpoolctl is missing)."""
+    global _CONTROLLER
+    try:
+        from threadpoolctl import ThreadpoolController
+    except ImportError:  # pragma: no cover - shipped with scikit-learn
+        import contextlib
+
+        return contextlib.nullcontext()
+    if _CONTROLLER is None:
+        _CONTROLLER = ThreadpoolController()
+    return _CONTROLLER.limit(limits=1, user_api="blas")
 
 
 def _sq_norms(x: np.ndarray) -> np.ndarray:
