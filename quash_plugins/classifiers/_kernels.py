@@ -160,6 +160,7 @@ class KernelStack:
         }
         per_row = 4 * self.dim + 4 * self.width + 4 * len(parts) + 8
         budget_rows = max(1, int(working_set_bytes) // per_row)
+        self.budget_rows = budget_rows
         if block_rows is None:
             if device == "cuda":
                 block_rows = budget_rows
@@ -262,10 +263,12 @@ class KernelStack:
         if self.backend == "torch":
             return self._evaluate_torch(E, sq, unit, out)
         rows = self.block_rows
+        workers = min(_cpu_threads(), -(-n // rows)) if isinstance(E, np.ndarray) else 1
+        # the working-set budget holds for all workers together
+        rows = max(1, min(rows, self.budget_rows // max(1, workers)))
         starts = list(range(0, n, rows))
-        workers = min(_cpu_threads(), len(starts)) if isinstance(E, np.ndarray) else 1
         if workers <= 1:
-            self._numpy_range(E, sq, unit, out, starts)
+            self._numpy_range(E, sq, unit, out, starts, rows)
             return out
         # One single-threaded BLAS per worker on its own blocks: no per-call thread sync,
         # which on a busy machine costs more than the GEMM itself (numpy releases the GIL).
@@ -273,7 +276,7 @@ class KernelStack:
 
         with _blas_single_thread(), ThreadPoolExecutor(workers) as pool:
             jobs = [
-                pool.submit(self._numpy_range, E, sq, unit, out, starts[k::workers])
+                pool.submit(self._numpy_range, E, sq, unit, out, starts[k::workers], rows)
                 for k in range(workers)
             ]
             for job in jobs:
@@ -281,9 +284,9 @@ class KernelStack:
         return out
 
     def _numpy_range(
-        self, E: Any, sq: Any, unit: bool, out: np.ndarray, starts: Sequence[int]
+        self, E: Any, sq: Any, unit: bool, out: np.ndarray, starts: Sequence[int], rows: int
     ) -> None:
-        n, rows = len(E), self.block_rows
+        n = len(E)
         G = np.empty((min(rows, n), self.width), dtype=np.float32)
         # non-float32 input (float16 maps, h5py datasets) is cast into one reused buffer
         cast = getattr(E, "dtype", None) != np.float32 or not isinstance(E, np.ndarray)

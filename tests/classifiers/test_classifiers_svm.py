@@ -222,3 +222,36 @@ def test_working_set_budget_bounds_block_rows():
     assert clf.working_set_width_ == len(clf.support_vectors_)
     E = _map(rng, X)
     np.testing.assert_allclose(clf.decision_function(E), _sklearn_reference(clf, E), atol=1e-4)
+
+
+def test_peak_memory_stays_within_the_working_set_budget(monkeypatch):
+    import tracemalloc
+
+    monkeypatch.setenv("QUASH_CLASSIFY_THREADS", "2")
+    rng = np.random.default_rng(10)
+    X, y = _text_set(rng, d=256, n=40)
+    E = rng.standard_normal((60_000, 256)).astype(np.float16)  # up-cast block by block
+    clf = RbfSvmClassifier(working_set_mb=2.0, backend="numpy").fit(X, y)
+    clf.decision_function(E[:100])
+    tracemalloc.start()
+    base = tracemalloc.get_traced_memory()[0]
+    out = clf.decision_function(E)
+    peak = tracemalloc.get_traced_memory()[1] - base - out.nbytes
+    tracemalloc.stop()
+    assert peak <= 1.2 * 2.0 * 2**20, peak / 2**20
+    assert E.nbytes * 2 > 10 * 2.0 * 2**20  # a whole up-cast copy would blow the budget
+
+
+def test_cuda_without_a_gpu_is_a_clear_error_and_auto_falls_back_to_numpy():
+    torch = pytest.importorskip("torch")
+    rng = np.random.default_rng(12)
+    X, y = _text_set(rng)
+    assert RbfSvmClassifier().fit(X, y).backend_ in ("numpy", "torch")
+    if torch.cuda.is_available():  # pragma: no cover - no GPU on the CI machine
+        assert RbfSvmClassifier(device="cuda").fit(X, y).device_ == "cuda"
+        return
+    from quash_plugins.errors import QuashError
+
+    with pytest.raises(QuashError, match="CUDA"):
+        RbfSvmClassifier(backend="torch", device="cuda").fit(X, y)
+    assert RbfSvmClassifier(backend="auto").fit(X, y).backend_ == "numpy"
