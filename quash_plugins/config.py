@@ -48,12 +48,19 @@ class QuashConfig:
         metadata={"help": "Text encoder; must match the map's embedding space."},
     )
     heuristic: PluginSpec = field(
-        default_factory=lambda: PluginSpec("none"),
-        metadata={"help": "Expands the query into positives and negatives."},
+        default_factory=lambda: PluginSpec("vocabulary"),
+        metadata={
+            "help": "Expands the query into positives and negatives. The default, "
+            "vocabulary, needs no LLM and no file."
+        },
     )
     classifier: PluginSpec = field(
-        default_factory=lambda: PluginSpec("svm-rbf"),
-        metadata={"help": "Trained on the text embeddings, applied to every map item."},
+        default_factory=lambda: PluginSpec("nearest-sample", {"k": 2}),
+        metadata={
+            "help": "Trained on the text embeddings, applied to every map item. The "
+            "default was chosen by the quality benchmark (docs/benchmarks.md); the "
+            "paper's SVM is svm-rbf."
+        },
     )
     negatives: list[str] = field(
         default_factory=lambda: list(DEFAULT_NEGATIVES),

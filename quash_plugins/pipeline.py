@@ -54,7 +54,8 @@ class Quash:
     heuristic
         Expands a query into positives and negatives; default ``none``.
     classifier
-        Unfitted scikit-learn estimator; cloned and fitted per query. Default ``svm-rbf``.
+        Unfitted scikit-learn estimator; cloned and fitted per query. Default
+        ``nearest-sample`` (k=2), chosen by the quality benchmark; the paper's is ``svm-rbf``.
     negatives
         Generic negatives always added to the antonyms.
     threshold
@@ -100,7 +101,9 @@ class Quash:
             heuristic if heuristic is not None else registry.create("heuristics", "none")
         )
         self.classifier = (
-            classifier if classifier is not None else registry.create("classifiers", "svm-rbf")
+            classifier
+            if classifier is not None
+            else registry.create("classifiers", "nearest-sample", k=2)
         )
         self.negatives = list(negatives)
         self.threshold = float(threshold)

@@ -11,6 +11,7 @@ from ._baselines import (
     CosineThresholdClassifier,
     LabelArgmaxClassifier,
     LerfRelevancyClassifier,
+    NearestSampleClassifier,
 )
 from ._common import ClassifierParamError
 from ._sklearn import SklearnClassifier
@@ -23,6 +24,7 @@ __all__ = [
     "CosineThresholdClassifier",
     "LabelArgmaxClassifier",
     "LerfRelevancyClassifier",
+    "NearestSampleClassifier",
     "RbfSvmClassifier",
     "SklearnClassifier",
     "stack_classifiers",

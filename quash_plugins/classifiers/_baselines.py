@@ -209,3 +209,47 @@ class LerfRelevancyClassifier(_CosineRule):
     def display_scores(self, scores: np.ndarray, threshold: float = 0.0) -> np.ndarray:
         s = np.asarray(scores, dtype=np.float32)
         return piecewise_display(s + self.cut, self.cut + threshold)
+
+
+class NearestSampleClassifier(_CosineRule):
+    """QuASH's nearest-sample rule: the k nearest positives against the k nearest negatives.
+
+    ``decision_function = mean(top-k cos(x, positives)) - mean(top-k cos(x, negatives))``.
+    A k-nearest-neighbour vote over the expanded query set, on cosine similarity. Unlike
+    an RBF SVM, it depends only on which text samples an item is *relatively* closest
+    to, so it survives the modality gap between text and map embeddings (map items sit
+    far from every text sample, where an RBF SVM's decision collapses to its intercept).
+    With one positive and ``k=1`` it is the ``contrast`` (VLMaps) rule; the benchmark in
+    ``docs/benchmarks.md`` chose ``k=2`` as the default.
+
+    Parameters
+    ----------
+    k
+        Samples averaged on each side (capped by each side's size).
+    """
+
+    def __init__(self, k: int = 2) -> None:
+        self.k = k
+        _check_k(k)
+
+    def fit(self, X: np.ndarray, y: np.ndarray) -> NearestSampleClassifier:
+        _check_k(self.k)  # set_params bypasses __init__
+        return super().fit(X, y)
+
+    def decision_function(self, E: Any) -> np.ndarray:
+        c = self.cosines(E)
+        p = len(self.positives_)
+        return (_top_mean(c[:, :p], self.k) - _top_mean(c[:, p:], self.k)).astype(np.float32)
+
+
+def _check_k(k: Any) -> None:
+    if not isinstance(k, (int, np.integer)) or isinstance(k, bool) or k < 1:
+        raise ClassifierParamError(f"nearest-sample: k must be an integer >= 1; got {k!r}.")
+
+
+def _top_mean(c: np.ndarray, k: int) -> np.ndarray:
+    """Row-wise mean of the ``k`` largest values of ``c (N, m)``."""
+    k = min(int(k), c.shape[1])
+    if k == 1:
+        return c.max(axis=1)
+    return np.partition(c, c.shape[1] - k, axis=1)[:, -k:].mean(axis=1)

@@ -35,8 +35,12 @@ ANTONYMS = (
     ZERO_TOKEN,
 )
 SOURCES = ("taxonomy", "adjectives", "lexicon", "llm")
+QUASH_CLASSIFIER: dict[str, Any] = {"name": "nearest-sample", "k": 2}
 CLASSIFIERS: dict[str, Any] = {
-    "contrast (nearest sample)": "contrast",
+    "nearest-sample k=1 (= contrast)": {"name": "nearest-sample", "k": 1},
+    "nearest-sample k=2": {"name": "nearest-sample", "k": 2},
+    "nearest-sample k=3": {"name": "nearest-sample", "k": 3},
+    "nearest-sample k=5": {"name": "nearest-sample", "k": 5},
     "svm-rbf": "svm-rbf",
     "svm-rbf balanced": {"name": "svm-rbf", "class_weight": "balanced"},
     "svm-cosine": "svm-cosine",
@@ -77,8 +81,8 @@ def bench_configs(
     ]
     if taxonomy:
         tables["prompt"] += [
-            _cfg("quash-taxonomy PE", encoder, tax, "contrast", prompt_templates=pe),
-            _cfg("quash-taxonomy no PE", encoder, tax, "contrast"),
+            _cfg("quash-taxonomy PE", encoder, tax, QUASH_CLASSIFIER, prompt_templates=pe),
+            _cfg("quash-taxonomy no PE", encoder, tax, QUASH_CLASSIFIER),
         ]
     tables["antonyms"] = [
         _cfg(
@@ -101,7 +105,7 @@ def bench_configs(
                 "synonyms": _source_spec(s, taxonomy, llm),
                 "antonyms": _source_spec(a, taxonomy, llm),
             },
-            "contrast",
+            QUASH_CLASSIFIER,
         )
         for s in sources
         for a in sources

@@ -55,6 +55,10 @@ class TaxonomyHeuristic(Heuristic):
         Resolve a query that is not a label to the nearest label by cosine similarity
         of the encoder's text embeddings (reported in provenance and the log). When
         False, such a query is an error.
+    min_similarity
+        A query whose nearest label has a lower cosine is not forced onto that label: it
+        stays its own positive and every label's sub-classes are antonym candidates, so
+        an object the taxonomy does not know ("an elephant") can come back empty.
     """
 
     name = "taxonomy"
@@ -67,6 +71,7 @@ class TaxonomyHeuristic(Heuristic):
         n_antonyms: int = 100,
         include_other_labels: bool = True,
         resolve: bool = True,
+        min_similarity: float = 0.5,
     ) -> None:
         if file is not None and taxonomy is not None:
             raise ConfigError("Heuristic 'taxonomy' takes 'file' or 'taxonomy', not both.")
@@ -76,6 +81,7 @@ class TaxonomyHeuristic(Heuristic):
         self.n_antonyms = int(n_antonyms)
         self.include_other_labels = bool(include_other_labels)
         self.resolve = bool(resolve)
+        self.min_similarity = float(min_similarity)
         if self.n_synonyms < 0 or self.n_antonyms < 0:
             raise ConfigError("Heuristic 'taxonomy': n_synonyms and n_antonyms must be >= 0.")
         spec = file if file is not None else taxonomy
@@ -91,8 +97,13 @@ class TaxonomyHeuristic(Heuristic):
             "or query a map that has label_names."
         )
 
-    def resolve_label(self, query: str, context: ExpansionContext) -> tuple[str, float | None]:
-        """The taxonomy label for ``query`` and, when resolved by embedding, its cosine."""
+    def resolve_label(
+        self, query: str, context: ExpansionContext
+    ) -> tuple[str | None, float | None]:
+        """The taxonomy label for ``query`` and, when resolved by embedding, its cosine.
+
+        The label is None when the nearest label is below ``min_similarity``.
+        """
         tax = self._labels(context)
         low = {k.lower(): k for k in tax}
         if query.lower() in low:
@@ -114,6 +125,16 @@ class TaxonomyHeuristic(Heuristic):
         q = encode_texts(context.encoder, [query], cache)[0]
         sims = E @ q
         best = int(np.argmax(sims))
+        if float(sims[best]) < self.min_similarity:
+            log.info(
+                "taxonomy: query %r is not a label; nearest %r (cosine %.3f) is below "
+                "min_similarity %.2f, so it is kept as its own concept",
+                query,
+                labels[best],
+                float(sims[best]),
+                self.min_similarity,
+            )
+            return None, float(sims[best])
         log.info(
             "taxonomy: query %r is not a label; resolved to %r (cosine %.3f)",
             query,
@@ -126,10 +147,12 @@ class TaxonomyHeuristic(Heuristic):
         ctx = context or ExpansionContext()
         tax = self._labels(ctx)
         label, sim = self.resolve_label(query, ctx)
-        rng = ctx.rng(f"taxonomy|{label}")
-        own = tax[label]
+        rng = ctx.rng(f"taxonomy|{label if label is not None else query}")
+        own = tax[label] if label is not None else []
         syn = _sample(own, self.n_synonyms, rng)
-        mine = {label.lower(), query.lower(), *(s.lower() for s in own)}
+        mine = {query.lower(), *(s.lower() for s in own)}
+        if label is not None:
+            mine.add(label.lower())
         pool: list[str] = []
         for other, subs in tax.items():
             if other == label:
@@ -141,7 +164,8 @@ class TaxonomyHeuristic(Heuristic):
         extra: dict[str, Any] = {"label": label}
         if sim is not None:
             extra["resolved"] = {"from": query, "to": label, "cosine": round(sim, 4)}
-        return QuerySet(query, [query, label, *syn], ant, self.provenance(context, **extra))
+        positives = [query, label, *syn] if label is not None else [query]
+        return QuerySet(query, positives, ant, self.provenance(context, **extra))
 
     def params(self) -> dict[str, Any]:
         return {
@@ -151,6 +175,7 @@ class TaxonomyHeuristic(Heuristic):
             "n_antonyms": self.n_antonyms,
             "include_other_labels": self.include_other_labels,
             "resolve": self.resolve,
+            "min_similarity": self.min_similarity,
         }
 
 

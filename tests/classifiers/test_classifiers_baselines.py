@@ -183,3 +183,32 @@ def test_example_configs_load_and_build_their_classifier():
         assert clf.get_params() is not None
         if cfg.classifier.name == "lerf-relevancy":
             assert list(cfg.negatives) == ["object", "things", "stuff", "texture"]
+
+
+def test_nearest_sample_is_the_top_k_cosine_vote():
+    """Independent reimplementation: mean of the k best cosines per side, by sorting."""
+    from quash_plugins import registry
+
+    rng = np.random.default_rng(3)
+    X = rng.normal(size=(9, 12)).astype(np.float32)
+    y = np.array([1, 1, 1, 1, 0, 0, 0, 0, 0])
+    E = rng.normal(size=(200, 12)).astype(np.float32) * 4.0
+    Xn = X / np.linalg.norm(X, axis=1, keepdims=True)
+    cos = (E / np.linalg.norm(E, axis=1, keepdims=True)) @ Xn.T
+    for k in (1, 2, 3, 7):
+        clf = registry.create("classifiers", "nearest-sample", k=k).fit(X, y)
+        pos = np.sort(cos[:, :4], axis=1)[:, ::-1][:, : min(k, 4)].mean(axis=1)
+        neg = np.sort(cos[:, 4:], axis=1)[:, ::-1][:, : min(k, 5)].mean(axis=1)
+        np.testing.assert_allclose(clf.decision_function(E), pos - neg, atol=1e-5)
+    one = registry.create("classifiers", "nearest-sample", k=1).fit(X, y)
+    contrast = registry.create("classifiers", "contrast").fit(X, y)
+    np.testing.assert_allclose(one.decision_function(E), contrast.decision_function(E), atol=1e-6)
+
+
+@pytest.mark.parametrize("k", [0, -1, 1.5, True, "2"])
+def test_nearest_sample_rejects_bad_k(k):
+    from quash_plugins import registry
+    from quash_plugins.errors import ConfigError
+
+    with pytest.raises((ConfigError, ValueError), match="k must be an integer"):
+        registry.create("classifiers", "nearest-sample", k=k)

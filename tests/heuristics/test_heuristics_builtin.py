@@ -192,6 +192,29 @@ def test_taxonomy_resolves_non_label_through_encoder(caplog):
         )
 
 
+def test_taxonomy_keeps_far_queries_as_their_own_concept():
+    table = {
+        "chair": [1, 0, 0, 0],
+        "table": [0, 1, 0, 0],
+        "lamp": [0, 0, 1, 0],
+        "wall": [0, 0, 0, 1],
+        "elephant": [0.3, 0.1, 0.0, -0.95],
+    }
+    enc = TableEncoder(table=table)
+    e = np.asarray(table["elephant"]) / np.linalg.norm(table["elephant"])
+    best = max(np.dot(e, table[k]) for k in ("chair", "table", "lamp", "wall"))
+    assert best < 0.5  # independent check of the premise
+    qs = registry.create("heuristics", "taxonomy", taxonomy=TAX).expand(
+        "elephant", ctx(encoder=enc)
+    )
+    assert qs.positives == ["elephant"]
+    assert qs.provenance["label"] is None
+    every_subclass = {s for subs in TAX.values() for s in subs or []} | set(TAX)
+    assert set(qs.negatives) <= every_subclass and qs.negatives
+    loose = registry.create("heuristics", "taxonomy", taxonomy=TAX, min_similarity=0.0)
+    assert loose.expand("elephant", ctx(encoder=enc)).provenance["label"] == "chair"
+
+
 def test_taxonomy_from_map_labels():
     h = registry.create("heuristics", "taxonomy")
     qs = h.expand("Chair", ctx(label_names=["chair", "table", "floor"]))
