@@ -157,3 +157,18 @@ def test_npz_round_trip_keeps_frames(tmp_path):
         ("f0", 2, 3, 0),
         ("f1", 1, 4, 6),
     ]
+
+
+def test_atomic_write_gives_normal_permissions(tmp_path):
+    import os
+    import stat
+
+    from quash_plugins._io import atomic_write_text
+
+    mask = os.umask(0o022)
+    try:
+        path = atomic_write_text(tmp_path / "out.txt", "hello")
+    finally:
+        os.umask(mask)
+    assert stat.S_IMODE(path.stat().st_mode) == 0o644
+    assert path.read_text() == "hello"
