@@ -48,10 +48,10 @@ class QuashConfig:
         metadata={"help": "Text encoder; must match the map's embedding space."},
     )
     heuristic: PluginSpec = field(
-        default_factory=lambda: PluginSpec("vocabulary"),
+        default_factory=lambda: PluginSpec("none"),
         metadata={
-            "help": "Expands the query into positives and negatives. The default, "
-            "vocabulary, needs no LLM and no file."
+            "help": "Expands the query into positives and negatives. The default, none, "
+            "works with every encoder; vocabulary and taxonomy are what make QuASH pay off."
         },
     )
     classifier: PluginSpec = field(

@@ -208,6 +208,29 @@ class MapAdapter(ABC):
     def read(self, source: Any, **options: Any) -> LatentMap:
         """Read ``source`` read-only and return a validated :class:`LatentMap`."""
 
+    def options(self, overrides: dict[str, Any]) -> dict[str, Any]:
+        """The constructor's options, updated by per-call ``overrides`` from :meth:`read`.
+
+        An override that the constructor does not accept raises
+        :class:`~quash_plugins.errors.MapFormatError` naming the accepted options.
+        """
+        import inspect
+
+        from .errors import MapFormatError
+
+        names = [
+            p.name
+            for p in inspect.signature(type(self).__init__).parameters.values()
+            if p.name != "self" and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)
+        ]
+        unknown = sorted(set(overrides) - set(names))
+        if unknown:
+            raise MapFormatError(
+                f"Adapter {self.name!r} has no option(s) {unknown}. "
+                f"Options: {', '.join(names) or '(none)'}."
+            )
+        return {**{n: getattr(self, n) for n in names}, **overrides}
+
     def write_example(self, directory: Path) -> Any:
         """Write a small valid example under ``directory`` and return its source.
 

@@ -127,15 +127,7 @@ class ConceptFusionAdapter(MapAdapter):
             return False
 
     def read(self, source: Any, **options: Any) -> LatentMap:
-        opts = {
-            "color_range": self.color_range,
-            "check_finite": self.check_finite,
-            "finite_check_mb": self.finite_check_mb,
-            **options,
-        }
-        unknown = set(opts) - {"color_range", "check_finite", "finite_check_mb"}
-        if unknown:
-            raise MapFormatError(f"Adapter 'conceptfusion' has no option(s) {sorted(unknown)}.")
+        opts = self.options(options)
         folder = find_pointclouds_dir(source)
         if folder is None:
             raise MapFormatError(

@@ -224,16 +224,7 @@ class ImageFeaturesAdapter(MapAdapter):
             return False
 
     def read(self, source: Any, **options: Any) -> LatentMap:
-        opts = {
-            "images": self.images,
-            "colors": self.colors,
-            "layout": self.layout,
-            "cache_frames": self.cache_frames,
-            **options,
-        }
-        unknown = set(opts) - {"images", "colors", "layout", "cache_frames"}
-        if unknown:
-            raise MapFormatError(f"Adapter 'image-features' has no option(s) {sorted(unknown)}.")
+        opts = self.options(options)
         path = Path(source).expanduser()
         if path.is_file():
             folder, files = path.parent, [path]

@@ -132,15 +132,7 @@ class OpenLex3DAdapter(MapAdapter):
             return False
 
     def read(self, source: Any, **options: Any) -> LatentMap:
-        opts = {
-            "allow_pickle": self.allow_pickle,
-            "check_finite": self.check_finite,
-            "finite_check_mb": self.finite_check_mb,
-            **options,
-        }
-        unknown = set(opts) - {"allow_pickle", "check_finite", "finite_check_mb"}
-        if unknown:
-            raise MapFormatError(f"Adapter 'openlex3d' has no option(s) {sorted(unknown)}.")
+        opts = self.options(options)
         path = Path(source).expanduser()
         if is_pickle_path(path):
             if not opts["allow_pickle"]:

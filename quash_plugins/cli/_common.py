@@ -54,7 +54,7 @@ def add_config_option(parser: argparse.ArgumentParser, multiple: bool = False) -
             "--config",
             metavar="CONFIG",
             default=None,
-            help="Method config (YAML). Default: minilm + vocabulary + nearest-sample.",
+            help="Method config (YAML). Default: minilm + none + nearest-sample.",
         )
 
 
