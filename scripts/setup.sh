@@ -29,19 +29,21 @@ if [ ! -x "$VENV/bin/python" ]; then
   "$PYTHON" -m venv "$VENV"
 fi
 PIP=("$VENV/bin/python" -m pip install --quiet --disable-pip-version-check)
+# Some machines' pip configs name index folders that do not exist; drop that noise only.
+quiet_pip() { "${PIP[@]}" "$@" 2> >(grep -v "^WARNING: Location '" >&2); }
 
 # torch first, pinned: open_clip needs torchvision, and this pair is known to import
 # together (a bare `torch` would pull several GB of other builds).
 if ! "$VENV/bin/python" -c "import torch, torchvision" >/dev/null 2>&1; then
   echo "[setup] installing torch + torchvision"
-  "${PIP[@]}" "torch==2.14.1" "torchvision==0.29.1"
+  quiet_pip "torch==2.14.1" "torchvision==0.29.1"
 fi
 
 # open3d-cpu instead of the [open3d] extra's open3d (never both).
 stamp="$VENV/.quash-installed"
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
   echo "[setup] installing quash-plugins and its extras"
-  "${PIP[@]}" -e ".[clip,st,rerun,llm,dask,hdf5,plots,dev]" "open3d-cpu>=0.18"
+  quiet_pip -e ".[clip,st,rerun,llm,dask,hdf5,plots,dev]" "open3d-cpu>=0.18"
   touch "$stamp"
 fi
 echo "[setup] ready: $VENV/bin/quash"
