@@ -18,6 +18,7 @@ from __future__ import annotations
 import logging
 import os
 import time
+import weakref
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -132,7 +133,7 @@ class Quash:
         self.client = client
         self.device = device
         self._maps: dict[Any, LatentMap] = {}
-        self._querysets: dict[tuple[str, int], QuerySet] = {}
+        self._querysets: dict[tuple[str, int], tuple[Any, QuerySet]] = {}
 
     # ------------------------------------------------------------------ building
     @classmethod
@@ -234,8 +235,9 @@ class Quash:
         """Expand ``text`` into a query set, adding the generic negatives."""
         text = check_query(text)
         key = (text, id(lmap) if lmap is not None else 0)
-        if key in self._querysets:
-            return self._querysets[key]
+        cached = self._querysets.get(key)
+        if cached is not None and cached[0]() is lmap:
+            return cached[1]
         qs = self.heuristic.expand(text, self.context(lmap))
         if not isinstance(qs, QuerySet):
             raise QuashError(
@@ -257,7 +259,8 @@ class Quash:
                 "mode": self.prompt_templates.get("mode", "mean"),
                 "count": len(self._templates or []),
             }
-        self._querysets[key] = qs
+        # A weak reference to the map guards against a new map reusing a freed one's id.
+        self._querysets[key] = (weakref.ref(lmap) if lmap is not None else _none_ref, qs)
         return qs
 
     def training_set(self, qs: QuerySet) -> tuple[np.ndarray, np.ndarray, list[str]]:
@@ -364,6 +367,10 @@ class Quash:
         if self.backend not in ("numpy", "local", None):
             raise ConfigError(f"Unknown backend {self.backend!r}. Known: numpy, dask.")
         return classify_local(lmap, classifiers, chunk_bytes, progress)
+
+
+def _none_ref() -> None:
+    return None
 
 
 def _open_cache(cache: Any) -> Any:

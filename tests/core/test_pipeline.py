@@ -172,3 +172,23 @@ def test_atomic_write_gives_normal_permissions(tmp_path):
         os.umask(mask)
     assert stat.S_IMODE(path.stat().st_mode) == 0o644
     assert path.read_text() == "hello"
+
+
+def test_query_sets_are_not_reused_across_maps_with_recycled_ids():
+    enc = TableEncoder(table={"chair": [1, 0], "other": [0, 1], "sofa": [1, 1]})
+
+    class LabelEcho:
+        name = "label-echo"
+
+        def expand(self, query, context=None):
+            return QuerySet(query, [query], list(context.label_names or ["other"]))
+
+    quash = Quash(enc, LabelEcho(), negatives=[])
+    first = LatentMap(np.ones((2, 2), np.float32), labels=np.array([0, 0]), label_names=["other"])
+    assert quash.expand("chair", first).negatives == ["other"]
+    key = next(iter(quash._querysets))
+    del first
+    second = LatentMap(np.ones((2, 2), np.float32), labels=np.array([0, 0]), label_names=["sofa"])
+    # simulate the allocator handing the freed id to the new map
+    quash._querysets[("chair", id(second))] = quash._querysets.pop(key)
+    assert quash.expand("chair", second).negatives == ["sofa"]
