@@ -14,9 +14,9 @@ with ``gs = 1000`` and ``cs = 0.05`` (the defaults of ``create_lseg_map_batch``)
 point at camera-frame ``(x, z)`` of the first frame lands in row ``gs/2 - z/cs`` and
 column ``gs/2 + x/cs``. We report each cell in the same right-handed, z-up frame as the
 3D mobile-base maps: ``x = (gs/2 - row) * cs`` (forward), ``y = (gs/2 - col) * cs``
-(left), ``z = 0``. This is VLMaps' own ``grid_id2pos`` with the axes renamed; because
-VLMaps truncates towards zero when binning, the value is the cell corner nearest the
-map origin (pass ``cell_offset=0.5`` to report geometric centres instead).
+(left), ``z = 0``, evaluated at the cell centre (``row + 0.5``, ``col + 0.5``). VLMaps'
+own ``grid_id2pos`` uses ``row`` itself, which, because VLMaps truncates when binning,
+is the cell corner nearest the map origin; pass ``cell_offset=0`` to get exactly that.
 
 Design choices:
 
@@ -98,7 +98,8 @@ class VLMaps2DAdapter(MapAdapter):
     keep_empty
         Keep unobserved (all-zero) cells as items instead of dropping them.
     cell_offset
-        Fraction of a cell added to ``row``/``col`` before converting to metres.
+        Fraction of a cell added to ``row``/``col`` before converting to metres: 0.5
+        (default) gives cell centres, 0 VLMaps' ``grid_id2pos`` corner.
     block_rows
         Grid rows scanned per block when finding observed cells.
 
@@ -119,7 +120,7 @@ class VLMaps2DAdapter(MapAdapter):
         cs: float = DEFAULT_CS,
         label_names: Any = None,
         keep_empty: bool = False,
-        cell_offset: float = 0.0,
+        cell_offset: float = 0.5,
         block_rows: int = 64,
     ) -> None:
         self.cs = cs

@@ -321,8 +321,14 @@ def test_vlmaps_2d_observed_cells_positions_colours_labels(tmp_path):
     rows, cols = np.nonzero(ref["seen"])  # row-major, as the adapter orders cells
     assert lmap.n == len(rows) and lmap.kind == "voxels" and lmap.normalize
     assert not isinstance(lmap.embeddings, np.ndarray)  # lazy view of the memory map
-    expected = np.column_stack([(15 - rows) * 0.1, (15 - cols) * 0.1, np.zeros(len(rows))])
+    # cell centres: VLMaps bins x into row = floor(gs/2 - x/cs), so a cell spans
+    # (gs/2 - row - 1, gs/2 - row] * cs and its centre is (gs/2 - row - 0.5) * cs
+    expected = np.column_stack(
+        [(15 - rows - 0.5) * 0.1, (15 - cols - 0.5) * 0.1, np.zeros(len(rows))]
+    )
     np.testing.assert_allclose(lmap.positions, expected, atol=1e-5)
+    corner = registry.create("adapters", "vlmaps-2d", cs=0.1, cell_offset=0).read(folder)
+    np.testing.assert_allclose(corner.positions[:, 0], (15 - rows) * 0.1, atol=1e-5)
     np.testing.assert_array_equal(lmap.colors, ref["color"][rows, cols])
     np.testing.assert_array_equal(lmap.labels, ref["gt"][rows, cols])
     np.testing.assert_array_equal(lmap.grid_index[:, :2], np.column_stack([rows, cols]))
@@ -337,7 +343,7 @@ def test_vlmaps_2d_path_forms_and_default_cs(tmp_path):
         assert detect_adapter(src) == "vlmaps-2d"
         lmap = read_map(src)
         r, c = np.nonzero(ref["seen"])
-        np.testing.assert_allclose(lmap.positions[:, 0], (10 - r) * 0.05, atol=1e-5)
+        np.testing.assert_allclose(lmap.positions[:, 0], (10 - r - 0.5) * 0.05, atol=1e-5)
     full = registry.create("adapters", "vlmaps-2d", keep_empty=True).read(folder)
     assert full.n == 400
 
@@ -472,7 +478,7 @@ def test_property_2d_grids(tmp_path_factory, gs, d, dtype, share, cs, block_rows
     lmap = registry.create("adapters", "vlmaps-2d", cs=cs, block_rows=block_rows).read(folder)
     r, c = np.nonzero(seen)
     assert (lmap.n, lmap.dim, lmap.dtype) == (len(r), d, np.dtype(dtype))
-    np.testing.assert_allclose(lmap.positions[:, 1], (gs / 2 - c) * cs, rtol=1e-5, atol=1e-4)
+    np.testing.assert_allclose(lmap.positions[:, 1], (gs / 2 - c - 0.5) * cs, rtol=1e-5, atol=1e-4)
     np.testing.assert_array_equal(np.asarray(lmap.embeddings), grid[r, c])
 
 
