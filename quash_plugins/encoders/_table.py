@@ -29,8 +29,8 @@ class TableEncoder(Encoder):
     Examples
     --------
     >>> enc = TableEncoder(table={"chair": [3, 4], "other": [1, 0]})
-    >>> enc.encode_text(["chair"]).round(2).tolist()
-    [[0.6, 0.8]]
+    >>> [round(float(v), 2) for v in enc.encode_text(["chair"])[0]]
+    [0.6, 0.8]
     """
 
     name = "table"
