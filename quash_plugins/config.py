@@ -87,6 +87,15 @@ class QuashConfig:
             "are not the query ({n: 5, min_share: 0.01}). null turns it off."
         },
     )
+    refine: dict[str, Any] | None = field(
+        default=None,
+        metadata={
+            "help": "Transductive refinement: re-fit on the map's most confident matches "
+            "and a sample of clear non-matches, then classify again ({classifier: "
+            "{name: svm-rbf, class_weight: balanced}, n_positives: 200, n_negatives: "
+            "2000, negative_quantile: 0.5, min_seed: 10}). null turns it off."
+        },
+    )
     adapter: PluginSpec = field(
         default_factory=lambda: PluginSpec("auto"),
         metadata={"help": "Map adapter and its options; 'auto' sniffs the file."},
@@ -183,7 +192,7 @@ def _convert(cls, key: str, value: Any, where: _Where, path) -> Any:
         if isinstance(value, str) or not isinstance(value, list):
             raise ConfigError(f"{where.at((key,))}'negatives' must be a list of strings.")
         return [str(v) for v in value]
-    if key in ("prompt_templates", "map_negatives", "instances"):
+    if key in ("prompt_templates", "map_negatives", "instances", "refine"):
         if value is None or value is False:
             return None
         if value is True:

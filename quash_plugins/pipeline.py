@@ -65,6 +65,9 @@ class Quash:
         ``{"mode": "mean"|"all", "templates": "default"|list|path}`` or None.
     map_negatives
         Options for map-mined negatives, or None.
+    refine
+        Options for transductive refinement (``quash_plugins._refine.RefineOptions``):
+        re-fit on the map's own confident items and classify again. None turns it off.
     instances
         Options for instance grouping (True for defaults), or None/False to skip it.
     cache
@@ -87,6 +90,7 @@ class Quash:
         threshold: float = 0.0,
         prompt_templates: dict[str, Any] | None = None,
         map_negatives: dict[str, Any] | None = None,
+        refine: dict[str, Any] | None = None,
         adapter: str | PluginSpec = "auto",
         instances: dict[str, Any] | bool | None = True,
         seed: int = 0,
@@ -121,6 +125,12 @@ class Quash:
                 )
             self._templates = load_templates(prompt_templates.get("templates", "default"))
         self.map_negatives = map_negatives
+        self.refine = None
+        if refine is not None:
+            from ._refine import RefineOptions
+
+            self.refine = RefineOptions.parse(dict(refine))
+            self._refine_template = self.refine.build_classifier()
         self.adapter = adapter if isinstance(adapter, PluginSpec) else PluginSpec(str(adapter))
         if instances is True:
             instances = {}
@@ -171,6 +181,7 @@ class Quash:
             threshold=cfg.threshold,
             prompt_templates=cfg.prompt_templates,
             map_negatives=cfg.map_negatives,
+            refine=cfg.refine,
             adapter=cfg.adapter,
             instances=cfg.instances,
             seed=cfg.seed,
@@ -308,21 +319,17 @@ class Quash:
         classifiers = [p[1] for p in prepared]
         scores, observed = self._classify(lmap, classifiers, progress)
         t_cls = (time.perf_counter() - t) / len(texts)
-        results = []
+        finished = []
         for (qs, clf, timings), raw in zip(prepared, scores):
             timings["classify"] = t_cls
             t = time.perf_counter()
-            raw = np.asarray(raw, dtype=np.float32)
-            if observed.any():
-                raw[observed] = np.asarray(clf.postprocess_scores(raw[observed]), np.float32)
-                floor = min(float(raw[observed].min()), self.threshold) - 1.0
-            else:
-                floor = self.threshold - 1.0
-            raw[~observed] = floor
-            mask = (raw > self.threshold) & observed
-            display = np.asarray(clf.display_scores(raw, self.threshold), dtype=np.float32)
-            display[~observed] = 0.0
+            raw, mask, display = self._finish(clf, raw, observed)
             timings["postprocess"] = time.perf_counter() - t
+            finished.append([qs, clf, timings, raw, mask, display])
+        if self.refine is not None:
+            self._refine_pass(lmap, finished, observed, progress)
+        results = []
+        for qs, clf, timings, raw, mask, display in finished:
             instances = []
             if self.instances is not None:
                 from .instances import find_instances
@@ -357,6 +364,60 @@ class Quash:
         from .scale import query_lazy
 
         return query_lazy(self, source, texts, self.client, **read_options)
+
+    def _finish(
+        self, clf: Any, raw: Any, observed: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Map-level postprocess, unobserved floor, mask and display scores of one query."""
+        raw = np.asarray(raw, dtype=np.float32)
+        if observed.any():
+            raw[observed] = np.asarray(clf.postprocess_scores(raw[observed]), np.float32)
+            floor = min(float(raw[observed].min()), self.threshold) - 1.0
+        else:
+            floor = self.threshold - 1.0
+        raw[~observed] = floor
+        mask = (raw > self.threshold) & observed
+        display = np.asarray(clf.display_scores(raw, self.threshold), dtype=np.float32)
+        display[~observed] = 0.0
+        return raw, mask, display
+
+    def _refine_pass(
+        self, lmap: LatentMap, finished: list[list[Any]], observed: np.ndarray, progress: Any
+    ) -> None:
+        """Re-fit each query on its map samples and classify again, in one shared pass."""
+        from ._refine import pseudo_labels
+
+        todo = []
+        for item in finished:
+            qs, clf, timings, raw, mask, _ = item
+            t = time.perf_counter()
+            extra = pseudo_labels(lmap, raw, mask, observed, self.refine, qs.query)
+            if extra is None:
+                qs.provenance["refine"] = {"applied": False, "seed_matches": int(mask.sum())}
+                timings["refine"] = time.perf_counter() - t
+                continue
+            X, y, _ = self.training_set(qs)
+            Xm, ym = extra
+            refined = clone(self._refine_template).fit(
+                np.concatenate([X, Xm]), np.concatenate([y, ym])
+            )
+            qs.provenance["refine"] = {
+                "applied": True,
+                "seed_matches": int(mask.sum()),
+                "map_positives": int(ym.sum()),
+                "map_negatives": int(len(ym) - ym.sum()),
+            }
+            timings["refine"] = time.perf_counter() - t
+            todo.append((item, refined))
+        if not todo:
+            return
+        t = time.perf_counter()
+        scores, _ = self._classify(lmap, [r for _, r in todo], progress)
+        share = (time.perf_counter() - t) / len(todo)
+        for (item, refined), raw in zip(todo, scores):
+            item[1] = refined
+            item[3], item[4], item[5] = self._finish(refined, raw, observed)
+            item[2]["refine"] += share
 
     def _classify(self, lmap: LatentMap, classifiers: list[Any], progress: Any):
         chunk_bytes = int(self.chunk_mb * 2**20)
