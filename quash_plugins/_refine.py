@@ -11,7 +11,7 @@ it is, so an absent object stays absent.
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
@@ -24,9 +24,9 @@ from .types import LatentMap, prepare_block
 class RefineOptions:
     """Options of the ``refine`` config section."""
 
-    classifier: Any = field(default_factory=lambda: {"name": "svm-rbf", "class_weight": "balanced"})
-    n_positives: int = 200
-    n_negatives: int = 2000
+    classifier: Any = "svm-rbf"
+    n_positives: int = 100
+    n_negatives: int = 1000
     negative_quantile: float = 0.5
     min_seed: int = 10
     seed: int = 0

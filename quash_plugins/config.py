@@ -91,9 +91,9 @@ class QuashConfig:
         default=None,
         metadata={
             "help": "Transductive refinement: re-fit on the map's most confident matches "
-            "and a sample of clear non-matches, then classify again ({classifier: "
-            "{name: svm-rbf, class_weight: balanced}, n_positives: 200, n_negatives: "
-            "2000, negative_quantile: 0.5, min_seed: 10}). null turns it off."
+            "and a sample of clear non-matches, then classify again ({classifier: svm-rbf, "
+            "n_positives: 100, n_negatives: 1000, negative_quantile: 0.5, min_seed: 10}; "
+            "{} takes these defaults). null turns it off."
         },
     )
     adapter: PluginSpec = field(

@@ -113,6 +113,15 @@ def bench_configs(
     if taxonomy:
         tables["classifiers"] = [
             _cfg(f"taxonomy + {k}", encoder, tax, v) for k, v in CLASSIFIERS.items()
+        ] + [
+            _cfg(
+                f"taxonomy + nearest-sample k=2 + refine ({r})",
+                encoder,
+                tax,
+                QUASH_CLASSIFIER,
+                refine={"classifier": r, "n_positives": 100, "n_negatives": 1000},
+            )
+            for r in ("svm-rbf", "nearest-sample")
         ]
     return tables
 
