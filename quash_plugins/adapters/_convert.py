@@ -21,18 +21,9 @@ import numpy as np
 
 from ..errors import QuashError, UsageError
 from ..types import FrameInfo, LatentMap
+from ._npz import metadata_arrays
 
 log = logging.getLogger(__name__)
-
-
-def _frame_arrays(lmap: LatentMap) -> dict[str, np.ndarray]:
-    if not lmap.frames:
-        return {}
-    return {
-        "frame_ids": np.asarray([f.frame_id for f in lmap.frames], dtype=str),
-        "frame_hw": np.asarray([(f.height, f.width) for f in lmap.frames], dtype=np.int64),
-        "frame_offsets": np.asarray([f.offset for f in lmap.frames], dtype=np.int64),
-    }
 
 
 def frames_from_npz(path: str | Path) -> list[FrameInfo] | None:
@@ -42,22 +33,6 @@ def frames_from_npz(path: str | Path) -> list[FrameInfo] | None:
             return None
         ids, hw, off = z["frame_ids"], z["frame_hw"], z["frame_offsets"]
     return [FrameInfo(str(i), int(h), int(w), int(o)) for i, (h, w), o in zip(ids, hw, off)]
-
-
-def _small_arrays(lmap: LatentMap) -> dict[str, Any]:
-    arrays: dict[str, Any] = {"kind": np.asarray(lmap.kind)}
-    for key in ("positions", "colors", "labels", "grid_index"):
-        value = getattr(lmap, key)
-        if value is not None:
-            arrays[key] = np.asarray(value)
-    if lmap.label_names is not None:
-        arrays["label_names"] = np.asarray(lmap.label_names, dtype=str)
-    if lmap.voxel_size is not None:
-        arrays["voxel_size"] = np.float32(lmap.voxel_size)
-    if lmap.normalize:
-        arrays["normalize"] = np.asarray(True)
-    arrays.update(_frame_arrays(lmap))
-    return arrays
 
 
 def write_npz_streaming(path: str | Path, lmap: LatentMap, chunk_rows: int = 65536) -> Path:
@@ -82,7 +57,7 @@ def write_npz_streaming(path: str | Path, lmap: LatentMap, chunk_rows: int = 655
             for start in range(0, n, chunk_rows):
                 block = np.ascontiguousarray(emb[start : min(n, start + chunk_rows)], dtype=dtype)
                 fp.write(block.tobytes())
-        for key, value in _small_arrays(lmap).items():
+        for key, value in metadata_arrays(lmap).items():
             with zf.open(f"{key}.npy", "w", force_zip64=True) as fp:
                 np.lib.format.write_array(fp, np.asarray(value), allow_pickle=False)
     return path

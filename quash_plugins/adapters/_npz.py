@@ -116,26 +116,33 @@ class NpzAdapter(MapAdapter):
         return write_npz_map(Path(directory) / "example.npz", lmap)
 
 
-def write_npz_map(path: str | Path, lmap: LatentMap, compress: bool = False) -> Path:
-    """Write ``lmap`` as a portable NPZ atomically. Embeddings are read chunk-free here."""
-    from .._io import atomic_write
-
-    path = Path(path)
-    arrays: dict[str, Any] = {"embeddings": np.asarray(lmap.embeddings), "kind": lmap.kind}
+def metadata_arrays(lmap: LatentMap) -> dict[str, Any]:
+    """Every NPZ array of ``lmap`` except ``embeddings`` (kind, positions, ..., frames)."""
+    arrays: dict[str, Any] = {"kind": np.asarray(lmap.kind)}
     for key in ("positions", "colors", "labels", "grid_index"):
-        v = getattr(lmap, key)
-        if v is not None:
-            arrays[key] = np.asarray(v)
+        value = getattr(lmap, key)
+        if value is not None:
+            arrays[key] = np.asarray(value)
     if lmap.label_names is not None:
         arrays["label_names"] = np.asarray(lmap.label_names, dtype=str)
     if lmap.voxel_size is not None:
         arrays["voxel_size"] = np.float32(lmap.voxel_size)
     if lmap.normalize:
-        arrays["normalize"] = True
+        arrays["normalize"] = np.asarray(True)
     if lmap.frames:
         arrays["frame_ids"] = np.asarray([f.frame_id for f in lmap.frames], dtype=str)
         arrays["frame_hw"] = np.asarray([(f.height, f.width) for f in lmap.frames], np.int64)
         arrays["frame_offsets"] = np.asarray([f.offset for f in lmap.frames], np.int64)
+    return arrays
+
+
+def write_npz_map(path: str | Path, lmap: LatentMap, compress: bool = False) -> Path:
+    """Write ``lmap`` as a portable NPZ atomically. Embeddings are read whole here; use
+    :func:`quash_plugins.adapters._convert.write_npz_streaming` for lazy maps."""
+    from .._io import atomic_write
+
+    path = Path(path)
+    arrays = {"embeddings": np.asarray(lmap.embeddings), **metadata_arrays(lmap)}
     with atomic_write(path, suffix=".npz") as tmp:
         (np.savez_compressed if compress else np.savez)(tmp, **arrays)
     return path
