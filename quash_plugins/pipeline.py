@@ -20,6 +20,7 @@ import os
 import time
 import weakref
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -302,7 +303,7 @@ class Quash:
         lmap = self.read_map(source, **read_options)
         t_read = time.perf_counter() - t0
         self.check_dimension(lmap)
-        prepared = []
+        pending: list[_Pending] = []
         for text in texts:
             timings: dict[str, float] = {"read": t_read / len(texts)}
             t = time.perf_counter()
@@ -314,41 +315,38 @@ class Quash:
             t = time.perf_counter()
             clf = clone(self.classifier).fit(X, y)
             timings["fit"] = time.perf_counter() - t
-            prepared.append((qs, clf, timings))
+            pending.append(_Pending(qs, X, y, clf, timings))
         t = time.perf_counter()
-        classifiers = [p[1] for p in prepared]
-        scores, observed = self._classify(lmap, classifiers, progress)
+        scores, observed = self._classify(lmap, [p.clf for p in pending], progress)
         t_cls = (time.perf_counter() - t) / len(texts)
-        finished = []
-        for (qs, clf, timings), raw in zip(prepared, scores):
-            timings["classify"] = t_cls
+        for p, raw in zip(pending, scores):
+            p.timings["classify"] = t_cls
             t = time.perf_counter()
-            raw, mask, display = self._finish(clf, raw, observed)
-            timings["postprocess"] = time.perf_counter() - t
-            finished.append([qs, clf, timings, raw, mask, display])
+            p.raw, p.mask, p.display = self._finish(p.clf, raw, observed)
+            p.timings["postprocess"] = time.perf_counter() - t
         if self.refine is not None:
-            self._refine_pass(lmap, finished, observed, progress)
+            self._refine_pass(lmap, pending, observed, progress)
         results = []
-        for qs, clf, timings, raw, mask, display in finished:
+        for p in pending:
             instances = []
             if self.instances is not None:
                 from .instances import find_instances
 
                 t = time.perf_counter()
-                instances = find_instances(lmap, mask, display, **self.instances)
-                timings["instances"] = time.perf_counter() - t
-            timings["total"] = sum(timings.values())
-            describe = getattr(clf, "describe", None)
+                instances = find_instances(lmap, p.mask, p.display, **self.instances)
+                p.timings["instances"] = time.perf_counter() - t
+            p.timings["total"] = sum(p.timings.values())
+            describe = getattr(p.clf, "describe", None)
             results.append(
                 QueryResult(
-                    queryset=qs,
-                    mask=mask,
-                    scores=raw,
-                    display_scores=display,
+                    queryset=p.queryset,
+                    mask=p.mask,
+                    scores=p.raw,
+                    display_scores=p.display,
                     threshold=self.threshold,
                     instances=instances,
-                    timings=timings,
-                    classifier=describe() if callable(describe) else type(clf).__name__,
+                    timings=p.timings,
+                    classifier=describe() if callable(describe) else type(p.clf).__name__,
                     config_name=self.name,
                     map_source=dict(lmap.source),
                 )
@@ -382,42 +380,41 @@ class Quash:
         return raw, mask, display
 
     def _refine_pass(
-        self, lmap: LatentMap, finished: list[list[Any]], observed: np.ndarray, progress: Any
+        self, lmap: LatentMap, pending: list[_Pending], observed: np.ndarray, progress: Any
     ) -> None:
         """Re-fit each query on its map samples and classify again, in one shared pass."""
         from ._refine import pseudo_labels
 
         todo = []
-        for item in finished:
-            qs, clf, timings, raw, mask, _ = item
+        for p in pending:
             t = time.perf_counter()
-            extra = pseudo_labels(lmap, raw, mask, observed, self.refine, qs.query)
+            extra = pseudo_labels(lmap, p.raw, p.mask, observed, self.refine, p.queryset.query)
+            seed_matches = int(p.mask.sum())
             if extra is None:
-                qs.provenance["refine"] = {"applied": False, "seed_matches": int(mask.sum())}
-                timings["refine"] = time.perf_counter() - t
+                p.queryset.provenance["refine"] = {"applied": False, "seed_matches": seed_matches}
+                p.timings["refine"] = time.perf_counter() - t
                 continue
-            X, y, _ = self.training_set(qs)
             Xm, ym = extra
             refined = clone(self._refine_template).fit(
-                np.concatenate([X, Xm]), np.concatenate([y, ym])
+                np.concatenate([p.X, Xm]), np.concatenate([p.y, ym])
             )
-            qs.provenance["refine"] = {
+            p.queryset.provenance["refine"] = {
                 "applied": True,
-                "seed_matches": int(mask.sum()),
+                "seed_matches": seed_matches,
                 "map_positives": int(ym.sum()),
                 "map_negatives": int(len(ym) - ym.sum()),
             }
-            timings["refine"] = time.perf_counter() - t
-            todo.append((item, refined))
+            p.timings["refine"] = time.perf_counter() - t
+            todo.append((p, refined))
         if not todo:
             return
         t = time.perf_counter()
         scores, _ = self._classify(lmap, [r for _, r in todo], progress)
         share = (time.perf_counter() - t) / len(todo)
-        for (item, refined), raw in zip(todo, scores):
-            item[1] = refined
-            item[3], item[4], item[5] = self._finish(refined, raw, observed)
-            item[2]["refine"] += share
+        for (p, refined), raw in zip(todo, scores):
+            p.clf = refined
+            p.raw, p.mask, p.display = self._finish(refined, raw, observed)
+            p.timings["refine"] += share
 
     def _classify(self, lmap: LatentMap, classifiers: list[Any], progress: Any):
         chunk_bytes = int(self.chunk_mb * 2**20)
@@ -428,6 +425,20 @@ class Quash:
         if self.backend not in ("numpy", "local", None):
             raise ConfigError(f"Unknown backend {self.backend!r}. Known: numpy, dask.")
         return classify_local(lmap, classifiers, chunk_bytes, progress)
+
+
+@dataclass
+class _Pending:
+    """One query on its way through :meth:`Quash.query_many`."""
+
+    queryset: QuerySet
+    X: np.ndarray
+    y: np.ndarray
+    clf: Any
+    timings: dict[str, float]
+    raw: np.ndarray | None = None
+    mask: np.ndarray | None = None
+    display: np.ndarray | None = None
 
 
 def _none_ref() -> None:

@@ -129,3 +129,19 @@ def test_refine_from_config_yaml(tmp_path):
 
     assert QuashConfig.from_dict({"refine": {"n_positives": 50}}).refine == {"n_positives": 50}
     assert QuashConfig.from_dict({"refine": None}).refine is None
+
+
+def test_refinement_reuses_the_first_pass_text_embeddings():
+    enc, lmap, _ = _world()
+    calls = []
+    original = enc.encode_text
+    enc.encode_text = lambda texts: calls.append(list(texts)) or original(texts)
+    quash = Quash(
+        enc,
+        classifier=registry.create("classifiers", "contrast"),
+        instances=None,
+        refine={"n_positives": 50, "n_negatives": 200},
+    )
+    r = quash.query(lmap, "chair")
+    assert r.queryset.provenance["refine"]["applied"] is True
+    assert len(calls) == 1  # the refit takes X, y from the first pass; no second encode
