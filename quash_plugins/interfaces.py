@@ -214,15 +214,10 @@ class MapAdapter(ABC):
         An override that the constructor does not accept raises
         :class:`~quash_plugins.errors.MapFormatError` naming the accepted options.
         """
-        import inspect
-
         from .errors import MapFormatError
+        from .registry import accepted_params
 
-        names = [
-            p.name
-            for p in inspect.signature(type(self).__init__).parameters.values()
-            if p.name != "self" and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)
-        ]
+        names = accepted_params(type(self)) or []
         unknown = sorted(set(overrides) - set(names))
         if unknown:
             raise MapFormatError(

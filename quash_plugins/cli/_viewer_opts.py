@@ -43,9 +43,14 @@ def add_viewer_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def viewer_requested(args: argparse.Namespace) -> bool:
+    """True when any Rerun output option was given."""
+    return bool(args.rrd or args.spawn or args.connect or args.serve_web)
+
+
 def open_viewer(args: argparse.Namespace, app_id: str = "quash") -> Any:
     """A viewer logger for the options given, or None when none was asked for."""
-    if not (args.rrd or args.spawn or args.connect or args.serve_web):
+    if not viewer_requested(args):
         return None
     from ..viewer import viewer_from_cli
 

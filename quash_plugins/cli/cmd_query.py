@@ -69,8 +69,9 @@ def _query_to_zarr(args, quash) -> int:
     """Results too large for memory: masks and scores stay lazy and stream into zarr."""
     from ..errors import UsageError
     from ._common import console, print_json
+    from ._viewer_opts import viewer_requested
 
-    if args.rrd or args.spawn or args.connect or args.serve_web:
+    if viewer_requested(args):
         raise UsageError(
             "--out *.zarr streams results to disk; drop the Rerun options or use .npz."
         )

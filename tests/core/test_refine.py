@@ -119,16 +119,17 @@ def test_absent_query_stays_empty():
     assert r.n_matched == 0 and r.queryset.provenance["refine"]["applied"] is False
 
 
-def test_refine_from_config_yaml(tmp_path):
-    enc, lmap, _ = _world()
-    cfg = {"encoder": {"name": "table", "table": None}, "refine": {"n_positives": 50}}
-    cfg["encoder"] = "table"
-    with pytest.raises(ConfigError):
-        Quash.from_config(cfg)  # table needs a file: the refine key itself is accepted
+def test_refine_from_config():
     from quash_plugins.config import QuashConfig
 
     assert QuashConfig.from_dict({"refine": {"n_positives": 50}}).refine == {"n_positives": 50}
     assert QuashConfig.from_dict({"refine": None}).refine is None
+    table = {"chair": [1.0, 0.0], "other": [0.0, 1.0]}
+    quash = Quash.from_config(
+        {"encoder": {"name": "table", "table": table}, "refine": {"n_positives": 50}}
+    )
+    assert quash.refine.n_positives == 50 and quash.refine.n_negatives == 1000
+    assert Quash.from_config({"encoder": {"name": "table", "table": table}}).refine is None
 
 
 def test_refinement_reuses_the_first_pass_text_embeddings():
