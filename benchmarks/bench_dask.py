@@ -31,8 +31,8 @@ def make_map(path: Path, rows: int, dim: int, seed: int = 0):
     """Stream a clustered, un-normalised float16 map with 1% zero rows into ``path``."""
     import dask.array as da
 
-    from quash_plugins.scale import write_zarr_map
-    from quash_plugins.types import LatentMap
+    from quash_plugins.adapters import write_zarr_map
+    from quash_plugins.core.types import LatentMap
 
     rng = np.random.default_rng(seed)
     T = rng.normal(size=(len(WORDS), dim)).astype(np.float32)
@@ -76,10 +76,11 @@ def main() -> None:
 
     import distributed
 
-    from quash_plugins import Quash, registry
+    from quash_plugins import Quash
     from quash_plugins.adapters import read_map
+    from quash_plugins.core import registry
+    from quash_plugins.core.types import LatentMap
     from quash_plugins.encoders import TableEncoder
-    from quash_plugins.types import LatentMap
 
     args.out.mkdir(parents=True, exist_ok=True)
     path = args.out / f"map-{args.rows}x{args.dim}.zarr"

@@ -19,12 +19,13 @@ from pathlib import Path
 
 import numpy as np
 
-from quash_plugins import registry
-from quash_plugins.evaluation.bench import run_bench
-from quash_plugins.evaluation.demo import demo_config_paths
-from quash_plugins.evaluation.report import evaluate, plot_precision_recall, report_markdown
-from quash_plugins.evaluation.scene import SceneOptions, make_scene, write_scene
-from quash_plugins.pipeline import _open_cache
+from quash_plugins.core import registry
+from quash_plugins.demo.runner import demo_config_paths
+from quash_plugins.demo.scene import SceneOptions, make_scene, write_scene
+from quash_plugins.engine import open_cache
+from quash_plugins.evaluation.ablations import run_bench
+from quash_plugins.evaluation.plot import plot_precision_recall
+from quash_plugins.evaluation.report import evaluate, report_markdown
 
 BASELINES = ("vlmaps", "conceptfusion", "lerf")
 
@@ -39,7 +40,7 @@ def main() -> None:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     enc = registry.create("encoders", "minilm")
-    cache = _open_cache(True)
+    cache = open_cache(True)
     seeds = [int(s) for s in args.seeds.split(",")]
     rows: dict[str, list[dict]] = {}
     lines = []

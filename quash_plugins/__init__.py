@@ -20,21 +20,22 @@ from typing import TYPE_CHECKING, Any
 __version__ = "0.1.0"
 
 _EXPORTS = {
-    "Encoder": "interfaces",
-    "Heuristic": "interfaces",
-    "Classifier": "interfaces",
-    "MapAdapter": "interfaces",
-    "ExpansionContext": "interfaces",
-    "LatentMap": "types",
-    "QuerySet": "types",
-    "QueryResult": "types",
-    "Instance": "types",
-    "FrameInfo": "types",
-    "DEFAULT_NEGATIVES": "types",
-    "Quash": "pipeline",
-    "QuashConfig": "config",
-    "QuashError": "errors",
-    "registry": None,
+    "Encoder": "core.interfaces",
+    "Heuristic": "core.interfaces",
+    "Classifier": "core.interfaces",
+    "MapAdapter": "core.interfaces",
+    "ExpansionContext": "core.interfaces",
+    "StackableClassifier": "core.interfaces",
+    "LatentMap": "core.types",
+    "QuerySet": "core.types",
+    "QueryResult": "core.types",
+    "Instance": "core.types",
+    "FrameInfo": "core.types",
+    "DEFAULT_NEGATIVES": "core.types",
+    "Quash": "engine.pipeline",
+    "QuashConfig": "core.config",
+    "QuashError": "core.errors",
+    "registry": "core.registry",
 }
 
 __all__ = [
@@ -52,16 +53,17 @@ __all__ = [
     "QuashError",
     "QueryResult",
     "QuerySet",
+    "StackableClassifier",
     "registry",
 ]
 
 if TYPE_CHECKING:  # pragma: no cover
-    from . import registry
-    from .config import QuashConfig
-    from .errors import QuashError
-    from .interfaces import Classifier, Encoder, ExpansionContext, Heuristic, MapAdapter
-    from .pipeline import Quash
-    from .types import DEFAULT_NEGATIVES, FrameInfo, Instance, LatentMap, QueryResult, QuerySet
+    from .core import registry
+    from .core.config import QuashConfig
+    from .core.errors import QuashError
+    from .core.interfaces import Classifier, Encoder, ExpansionContext, Heuristic, MapAdapter
+    from .core.types import DEFAULT_NEGATIVES, FrameInfo, Instance, LatentMap, QueryResult, QuerySet
+    from .engine.pipeline import Quash
 
 
 def __getattr__(name: str) -> Any:
@@ -69,10 +71,8 @@ def __getattr__(name: str) -> Any:
 
     if name not in _EXPORTS:
         raise AttributeError(f"module 'quash_plugins' has no attribute {name!r}")
-    module = _EXPORTS[name]
-    if module is None:
-        return importlib.import_module(f".{name}", __name__)
-    return getattr(importlib.import_module(f".{module}", __name__), name)
+    module = importlib.import_module(f".{_EXPORTS[name]}", __name__)
+    return module if module.__name__.endswith(f".{name}") else getattr(module, name)
 
 
 def __dir__() -> list[str]:

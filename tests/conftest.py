@@ -39,7 +39,7 @@ def tiny_world(tmp_path):
     expectations independently.
     """
     from quash_plugins.adapters._npz import write_npz_map
-    from quash_plugins.types import LatentMap
+    from quash_plugins.core.types import LatentMap
 
     rng = np.random.default_rng(42)
     T = rng.normal(size=(len(WORDS), 16)).astype(np.float32)

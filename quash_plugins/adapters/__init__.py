@@ -14,74 +14,38 @@ Examples
 
 from __future__ import annotations
 
-import logging
-from pathlib import Path
 from typing import Any
 
-from .. import registry
-from ..errors import MapFormatError, PluginError
-from ..types import LatentMap
+from ..core.maps import detect_adapter, read_map
 
-log = logging.getLogger(__name__)
+__all__ = [
+    "read_map",
+    "detect_adapter",
+    "masks_per_frame",
+    "pixel_coordinates",
+    "convert_map",
+    "write_npz_map",
+    "read_zarr_map",
+    "write_zarr_map",
+    "VLMapsLiveAdapter",
+]
 
-__all__ = ["read_map", "detect_adapter", "masks_per_frame", "pixel_coordinates", "convert_map"]
+#: Public helpers, imported on first use (keeps ``import quash_plugins.adapters`` light).
+_LAZY = {
+    "masks_per_frame": "._image_features",
+    "pixel_coordinates": "._image_features",
+    "convert_map": "._convert",
+    "write_npz_map": "._npz",
+    "read_zarr_map": "._zarr_store",
+    "write_zarr_map": "._zarr_store",
+    "VLMapsLiveAdapter": "._vlmaps_live",
+}
 
 
 def __getattr__(name: str) -> Any:
-    # Lazy re-exports of the pixel-map helpers and the converter (keeps import light).
-    if name in ("masks_per_frame", "pixel_coordinates"):
-        from . import _image_features
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    from importlib import import_module
 
-        return getattr(_image_features, name)
-    if name == "convert_map":
-        from ._convert import convert_map
-
-        return convert_map
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def detect_adapter(source: Any) -> str:
-    """Name of the first registered adapter whose ``sniff`` accepts ``source``.
-
-    Adapters are tried in order of their ``priority`` attribute (highest first), then name.
-    """
-    candidates = []
-    for name in registry.available("adapters"):
-        try:
-            cls = registry.load("adapters", name)
-        except PluginError as exc:
-            log.debug("skipping adapter %s: %s", name, exc)
-            continue
-        candidates.append((-int(getattr(cls, "priority", 0)), name, cls))
-    for _, name, cls in sorted(candidates, key=lambda c: (c[0], c[1])):
-        try:
-            if cls().sniff(source):
-                return name
-        except Exception as exc:  # noqa: BLE001 - a faulty sniff must not break detection
-            log.debug("adapter %s failed to sniff %r: %s", name, source, exc)
-    what = str(source) if isinstance(source, (str, Path)) else type(source).__name__
-    raise MapFormatError(
-        f"No adapter recognises {what}. Known adapters: "
-        f"{', '.join(registry.available('adapters'))}. Pass --adapter NAME to choose one."
-    )
-
-
-def read_map(source: Any, adapter: str = "auto", **options: Any) -> LatentMap:
-    """Read ``source`` (path or live object) into a :class:`LatentMap`, read-only."""
-    if isinstance(source, LatentMap):
-        return source
-    if isinstance(source, (str, Path)):
-        path = Path(source).expanduser()
-        if not path.exists():
-            raise MapFormatError(f"Map not found: {path}. Check the path.")
-        source = path
-    name = detect_adapter(source) if adapter in (None, "auto") else adapter
-    reader = registry.create("adapters", name, **options)
-    lmap = reader.read(source)
-    if not isinstance(lmap, LatentMap):
-        raise PluginError(f"Adapter {name!r} returned {type(lmap).__name__}, not a LatentMap.")
-    lmap.source.setdefault("adapter", name)
-    if isinstance(source, Path):
-        lmap.source.setdefault("path", str(source))
-    log.info("read %s", lmap.describe())
-    return lmap
+    return getattr(import_module(module, __name__), name)

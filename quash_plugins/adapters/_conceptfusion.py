@@ -27,10 +27,10 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import MapFormatError, QuashError
-from ..interfaces import MapAdapter
-from ..types import LatentMap
-from ._lazy import colors_to_uint8, scan_finite, should_scan
+from ..core.errors import MapFormatError, QuashError
+from ..core.interfaces import MapAdapter
+from ..core.types import LatentMap
+from ._rows import colors_to_uint8, scan_finite, should_scan
 
 log = logging.getLogger(__name__)
 

@@ -15,9 +15,9 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import MapFormatError
-from ..types import LatentMap
-from ._lazy import IndexedRows, colors_to_uint8
+from ..core.errors import MapFormatError
+from ..core.types import LatentMap
+from ._rows import IndexedRows, colors_to_uint8
 
 
 def _as_numpy(value: Any) -> np.ndarray:

@@ -7,7 +7,7 @@ block by block by :func:`write_npz_streaming`, so the map is never held whole.
 
 Pixel maps keep their frames as three extra arrays (``frame_ids (F,) str``,
 ``frame_hw (F, 2) int64``, ``frame_offsets (F,) int64``), which :func:`frames_from_npz`
-turns back into :class:`~quash_plugins.types.FrameInfo`.
+turns back into :class:`~quash_plugins.core.types.FrameInfo`.
 """
 
 from __future__ import annotations
@@ -19,8 +19,8 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import QuashError, UsageError
-from ..types import FrameInfo, LatentMap
+from ..core.errors import UsageError
+from ..core.types import FrameInfo, LatentMap
 from ._npz import metadata_arrays
 
 log = logging.getLogger(__name__)
@@ -41,7 +41,7 @@ def write_npz_streaming(path: str | Path, lmap: LatentMap, chunk_rows: int = 655
     Values and dtype are kept as stored (float16 stays float16, rows are not normalised;
     the ``normalize`` flag is recorded instead). The file appears atomically.
     """
-    from .._io import atomic_write
+    from ..core.atomic import atomic_write
 
     path = Path(path)
     emb = lmap.embeddings
@@ -79,7 +79,7 @@ def convert_map(
     >>> convert_map("saved-map", "room0.npz")  # doctest: +SKIP
     PosixPath('room0.npz')
     """
-    from . import read_map
+    from ..core.maps import read_map
 
     dst = Path(destination).expanduser()
     if isinstance(source, (str, Path)):
@@ -95,13 +95,8 @@ def convert_map(
         )
     lmap = read_map(source, adapter, **options)
     if suffix == ".zarr":
-        try:
-            from ..scale import write_zarr_map
-        except ImportError as exc:
-            raise QuashError(
-                "Writing a .zarr store needs quash_plugins.scale.write_zarr_map and zarr: "
-                f'pip install "quash-plugins[dask]" ({exc}).'
-            ) from None
+        from ._zarr_store import write_zarr_map
+
         return Path(write_zarr_map(lmap, dst))
     if isinstance(lmap.embeddings, np.ndarray) and not lmap.frames:
         from ._npz import write_npz_map

@@ -13,7 +13,7 @@ records each frame's id (the stem), H, W, offset and RGB image, and
 
 Design choices
 --------------
-- Embeddings are a :class:`~quash_plugins.adapters._lazy.ConcatRows`: frames are loaded
+- Embeddings are a :class:`~quash_plugins.adapters._rows.ConcatRows`: frames are loaded
   (``torch.load(weights_only=True, mmap=True)``, ``np.load(mmap_mode="r")``) when their
   rows are read, a few at a time; nothing is concatenated into one copy.
 - ``positions`` is None: pixels have no metric position without depth and poses. Use
@@ -34,10 +34,10 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import MapFormatError, QuashError
-from ..interfaces import MapAdapter
-from ..types import FrameInfo, LatentMap
-from ._lazy import ConcatRows
+from ..core.errors import MapFormatError, QuashError
+from ..core.interfaces import MapAdapter
+from ..core.types import FrameInfo, LatentMap
+from ._rows import ConcatRows
 
 log = logging.getLogger(__name__)
 
@@ -354,7 +354,7 @@ def masks_per_frame(lmap: LatentMap, mask: Any) -> dict[str, np.ndarray]:
     Examples
     --------
     >>> import numpy as np
-    >>> from quash_plugins.types import FrameInfo, LatentMap
+    >>> from quash_plugins.core.types import FrameInfo, LatentMap
     >>> m = LatentMap(np.ones((6, 2), np.float32), kind="pixels",
     ...               frames=[FrameInfo("a", 1, 2, 0), FrameInfo("b", 2, 2, 2)])
     >>> masks_per_frame(m, np.array([1, 0, 0, 0, 0, 1], bool))["b"].tolist()

@@ -14,9 +14,9 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import MapFormatError
-from ..interfaces import MapAdapter
-from ..types import FrameInfo, LatentMap
+from ..core.errors import MapFormatError
+from ..core.interfaces import MapAdapter
+from ..core.types import FrameInfo, LatentMap
 
 OPTIONAL = (
     "positions",
@@ -139,7 +139,7 @@ def metadata_arrays(lmap: LatentMap) -> dict[str, Any]:
 def write_npz_map(path: str | Path, lmap: LatentMap, compress: bool = False) -> Path:
     """Write ``lmap`` as a portable NPZ atomically. Embeddings are read whole here; use
     :func:`quash_plugins.adapters._convert.write_npz_streaming` for lazy maps."""
-    from .._io import atomic_write
+    from ..core.atomic import atomic_write
 
     path = Path(path)
     arrays = {"embeddings": np.asarray(lmap.embeddings), **metadata_arrays(lmap)}

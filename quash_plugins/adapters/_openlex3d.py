@@ -11,7 +11,7 @@ OpenLex3D evaluates any method from a folder of three files:
 
 The embeddings are memory-mapped. A dense map (``index == arange``) uses the memmap
 directly; otherwise rows are gathered through the index block by block
-(:class:`~quash_plugins.adapters._lazy.IndexedRows`). A negative index marks a point
+(:class:`~quash_plugins.adapters._rows.IndexedRows`). A negative index marks a point
 with no object: its row is zero, so it never matches. Rows are L2-normalised when read.
 
 Pickles (ConceptGraphs ``*.pkl.gz``) are never unpickled unless ``allow_pickle=True``:
@@ -27,10 +27,10 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import MapFormatError, QuashError
-from ..interfaces import MapAdapter
-from ..types import LatentMap
-from ._lazy import IndexedRows, colors_to_uint8, scan_finite, should_scan
+from ..core.errors import MapFormatError, QuashError
+from ..core.interfaces import MapAdapter
+from ..core.types import LatentMap
+from ._rows import IndexedRows, colors_to_uint8, scan_finite, should_scan
 
 log = logging.getLogger(__name__)
 

@@ -21,7 +21,7 @@ Only ``grid_feat`` and ``grid_pos`` are required. ``grid_feat`` stays an ``h5py.
 (``LatentMap.normalize``). Zero rows are unobserved and never match.
 
 The ``h5py.File`` is opened read-only and stays open as long as the returned
-:class:`~quash_plugins.types.LatentMap` lives: it is kept on the attribute
+:class:`~quash_plugins.core.types.LatentMap` lives: it is kept on the attribute
 ``lmap.h5file`` (not in ``source``, which must stay plain metadata that serialises to
 YAML/JSON) and closed by a ``weakref.finalize`` when the map is garbage-collected.
 Call ``lmap.h5file.close()`` to release it earlier.
@@ -37,9 +37,9 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import MapFormatError, QuashError
-from ..interfaces import MapAdapter
-from ..types import LatentMap
+from ..core.errors import MapFormatError, QuashError
+from ..core.interfaces import MapAdapter
+from ..core.types import LatentMap
 from ._vlmaps_common import (
     DEFAULT_CS,
     DEFAULT_GS,
@@ -57,7 +57,6 @@ from ._vlmaps_common import (
 log = logging.getLogger(__name__)
 
 REQUIRED = ("grid_feat", "grid_pos")
-SUFFIXES = (".h5df", ".h5", ".hdf5", ".hdf")
 #: File names VLMaps writes, looked up when the source is a directory.
 KNOWN_NAMES = ("vlmap/vlmaps.h5df", "vlmap_cam/vlmaps_cam.h5df", "vlmaps.h5df", "vlmaps_cam.h5df")
 

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import MapFormatError
+from ..core.errors import MapFormatError
 
 log = logging.getLogger(__name__)
 

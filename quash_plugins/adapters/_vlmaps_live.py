@@ -17,9 +17,9 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import MapFormatError, QuashError
-from ..interfaces import MapAdapter
-from ..types import LatentMap
+from ..core.errors import MapFormatError, QuashError
+from ..core.interfaces import MapAdapter
+from ..core.types import LatentMap
 from ._vlmaps_common import (
     DEFAULT_CS,
     DEFAULT_GS,

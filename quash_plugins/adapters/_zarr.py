@@ -13,8 +13,8 @@ from typing import Any
 
 import numpy as np
 
-from ..interfaces import MapAdapter
-from ..types import LatentMap
+from ..core.interfaces import MapAdapter
+from ..core.types import LatentMap
 
 
 def _is_array(meta: Path) -> bool:
@@ -61,13 +61,13 @@ class ZarrAdapter(MapAdapter):
         return False
 
     def read(self, source: Any, **options: Any) -> LatentMap:
-        from ..scale._zarr_store import read_zarr_map
+        from ._zarr_store import read_zarr_map
 
         opts = {"dask": self.dask, "chunk_rows": self.chunk_rows, **options}
         return read_zarr_map(Path(source), **opts)
 
     def write_example(self, directory: Path) -> Path:
-        from ..scale._zarr_store import write_zarr_map
+        from ._zarr_store import write_zarr_map
 
         rng = np.random.default_rng(0)
         lmap = LatentMap(

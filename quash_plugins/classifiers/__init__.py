@@ -13,9 +13,9 @@ from ._baselines import (
     LerfRelevancyClassifier,
     NearestSampleClassifier,
 )
-from ._common import ClassifierParamError
+from ._params import ClassifierParamError
 from ._sklearn import SklearnClassifier
-from ._svm import CosineSvmClassifier, RbfSvmClassifier, stack_classifiers
+from ._svm import CosineSvmClassifier, RbfSvmClassifier
 
 __all__ = [
     "ClassifierParamError",
@@ -27,5 +27,4 @@ __all__ = [
     "NearestSampleClassifier",
     "RbfSvmClassifier",
     "SklearnClassifier",
-    "stack_classifiers",
 ]

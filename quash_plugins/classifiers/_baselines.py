@@ -14,8 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from ..interfaces import Classifier, check_training_set
-from ._common import (
+from ..core.interfaces import Classifier, check_training_set
+from ._params import (
     ClassifierParamError,
     check_choice,
     check_positive,

@@ -8,8 +8,8 @@ from typing import Any
 import numpy as np
 from sklearn.base import clone
 
-from ..interfaces import Classifier, check_training_set
-from ._common import ClassifierParamError, iter_blocks, piecewise_display
+from ..core.interfaces import Classifier, check_training_set
+from ._params import ClassifierParamError, iter_blocks, piecewise_display
 
 
 def _import_estimator(path: Any) -> type:

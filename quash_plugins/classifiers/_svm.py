@@ -2,7 +2,7 @@
 
 ``fit`` trains a :class:`sklearn.svm.SVC`. ``decision_function`` does not call it:
 the support vectors, dual coefficients and intercept are extracted once and evaluated
-as chunked float32 GEMMs by :class:`~quash_plugins.classifiers._kernels.KernelStack`
+as chunked float32 GEMMs by :class:`~quash_plugins.core.kernels.KernelStack`
 (numpy BLAS on the CPU, torch on a GPU). The result equals scikit-learn's
 ``decision_function`` to 1e-4 (see ``tests/classifiers/test_classifiers_svm.py``).
 """
@@ -15,15 +15,21 @@ from typing import Any
 import numpy as np
 from sklearn.svm import SVC
 
-from ..interfaces import Classifier, check_training_set
-from ._common import (
+from ..core.interfaces import Classifier, check_training_set
+from ..core.kernels import (
+    KernelExpansion,
+    KernelPart,
+    KernelStack,
+    reference_kernel,
+    resolve_backend,
+)
+from ._params import (
     ClassifierParamError,
     check_choice,
     check_class_weight,
     check_positive,
     unit_rows,
 )
-from ._kernels import KernelPart, KernelStack, reference_kernel, resolve_backend
 
 log = logging.getLogger(__name__)
 
@@ -73,6 +79,12 @@ class _FastSvm(Classifier):
         self.working_set_width_ = self.stack_.width
         self.kernel_part_ = part
 
+    def kernel_expansion(self) -> KernelExpansion | None:
+        """The fitted decision function for stacking (the ``StackableClassifier`` protocol)."""
+        if not hasattr(self, "kernel_part_"):
+            return None
+        return KernelExpansion(self.kernel_part_, self.backend_, self.device_, self.unit_rows)
+
     def _check_input(self, E: Any) -> None:
         if not hasattr(self, "stack_"):
             raise ClassifierParamError(f"{self._who}: call fit(X, y) before decision_function.")
@@ -96,14 +108,6 @@ class _FastSvm(Classifier):
             E = np.asarray(E, dtype=np.float32)
         self._check_input(E)
         return self.stack_.evaluate(E, sq=sq_norms, unit=self.unit_rows)[:, 0]
-
-    def sklearn_decision_function(self, E: Any) -> np.ndarray:
-        """scikit-learn's own (slow, float64) decision function, for checks and benchmarks."""
-        E = np.asarray(E, dtype=np.float64)
-        return self.svc_.decision_function(self._sklearn_input(E))
-
-    def _sklearn_input(self, E: np.ndarray) -> np.ndarray:  # pragma: no cover - overridden
-        return E
 
 
 class RbfSvmClassifier(_FastSvm):
@@ -280,32 +284,3 @@ class CosineSvmClassifier(_FastSvm):
             )
         self._make_stack(part)
         return self
-
-    def _sklearn_input(self, E: np.ndarray) -> np.ndarray:
-        return reference_kernel(self.kernel, E, self.X_fit_, self.gamma_, self._power)
-
-
-def stack_classifiers(
-    classifiers: list[Any], working_set_bytes: int = 256 * 2**20
-) -> tuple[KernelStack | None, list[int]]:
-    """One :class:`KernelStack` for the fitted fast SVMs in ``classifiers``.
-
-    Returns the stack (``None`` when none qualifies) and the indices of the
-    classifiers it evaluates, in output-column order. Only classifiers that share the
-    backend, device and ``unit_rows`` of the first are stacked.
-    """
-    idx = [i for i, c in enumerate(classifiers) if isinstance(c, _FastSvm) and hasattr(c, "stack_")]
-    if not idx:
-        return None, []
-    first = classifiers[idx[0]]
-    key = (first.backend_, first.device_, first.unit_rows)
-    idx = [
-        i
-        for i in idx
-        if (classifiers[i].backend_, classifiers[i].device_, classifiers[i].unit_rows) == key
-    ]
-    stack = KernelStack(
-        [classifiers[i].kernel_part_ for i in idx], key[0], key[1], working_set_bytes
-    )
-    stack.unit = key[2]
-    return stack, idx

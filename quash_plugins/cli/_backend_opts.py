@@ -40,7 +40,7 @@ def add_backend_arguments(parser: argparse.ArgumentParser) -> None:
 
 def backend_overrides(args: argparse.Namespace) -> dict[str, Any]:
     """Keyword overrides for :meth:`Quash.from_config` from the parsed options."""
-    from ..errors import UsageError
+    from ..core.errors import UsageError
 
     backend = getattr(args, "backend", "numpy")
     address = getattr(args, "scheduler", None)
@@ -54,7 +54,7 @@ def backend_overrides(args: argparse.Namespace) -> dict[str, Any]:
         return {}
     if workers is not None and (workers < 1 or address):
         raise UsageError("--workers takes N >= 1 and applies only without --scheduler.")
-    from ..scale import client_from_cli, local_cluster_client
+    from ..engine import client_from_cli, local_cluster_client
 
     client = local_cluster_client(workers) if workers else client_from_cli(address)
     return {"backend": "dask", "client": client}

@@ -1,9 +1,11 @@
-"""Rerun output options shared by query, eval and demo (owned by the Rerun module)."""
+"""Rerun output options shared by query, eval and demo: flags to :class:`ViewerOptions`."""
 
 from __future__ import annotations
 
 import argparse
 from typing import Any
+
+from ..viewer import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT, ViewerOptions
 
 
 def add_viewer_arguments(parser: argparse.ArgumentParser) -> None:
@@ -30,28 +32,38 @@ def add_viewer_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--web-port",
         type=int,
-        default=9090,
+        default=DEFAULT_WEB_PORT,
         metavar="PORT",
-        help="HTTP port of the web viewer for --serve-web (default: 9090).",
+        help=f"HTTP port of the web viewer for --serve-web (default: {DEFAULT_WEB_PORT}).",
     )
     g.add_argument(
         "--grpc-port",
         type=int,
-        default=9876,
+        default=DEFAULT_GRPC_PORT,
         metavar="PORT",
-        help="gRPC port the web viewer reads the recording from (default: 9876).",
+        help=f"gRPC port the web viewer reads the recording from (default: {DEFAULT_GRPC_PORT}).",
+    )
+
+
+def viewer_options(args: argparse.Namespace) -> ViewerOptions:
+    """The :class:`ViewerOptions` of the parsed flags."""
+    return ViewerOptions(
+        rrd=args.rrd,
+        spawn=bool(args.spawn),
+        connect=args.connect,
+        serve_web=bool(args.serve_web),
+        web_port=args.web_port,
+        grpc_port=args.grpc_port,
     )
 
 
 def viewer_requested(args: argparse.Namespace) -> bool:
     """True when any Rerun output option was given."""
-    return bool(args.rrd or args.spawn or args.connect or args.serve_web)
+    return viewer_options(args).requested
 
 
 def open_viewer(args: argparse.Namespace, app_id: str = "quash") -> Any:
     """A viewer logger for the options given, or None when none was asked for."""
-    if not viewer_requested(args):
-        return None
-    from ..viewer import viewer_from_cli
+    from ..viewer import open_viewer as open_sinks
 
-    return viewer_from_cli(args, app_id=app_id)
+    return open_sinks(viewer_options(args), app_id=app_id)

@@ -19,7 +19,7 @@ examples:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from ..evaluation.bench import TABLES
+    from ..evaluation.ablations import TABLES
     from ._backend_opts import add_backend_arguments
 
     p.add_argument("map", help="Labelled map (labels + label_names).")
@@ -44,10 +44,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from ..errors import UsageError
-    from ..evaluation.bench import TABLES, run_bench
+    from ..core.errors import UsageError
+    from ..evaluation.ablations import TABLES, run_bench
     from ._backend_opts import backend_overrides
-    from ._common import console
+    from ._output import console
 
     tables = tuple(t.strip() for t in args.tables.split(",") if t.strip())
     bad = [t for t in tables if t not in TABLES]

@@ -43,9 +43,9 @@ def _size(n: float) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..encoders.cache import TextEmbeddingCache
-    from ..errors import UsageError
-    from ._common import console, print_json
+    from ..core.errors import UsageError
+    from ..engine.cache import TextEmbeddingCache
+    from ._output import console, print_json
 
     action = getattr(args, "cache_command", None)
     if action is None:

@@ -47,7 +47,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def _parse_options(items: list[str]) -> dict:
     import yaml
 
-    from ..errors import UsageError
+    from ..core.errors import UsageError
 
     out = {}
     for item in items:
@@ -59,11 +59,10 @@ def _parse_options(items: list[str]) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .. import registry
-    from ..adapters import detect_adapter
-    from ..adapters._convert import convert_map
-    from ..errors import UsageError
-    from ._common import console, print_json
+    from ..adapters import convert_map, detect_adapter
+    from ..core import registry
+    from ..core.errors import UsageError
+    from ._output import console, print_json
 
     options = _parse_options(args.option)
     name = args.adapter

@@ -44,11 +44,11 @@ def run(args: argparse.Namespace) -> int:
     import time
     from pathlib import Path
 
-    from .._io import atomic_write_text
-    from ..evaluation.demo import demo_config_paths, run_demo
-    from ..evaluation.report import plot_precision_recall
+    from ..core.atomic import atomic_write_text
+    from ..demo.runner import demo_config_paths, run_demo
+    from ..evaluation.plot import plot_precision_recall
     from ._backend_opts import backend_overrides
-    from ._common import console
+    from ._output import console
     from ._viewer_opts import open_viewer
 
     out = console()

@@ -29,7 +29,7 @@ def _split(text: str | None) -> list[str]:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from ..evaluation.report import DEFAULT_EXCLUDE
     from ._backend_opts import add_backend_arguments
-    from ._common import add_config_option, add_runtime_options
+    from ._config_opts import add_config_option, add_runtime_options
     from ._viewer_opts import add_viewer_arguments
 
     p.add_argument("map", help="Labelled map (labels + label_names), e.g. from make-scene.")
@@ -72,13 +72,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import json
 
-    from .._io import atomic_write_text
-    from .._progress import progress
-    from ..errors import UsageError
-    from ..evaluation.report import evaluate, plot_precision_recall
-    from ..pipeline import Quash
+    from ..core.atomic import atomic_write_text
+    from ..core.errors import UsageError
+    from ..core.progress import progress
+    from ..engine.pipeline import Quash
+    from ..evaluation.plot import plot_precision_recall
+    from ..evaluation.report import evaluate
     from ._backend_opts import backend_overrides
-    from ._common import apply_runtime_options, console, load_config
+    from ._config_opts import apply_runtime_options, load_config
+    from ._output import console
     from ._viewer_opts import open_viewer
 
     if not args.configs:

@@ -10,7 +10,7 @@ ORDER = 20
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from ._common import add_config_option, add_runtime_options
+    from ._config_opts import add_config_option, add_runtime_options
 
     p.add_argument("query", help="The query text, e.g. 'chair'.")
     add_config_option(p)
@@ -26,8 +26,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..pipeline import Quash
-    from ._common import apply_runtime_options, console, load_config, print_json
+    from ..engine.pipeline import Quash
+    from ._config_opts import apply_runtime_options, load_config
+    from ._output import console, print_json
 
     cfg = apply_runtime_options(load_config(args.config), args)
     quash = Quash.from_config(cfg)

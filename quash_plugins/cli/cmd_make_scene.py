@@ -23,7 +23,7 @@ examples:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from ..evaluation.scene import SceneOptions
+    from ..demo.scene import SceneOptions
 
     p.add_argument("out", metavar="OUT.npz", help="Output map (our NPZ format).")
     p.add_argument(
@@ -50,15 +50,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .. import registry
-    from ..evaluation.scene import SceneOptions, make_scene, write_scene
-    from ..pipeline import _open_cache
-    from ._common import console
+    from ..core import registry
+    from ..demo.scene import SceneOptions, make_scene, write_scene
+    from ..engine.cache import open_cache
+    from ._output import console
 
     opts = SceneOptions(**{f.name: getattr(args, f.name) for f in dataclasses.fields(SceneOptions)})
     params = {"file": args.encoder_file} if args.encoder_file else {}
     encoder = registry.create("encoders", args.encoder, **params)
-    scene = make_scene(encoder, opts, cache=_open_cache(not args.no_cache))
+    scene = make_scene(encoder, opts, cache=open_cache(not args.no_cache))
     paths = write_scene(scene, args.out, opts)
     out = console()
     out.print(

@@ -19,8 +19,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .. import registry
-    from ._common import console, print_json
+    from ..core import registry
+    from ._output import console, print_json
 
     infos = registry.plugins(args.kind, load=True)
     if args.json:

@@ -18,7 +18,7 @@ stay lazy and stream to a zarr store (maps larger than memory; see docs/scale.md
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from ._backend_opts import add_backend_arguments
-    from ._common import add_config_option, add_runtime_options
+    from ._config_opts import add_config_option, add_runtime_options
     from ._viewer_opts import add_viewer_arguments
 
     p.add_argument("map", help="Map file or directory.")
@@ -37,10 +37,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .._progress import progress
-    from ..pipeline import Quash, write_results_npz
+    from ..core.progress import progress
+    from ..engine.pipeline import Quash
+    from ..engine.results import write_results_npz
     from ._backend_opts import backend_overrides
-    from ._common import apply_runtime_options, load_config
+    from ._config_opts import apply_runtime_options, load_config
     from ._viewer_opts import open_viewer
 
     cfg = apply_runtime_options(load_config(args.config), args)
@@ -67,8 +68,8 @@ def run(args: argparse.Namespace) -> int:
 
 def _query_to_zarr(args, quash) -> int:
     """Results too large for memory: masks and scores stay lazy and stream into zarr."""
-    from ..errors import UsageError
-    from ._common import console, print_json
+    from ..core.errors import UsageError
+    from ._output import console, print_json
     from ._viewer_opts import viewer_requested
 
     if viewer_requested(args):
@@ -98,7 +99,7 @@ def _query_to_zarr(args, quash) -> int:
 
 
 def _report(args, cfg, lmap, results) -> None:
-    from ._common import console, print_json
+    from ._output import console, print_json
 
     if args.json:
         print_json(

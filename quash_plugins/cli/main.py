@@ -17,8 +17,8 @@ import sys
 from collections.abc import Sequence
 
 from .. import __version__
-from ..errors import QuashError, UsageError
-from ._common import setup_logging
+from ..core.errors import QuashError, UsageError
+from ._output import setup_logging
 
 log = logging.getLogger("quash_plugins.cli")
 

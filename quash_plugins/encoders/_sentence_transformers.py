@@ -15,9 +15,9 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import EncoderError
-from ..interfaces import Encoder
-from ._common import hf_offline, read_json, require, resolve_device, weights_identity
+from ..core.errors import EncoderError
+from ..core.interfaces import Encoder
+from ._runtime import hf_offline, read_json, require, resolve_device, weights_identity
 
 log = logging.getLogger(__name__)
 
@@ -163,7 +163,7 @@ class SentenceTransformerEncoder(Encoder):
 
         step = max(self.batch_size * 16, self.batch_size)
         out: list[np.ndarray] = []
-        from .._progress import progress
+        from ..core.progress import progress
 
         total = len(texts) if len(texts) > PROGRESS_MIN else 0
         with torch.inference_mode(), progress(total, f"encoding {len(texts)} texts") as advance:

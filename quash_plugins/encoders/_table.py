@@ -9,8 +9,8 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import ConfigError, EncoderError, closest
-from ..interfaces import Encoder
+from ..core.errors import ConfigError, EncoderError, closest
+from ..core.interfaces import Encoder
 
 
 class TableEncoder(Encoder):
@@ -64,7 +64,7 @@ class TableEncoder(Encoder):
                     texts = [str(t) for t in z["texts"]]
                     emb = np.asarray(z["embeddings"], dtype=np.float32)
             elif path.suffix in (".yaml", ".yml"):
-                from ..config import load_yaml
+                from ..core.config import load_yaml
 
                 data, _ = load_yaml(path)
                 if not isinstance(data, dict):

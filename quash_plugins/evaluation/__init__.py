@@ -6,7 +6,8 @@ Nothing here imports torch or matplotlib at module level.
 from __future__ import annotations
 
 from .metrics import absence_score, macro_mean, query_metrics, valid_items
-from .report import DEFAULT_EXCLUDE, EvalReport, evaluate, plot_precision_recall, report_markdown
+from .plot import plot_precision_recall
+from .report import DEFAULT_EXCLUDE, EvalReport, evaluate, report_markdown
 
 __all__ = [
     "DEFAULT_EXCLUDE",

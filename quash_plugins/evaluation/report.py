@@ -1,4 +1,4 @@
-"""``evaluate``: score method configs on a labelled map; JSON, Markdown and a plot.
+"""``evaluate``: score method configs on a labelled map; JSON and Markdown reports.
 
 Examples
 --------
@@ -26,8 +26,8 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import QuashError
-from ..types import LatentMap
+from ..core.errors import QuashError
+from ..core.types import LatentMap
 from .metrics import METRICS, absence_score, macro_mean, query_metrics, valid_items
 
 log = logging.getLogger(__name__)
@@ -53,7 +53,6 @@ class EvalReport:
     configs: list[dict[str, Any]]
     queries: list[str]
     absent: list[str]
-    map_description: str = ""
     results: dict[str, list[Any]] = field(default_factory=dict, repr=False)
 
     def to_json(self) -> dict[str, Any]:
@@ -67,7 +66,7 @@ class EvalReport:
 
 
 def _as_quash(config: Any, overrides: dict[str, Any]):
-    from ..pipeline import Quash
+    from ..engine.pipeline import Quash
 
     if isinstance(config, Quash):
         return config
@@ -165,9 +164,7 @@ def evaluate(
             all_results[name] = results
         if on_query is not None:
             on_query(name, len(texts))
-    return EvalReport(
-        out, presence, absence, lmap.describe() if hasattr(lmap, "describe") else "", all_results
-    )
+    return EvalReport(out, presence, absence, all_results)
 
 
 def _fmt(v: Any) -> str:
@@ -220,57 +217,10 @@ def report_markdown(
     return "\n".join(lines) + "\n"
 
 
-def plot_precision_recall(
-    configs: Sequence[dict[str, Any]], path: str | Path, title: str = "precision vs recall"
-) -> Path:
-    """Precision against recall per method (mean: large marker; per query: small dots)."""
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        raise QuashError('Plots need matplotlib: pip install "quash-plugins[plots]"') from None
-    from .._io import atomic_write
-
-    fig, ax = plt.subplots(figsize=(6.4, 5.2), dpi=110)
-    cmap = plt.get_cmap("tab10" if len(configs) <= 10 else "tab20")
-    for i, c in enumerate(configs):
-        color = cmap(i % cmap.N)
-        pq = list(c["per_query"].values())
-        if pq:
-            ax.scatter(
-                [q["recall"] for q in pq], [q["precision"] for q in pq], s=9, alpha=0.3, color=color
-            )
-        ax.scatter(
-            [c["mean"]["recall"]],
-            [c["mean"]["precision"]],
-            s=90,
-            color=color,
-            edgecolor="black",
-            label=f"{c['name']} (F1 {c['mean']['f1']:.2f})",
-            zorder=3,
-        )
-    r = np.linspace(0.01, 1, 200)
-    for f in (0.2, 0.4, 0.6, 0.8):
-        p = f * r / (2 * r - f)
-        ok = (p > 0) & (p <= 1)
-        ax.plot(r[ok], p[ok], color="grey", lw=0.6, ls=":")
-    ax.set(xlim=(0, 1.02), ylim=(0, 1.02), xlabel="recall", ylabel="precision", title=title)
-    ax.legend(fontsize=7, loc="lower left")
-    fig.tight_layout()
-    path = Path(path)
-    with atomic_write(path, suffix=".png") as tmp:
-        fig.savefig(tmp, format="png")
-    plt.close(fig)
-    return path
-
-
 __all__ = [
     "DEFAULT_EXCLUDE",
     "METRICS",
     "EvalReport",
     "evaluate",
-    "plot_precision_recall",
     "report_markdown",
 ]

@@ -19,7 +19,8 @@ _EXPORTS = {
     "TemplatesHeuristic": "._templates",
     "VocabularyHeuristic": "._vocabulary",
     "CombineHeuristic": "._combine",
-    "add_map_negatives": ".mined",
+    "MapNegativesHeuristic": "._mined",
+    "add_map_negatives": "._mined",
 }
 
 __all__ = sorted(_EXPORTS)

@@ -6,9 +6,9 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import ConfigError
-from ..interfaces import ExpansionContext, Heuristic
-from ..types import QuerySet
+from ..core.errors import ConfigError
+from ..core.interfaces import ExpansionContext, Heuristic
+from ..core.types import QuerySet
 from ._data import read_mapping
 
 

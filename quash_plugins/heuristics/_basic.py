@@ -5,9 +5,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from ..errors import ConfigError, HeuristicError, closest
-from ..interfaces import ExpansionContext, Heuristic
-from ..types import QuerySet
+from ..core.errors import ConfigError, HeuristicError, closest
+from ..core.interfaces import ExpansionContext, Heuristic
+from ..core.types import QuerySet
 
 
 class NoneHeuristic(Heuristic):
@@ -50,7 +50,7 @@ class StaticHeuristic(Heuristic):
         data: Any = self.querysets
         lines: dict = {}
         if self.file is not None:
-            from ..config import load_yaml
+            from ..core.config import load_yaml
 
             path = Path(self.file)
             if not path.exists():

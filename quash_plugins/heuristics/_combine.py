@@ -4,14 +4,14 @@ from __future__ import annotations
 
 from typing import Any
 
-from ..errors import ConfigError, QuashError
-from ..interfaces import ExpansionContext, Heuristic
-from ..types import QuerySet
+from ..core.errors import ConfigError, QuashError
+from ..core.interfaces import ExpansionContext, Heuristic
+from ..core.types import QuerySet
 
 
 def build_heuristic(spec: Any, where: str) -> Heuristic:
     """Build a heuristic from ``"name"``, ``{name, params: {...}}`` or ``{name, key: value}``."""
-    from .. import registry
+    from ..core import registry
 
     if isinstance(spec, Heuristic):
         return spec

@@ -6,7 +6,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from ..errors import ConfigError
+from ..core.errors import ConfigError
 
 
 def read_word_list(spec: str | list[str] | None, default: str, what: str) -> list[str]:
@@ -28,7 +28,7 @@ def read_word_list(spec: str | list[str] | None, default: str, what: str) -> lis
         if not path.exists():
             raise ConfigError(f"{what.capitalize()} file not found: {path}")
         if path.suffix in (".yaml", ".yml"):
-            from ..config import load_yaml
+            from ..core.config import load_yaml
 
             data, _ = load_yaml(path)
             if not isinstance(data, list):
@@ -53,7 +53,7 @@ def read_mapping(spec: str | dict[str, Any] | None, default: str | None, what: s
             raise ConfigError(f"No {what} given.")
         text = resources.files("quash_plugins.data").joinpath(default).read_text(encoding="utf-8")
         return yaml.safe_load(text)
-    from ..config import load_yaml
+    from ..core.config import load_yaml
 
     path = Path(str(spec)).expanduser()
     if not path.exists():

@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from ..errors import ConfigError
-from ..interfaces import ExpansionContext, Heuristic
-from ..types import QuerySet
+from ..core.errors import ConfigError
+from ..core.interfaces import ExpansionContext, Heuristic
+from ..core.types import QuerySet
 from ._data import read_word_list
 
 

@@ -17,9 +17,9 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit, urlunsplit
 
-from ..errors import ConfigError, HeuristicError
-from ..interfaces import ExpansionContext, Heuristic
-from ..types import QuerySet
+from ..core.errors import ConfigError, HeuristicError
+from ..core.interfaces import ExpansionContext, Heuristic
+from ..core.types import QuerySet
 from ._parse import clean_lists, parse_reply
 
 log = logging.getLogger(__name__)
@@ -239,7 +239,7 @@ class LLMHeuristic(Heuristic):
         return data
 
     def _write_cache(self, query: str, synonyms: list[str], antonyms: list[str]) -> Path:
-        from .._io import atomic_write_text
+        from ..core.atomic import atomic_write_text
 
         path = self.cache_path(query)
         record = {

@@ -7,9 +7,9 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import ConfigError, HeuristicError, closest
-from ..interfaces import ExpansionContext, Heuristic
-from ..types import QuerySet
+from ..core.errors import ConfigError, HeuristicError, closest
+from ..core.interfaces import ExpansionContext, Heuristic
+from ..core.types import QuerySet
 from ._data import read_mapping
 
 log = logging.getLogger(__name__)
@@ -117,7 +117,7 @@ class TaxonomyHeuristic(Heuristic):
                 f"Query {query!r} is not a label of {where} ({why}).{hint} "
                 f"Labels: {', '.join(list(tax)[:30])}{' ...' if len(tax) > 30 else ''}."
             )
-        from .._encoding import encode_texts
+        from ..core.text import encode_texts
 
         labels = list(tax)
         cache = context.extra.get("cache")

@@ -12,10 +12,10 @@ from __future__ import annotations
 
 from typing import Any
 
-from .._encoding import TEMPLATE_MODES, load_templates
-from ..errors import ConfigError
-from ..interfaces import ExpansionContext, Heuristic
-from ..types import QuerySet
+from ..core.errors import ConfigError
+from ..core.interfaces import ExpansionContext, Heuristic
+from ..core.text import TEMPLATE_MODES, load_templates
+from ..core.types import QuerySet
 
 
 class TemplatesHeuristic(Heuristic):

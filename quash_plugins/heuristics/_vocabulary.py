@@ -14,9 +14,9 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import ConfigError, HeuristicError
-from ..interfaces import Encoder, ExpansionContext, Heuristic
-from ..types import QuerySet
+from ..core.errors import ConfigError, HeuristicError
+from ..core.interfaces import Encoder, ExpansionContext, Heuristic
+from ..core.types import QuerySet
 from ._data import read_word_list
 
 log = logging.getLogger(__name__)
@@ -34,7 +34,7 @@ def load_vocabulary(spec: str | Sequence[str] | None = None) -> list[str]:
 
 def vocabulary_embeddings(encoder: Encoder, names: Sequence[str], cache: Any = None) -> np.ndarray:
     """``(V, D)`` float32 unit rows for ``names``; embedded once per encoder and process."""
-    from .._encoding import encode_texts
+    from ..core.text import encode_texts
 
     digest = hashlib.sha256("\n".join(names).encode()).hexdigest()[:16]
     key = (encoder.fingerprint(), digest)
@@ -124,7 +124,7 @@ class VocabularyHeuristic(Heuristic):
                 "Heuristic 'vocabulary' needs the encoder in its context (use it through "
                 "Quash, or pass ExpansionContext(encoder=...))."
             )
-        from .._encoding import encode_texts
+        from ..core.text import encode_texts
 
         cache = context.extra.get("cache")
         V = vocabulary_embeddings(context.encoder, self._names, cache)

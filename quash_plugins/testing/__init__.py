@@ -3,7 +3,7 @@
 In the spirit of scikit-learn's ``parametrize_with_checks``. A plugin author runs the
 whole kit over their distribution's plugins in one line::
 
-    from quash_plugins.testing import parametrize_with_checks
+    from . import parametrize_with_checks
 
     @parametrize_with_checks(dist="my-quash-plugin")
     def test_conformance(check, tmp_path):

@@ -10,10 +10,10 @@ from typing import Any
 
 import numpy as np
 
-from .. import registry
-from ..errors import QuashError
-from ..interfaces import Encoder, ExpansionContext
-from ..types import LatentMap, QuerySet
+from ..core import registry
+from ..core.errors import QuashError
+from ..core.interfaces import Encoder, ExpansionContext
+from ..core.types import LatentMap, QuerySet
 
 _WORDS = [
     "chair",

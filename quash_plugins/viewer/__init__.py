@@ -1,7 +1,7 @@
 """Inspect queries in the Rerun viewer.
 
-:class:`RerunLogger` logs a :class:`~quash_plugins.types.LatentMap` and its
-:class:`~quash_plugins.types.QueryResult` objects to an explicit
+:class:`RerunLogger` logs a :class:`~quash_plugins.core.types.LatentMap` and its
+:class:`~quash_plugins.core.types.QueryResult` objects to an explicit
 ``rerun.RecordingStream``; it never touches Rerun's global recording. The entity
 layout, the blueprint and display thinning are described in ``docs/rerun.md``.
 
@@ -11,19 +11,29 @@ This package imports ``rerun`` only when a logger is built, so
 
 from __future__ import annotations
 
-from ._cli import CliRerunLogger, viewer_from_cli, web_viewer_url
 from ._display import colormap, display_indices, pca_colors, slugify
 from ._rerun import INSTANCE_COLOR, MATCH_COLOR, RerunLogger
+from ._sinks import (
+    DEFAULT_GRPC_PORT,
+    DEFAULT_WEB_PORT,
+    SinkRerunLogger,
+    ViewerOptions,
+    open_viewer,
+    web_viewer_url,
+)
 
 __all__ = [
+    "DEFAULT_GRPC_PORT",
+    "DEFAULT_WEB_PORT",
     "INSTANCE_COLOR",
     "MATCH_COLOR",
-    "CliRerunLogger",
     "RerunLogger",
+    "SinkRerunLogger",
+    "ViewerOptions",
+    "open_viewer",
     "colormap",
     "display_indices",
     "pca_colors",
     "slugify",
-    "viewer_from_cli",
     "web_viewer_url",
 ]

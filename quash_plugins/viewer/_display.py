@@ -9,7 +9,7 @@ import re
 
 import numpy as np
 
-from ..types import LatentMap
+from ..core.types import LatentMap
 
 #: Rows read per block when projecting embeddings for PCA colours.
 _PCA_BLOCK_ROWS = 65_536
@@ -67,7 +67,7 @@ def slugify(text: str, fallback: str = "query") -> str:
 
 def _read_rows(lmap: LatentMap, idx: np.ndarray) -> np.ndarray:
     """``(len(idx), D)`` float32 rows at sorted ``idx``, normalised when the map asks."""
-    from ..types import prepare_block
+    from ..core.types import prepare_block
 
     emb = lmap.embeddings
     if len(idx) and idx[-1] - idx[0] + 1 == len(idx):

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from ..types import LatentMap, QueryResult
+from ..core.types import LatentMap, QueryResult
 
 _STAGES = ("read", "expand", "encode", "fit", "classify", "postprocess", "instances", "total")
 

@@ -8,8 +8,8 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import QuashError
-from ..types import LatentMap, QueryResult
+from ..core.errors import QuashError
+from ..core.types import LatentMap, QueryResult
 from ._display import colormap, display_indices, pca_colors, slugify, thin
 from ._document import queryset_markdown
 

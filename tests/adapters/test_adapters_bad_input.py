@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from _cf_writers import cf_arrays, save_feat_pt, save_openlex3d, save_pointclouds, tree_hash
 
-from quash_plugins import registry
 from quash_plugins.adapters import read_map
-from quash_plugins.errors import MapFormatError
+from quash_plugins.core import registry
+from quash_plugins.core.errors import MapFormatError
 
 
 def _cf(tmp_path, **changes):

@@ -7,9 +7,10 @@ import numpy as np
 import pytest
 from _cf_writers import cf_arrays, contrast_config, save_pointclouds, text_table, tree_hash
 
-from quash_plugins import Quash, registry
+from quash_plugins import Quash
 from quash_plugins.adapters import detect_adapter, read_map
 from quash_plugins.cli.main import main
+from quash_plugins.core import registry
 
 
 @pytest.fixture

@@ -6,10 +6,11 @@ import numpy as np
 import pytest
 from _cf_writers import contrast_config, save_feat_pt, save_png, text_table, tree_hash
 
-from quash_plugins import Quash, registry
+from quash_plugins import Quash
 from quash_plugins.adapters import detect_adapter, read_map
 from quash_plugins.adapters._image_features import masks_per_frame, pixel_coordinates
 from quash_plugins.cli.main import main
+from quash_plugins.core import registry
 
 
 def cf_frame(vecs, h, w, chair_box, seed):
@@ -113,8 +114,8 @@ def test_natural_frame_order(tmp_path):
 
 
 def test_masks_per_frame_needs_frames_and_right_length(cf_feat):
-    from quash_plugins.errors import QuashError
-    from quash_plugins.types import LatentMap
+    from quash_plugins.core.errors import QuashError
+    from quash_plugins.core.types import LatentMap
 
     with pytest.raises(QuashError, match="no frames"):
         masks_per_frame(LatentMap(np.ones((3, 2), np.float32)), np.ones(3, bool))

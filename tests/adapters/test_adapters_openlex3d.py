@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 from _cf_writers import contrast_config, save_openlex3d, text_table, tree_hash
 
-from quash_plugins import registry
 from quash_plugins.adapters import detect_adapter, read_map
-from quash_plugins.adapters._lazy import IndexedRows
+from quash_plugins.adapters._rows import IndexedRows
 from quash_plugins.cli.main import main
+from quash_plugins.core import registry
 
 
 def test_object_level_index(tmp_path):

@@ -14,9 +14,10 @@ from _vlmaps_writers import mobile_map, sha256, write_vlmaps_2d, write_vlmaps_h5
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from quash_plugins import Quash, registry
+from quash_plugins import Quash
 from quash_plugins.adapters import detect_adapter, read_map
-from quash_plugins.errors import MapFormatError, QuashError
+from quash_plugins.core import registry
+from quash_plugins.core.errors import MapFormatError, QuashError
 
 D = 8
 TABLE = {

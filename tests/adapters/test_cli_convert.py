@@ -91,26 +91,23 @@ def test_convert_adapter_options(tmp_path):
         assert (z["colors"] == 128).all()
 
 
-def test_convert_to_zarr_delegates(tmp_path, monkeypatch):
-    import quash_plugins.scale as scale
-
-    calls = []
-    monkeypatch.setattr(
-        scale,
-        "write_zarr_map",
-        lambda lmap, path: calls.append((lmap.n, path)) or path,
-        raising=False,
-    )
-    save_pointclouds(tmp_path / "m", **cf_arrays(n=6, d=3))
+def test_convert_to_zarr_round_trips(tmp_path):
+    arrays = cf_arrays(n=6, d=3)
+    save_pointclouds(tmp_path / "m", **arrays)
     assert main(["-q", "convert", str(tmp_path / "m"), str(tmp_path / "m.zarr")]) == 0
-    assert calls and calls[0][0] == 6
+    back = read_map(tmp_path / "m.zarr")
+    assert back.source["adapter"] == "zarr" and back.n == 6
+    np.testing.assert_array_equal(np.asarray(back.embeddings), arrays["pc_embeddings"])
+    np.testing.assert_allclose(back.positions, arrays["pc_points"])
 
 
-def test_convert_to_zarr_missing_writer_is_clear(tmp_path, monkeypatch, capsys):
-    monkeypatch.setitem(sys.modules, "quash_plugins.scale", None)
+def test_convert_to_zarr_without_zarr_names_the_extra(tmp_path, monkeypatch, capsys):
+    monkeypatch.setitem(sys.modules, "zarr", None)  # import zarr now raises ImportError
     save_pointclouds(tmp_path / "m", **cf_arrays(n=6, d=3))
     assert main(["convert", str(tmp_path / "m"), str(tmp_path / "m.zarr")]) == 1
-    assert "write_zarr_map" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "'zarr'" in err and "quash-plugins[dask]" in err
+    assert not (tmp_path / "m.zarr").exists()
 
 
 @pytest.mark.parametrize("name", ["convert"])

@@ -7,9 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from quash_plugins import Quash, registry
+from quash_plugins import Quash
+from quash_plugins.core import registry
+from quash_plugins.core.errors import ConfigError
 from quash_plugins.encoders import TableEncoder
-from quash_plugins.errors import ConfigError
 
 D = 32
 
@@ -172,7 +173,7 @@ def test_float16_and_zero_rows(world):
 def test_example_configs_load_and_build_their_classifier():
     from pathlib import Path
 
-    from quash_plugins.config import QuashConfig
+    from quash_plugins.core.config import QuashConfig
 
     folder = Path(__file__).resolve().parents[2] / "examples" / "configs"
     files = sorted(folder.glob("*.yaml"))
@@ -187,7 +188,7 @@ def test_example_configs_load_and_build_their_classifier():
 
 def test_nearest_sample_is_the_top_k_cosine_vote():
     """Independent reimplementation: mean of the k best cosines per side, by sorting."""
-    from quash_plugins import registry
+    from quash_plugins.core import registry
 
     rng = np.random.default_rng(3)
     X = rng.normal(size=(9, 12)).astype(np.float32)
@@ -207,8 +208,8 @@ def test_nearest_sample_is_the_top_k_cosine_vote():
 
 @pytest.mark.parametrize("k", [0, -1, 1.5, True, "2"])
 def test_nearest_sample_rejects_bad_k(k):
-    from quash_plugins import registry
-    from quash_plugins.errors import ConfigError
+    from quash_plugins.core import registry
+    from quash_plugins.core.errors import ConfigError
 
     with pytest.raises((ConfigError, ValueError), match="k must be an integer"):
         registry.create("classifiers", "nearest-sample", k=k)

@@ -7,9 +7,10 @@ import pytest
 from sklearn.linear_model import LogisticRegression
 from sklearn.neighbors import KNeighborsClassifier
 
-from quash_plugins import Quash, registry
+from quash_plugins import Quash
+from quash_plugins.core import registry
+from quash_plugins.core.errors import ConfigError
 from quash_plugins.encoders import TableEncoder
-from quash_plugins.errors import ConfigError
 
 
 @pytest.fixture

@@ -10,14 +10,10 @@ import pytest
 from sklearn.base import clone
 from sklearn.metrics.pairwise import cosine_similarity
 
-from quash_plugins import registry
-from quash_plugins.classifiers import (
-    ClassifierParamError,
-    CosineSvmClassifier,
-    RbfSvmClassifier,
-    stack_classifiers,
-)
-from quash_plugins.errors import ConfigError
+from quash_plugins.classifiers import ClassifierParamError, CosineSvmClassifier, RbfSvmClassifier
+from quash_plugins.core import registry
+from quash_plugins.core.errors import ConfigError
+from quash_plugins.core.kernels import stack_expansions
 
 D = 48
 
@@ -111,7 +107,7 @@ def test_stacked_queries_share_one_pass_and_match_each_alone():
         RbfSvmClassifier(gamma=0.3).fit(X, np.roll(y, 13)),
         CosineSvmClassifier(distance="plain").fit(X, y),
     ]
-    stack, idx = stack_classifiers(fitted)
+    stack, idx = stack_expansions([c.kernel_expansion() for c in fitted])
     assert idx == [0, 1, 2, 3, 4]
     assert stack.width == sum(c.working_set_width_ for c in fitted)
     out = stack.evaluate(E)
@@ -121,7 +117,7 @@ def test_stacked_queries_share_one_pass_and_match_each_alone():
 
 def test_pipeline_query_many_uses_the_stack(tiny_world, monkeypatch):
     from quash_plugins import Quash
-    from quash_plugins.classifiers import _kernels
+    from quash_plugins.core import kernels as _kernels
     from quash_plugins.encoders import TableEncoder
 
     calls = []
@@ -250,7 +246,7 @@ def test_cuda_without_a_gpu_is_a_clear_error_and_auto_falls_back_to_numpy():
     if torch.cuda.is_available():  # pragma: no cover - no GPU on the CI machine
         assert RbfSvmClassifier(device="cuda").fit(X, y).device_ == "cuda"
         return
-    from quash_plugins.errors import QuashError
+    from quash_plugins.core.errors import QuashError
 
     with pytest.raises(QuashError, match="CUDA"):
         RbfSvmClassifier(backend="torch", device="cuda").fit(X, y)

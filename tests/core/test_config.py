@@ -3,7 +3,7 @@ from __future__ import annotations
 import pytest
 
 from quash_plugins import Quash, QuashConfig
-from quash_plugins.errors import ConfigError, PluginError
+from quash_plugins.core.errors import ConfigError, PluginError
 
 
 def test_yaml_round_trip_and_relative_paths(tiny_world):

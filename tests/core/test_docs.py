@@ -5,8 +5,8 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from quash_plugins import registry
-from quash_plugins.config import config_reference
+from quash_plugins.core import registry
+from quash_plugins.core.config import config_reference
 
 DOCS = Path(__file__).resolve().parents[2] / "docs"
 
@@ -29,4 +29,6 @@ def test_plugin_guide_code_runs(capsys):
 
 def test_config_reference_is_current():
     text = (DOCS / "config.md").read_text()
-    assert config_reference() in text, "regenerate docs/config.md: python -m quash_plugins.config"
+    assert config_reference() in text, (
+        "regenerate docs/config.md: python -m quash_plugins.core.config"
+    )

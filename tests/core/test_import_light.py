@@ -26,7 +26,7 @@ def _imported_after(code: str) -> set[str]:
 
 def test_import_is_light():
     assert (
-        _imported_after("import quash_plugins; quash_plugins.Quash; quash_plugins.registry")
+        _imported_after("import quash_plugins; quash_plugins.Quash; quash_plugins.core.registry")
         == set()
     )
 

@@ -2,8 +2,8 @@ from __future__ import annotations
 
 import pytest
 
-from quash_plugins import registry
-from quash_plugins.errors import ConfigError, PluginError
+from quash_plugins.core import registry
+from quash_plugins.core.errors import ConfigError, PluginError
 
 
 def test_builtins_are_listed_from_metadata():

@@ -11,8 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from quash_plugins import Quash, registry
-from quash_plugins.errors import PluginError
+from quash_plugins import Quash
+from quash_plugins.core import registry
+from quash_plugins.core.errors import PluginError
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from quash_plugins.cli.main import main
-from quash_plugins.encoders.cache import TextEmbeddingCache, default_cache_dir
+from quash_plugins.engine.cache import TextEmbeddingCache, default_cache_dir
 
 pytest.importorskip("sentence_transformers")
 
@@ -17,7 +17,7 @@ pytest.importorskip("sentence_transformers")
 def minilm_map(minilm, tmp_path):
     """A 384-d NPZ map: 40 items near 'chair', 40 near 'bathtub' (MiniLM's own space)."""
     from quash_plugins.adapters._npz import write_npz_map
-    from quash_plugins.types import LatentMap
+    from quash_plugins.core.types import LatentMap
 
     rng = np.random.default_rng(0)
     W = minilm.encode_text(["chair", "bathtub"])
@@ -118,7 +118,7 @@ def test_cache_dir_option_and_missing_action(tmp_path, capsys):
 
 def test_dimension_mismatch_names_dims_and_preset(tmp_path, capsys):
     from quash_plugins.adapters._npz import write_npz_map
-    from quash_plugins.types import LatentMap
+    from quash_plugins.core.types import LatentMap
 
     E = np.random.default_rng(1).normal(size=(10, 512)).astype(np.float32)
     path = write_npz_map(tmp_path / "lseg512.npz", LatentMap(E))

@@ -8,8 +8,8 @@ import socket
 import numpy as np
 import pytest
 
-from quash_plugins import registry
-from quash_plugins.errors import EncoderError
+from quash_plugins.core import registry
+from quash_plugins.core.errors import EncoderError
 
 pytest.importorskip("sentence_transformers")
 
@@ -111,8 +111,8 @@ def test_sentence_transformers_missing_model_says_how_to_fix():
 
 
 def test_bad_device_is_a_clear_error():
+    from quash_plugins.core.errors import ConfigError
     from quash_plugins.encoders._sentence_transformers import MiniLMEncoder
-    from quash_plugins.errors import ConfigError
 
     with pytest.raises(ConfigError, match="not a torch device"):
         MiniLMEncoder(device="toaster").encode_text(["x"])
@@ -121,7 +121,7 @@ def test_bad_device_is_a_clear_error():
 def test_auto_device_picks_cpu_without_accelerators(monkeypatch):
     import torch
 
-    from quash_plugins.encoders._common import resolve_device
+    from quash_plugins.encoders._runtime import resolve_device
 
     monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
     monkeypatch.setattr(torch.backends.mps, "is_available", lambda: False)
@@ -134,7 +134,7 @@ def test_auto_device_picks_cpu_without_accelerators(monkeypatch):
 def test_cuda_requested_without_cuda_fails_clearly(monkeypatch):
     import torch
 
-    from quash_plugins.encoders._common import resolve_device
+    from quash_plugins.encoders._runtime import resolve_device
 
     monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
     with pytest.raises(EncoderError, match="CUDA is not available"):
@@ -146,7 +146,7 @@ def test_long_encode_reports_progress(minilm, monkeypatch):
 
     calls = []
     monkeypatch.setattr(mod, "PROGRESS_MIN", 3)
-    import quash_plugins._progress as prog
+    import quash_plugins.core.progress as prog
 
     real = prog.progress
 

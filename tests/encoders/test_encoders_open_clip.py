@@ -8,7 +8,7 @@ import socket
 import numpy as np
 import pytest
 
-from quash_plugins.errors import ConfigError, EncoderError
+from quash_plugins.core.errors import ConfigError, EncoderError
 
 open_clip = pytest.importorskip("open_clip")
 torch = pytest.importorskip("torch")
@@ -159,7 +159,7 @@ def test_missing_preset_weights_fail_fast_with_file_and_place(preset, tmp_path, 
 def test_presets_match_open_clip_and_pipeline():
     """Preset towers exist in open_clip with the stated tag and dimension."""
     from quash_plugins.encoders._open_clip import OPEN_CLIP_PRESETS
-    from quash_plugins.pipeline import PRESETS_BY_DIM
+    from quash_plugins.engine.pipeline import PRESETS_BY_DIM
 
     for preset, (model, tag, dim, _) in OPEN_CLIP_PRESETS.items():
         assert model in open_clip.list_models()
@@ -226,7 +226,7 @@ def test_encode_images(tiny, tmp_path):
 
 def test_through_config_and_pipeline(tiny):
     from quash_plugins import Quash
-    from quash_plugins.types import LatentMap
+    from quash_plugins.core.types import LatentMap
 
     q = Quash.from_config(
         {

@@ -10,7 +10,7 @@ import yaml
 from _eval_table import table_for
 
 from quash_plugins.cli.main import main
-from quash_plugins.evaluation._classes import ABSENT, CLASSES
+from quash_plugins.demo.classes import ABSENT, CLASSES
 from quash_plugins.evaluation.metrics import query_metrics
 
 NAMES = (

@@ -5,12 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from quash_plugins.evaluation.metrics import (
-    absence_score,
-    macro_mean,
-    query_metrics,
-    valid_items,
-)
+from quash_plugins.evaluation.metrics import absence_score, macro_mean, query_metrics, valid_items
 
 
 def _reference(mask, truth, valid):

@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 import yaml
 
-from quash_plugins import registry
+from quash_plugins.core import registry
+from quash_plugins.core.errors import ConfigError, HeuristicError
+from quash_plugins.core.interfaces import Encoder, ExpansionContext
+from quash_plugins.core.types import LatentMap, QuerySet
 from quash_plugins.encoders import TableEncoder
-from quash_plugins.errors import ConfigError, HeuristicError
-from quash_plugins.heuristics.mined import add_map_negatives
-from quash_plugins.interfaces import Encoder, ExpansionContext
-from quash_plugins.pipeline import Quash
-from quash_plugins.types import LatentMap, QuerySet
+from quash_plugins.engine.pipeline import Quash
+from quash_plugins.heuristics._mined import add_map_negatives
 
 
 @pytest.fixture(autouse=True)
@@ -225,7 +225,7 @@ def test_taxonomy_from_map_labels():
 
 # ---------------------------------------------------------------- templates
 def test_templates_shipped_and_pipeline_uses_them():
-    from quash_plugins._encoding import load_templates
+    from quash_plugins.core.text import load_templates
 
     tpl = load_templates("default")
     assert 55 <= len(tpl) <= 70 and all(t.count("{}") == 1 for t in tpl)
@@ -412,7 +412,7 @@ def test_map_negatives_through_pipeline():
 
 # ---------------------------------------------------------------- config and conformance
 def test_combine_config_resolves_nested_paths(tmp_path):
-    from quash_plugins.config import QuashConfig
+    from quash_plugins.core.config import QuashConfig
 
     sub = tmp_path / "cfg"
     sub.mkdir()

@@ -10,10 +10,10 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
 import pytest
 
-from quash_plugins import registry
-from quash_plugins.errors import ConfigError, HeuristicError
+from quash_plugins.core import registry
+from quash_plugins.core.errors import ConfigError, HeuristicError
+from quash_plugins.core.interfaces import ExpansionContext
 from quash_plugins.heuristics._llm import PROMPT_VERSION, LLMHeuristic, chat_endpoint
-from quash_plugins.interfaces import ExpansionContext
 
 SECRET = "sk-test-not-a-real-key-1234567890"
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from quash_plugins import registry
-from quash_plugins.interfaces import ExpansionContext
+from quash_plugins.core import registry
+from quash_plugins.core.interfaces import ExpansionContext
 
 pytestmark = pytest.mark.slow
 

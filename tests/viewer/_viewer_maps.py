@@ -6,10 +6,10 @@ from pathlib import Path
 
 import numpy as np
 
-from quash_plugins import registry
+from quash_plugins.core import registry
+from quash_plugins.core.types import FrameInfo, LatentMap
 from quash_plugins.encoders import TableEncoder
-from quash_plugins.pipeline import Quash
-from quash_plugins.types import FrameInfo, LatentMap
+from quash_plugins.engine.pipeline import Quash
 
 #: 4-d text embeddings: chair and sofa are separable from the generic negatives.
 TABLE = {

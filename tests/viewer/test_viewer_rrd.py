@@ -7,13 +7,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import rerun as rr
+from _viewer_maps import make_quash, pixel_map, voxel_map, write_table_config
+from rerun.chunk import RrdReader
 
-rr = pytest.importorskip("rerun")
-from _viewer_maps import make_quash, pixel_map, voxel_map, write_table_config  # noqa: E402
-from rerun.chunk import RrdReader  # noqa: E402
-
-from quash_plugins.types import Instance, QueryResult  # noqa: E402
-from quash_plugins.viewer import MATCH_COLOR, RerunLogger  # noqa: E402
+from quash_plugins.core.types import Instance, QueryResult
+from quash_plugins.viewer import MATCH_COLOR, RerunLogger
 
 
 @pytest.fixture(autouse=True)
@@ -262,8 +261,8 @@ def test_cli_query_rrd_per_image_feature_map(tmp_path):
     pytest.importorskip("PIL")
     from PIL import Image
 
-    from quash_plugins import registry
     from quash_plugins.cli.main import main
+    from quash_plugins.core import registry
 
     if "image-features" not in registry.available("adapters"):
         pytest.skip("the image-features adapter is not installed")
@@ -304,7 +303,7 @@ def test_cli_query_rrd_per_image_feature_map(tmp_path):
         labels = lmap.labels[frame.offset : frame.offset + frame.size]
         for (t, [buf]), label in zip(masks, (0, 1)):
             assert (np.array(buf) == 1).tolist() == (labels == label).tolist(), (t, label)
-        # Instances come from quash_plugins.instances (connected pixels per frame).
+        # Instances come from quash_plugins.engine.instances (connected pixels per frame).
         boxes = rows(by_path[f"images/{name}/instances"], "Boxes2D:labels")
         assert [t for t, _ in boxes] == [0, 1] and all(labels for _, labels in boxes)
         # The chair block of frame i covers rows 1..2 and columns 1+i..3+i.

@@ -1,0 +1,155 @@
+"""quash-plugins' zarr map store: embeddings chunked by rows, written atomically.
+
+Layout of ``MAP.zarr`` (a zarr group, format 3):
+
+- ``embeddings`` ``(N, D)``, dtype kept (float16 stays float16), chunks of whole rows;
+- ``positions`` ``(N, 3)`` float32, ``colors`` ``(N, 3)`` uint8, ``labels`` ``(N,)`` int64,
+  ``grid_index`` ``(N, 3)`` int64 when the map has them;
+- group attributes ``quash_map`` (format version), ``kind``, ``voxel_size``,
+  ``normalize``, ``label_names``, ``frames`` and ``source``.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import shutil
+import uuid
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..core.errors import MapFormatError, QuashError
+from ..core.optional import require
+from ..core.types import FrameInfo, LatentMap
+
+log = logging.getLogger(__name__)
+
+FORMAT_VERSION = 1
+ROW_ARRAYS = ("positions", "colors", "labels", "grid_index")
+
+
+def store_chunk_rows(dim: int, itemsize: int, chunk_mb: float = 16.0) -> int:
+    """Rows per stored chunk so that one chunk holds about ``chunk_mb`` MiB."""
+    return max(1, int(chunk_mb * 2**20 // max(1, dim * itemsize)))
+
+
+def write_zarr_map(
+    lmap: LatentMap, path: str | Path, *, chunk_mb: float = 16.0, overwrite: bool = True
+) -> Path:
+    """Write ``lmap`` as a zarr store at ``path``, atomically.
+
+    The store is written into a temporary sibling folder and renamed into place, so a
+    reader never sees half a store. Embeddings are copied one stored chunk at a time and
+    are never held whole in memory; values are kept as stored (``normalize`` is recorded,
+    not applied).
+
+    Examples
+    --------
+    >>> import numpy as np, tempfile, os
+    >>> m = LatentMap(np.eye(4, dtype=np.float16), kind="voxels", voxel_size=0.05)
+    >>> p = write_zarr_map(m, os.path.join(tempfile.mkdtemp(), "m.zarr"))
+    >>> from quash_plugins.adapters import read_map
+    >>> str(read_map(p).embeddings.dtype)
+    'float16'
+    """
+    zarr = require("zarr", "dask", "Zarr maps")
+    path = Path(path).expanduser()
+    if path.exists() and not overwrite:
+        raise QuashError(f"{path} exists. Remove it or pass overwrite=True.")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.parent / f".{path.name}.tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+    try:
+        group = zarr.open_group(str(tmp), mode="w", zarr_format=3)
+        emb = lmap.embeddings
+        dtype = np.dtype(emb.dtype)
+        rows = min(lmap.n, store_chunk_rows(lmap.dim, dtype.itemsize, chunk_mb))
+        z = group.create_array(
+            "embeddings", shape=(lmap.n, lmap.dim), chunks=(rows, lmap.dim), dtype=dtype
+        )
+        for start in range(0, lmap.n, rows):
+            stop = min(lmap.n, start + rows)
+            z[start:stop] = np.asarray(emb[start:stop], dtype=dtype)
+        for key in ROW_ARRAYS:
+            value = getattr(lmap, key)
+            if value is not None:
+                value = np.asarray(value)
+                step = min(lmap.n, max(1, rows * 4))
+                group.create_array(key, data=value, chunks=(step, *value.shape[1:]))
+        group.attrs.update(
+            {
+                "quash_map": FORMAT_VERSION,
+                "kind": lmap.kind,
+                "voxel_size": lmap.voxel_size,
+                "normalize": bool(lmap.normalize),
+                "label_names": list(lmap.label_names) if lmap.label_names is not None else None,
+                "frames": [asdict(f) for f in lmap.frames] if lmap.frames else None,
+                "source": {
+                    k: v for k, v in lmap.source.items() if isinstance(v, (str, int, float))
+                },
+            }
+        )
+        if path.exists():
+            old = path.parent / f".{path.name}.old-{uuid.uuid4().hex[:8]}"
+            os.replace(path, old)
+            os.replace(tmp, path)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(tmp, path)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    log.info("wrote %s: %d x %d %s in chunks of %d rows", path, lmap.n, lmap.dim, dtype, rows)
+    return path
+
+
+def read_zarr_map(path: str | Path, *, dask: bool = False, chunk_rows: int | None = None):
+    """Open a zarr map lazily. ``dask=True`` gives ``da.from_zarr`` embeddings.
+
+    A bare 2-D zarr array (not a group) is read as an embeddings-only map.
+    """
+    zarr = require("zarr", "dask", "Zarr maps")
+    path = Path(path)
+    try:
+        node = zarr.open(str(path), mode="r")
+    except Exception as exc:  # noqa: BLE001 - zarr raises many types for a bad store
+        raise MapFormatError(f"{path}: not a readable zarr store ({exc}).") from None
+    attrs: dict[str, Any] = {}
+    if isinstance(node, zarr.Array):
+        emb = node
+    else:
+        if "embeddings" not in node:
+            found = ", ".join(sorted(node.keys())) or "nothing"
+            raise MapFormatError(
+                f"{path}: missing array 'embeddings' (N, D). Found: {found}. Write maps with "
+                "`quash convert SRC DST.zarr`."
+            )
+        emb = node["embeddings"]
+        attrs = dict(node.attrs)
+    if len(emb.shape) != 2:
+        raise MapFormatError(f"{path}: 'embeddings' must be 2-D (N, D); got shape {emb.shape}.")
+    if dask:
+        import dask.array as da
+
+        rows = chunk_rows or emb.chunks[0]
+        emb = da.from_zarr(emb, chunks=(rows, emb.shape[1]))
+    rows_data = {}
+    if attrs or not isinstance(node, zarr.Array):
+        for key in ROW_ARRAYS:
+            if key in node:
+                rows_data[key] = np.asarray(node[key][...])
+    frames = attrs.get("frames")
+    voxel = attrs.get("voxel_size")
+    kind = attrs.get("kind") or ("voxels" if voxel else "points")
+    return LatentMap(
+        embeddings=emb,
+        kind=kind,
+        label_names=attrs.get("label_names"),
+        voxel_size=float(voxel) if voxel is not None else None,
+        frames=[FrameInfo(**f) for f in frames] if frames else None,
+        normalize=bool(attrs.get("normalize", False)),
+        source={**dict(attrs.get("source") or {}), "adapter": "zarr", "path": str(path)},
+        **rows_data,
+    )

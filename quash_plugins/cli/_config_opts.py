@@ -1,0 +1,55 @@
+"""Config options shared by the subcommands: ``-c/--config``, ``--no-cache``, ``--device``."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from ..core.config import QuashConfig
+from ..core.errors import UsageError
+
+
+def add_config_option(parser: argparse.ArgumentParser, multiple: bool = False) -> None:
+    if multiple:
+        parser.add_argument(
+            "-c",
+            "--config",
+            action="append",
+            metavar="CONFIG",
+            dest="configs",
+            default=None,
+            help="Method config (YAML); repeat to compare methods side by side.",
+        )
+    else:
+        parser.add_argument(
+            "-c",
+            "--config",
+            metavar="CONFIG",
+            default=None,
+            help="Method config (YAML). Default: minilm + none + nearest-sample.",
+        )
+
+
+def add_runtime_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--no-cache", action="store_true", help="Do not read or write the text-embedding cache."
+    )
+    parser.add_argument(
+        "--device", default=None, help="Override the config's device (cpu, cuda, mps, auto)."
+    )
+
+
+def load_config(path: str | None) -> QuashConfig:
+    if path is None:
+        return QuashConfig()
+    if not Path(path).exists():
+        raise UsageError(f"Config file not found: {path}")
+    return QuashConfig.from_yaml(path)
+
+
+def apply_runtime_options(cfg: QuashConfig, args: argparse.Namespace) -> QuashConfig:
+    if getattr(args, "no_cache", False):
+        cfg.cache = False
+    if getattr(args, "device", None):
+        cfg.device = args.device
+    return cfg

@@ -1,0 +1,336 @@
+"""Pipeline configuration: a dataclass checked strictly, loaded from YAML or a dict.
+
+The same fields feed the YAML files, the docs' config reference
+(:func:`config_reference`) and :class:`quash_plugins.Quash`. An unknown key is an
+error naming the key, the file and the line; a plugin parameter is either honoured
+by the plugin or rejected when the plugin is built.
+
+Examples
+--------
+>>> cfg = QuashConfig.from_dict({"encoder": {"name": "minilm"}, "classifier": "contrast"})
+>>> cfg.classifier.name
+'contrast'
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from .errors import ConfigError, closest
+from .types import DEFAULT_NEGATIVES
+
+_PATH_KEYS = ("file", "path", "checkpoint", "vocabulary", "taxonomy", "cache_dir", "labels_file")
+
+
+@dataclass
+class PluginSpec:
+    """A plugin name plus its keyword parameters (``{name: svm-rbf, C: 1.0}``)."""
+
+    name: str
+    params: dict[str, Any] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"name": self.name, **self.params}
+
+
+#: The heuristic of a config that names none: works with every encoder.
+DEFAULT_HEURISTIC = PluginSpec("none")
+#: The classifier of a config that names none, chosen by the quality benchmark
+#: (docs/benchmarks.md); the paper's SVM is ``svm-rbf``.
+DEFAULT_CLASSIFIER = PluginSpec("nearest-sample", {"k": 2})
+
+
+def _default(spec: PluginSpec):
+    return lambda: PluginSpec(spec.name, dict(spec.params))
+
+
+@dataclass
+class QuashConfig:
+    """Everything that defines a QuASH method; one YAML file per method."""
+
+    name: str = field(default="quash", metadata={"help": "Label used in tables and plots."})
+    encoder: PluginSpec = field(
+        default_factory=lambda: PluginSpec("minilm"),
+        metadata={"help": "Text encoder; must match the map's embedding space."},
+    )
+    heuristic: PluginSpec = field(
+        default_factory=_default(DEFAULT_HEURISTIC),
+        metadata={
+            "help": "Expands the query into positives and negatives. The default, none, "
+            "works with every encoder; vocabulary and taxonomy are what make QuASH pay off."
+        },
+    )
+    classifier: PluginSpec = field(
+        default_factory=_default(DEFAULT_CLASSIFIER),
+        metadata={
+            "help": "Trained on the text embeddings, applied to every map item. The "
+            "default was chosen by the quality benchmark (docs/benchmarks.md); the "
+            "paper's SVM is svm-rbf."
+        },
+    )
+    negatives: list[str] = field(
+        default_factory=lambda: list(DEFAULT_NEGATIVES),
+        metadata={"help": "Generic negatives always added to the antonyms."},
+    )
+    threshold: float = field(
+        default=0.0,
+        metadata={
+            "help": "Decision threshold: items with score > threshold match. Raise it "
+            "for precision, lower it for recall."
+        },
+    )
+    prompt_templates: dict[str, Any] | None = field(
+        default=None,
+        metadata={
+            "help": "Prompt engineering for any heuristic: {mode: mean|all, templates: "
+            "default|[...]|FILE}. null turns it off."
+        },
+    )
+    map_negatives: dict[str, Any] | None = field(
+        default=None,
+        metadata={
+            "help": "Map-mined negatives: vocabulary names that win many map items but "
+            "are not the query ({n: 5, min_share: 0.01}). null turns it off."
+        },
+    )
+    refine: dict[str, Any] | None = field(
+        default=None,
+        metadata={
+            "help": "Transductive refinement: re-fit on the map's most confident matches "
+            "and a sample of clear non-matches, then classify again ({classifier: svm-rbf, "
+            "n_positives: 100, n_negatives: 1000, negative_quantile: 0.5, min_seed: 10}; "
+            "{} takes these defaults). null turns it off."
+        },
+    )
+    adapter: PluginSpec = field(
+        default_factory=lambda: PluginSpec("auto"),
+        metadata={"help": "Map adapter and its options; 'auto' sniffs the file."},
+    )
+    instances: dict[str, Any] | None = field(
+        default_factory=dict,
+        metadata={"help": "Instance grouping options ({min_size: 3, radius: ...}); null disables."},
+    )
+    seed: int = field(default=0, metadata={"help": "Seed for random heuristics."})
+    device: str = field(default="auto", metadata={"help": "cpu, cuda, mps or auto."})
+    cache: bool = field(default=True, metadata={"help": "Cache text embeddings on disk."})
+    chunk_mb: float = field(
+        default=256.0, metadata={"help": "Working-set budget for classification, in MB."}
+    )
+    source: str | None = field(default=None, metadata={"help": "File the config came from."})
+
+    # ------------------------------------------------------------------ loading
+    @classmethod
+    def from_dict(
+        cls,
+        data: dict[str, Any],
+        *,
+        path: str | Path | None = None,
+        lines: dict[tuple, int] | None = None,
+    ) -> QuashConfig:
+        """Build from a plain dict, rejecting unknown keys."""
+        lines = lines or {}
+        where = _Where(path, lines)
+        if not isinstance(data, dict):
+            raise ConfigError(f"{where.at(())}the config must be a mapping of keys to values.")
+        known = [f.name for f in dataclasses.fields(cls) if f.name != "source"]
+        kwargs: dict[str, Any] = {}
+        for key, value in data.items():
+            if key not in known:
+                guess = closest(str(key), known)
+                hint = f" Did you mean {guess!r}?" if guess else ""
+                raise ConfigError(
+                    f"{where.at((key,))}unknown key {key!r}. Known keys: {', '.join(known)}.{hint}"
+                )
+            kwargs[key] = _convert(cls, key, value, where, path)
+        cfg = cls(**kwargs)
+        cfg.source = str(path) if path else None
+        return cfg
+
+    @classmethod
+    def from_yaml(cls, path: str | Path) -> QuashConfig:
+        """Load a YAML file; errors name the file and the line."""
+        data, lines = load_yaml(path)
+        if data is None:
+            data = {}
+        return cls.from_dict(data, path=path, lines=lines)
+
+    @classmethod
+    def load(cls, source: str | Path | dict[str, Any] | QuashConfig) -> QuashConfig:
+        if isinstance(source, QuashConfig):
+            return source
+        if isinstance(source, dict):
+            return cls.from_dict(source)
+        return cls.from_yaml(source)
+
+    def to_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        for f in dataclasses.fields(self):
+            if f.name == "source":
+                continue
+            v = getattr(self, f.name)
+            out[f.name] = v.to_dict() if isinstance(v, PluginSpec) else v
+        return out
+
+
+class _Where:
+    def __init__(self, path, lines):
+        self.path = path
+        self.lines = lines
+
+    def at(self, keys: tuple) -> str:
+        line = None
+        for n in range(len(keys), -1, -1):
+            if keys[:n] in self.lines:
+                line = self.lines[keys[:n]]
+                break
+        if self.path is None:
+            return "config: "
+        return f"{self.path}:{line}: " if line else f"{self.path}: "
+
+
+def _convert(cls, key: str, value: Any, where: _Where, path) -> Any:
+    f = {f.name: f for f in dataclasses.fields(cls)}[key]
+    if key in ("encoder", "heuristic", "classifier", "adapter"):
+        return _plugin_spec(key, value, where, path)
+    if key == "negatives":
+        if value is None:
+            return []
+        if isinstance(value, str) or not isinstance(value, list):
+            raise ConfigError(f"{where.at((key,))}'negatives' must be a list of strings.")
+        return [str(v) for v in value]
+    if key in ("prompt_templates", "map_negatives", "instances", "refine"):
+        if value is None or value is False:
+            return None
+        if value is True:
+            return {}
+        if not isinstance(value, dict):
+            raise ConfigError(f"{where.at((key,))}{key!r} must be a mapping, true or null.")
+        if key == "prompt_templates":
+            value = dict(value)
+            tpl = value.get("templates")
+            if isinstance(tpl, str) and tpl != "default":
+                value["templates"] = _resolve_path(tpl, path)
+        return dict(value)
+    typ = {
+        "name": str,
+        "threshold": float,
+        "seed": int,
+        "device": str,
+        "cache": bool,
+        "chunk_mb": float,
+    }[key]
+    if typ is bool and not isinstance(value, bool):
+        raise ConfigError(f"{where.at((key,))}{key!r} must be true or false; got {value!r}.")
+    try:
+        out = typ(value)
+    except (TypeError, ValueError):
+        raise ConfigError(
+            f"{where.at((key,))}{key!r} must be a {typ.__name__}; got {value!r}. ({f.metadata['help']})"
+        ) from None
+    if key == "chunk_mb" and out <= 0:
+        raise ConfigError(f"{where.at((key,))}'chunk_mb' must be positive.")
+    return out
+
+
+def _plugin_spec(key: str, value: Any, where: _Where, path) -> PluginSpec:
+    if isinstance(value, PluginSpec):
+        return value
+    if isinstance(value, str):
+        return PluginSpec(value)
+    if not isinstance(value, dict) or "name" not in value:
+        raise ConfigError(
+            f"{where.at((key,))}{key!r} must be a plugin name or a mapping with 'name', "
+            f"e.g. {key}: {{name: ..., <param>: <value>}}."
+        )
+    params = {str(k): v for k, v in value.items() if k != "name"}
+    for k, v in list(params.items()):
+        if isinstance(v, str) and _is_path_key(k):
+            params[k] = _resolve_path(v, path)
+        elif isinstance(v, dict) and "name" in v:  # nested spec (combine, templates base)
+            inner = _plugin_spec(k, v, where, path)
+            sub = dict(v.get("params") or {}) if isinstance(v.get("params"), dict) else None
+            if sub is not None:
+                inner = _plugin_spec(k, {"name": inner.name, **sub}, where, path)
+                params[k] = {"name": inner.name, "params": inner.params}
+            else:
+                params[k] = {"name": inner.name, **inner.params}
+    return PluginSpec(str(value["name"]), params)
+
+
+def _is_path_key(k: str) -> bool:
+    return k in _PATH_KEYS or k.endswith("_file") or k.endswith("_path")
+
+
+def _resolve_path(value: str, config_path) -> str:
+    """Resolve a relative path against the config file's directory."""
+    if config_path is None or value.startswith(("hf-hub:", "http://", "https://", "~")):
+        return str(Path(value).expanduser()) if value.startswith("~") else value
+    p = Path(value)
+    if p.is_absolute():
+        return value
+    return str(Path(config_path).resolve().parent / p)
+
+
+def load_yaml(path: str | Path) -> tuple[Any, dict[tuple, int]]:
+    """Parse a YAML file safely; return the data and the 1-based line of each key path.
+
+    Raises :class:`ConfigError` naming the file and line for malformed YAML, and for a
+    missing or unreadable file.
+    """
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(f"Config file not found: {p}") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"Cannot read config file {p}: {exc}") from None
+    try:
+        node = yaml.compose(text, Loader=yaml.SafeLoader)
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None) or getattr(exc, "context_mark", None)
+        problem = getattr(exc, "problem", None) or str(exc)
+        loc = f"{p}:{mark.line + 1}:{mark.column + 1}" if mark else str(p)
+        raise ConfigError(
+            f"{loc}: malformed YAML: {problem}. Check indentation and quoting."
+        ) from None
+    lines: dict[tuple, int] = {}
+    _walk(node, (), lines)
+    return data, lines
+
+
+def _walk(node, prefix: tuple, lines: dict[tuple, int]) -> None:
+    if isinstance(node, yaml.MappingNode):
+        for k, v in node.value:
+            key = k.value
+            lines[(*prefix, key)] = k.start_mark.line + 1
+            _walk(v, (*prefix, key), lines)
+    elif isinstance(node, yaml.SequenceNode):
+        for i, v in enumerate(node.value):
+            lines[(*prefix, i)] = v.start_mark.line + 1
+            _walk(v, (*prefix, i), lines)
+
+
+def config_reference() -> str:
+    """Markdown table of every config key, its default and its help (for the docs)."""
+    rows = ["| key | default | meaning |", "| --- | --- | --- |"]
+    for f in dataclasses.fields(QuashConfig):
+        if f.name == "source":
+            continue
+        if f.default is not dataclasses.MISSING:
+            default = f.default
+        else:
+            default = f.default_factory()  # type: ignore[misc]
+        if isinstance(default, PluginSpec):
+            default = default.to_dict()
+        rows.append(f"| `{f.name}` | `{default!r}` | {f.metadata.get('help', '')} |")
+    return "\n".join(rows)
+
+
+if __name__ == "__main__":  # pragma: no cover - regenerates the table in docs/config.md
+    print(config_reference())

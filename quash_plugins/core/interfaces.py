@@ -1,0 +1,249 @@
+"""The four plugin interfaces: :class:`Encoder`, :class:`Heuristic`, :class:`Classifier`
+and :class:`MapAdapter`.
+
+A plugin is a class built with its configuration parameters as keyword arguments and
+registered under an entry point (see :mod:`quash_plugins.core.registry`). Conformance is
+checked by :mod:`quash_plugins.testing`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from abc import ABC, abstractmethod
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+from sklearn.base import BaseEstimator
+
+from .errors import EncoderError
+from .kernels import KernelExpansion
+from .types import DEFAULT_NEGATIVES, LatentMap, QuerySet
+
+
+class Encoder(ABC):
+    """A text encoder whose embedding space matches a map's.
+
+    Subclasses set :attr:`name`, implement :attr:`dim` and :meth:`encode_text`, and
+    should override :meth:`fingerprint` when the weights can change under the same name.
+    """
+
+    #: Stable identifier (used in cache keys and messages).
+    name: str = "encoder"
+    #: Torch-style device string, or None for encoders that do not use one.
+    device: str | None = None
+
+    @property
+    @abstractmethod
+    def dim(self) -> int:
+        """Embedding dimension D."""
+
+    @abstractmethod
+    def encode_text(self, texts: Sequence[str]) -> np.ndarray:
+        """Embed ``texts``; return ``(len(texts), dim)`` float32 with unit-norm rows."""
+
+    def encode_images(self, images: Any) -> np.ndarray:
+        """Optional: global image embeddings ``(n, dim)``. Not every encoder has an image tower."""
+        raise NotImplementedError(f"Encoder {self.name!r} has no image tower.")
+
+    def config(self) -> dict[str, Any]:
+        """Parameters that identify this encoder's output (for fingerprints and provenance)."""
+        return {}
+
+    def fingerprint(self) -> str:
+        """Identity of the embedding function: changes whenever its output could change."""
+        payload = {
+            "class": f"{type(self).__module__}.{type(self).__qualname__}",
+            "name": self.name,
+            "dim": self.dim,
+            "config": self.config(),
+            "normalized": True,
+        }
+        blob = json.dumps(payload, sort_keys=True, default=str).encode()
+        return f"{self.name}-{hashlib.sha256(blob).hexdigest()[:16]}"
+
+
+def check_text_embeddings(
+    emb: Any, texts: Sequence[str], dim: int, who: str, normalize: bool = True
+) -> np.ndarray:
+    """Validate an encoder's output at the boundary and return unit-norm float32.
+
+    Raises :class:`EncoderError` naming the encoder when the shape or values are wrong.
+    """
+    arr = np.asarray(emb, dtype=np.float32)
+    if arr.shape != (len(texts), dim):
+        raise EncoderError(
+            f"Encoder {who!r} returned shape {arr.shape} for {len(texts)} texts; "
+            f"expected ({len(texts)}, {dim})."
+        )
+    if not np.isfinite(arr).all():
+        raise EncoderError(f"Encoder {who!r} returned NaN or Inf embeddings.")
+    if normalize and len(arr):
+        norms = np.linalg.norm(arr, axis=1, keepdims=True)
+        if (norms == 0).any():
+            bad = texts[int(np.argmin(norms[:, 0]))]
+            raise EncoderError(f"Encoder {who!r} returned a zero embedding for {bad!r}.")
+        arr = arr / norms
+    return np.ascontiguousarray(arr, dtype=np.float32)
+
+
+@dataclass
+class ExpansionContext:
+    """What a heuristic may use besides the query text.
+
+    Attributes
+    ----------
+    encoder
+        The active encoder (for heuristics that embed a vocabulary or resolve labels).
+    label_names
+        The map's ground-truth label names, when known.
+    map
+        The map being queried (for map-mined negatives).
+    seed
+        Seed for random heuristics; the same seed gives the same set.
+    negatives
+        The generic negatives of the config (added by the pipeline afterwards).
+    """
+
+    encoder: Encoder | None = None
+    label_names: list[str] | None = None
+    map: LatentMap | None = None
+    seed: int | None = 0
+    negatives: tuple[str, ...] = DEFAULT_NEGATIVES
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def rng(self, salt: str = "") -> np.random.Generator:
+        """A generator seeded from ``seed`` and ``salt`` (e.g. the query), stable across runs."""
+        digest = hashlib.sha256(f"{self.seed}|{salt}".encode()).digest()
+        return np.random.default_rng(int.from_bytes(digest[:8], "little"))
+
+
+class Heuristic(ABC):
+    """Expands a query into a :class:`QuerySet` of positives and negatives."""
+
+    name: str = "heuristic"
+
+    @abstractmethod
+    def expand(self, query: str, context: ExpansionContext | None = None) -> QuerySet:
+        """Return the query set for ``query``. Random heuristics use ``context.seed``."""
+
+    def params(self) -> dict[str, Any]:
+        """Parameters recorded in the query set's provenance."""
+        return {k: v for k, v in vars(self).items() if not k.startswith("_")}
+
+    def provenance(self, context: ExpansionContext | None, **extra: Any) -> dict[str, Any]:
+        out: dict[str, Any] = {"heuristic": self.name, "params": self.params()}
+        if context is not None and context.seed is not None:
+            out["seed"] = context.seed
+        out.update(extra)
+        return out
+
+
+class Classifier(BaseEstimator):
+    """A scikit-learn estimator trained on text embeddings and applied to map items.
+
+    Contract (scikit-learn's): ``__init__`` stores its keyword arguments unchanged;
+    fitted state ends in ``_``. ``fit(X, y)`` takes ``X (n, D)`` float32 unit-norm text
+    embeddings and ``y (n,)`` with 1 for positives and 0 for negatives.
+    ``decision_function(E)`` returns ``(m,)`` with positive values for matches.
+    """
+
+    def fit(self, X: np.ndarray, y: np.ndarray) -> Classifier:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def decision_function(self, E: np.ndarray) -> np.ndarray:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def predict(self, E: np.ndarray) -> np.ndarray:
+        """Boolean match per row: ``decision_function(E) > 0``."""
+        return np.asarray(self.decision_function(E)) > 0
+
+    def postprocess_scores(self, scores: np.ndarray) -> np.ndarray:
+        """Map-level rescaling of the full score vector (e.g. min-max). Identity by default."""
+        return scores
+
+    def display_scores(self, scores: np.ndarray, threshold: float = 0.0) -> np.ndarray:
+        """Scores mapped to [0, 1] for display, 0.5 at ``threshold``. Logistic by default."""
+        s = np.asarray(scores, dtype=np.float32) - np.float32(threshold)
+        spread = float(np.std(s)) if s.size else 1.0
+        scale = spread if spread > 1e-6 else 1.0
+        return (0.5 * (1.0 + np.tanh(s / (2.0 * scale)))).astype(np.float32)
+
+    def describe(self) -> str:
+        """Short description for tables and the Rerun document."""
+        params = ", ".join(f"{k}={v!r}" for k, v in sorted(self.get_params(deep=False).items()))
+        return f"{type(self).__name__}({params})"
+
+
+@runtime_checkable
+class StackableClassifier(Protocol):
+    """Optional protocol: a classifier whose fitted decision function is a kernel expansion.
+
+    ``f(x) = sum_i coef_i k(x, s_i) + b`` with an RBF, cosine-RBF or linear-cosine kernel
+    (:class:`~quash_plugins.core.kernels.KernelPart`). The engine stacks the expansions of
+    every query being answered into one GEMM per block of the map, so ``query_many``
+    reads the map once. Built-in and third-party classifiers take part on equal terms:
+    implement ``kernel_expansion`` and return None until fitted.
+    """
+
+    def kernel_expansion(self) -> KernelExpansion | None: ...
+
+
+def check_training_set(X: Any, y: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Validate a text training set: 2-D float X, binary y with both classes."""
+    X = np.asarray(X, dtype=np.float32)
+    y = np.asarray(y).astype(np.int64).ravel()
+    if X.ndim != 2 or len(X) != len(y):
+        raise ValueError(f"X must be (n, D) with n == len(y); got X {X.shape}, y {y.shape}.")
+    values = set(np.unique(y).tolist())
+    if not values <= {0, 1} or len(values) < 2:
+        raise ValueError(
+            f"y must contain both 1 (positive) and 0 (negative); got {sorted(values)}."
+        )
+    return X, y
+
+
+class MapAdapter(ABC):
+    """Reads a map file, directory or live object into a :class:`LatentMap`.
+
+    Constructor keyword arguments are the adapter's options (e.g. ``gs``, ``cs``); the
+    same options may be overridden per call in :meth:`read`.
+    """
+
+    name: str = "adapter"
+
+    @abstractmethod
+    def sniff(self, source: Any) -> bool:
+        """True when this adapter can read ``source``. Must be cheap and never raise."""
+
+    @abstractmethod
+    def read(self, source: Any, **options: Any) -> LatentMap:
+        """Read ``source`` read-only and return a validated :class:`LatentMap`."""
+
+    def options(self, overrides: dict[str, Any]) -> dict[str, Any]:
+        """The constructor's options, updated by per-call ``overrides`` from :meth:`read`.
+
+        An override that the constructor does not accept raises
+        :class:`~quash_plugins.core.errors.MapFormatError` naming the accepted options.
+        """
+        from .errors import MapFormatError
+        from .registry import accepted_params
+
+        names = accepted_params(type(self)) or []
+        unknown = sorted(set(overrides) - set(names))
+        if unknown:
+            raise MapFormatError(
+                f"Adapter {self.name!r} has no option(s) {unknown}. "
+                f"Options: {', '.join(names) or '(none)'}."
+            )
+        return {**{n: getattr(self, n) for n in names}, **overrides}
+
+    def write_example(self, directory: Path) -> Any:
+        """Write a small valid example under ``directory`` and return its source.
+
+        Used by the conformance kit. Adapters for live objects may return the object.
+        """
+        raise NotImplementedError

@@ -1,0 +1,396 @@
+"""Core data types: :class:`LatentMap`, :class:`QuerySet`, :class:`QueryResult`.
+
+Shapes are checked here, at the boundary, so that nothing deeper has to.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+
+from .errors import MapFormatError, QuashError
+
+MapKind = Literal["voxels", "points", "pixels"]
+MAP_KINDS = ("voxels", "points", "pixels")
+
+#: Generic negatives the paper always adds to the antonyms.
+DEFAULT_NEGATIVES: tuple[str, ...] = ("other", "background", "nothing")
+
+
+@dataclass(frozen=True)
+class FrameInfo:
+    """Where one image's pixels sit in a pixel map's flat item axis.
+
+    Items ``offset : offset + height * width`` belong to this frame, in row-major order.
+    """
+
+    frame_id: str
+    height: int
+    width: int
+    offset: int
+    image_path: str | None = None
+
+    @property
+    def size(self) -> int:
+        return self.height * self.width
+
+
+def _describe_source(source: dict[str, Any]) -> str:
+    path = source.get("path")
+    return f" in {path}" if path else ""
+
+
+@dataclass
+class LatentMap:
+    """A latent-semantic map: one embedding per voxel, point or pixel.
+
+    Parameters
+    ----------
+    embeddings
+        ``(N, D)`` array-like: numpy array, memmap, h5py dataset or dask array. It is
+        never copied whole; the pipeline reads it in row chunks.
+    kind
+        ``"voxels"``, ``"points"`` or ``"pixels"``.
+    positions
+        ``(N, 3)`` float32, metres.
+    colors
+        ``(N, 3)`` uint8.
+    labels
+        ``(N,)`` int ground truth, indices into ``label_names``; negative means unlabelled.
+    label_names
+        ``(L,)`` names of the ground-truth labels.
+    voxel_size
+        Edge length of a voxel in metres (voxel maps).
+    grid_index
+        ``(N, 3)`` int voxel or cell coordinates, used for voxel connectivity.
+    frames
+        For pixel maps: one :class:`FrameInfo` per image.
+    normalize
+        True when rows are not unit norm and must be L2-normalised when read
+        (VLMaps, ConceptFusion). Zero rows are unobserved and never match.
+    source
+        Free-form metadata: ``adapter``, ``path``, ``encoder_hint``...
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> m = LatentMap(np.eye(3, dtype=np.float32), kind="points")
+    >>> m.n, m.dim
+    (3, 3)
+    """
+
+    embeddings: Any
+    kind: MapKind = "points"
+    positions: np.ndarray | None = None
+    colors: np.ndarray | None = None
+    labels: np.ndarray | None = None
+    label_names: list[str] | None = None
+    voxel_size: float | None = None
+    grid_index: np.ndarray | None = None
+    frames: list[FrameInfo] | None = None
+    normalize: bool = False
+    source: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        where = _describe_source(self.source)
+        shape = getattr(self.embeddings, "shape", None)
+        if shape is None:
+            self.embeddings = np.asarray(self.embeddings)
+            shape = self.embeddings.shape
+        if len(shape) != 2:
+            raise MapFormatError(
+                f"Field 'embeddings'{where} must be 2-D (N, D); got shape {tuple(shape)}."
+            )
+        n, d = int(shape[0]), int(shape[1])
+        if n == 0 or d == 0:
+            raise MapFormatError(
+                f"Field 'embeddings'{where} is empty (shape {tuple(shape)}); the map has no items."
+            )
+        dtype = np.dtype(self.embeddings.dtype)
+        if dtype.kind not in "fiu":
+            raise MapFormatError(f"Field 'embeddings'{where} must hold numbers; got dtype {dtype}.")
+        if self.kind not in MAP_KINDS:
+            raise MapFormatError(f"LatentMap kind must be one of {MAP_KINDS}; got {self.kind!r}.")
+        self.positions = self._check_rows("positions", self.positions, n, (3,), np.float32, where)
+        if self.positions is not None and not np.isfinite(self.positions).all():
+            raise MapFormatError(f"Field 'positions'{where} contains NaN or Inf.")
+        self.colors = self._check_colors(self.colors, n, where)
+        self.grid_index = self._check_rows("grid_index", self.grid_index, n, (3,), None, where)
+        if self.labels is not None:
+            self.labels = self._check_rows("labels", self.labels, n, (), None, where)
+            if self.labels.dtype.kind not in "iu":
+                raise MapFormatError(
+                    f"Field 'labels'{where} must be integers; got dtype {self.labels.dtype}."
+                )
+            self.labels = self.labels.astype(np.int64, copy=False)
+        if self.label_names is not None:
+            self.label_names = [str(x) for x in self.label_names]
+            if self.labels is not None and self.labels.size:
+                top = int(self.labels.max())
+                if top >= len(self.label_names):
+                    raise MapFormatError(
+                        f"Field 'labels'{where} refers to label {top}, but 'label_names' has "
+                        f"only {len(self.label_names)} entries."
+                    )
+        if self.frames is not None:
+            total = sum(f.size for f in self.frames)
+            if total != n:
+                raise MapFormatError(
+                    f"Frames{where} cover {total} pixels but the map has {n} items."
+                )
+
+    @staticmethod
+    def _check_rows(name, value, n, tail, dtype, where):
+        if value is None:
+            return None
+        arr = np.asarray(value)
+        if dtype is not None:
+            arr = arr.astype(dtype, copy=False)
+        if arr.shape != (n, *tail):
+            expected = "(N,)" if not tail else f"(N, {', '.join(map(str, tail))})"
+            raise MapFormatError(
+                f"Field {name!r}{where} must have shape {expected} with N = {n} "
+                f"(the number of embeddings); got {arr.shape}."
+            )
+        return arr
+
+    @classmethod
+    def _check_colors(cls, value, n, where):
+        if value is None:
+            return None
+        arr = np.asarray(value)
+        arr = cls._check_rows("colors", arr, n, (3,), None, where)
+        if arr.dtype != np.uint8:
+            if arr.dtype.kind == "f":
+                if not np.isfinite(arr).all():
+                    raise MapFormatError(f"Field 'colors'{where} contains NaN or Inf.")
+                scale = 255.0 if arr.size and float(arr.max()) <= 1.0 else 1.0
+                arr = np.clip(np.rint(arr * scale), 0, 255).astype(np.uint8)
+            else:
+                arr = np.clip(arr, 0, 255).astype(np.uint8)
+        return arr
+
+    @property
+    def n(self) -> int:
+        """Number of items N."""
+        return int(self.embeddings.shape[0])
+
+    @property
+    def dim(self) -> int:
+        """Embedding dimension D."""
+        return int(self.embeddings.shape[1])
+
+    @property
+    def dtype(self) -> np.dtype:
+        return np.dtype(self.embeddings.dtype)
+
+    def chunk_rows(self, chunk_bytes: int = 256 * 2**20, extra_per_row: int = 0) -> int:
+        """Rows per chunk so that one float32 chunk plus ``extra_per_row`` bytes fits."""
+        per_row = 4 * self.dim + max(0, int(extra_per_row))
+        return max(1, min(self.n, int(chunk_bytes // per_row)))
+
+    def iter_chunks(self, rows: int) -> Iterator[tuple[int, int, np.ndarray]]:
+        """Yield ``(start, stop, block)`` with ``block`` an ``(rows, D)`` float32 array.
+
+        Rows are L2-normalised when :attr:`normalize` is set (zero rows stay zero).
+        NaN or Inf raises :class:`MapFormatError` naming the first bad row.
+        """
+        for start in range(0, self.n, rows):
+            stop = min(self.n, start + rows)
+            block = np.asarray(self.embeddings[start:stop], dtype=np.float32)
+            yield start, stop, prepare_block(block, start, self.normalize, self.source)
+
+    def label_index(self, name: str) -> int | None:
+        """Index of a ground-truth label by name (case-insensitive), or None."""
+        if not self.label_names:
+            return None
+        low = name.strip().lower()
+        for i, label in enumerate(self.label_names):
+            if label.lower() == low:
+                return i
+        return None
+
+    def describe(self) -> str:
+        where = self.source.get("path", "<memory>")
+        return f"{self.kind} map {where}: {self.n} items x {self.dim} ({self.dtype})"
+
+
+def prepare_block(
+    block: np.ndarray, start: int, normalize: bool, source: dict[str, Any] | None = None
+) -> np.ndarray:
+    """Check a float32 block for NaN/Inf and L2-normalise its rows when asked."""
+    if not np.isfinite(block).all():
+        bad = int(np.argwhere(~np.isfinite(block))[0][0]) + start
+        where = _describe_source(source or {})
+        raise MapFormatError(
+            f"Field 'embeddings'{where} contains NaN or Inf (first at row {bad}). "
+            "Fix or drop those rows before querying."
+        )
+    if normalize:
+        norms = np.linalg.norm(block, axis=1, keepdims=True)
+        np.divide(block, norms, out=block, where=norms > 0)
+    return block
+
+
+@dataclass
+class QuerySet:
+    """The expanded query: positives (semantic synonyms) and negatives (antonyms).
+
+    ``provenance`` records how the set was made (heuristic, parameters, seed), so an
+    experiment can be reproduced from the YAML alone.
+    """
+
+    query: str
+    positives: list[str]
+    negatives: list[str]
+    provenance: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.query = check_query(self.query)
+        self.positives = _dedupe(self.positives)
+        self.negatives = [n for n in _dedupe(self.negatives) if n not in set(self.positives)]
+        if not self.positives:
+            raise QuashError(f"Query set for {self.query!r} has no positives.")
+
+    def with_negatives(self, extra: Sequence[str]) -> QuerySet:
+        """A copy with ``extra`` appended to the negatives (positives win on overlap)."""
+        return QuerySet(
+            self.query, list(self.positives), [*self.negatives, *extra], dict(self.provenance)
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "query": self.query,
+            "positives": list(self.positives),
+            "negatives": list(self.negatives),
+            "provenance": _plain(self.provenance),
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> QuerySet:
+        return cls(
+            data["query"],
+            list(data.get("positives", [])),
+            list(data.get("negatives", [])),
+            dict(data.get("provenance", {})),
+        )
+
+    def to_yaml(self) -> str:
+        import yaml
+
+        return yaml.safe_dump(self.to_dict(), sort_keys=False, allow_unicode=True)
+
+
+def check_query(text: Any) -> str:
+    """Strip a query and reject empty ones with a clear message."""
+    if not isinstance(text, str):
+        raise QuashError(f"A query must be a string; got {type(text).__name__}.")
+    stripped = " ".join(text.split())
+    if not stripped:
+        raise QuashError("The query is empty. Pass a word or phrase, e.g. 'chair'.")
+    return stripped
+
+
+def _dedupe(items: Sequence[str]) -> list[str]:
+    seen: set[str] = set()
+    out = []
+    for item in items:
+        s = " ".join(str(item).split())
+        if s and s not in seen:
+            seen.add(s)
+            out.append(s)
+    return out
+
+
+def _plain(obj: Any) -> Any:
+    """Convert numpy scalars/arrays and tuples into YAML/JSON-friendly values."""
+    if isinstance(obj, dict):
+        return {str(k): _plain(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_plain(v) for v in obj]
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, float) and math.isnan(obj):
+        return None
+    return obj
+
+
+@dataclass
+class Instance:
+    """A connected group of matched items: what a robot navigates to."""
+
+    id: int
+    indices: np.ndarray
+    centroid: np.ndarray
+    bbox_min: np.ndarray
+    bbox_max: np.ndarray
+    mean_score: float
+    frame_id: str | None = None
+
+    @property
+    def size(self) -> int:
+        return int(len(self.indices))
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "id": self.id,
+            "size": self.size,
+            "centroid": [float(x) for x in self.centroid],
+            "bbox_min": [float(x) for x in self.bbox_min],
+            "bbox_max": [float(x) for x in self.bbox_max],
+            "mean_score": float(self.mean_score),
+            "frame_id": self.frame_id,
+        }
+
+
+@dataclass
+class QueryResult:
+    """The answer to one query over one map.
+
+    Attributes
+    ----------
+    mask
+        ``(N,)`` bool, True where the item matches.
+    scores
+        ``(N,)`` float32 raw decision values; ``mask == scores > threshold``.
+    display_scores
+        ``(N,)`` float32 in [0, 1], for colormaps; 0.5 at the threshold.
+    """
+
+    queryset: QuerySet
+    mask: np.ndarray
+    scores: np.ndarray
+    display_scores: np.ndarray
+    threshold: float = 0.0
+    instances: list[Instance] = field(default_factory=list)
+    timings: dict[str, float] = field(default_factory=dict)
+    classifier: str = ""
+    config_name: str = ""
+    map_source: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def query(self) -> str:
+        return self.queryset.query
+
+    @property
+    def n_matched(self) -> int:
+        return int(np.count_nonzero(self.mask))
+
+    @property
+    def share(self) -> float:
+        return self.n_matched / max(1, len(self.mask))
+
+    def summary(self) -> dict[str, Any]:
+        return {
+            "query": self.query,
+            "matched": self.n_matched,
+            "share": self.share,
+            "instances": len(self.instances),
+            "timings": dict(self.timings),
+        }

@@ -1,0 +1,111 @@
+"""The offline demo: the peers' rules against QuASH on the cached proxy scene.
+
+The method configs ship as package data (``quash_plugins/data/configs/demo-*.yaml``);
+:func:`demo_config_paths` lists them so users can read and reuse them.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from ..evaluation.report import EvalReport, evaluate
+from .scene import SceneOptions, make_scene, write_scene
+
+log = logging.getLogger(__name__)
+
+#: Bump when the scene generator changes, so cached demo scenes are rebuilt.
+SCENE_VERSION = 1
+DEMO_QUERIES = (
+    "chair",
+    "table",
+    "sofa",
+    "bed",
+    "lamp",
+    "plant",
+    "tv",
+    "toilet",
+    "refrigerator",
+    "book",
+)
+DEMO_ABSENT = ("piano", "bathtub", "bicycle")
+DEMO_CONFIGS = (
+    "demo-vlmaps",
+    "demo-conceptfusion",
+    "demo-lerf",
+    "demo-quash-taxonomy",
+    "demo-quash-taxonomy-svm",
+    "demo-quash-adjectives",
+)
+TINY = SceneOptions(rooms=2, voxel_size=0.25, room_size=4.0, extra_objects=0)
+
+
+def cache_root() -> Path:
+    """``$QUASH_CACHE_DIR/demo``, else ``<user cache dir>/quash-plugins/demo``."""
+    root = os.environ.get("QUASH_CACHE_DIR")
+    if root:
+        return Path(root).expanduser() / "demo"
+    import platformdirs
+
+    return Path(platformdirs.user_cache_dir("quash-plugins")) / "demo"
+
+
+def demo_config_paths() -> list[Path]:
+    """The shipped demo configs, in table order."""
+    base = resources.files("quash_plugins.data").joinpath("configs")
+    return [Path(str(base.joinpath(f"{n}.yaml"))) for n in DEMO_CONFIGS]
+
+
+def demo_scene(
+    encoder: Any, tiny: bool = False, seed: int = 0, cache: Any = None, rebuild: bool = False
+) -> Path:
+    """Build (once) and return the cached demo scene's NPZ path."""
+    opts = SceneOptions(**{**TINY.__dict__, "seed": seed}) if tiny else SceneOptions(seed=seed)
+    tag = "tiny" if tiny else "full"
+    path = cache_root() / f"scene-v{SCENE_VERSION}-{tag}-seed{seed}-{encoder.name}.npz"
+    if path.exists() and not rebuild:
+        log.info("demo scene from cache: %s", path)
+        return path
+    log.info("building the demo scene (%s) in %s", tag, path.parent)
+    write_scene(make_scene(encoder, opts, cache=cache), path, opts)
+    return path
+
+
+def run_demo(
+    tiny: bool = False,
+    seed: int = 0,
+    overrides: dict[str, Any] | None = None,
+    viewer: Any = None,
+    configs: list[Path] | None = None,
+    queries: tuple[str, ...] = DEMO_QUERIES,
+    absent: tuple[str, ...] = DEMO_ABSENT,
+) -> tuple[EvalReport, Path]:
+    """Build or reuse the scene, evaluate every demo config, log to ``viewer`` if given."""
+    from ..engine.pipeline import Quash
+
+    overrides = dict(overrides or {})
+    quashes = [Quash.from_config(p, **overrides) for p in (configs or demo_config_paths())]
+    scene_path = demo_scene(quashes[0].encoder, tiny=tiny, seed=seed, cache=quashes[0].cache)
+    lmap = quashes[0].read_map(scene_path, adapter="npz")
+    present = set(lmap.label_names[i] for i in set(lmap.labels.tolist()))
+    qs = [q for q in queries if q in present] or None
+    report = evaluate(lmap, quashes, queries=qs, absent=absent, keep_results=viewer is not None)
+    if viewer is not None:
+        _log_demo(viewer, lmap, quashes, report)
+    return report, scene_path
+
+
+def _log_demo(viewer: Any, lmap: Any, quashes: list[Any], report: EvalReport) -> None:
+    """The map once, then each method's result per query, then the scalars per method."""
+    viewer.log_map(lmap)
+    texts = [*report.queries, *report.absent]
+    for step, c in enumerate(report.configs):
+        for i, r in enumerate(report.results.get(c["name"], [])):
+            viewer.log_result(lmap, r, index=step * len(texts) + i)
+        metrics = dict(c["mean"])
+        if c["absence"]["score"] is not None:
+            metrics["absence"] = c["absence"]["score"]
+        viewer.log_eval_scalars(c["name"], metrics, step)

@@ -1,0 +1,413 @@
+"""A 3D indoor proxy scene whose voxel embeddings come from a real text encoder.
+
+Rooms in a row share walls; each has a floor, walls, a ceiling, a door, a window and
+the furniture of its room type. Every voxel's embedding is the normalised mean of a few
+"appearance" names of its object's class, blended with a neighbouring object's embedding
+at boundaries, plus Gaussian noise and one constant "modality offset" (image embeddings
+of real maps sit apart from the text embeddings that query them). The taxonomy YAML
+written next to the map holds only the disjoint "language" names, so no method embeds
+the strings that built the voxels.
+
+Examples
+--------
+>>> from quash_plugins.demo.scene import SceneOptions
+>>> SceneOptions(rooms=1).rooms
+1
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..core.errors import ConfigError
+from ..core.types import LatentMap
+from .classes import ABSENT, ABSENT_FREE_TEXT, CLASSES, SUPPORTS, SceneClass
+
+log = logging.getLogger(__name__)
+
+ROOM_TYPES: dict[str, tuple[str, ...]] = {
+    "living room": (
+        "sofa",
+        "table",
+        "chair",
+        "tv",
+        "picture",
+        "lamp",
+        "plant",
+        "cushion",
+        "rug",
+        "shelf",
+        "book",
+        "vase",
+        "clock",
+        "curtain",
+        "radiator",
+    ),
+    "kitchen": (
+        "counter",
+        "refrigerator",
+        "stove",
+        "sink",
+        "cabinet",
+        "table",
+        "chair",
+        "trash can",
+        "clock",
+        "vase",
+        "towel",
+    ),
+    "bedroom": (
+        "bed",
+        "cabinet",
+        "lamp",
+        "picture",
+        "mirror",
+        "curtain",
+        "rug",
+        "cushion",
+        "book",
+        "desk",
+        "chair",
+    ),
+    "bathroom": ("toilet", "sink", "mirror", "towel", "cabinet", "trash can", "radiator"),
+    "office": (
+        "desk",
+        "chair",
+        "laptop",
+        "shelf",
+        "book",
+        "lamp",
+        "plant",
+        "trash can",
+        "picture",
+        "clock",
+    ),
+}
+
+
+@dataclass
+class SceneOptions:
+    """Options of :func:`make_scene` (the CLI exposes each as ``--option``).
+
+    Defaults resemble real maps: surfaces only, most voxels wall, floor or ceiling, small
+    objects, mixed boundaries, noisy embeddings and a modality offset.
+    """
+
+    seed: int = 0
+    rooms: int = 5
+    room_size: float = 4.5
+    room_height: float = 2.6
+    voxel_size: float = 0.1
+    extra_objects: int = 2
+    names_per_voxel: int = 3
+    boundary_blend: float = 0.45
+    confusion: float = 0.5
+    noise: float = 3.0
+    modality_offset: float = 0.8
+    size_scale: float = 1.0
+
+    def validate(self) -> None:
+        if self.rooms < 1:
+            raise ConfigError("scene option rooms must be >= 1.")
+        if not 0.02 <= self.voxel_size <= 0.5:
+            raise ConfigError("scene option voxel_size must be in [0.02, 0.5] metres.")
+        if self.room_size < 2.0 or self.room_height < 1.5:
+            raise ConfigError("scene option room_size must be >= 2 m and room_height >= 1.5 m.")
+        if not 0.0 <= self.boundary_blend < 1.0:
+            raise ConfigError("scene option boundary_blend must be in [0, 1).")
+        if self.noise < 0 or self.modality_offset < 0 or self.names_per_voxel < 1:
+            raise ConfigError(
+                "scene options noise, modality_offset must be >= 0 and names_per_voxel >= 1."
+            )
+
+
+@dataclass
+class Scene:
+    """The generated scene: the map, its taxonomy and suggested absence queries."""
+
+    map: LatentMap
+    taxonomy: dict[str, list[str]]
+    absent: list[str]
+    room_types: list[str]
+    n_objects: int
+
+
+def _class_index() -> dict[str, int]:
+    return {c.label: i for i, c in enumerate(CLASSES)}
+
+
+def _layout(opts: SceneOptions, rng: np.random.Generator):
+    """Fill a label volume and an instance volume; return them and the instance classes."""
+    vs = opts.voxel_size
+    n_room = int(round(opts.room_size / vs))
+    nx, ny, nz = n_room * opts.rooms + 1, n_room + 1, int(round(opts.room_height / vs)) + 1
+    label = np.full((nx, ny, nz), -1, np.int16)
+    inst = np.full((nx, ny, nz), -1, np.int32)
+    idx = _class_index()
+    inst_class: list[int] = []
+
+    def new_instance(cls: str) -> int:
+        inst_class.append(idx[cls])
+        return len(inst_class) - 1
+
+    def put(sl: tuple, cls: str, i: int, only_existing: bool = False) -> None:
+        if only_existing:
+            m = label[sl] >= 0
+            label[sl][m], inst[sl][m] = idx[cls], i
+        else:
+            label[sl], inst[sl] = idx[cls], i
+
+    types = list(ROOM_TYPES)
+    room_types = [
+        types[(r + int(rng.integers(len(types)))) % len(types)] if r >= len(types) else types[r]
+        for r in range(opts.rooms)
+    ]
+    for r in range(opts.rooms):
+        x0, x1 = r * n_room, (r + 1) * n_room
+        put((slice(x0, x1 + 1), slice(0, ny), 0), "floor", new_instance("floor"))
+        put((slice(x0, x1 + 1), slice(0, ny), nz - 1), "ceiling", new_instance("ceiling"))
+        w = new_instance("wall")
+        for sl in (
+            (x0, slice(0, ny)),
+            (x1, slice(0, ny)),
+            (slice(x0, x1 + 1), 0),
+            (slice(x0, x1 + 1), ny - 1),
+        ):
+            put((*sl, slice(1, nz - 1)), "wall", w)
+
+    def size_cells(c: SceneClass) -> tuple[int, int, int]:
+        j = rng.uniform(0.8, 1.2, 3) * opts.size_scale
+        return tuple(max(1, int(round(s * f / vs))) for s, f in zip(c.size, j))  # type: ignore
+
+    n_objects = 0
+    for r, rtype in enumerate(room_types):
+        x0, x1 = r * n_room, (r + 1) * n_room
+        names = ["door", "window", *ROOM_TYPES[rtype]]
+        extra = rng.choice(ROOM_TYPES[rtype], size=opts.extra_objects, replace=True)
+        names += [str(e) for e in extra]
+        occupied: list[tuple[int, int, int, int]] = []
+        supports: list[tuple[int, int, int, int, int]] = []
+        wall_slots: list[tuple[int, int, int]] = []
+        for name in sorted(
+            names, key=lambda n: ("structure", "floor", "wall", "top").index(CLASSES[idx[n]].place)
+        ):
+            c = CLASSES[idx[name]]
+            sx, sy, sz = size_cells(c)
+            i = new_instance(name)
+            placed = False
+            for _ in range(40):
+                if c.place == "floor":
+                    if c.size[2] < vs * 1.5:  # flat (rug): replaces floor voxels
+                        ax = int(rng.integers(x0 + 2, max(x0 + 3, x1 - sx - 1)))
+                        ay = int(rng.integers(2, max(3, ny - sy - 2)))
+                        put((slice(ax, ax + sx), slice(ay, ay + sy), 0), name, i)
+                        placed = True
+                        break
+                    if rng.random() < 0.5:
+                        sx, sy = sy, sx
+                    ax = int(rng.integers(x0 + 1, max(x0 + 2, x1 - sx)))
+                    ay = int(rng.integers(1, max(2, ny - 1 - sy)))
+                    rect = (ax, ay, ax + sx, ay + sy)
+                    if any(
+                        rect[0] < o[2] and o[0] < rect[2] and rect[1] < o[3] and o[1] < rect[3]
+                        for o in occupied
+                    ):
+                        continue
+                    occupied.append(rect)
+                    zt = min(nz - 2, sz)
+                    sl = (slice(ax, ax + sx), slice(ay, ay + sy), slice(1, zt + 1))
+                    block = np.zeros((sx, sy, zt), bool)
+                    block[[0, -1], :, :] = block[:, [0, -1], :] = True
+                    block[:, :, -1] = True
+                    label[sl][block], inst[sl][block] = idx[name], i
+                    if name in SUPPORTS:
+                        supports.append((ax, ay, ax + sx, ay + sy, zt + 1))
+                    placed = True
+                    break
+                if c.place == "wall":
+                    side = int(rng.integers(4))
+                    sz = min(sz, nz - 3)
+                    a = int(rng.integers(1, max(2, n_room - sx)))
+                    zb = (
+                        1
+                        if name in ("door", "radiator")
+                        else int(rng.integers(1, max(2, nz - 1 - sz)))
+                    )
+                    if name == "curtain":
+                        zb = max(1, nz - 1 - sz)
+                    if any(
+                        s == side and abs(a - b) < sx and abs(zb - z) < sz for s, b, z in wall_slots
+                    ):
+                        continue
+                    wall_slots.append((side, a, zb))
+                    zs = slice(zb, min(nz - 1, zb + sz))
+                    if side == 0:
+                        sls = [(x0, slice(a, a + sx), zs), (x0 + 1, slice(a, a + sx), zs)]
+                    elif side == 1:
+                        sls = [(x1, slice(a, a + sx), zs), (x1 - 1, slice(a, a + sx), zs)]
+                    elif side == 2:
+                        sls = [
+                            (slice(x0 + a, x0 + a + sx), 0, zs),
+                            (slice(x0 + a, x0 + a + sx), 1, zs),
+                        ]
+                    else:
+                        sls = [
+                            (slice(x0 + a, x0 + a + sx), ny - 1, zs),
+                            (slice(x0 + a, x0 + a + sx), ny - 2, zs),
+                        ]
+                    put(sls[0], name, i)
+                    put(sls[1], name, i)
+                    placed = True
+                    break
+                if c.place == "top" and supports:
+                    bx0, by0, bx1, by1, bz = supports[int(rng.integers(len(supports)))]
+                    sx, sy = min(sx, bx1 - bx0), min(sy, by1 - by0)
+                    ax = int(rng.integers(bx0, max(bx0 + 1, bx1 - sx + 1)))
+                    ay = int(rng.integers(by0, max(by0 + 1, by1 - sy + 1)))
+                    zt = min(nz - 2, bz + sz)
+                    put((slice(ax, ax + sx), slice(ay, ay + sy), slice(bz, zt)), name, i)
+                    placed = True
+                    break
+            if placed:
+                n_objects += 1
+            else:
+                inst_class.pop()
+    return label, inst, np.asarray(inst_class, np.int64), room_types, n_objects
+
+
+_OFFSETS = [
+    (dx, dy, dz)
+    for dx in (-1, 0, 1)
+    for dy in (-1, 0, 1)
+    for dz in (-1, 0, 1)
+    if (dx, dy, dz) != (0, 0, 0)
+]
+
+
+def _boundary_partner(inst: np.ndarray, cells: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """For each occupied cell, a neighbouring instance of another class (or -1)."""
+    own = inst[cells[:, 0], cells[:, 1], cells[:, 2]]
+    partner = np.full(len(cells), -1, np.int64)
+    shape = np.asarray(inst.shape)
+    for k in rng.permutation(len(_OFFSETS)):
+        nb = cells + np.asarray(_OFFSETS[k])
+        ok = ((nb >= 0) & (nb < shape)).all(axis=1)
+        other = np.full(len(cells), -1, np.int64)
+        other[ok] = inst[nb[ok, 0], nb[ok, 1], nb[ok, 2]]
+        take = (partner < 0) & (other >= 0) & (other != own)
+        partner[take] = other[take]
+    return partner
+
+
+def make_scene(encoder: Any, options: SceneOptions | None = None, cache: Any = None) -> Scene:
+    """Generate the scene with ``encoder`` (an :class:`~quash_plugins.core.interfaces.Encoder`).
+
+    Deterministic for a given ``options.seed`` and encoder.
+    """
+    from ..core.text import encode_texts
+
+    opts = options or SceneOptions()
+    opts.validate()
+    rng = np.random.default_rng(opts.seed)
+    label, inst, inst_class, room_types, n_objects = _layout(opts, rng)
+    cells = np.argwhere(label >= 0)
+    labels = label[cells[:, 0], cells[:, 1], cells[:, 2]].astype(np.int64)
+    cell_inst = inst[cells[:, 0], cells[:, 1], cells[:, 2]].astype(np.int64)
+    # one embedding per distinct appearance name, each encoded once
+    names = sorted({n for c in CLASSES for n in c.appearance})
+    name_row = {n: i for i, n in enumerate(names)}
+    A = encode_texts(encoder, names, cache)
+    D = A.shape[1]
+    # every object instance mixes a few of its class's appearance names
+    V = np.zeros((len(inst_class), D), np.float32)
+    for i, ci in enumerate(inst_class):
+        app = CLASSES[ci].appearance
+        k = min(len(app), opts.names_per_voxel)
+        pick = rng.choice(len(app), size=k, replace=False)
+        w = rng.dirichlet(np.ones(k) * 2.0)
+        v = (w[:, None] * A[[name_row[app[j]] for j in pick]]).sum(axis=0)
+        V[i] = v / np.linalg.norm(v)
+    E = V[cell_inst].copy()
+    partner = _boundary_partner(inst, cells, rng)
+    mixed = partner >= 0
+    if opts.boundary_blend > 0 and mixed.any():
+        wb = rng.uniform(0.0, opts.boundary_blend, int(mixed.sum())).astype(np.float32)
+        E[mixed] = (1 - wb[:, None]) * E[mixed] + wb[:, None] * V[partner[mixed]]
+    if opts.confusion > 0:  # semantic noise: every voxel also resembles some other object
+        other = rng.integers(len(V), size=len(E))
+        wc = rng.uniform(0.0, opts.confusion, len(E)).astype(np.float32) ** 2
+        E = (1 - wc[:, None]) * E + wc[:, None] * V[other]
+    E /= np.linalg.norm(E, axis=1, keepdims=True)
+    if opts.noise > 0:
+        E += rng.standard_normal(E.shape).astype(np.float32) * (opts.noise / np.sqrt(D))
+    offset = rng.standard_normal(D).astype(np.float32)
+    E = E / np.linalg.norm(
+        E, axis=1, keepdims=True
+    ) + opts.modality_offset * offset / np.linalg.norm(offset)
+    E = (E / np.linalg.norm(E, axis=1, keepdims=True)).astype(np.float32)
+    colors = np.asarray([c.color for c in CLASSES], np.int16)[labels]
+    colors = np.clip(colors + rng.integers(-12, 13, colors.shape), 0, 255).astype(np.uint8)
+    lmap = LatentMap(
+        embeddings=E,
+        kind="voxels",
+        positions=(cells * opts.voxel_size).astype(np.float32),
+        colors=colors,
+        labels=labels,
+        label_names=[c.label for c in CLASSES],
+        voxel_size=float(opts.voxel_size),
+        grid_index=cells.astype(np.int32),
+        source={
+            "adapter": "scene",
+            "encoder_hint": f"{getattr(encoder, 'name', '?')} {D}",
+            "seed": opts.seed,
+        },
+    )
+    taxonomy = {c.label: list(c.language) for c in CLASSES}
+    taxonomy.update({k: list(v) for k, v in ABSENT.items()})
+    absent = [*ABSENT, *ABSENT_FREE_TEXT]
+    log.info(
+        "scene: %d rooms (%s), %d objects, %d voxels",
+        opts.rooms,
+        ", ".join(room_types),
+        n_objects,
+        len(labels),
+    )
+    return Scene(lmap, taxonomy, absent, room_types, n_objects)
+
+
+def write_scene(
+    scene: Scene, out: str | Path, options: SceneOptions | None = None
+) -> dict[str, Path]:
+    """Write ``OUT.npz``, ``OUT.taxonomy.yaml`` and ``OUT.queries.yaml``; return the paths."""
+    import yaml
+
+    from ..adapters import write_npz_map
+    from ..core.atomic import atomic_write
+
+    out = Path(out)
+    if out.suffix != ".npz":
+        raise ConfigError(f"{out}: the scene is written as our NPZ format; use a .npz name.")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_npz_map(out, scene.map)
+    stem = out.with_suffix("")
+    tax = Path(f"{stem}.taxonomy.yaml")
+    queries = Path(f"{stem}.queries.yaml")
+    head = "# language names only: disjoint from the appearance names that built the voxels\n"
+    with atomic_write(tax, suffix=".yaml") as tmp:
+        Path(tmp).write_text(head + yaml.safe_dump(scene.taxonomy, sort_keys=False), "utf-8")
+    present = sorted({scene.map.label_names[i] for i in np.unique(scene.map.labels)})
+    info = {
+        "present": present,
+        "absent": scene.absent,
+        "room_types": scene.room_types,
+        "options": dataclasses.asdict(options) if options else None,
+    }
+    with atomic_write(queries, suffix=".yaml") as tmp:
+        Path(tmp).write_text(yaml.safe_dump(info, sort_keys=False), "utf-8")
+    return {"map": out, "taxonomy": tax, "queries": queries}

@@ -1,0 +1,169 @@
+"""Helpers shared by the torch-based encoders: devices, offline loading, weight identity.
+
+Nothing here imports torch at module level.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import importlib
+import json
+import logging
+import os
+import struct
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+from ..core.errors import ConfigError, EncoderError
+
+log = logging.getLogger(__name__)
+
+#: Environment variables that put the Hugging Face libraries into offline mode.
+OFFLINE_ENV = ("HF_HUB_OFFLINE", "TRANSFORMERS_OFFLINE", "HF_DATASETS_OFFLINE")
+
+#: Weight files whose sizes and mtimes enter a fingerprint.
+_WEIGHT_SUFFIXES = (".safetensors", ".bin", ".pt", ".pth", ".ckpt", ".msgpack", ".h5")
+#: Small config files whose content enters a fingerprint.
+_CONFIG_NAMES = (
+    "config.json",
+    "modules.json",
+    "config_sentence_transformers.json",
+    "sentence_bert_config.json",
+    "tokenizer_config.json",
+    "open_clip_config.json",
+)
+
+
+def require(module: str, extra: str) -> Any:
+    """Import ``module`` or raise an :class:`EncoderError` naming the extra to install."""
+    try:
+        return importlib.import_module(module)
+    except ImportError as exc:
+        raise EncoderError(
+            f"This encoder needs the Python package {module!r} ({exc}). Install it with "
+            f'pip install "quash-plugins[{extra}]"'
+        ) from None
+
+
+def resolve_device(device: str | None) -> str:
+    """Turn ``"auto"`` (or None) into ``cuda``, ``mps`` or ``cpu``; validate explicit devices.
+
+    Raises
+    ------
+    ConfigError
+        When the string is not a torch device.
+    EncoderError
+        When the requested accelerator is not available on this machine.
+    """
+    torch = require("torch", "clip")
+    if device is None or str(device).strip().lower() in ("", "auto"):
+        if torch.cuda.is_available():
+            return "cuda"
+        mps = getattr(torch.backends, "mps", None)
+        if mps is not None and mps.is_available():
+            return "mps"
+        return "cpu"
+    device = str(device).strip()
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, ValueError):
+        raise ConfigError(
+            f"device {device!r} is not a torch device; use auto, cpu, cuda, cuda:N or mps."
+        ) from None
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise EncoderError(
+            f"device {device!r} was requested but CUDA is not available on this machine "
+            "(torch.cuda.is_available() is False). Use device: auto or cpu."
+        )
+    if dev.type == "cuda" and dev.index is not None and dev.index >= torch.cuda.device_count():
+        raise EncoderError(
+            f"device {device!r} does not exist: this machine has "
+            f"{torch.cuda.device_count()} CUDA device(s)."
+        )
+    if dev.type == "mps":
+        mps = getattr(torch.backends, "mps", None)
+        if mps is None or not mps.is_available():
+            raise EncoderError(
+                f"device {device!r} was requested but MPS is not available. Use auto or cpu."
+            )
+    return device
+
+
+@contextlib.contextmanager
+def hf_offline() -> Iterator[None]:
+    """Force the Hugging Face libraries offline for the duration of the block.
+
+    Sets ``HF_HUB_OFFLINE``/``TRANSFORMERS_OFFLINE`` and, because ``huggingface_hub``
+    reads them once at import, also its module-level flag. Everything is restored after.
+    """
+    saved = {k: os.environ.get(k) for k in OFFLINE_ENV}
+    for k in OFFLINE_ENV:
+        os.environ[k] = "1"
+    patched: list[tuple[Any, str, Any]] = []
+    for modname in ("huggingface_hub.constants", "transformers.utils.hub"):
+        mod = sys.modules.get(modname)
+        for attr in ("HF_HUB_OFFLINE", "_is_offline_mode"):
+            if mod is not None and isinstance(getattr(mod, attr, None), bool):
+                patched.append((mod, attr, getattr(mod, attr)))
+                setattr(mod, attr, True)
+    try:
+        yield
+    finally:
+        for mod, attr, value in patched:
+            setattr(mod, attr, value)
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+def safetensors_header_digest(path: Path) -> str | None:
+    """SHA-256 of a safetensors file's JSON header (tensor names, dtypes, shapes, offsets)."""
+    try:
+        with open(path, "rb") as fh:
+            (n,) = struct.unpack("<Q", fh.read(8))
+            if n <= 0 or n > 100 * 2**20:
+                return None
+            return hashlib.sha256(fh.read(n)).hexdigest()[:16]
+    except (OSError, struct.error):
+        return None
+
+
+def weights_identity(path: str | Path) -> dict[str, Any]:
+    """A cheap identity of the weights at ``path`` (a file or a model directory).
+
+    Combines the content of small config files, the size and mtime of every weight file,
+    and each safetensors header digest. Reads no tensor data.
+    """
+    path = Path(path).expanduser()
+    files: list[Path]
+    if path.is_file():
+        root, files = path.parent, [path]
+    else:
+        root = path
+        files = sorted(p for p in path.rglob("*") if p.is_file())
+    h = hashlib.sha256()
+    n_weights = 0
+    for p in files:
+        rel = p.relative_to(root).as_posix()
+        if p.name in _CONFIG_NAMES:
+            h.update(f"{rel}:".encode())
+            h.update(p.read_bytes())
+        elif p.suffix in _WEIGHT_SUFFIXES:
+            st = p.stat()
+            h.update(f"{rel}:{st.st_size}:{st.st_mtime_ns}".encode())
+            if p.suffix == ".safetensors":
+                h.update((safetensors_header_digest(p) or "").encode())
+            n_weights += 1
+    return {"path": str(path.resolve()), "files": n_weights, "sha": h.hexdigest()[:16]}
+
+
+def read_json(path: Path) -> Any:
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None

@@ -1,0 +1,136 @@
+"""Any map's embeddings as a row-chunked dask array, read lazily on the workers.
+
+Which reader a chunk task gets depends on what :attr:`LatentMap.embeddings` is:
+
+- dask array: rechunked along rows only;
+- zarr array: ``da.from_zarr``; each task opens the store by its URL;
+- h5py dataset: h5py objects do not pickle, so each task gets an :class:`H5Rows`, a small
+  picklable reader holding only the file name and the dataset path. It opens the file
+  read-only on the worker for every chunk, so the file must be reachable at the same
+  path from every worker (a shared file system);
+- numpy memmap: an :class:`MemmapRows` reopening the file by name on the worker;
+- numpy array (or anything else with ``shape``/``dtype``/slicing): chunks are sliced on
+  the client and travel inside the graph, which suits maps that fit in memory.
+"""
+
+from __future__ import annotations
+
+import mmap
+import os
+from typing import Any
+
+import numpy as np
+
+from ..core.types import LatentMap, prepare_block
+from .dask_client import require_dask
+
+
+class H5Rows:
+    """Picklable, lazily opened view of one HDF5 dataset for ``da.from_array``.
+
+    Parameters
+    ----------
+    filename
+        Path of the HDF5 file, as the workers see it.
+    dataset
+        Name of the dataset inside the file (``"/embeddings"``).
+    shape, dtype
+        Those of the dataset, recorded once on the client.
+    """
+
+    def __init__(self, filename: str, dataset: str, shape: tuple[int, ...], dtype: Any) -> None:
+        self.filename = str(filename)
+        self.dataset = str(dataset)
+        self.shape = tuple(int(s) for s in shape)
+        self.dtype = np.dtype(dtype)
+        self.ndim = len(self.shape)
+
+    def __getitem__(self, key: Any) -> np.ndarray:
+        import h5py
+
+        with h5py.File(self.filename, "r") as f:
+            return np.asarray(f[self.dataset][key])
+
+
+class MemmapRows:
+    """Picklable view of a C-ordered array stored raw in a file at ``offset`` bytes."""
+
+    def __init__(self, filename: str, offset: int, shape: tuple[int, ...], dtype: Any) -> None:
+        self.filename = str(filename)
+        self.offset = int(offset)
+        self.shape = tuple(int(s) for s in shape)
+        self.dtype = np.dtype(dtype)
+        self.ndim = len(self.shape)
+
+    def __getitem__(self, key: Any) -> np.ndarray:
+        mm = np.memmap(self.filename, self.dtype, "r", offset=self.offset, shape=self.shape)
+        return np.array(mm[key])
+
+
+def _reader(emb: Any) -> tuple[Any, str | None]:
+    """A picklable stand-in for ``emb`` plus a stable name token (None when there is none)."""
+    mod = type(emb).__module__ or ""
+    if mod.startswith("h5py"):
+        filename = emb.file.filename
+        stamp = os.stat(filename).st_mtime_ns
+        return H5Rows(filename, emb.name, emb.shape, emb.dtype), f"{filename}:{emb.name}:{stamp}"
+    is_file_map = isinstance(emb, np.memmap) and isinstance(emb.base, mmap.mmap)
+    if is_file_map and emb.filename and emb.flags.c_contiguous:
+        stamp = os.stat(emb.filename).st_mtime_ns
+        reader = MemmapRows(emb.filename, emb.offset, emb.shape, emb.dtype)
+        return reader, f"{emb.filename}:{emb.offset}:{stamp}"
+    return emb, None
+
+
+def as_dask(lmap: LatentMap, chunk_rows: int) -> Any:
+    """``lmap.embeddings`` as an ``(N, D)`` dask array in chunks of ``chunk_rows`` rows.
+
+    The values are the stored ones (not yet cast, checked or normalised; see
+    :func:`prepared_blocks`). Nothing is read until the array is computed.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> m = LatentMap(np.ones((10, 4), dtype=np.float16))
+    >>> as_dask(m, 4).chunks
+    ((4, 4, 2), (4,))
+    """
+    da = require_dask()
+    emb = lmap.embeddings
+    rows = max(1, min(int(chunk_rows), lmap.n))
+    chunks = (rows, lmap.dim)
+    if isinstance(emb, da.Array):
+        return emb.rechunk(chunks)
+    if type(emb).__module__.startswith("zarr"):
+        return da.from_zarr(emb, chunks=chunks)
+    reader, token = _reader(emb)
+    if token is not None:
+        from dask.base import tokenize
+
+        name = f"quash-embeddings-{tokenize(token, chunks)}"
+        return da.from_array(reader, chunks=chunks, name=name, lock=False, asarray=True)
+    return da.from_array(emb, chunks=chunks, asarray=True)
+
+
+def _prepare(block: np.ndarray, normalize: bool, source: dict, block_info: Any = None):
+    start = 0
+    if block_info and 0 in block_info:
+        start = int(block_info[0]["array-location"][0][0])
+    return prepare_block(np.array(block, dtype=np.float32), start, normalize, source)
+
+
+def prepared_blocks(lmap: LatentMap, chunk_rows: int) -> Any:
+    """:func:`as_dask` cast to float32, checked for NaN/Inf and L2-normalised if asked.
+
+    A bad row raises :class:`MapFormatError` naming its global row index.
+    """
+    import numpy as np
+
+    x = as_dask(lmap, chunk_rows)
+    return x.map_blocks(
+        _prepare,
+        bool(lmap.normalize),
+        dict(lmap.source),
+        dtype=np.float32,
+        meta=np.empty((0, 0), np.float32),
+    )

@@ -1,0 +1,116 @@
+"""Dask imports and clients: a LocalCluster on loopback, or an existing scheduler."""
+
+from __future__ import annotations
+
+import atexit
+import logging
+import os
+from typing import Any
+
+from ..core.errors import QuashError
+from ..core.optional import require
+
+log = logging.getLogger(__name__)
+
+INSTALL_HINT = 'Install the Dask extra: pip install "quash-plugins[dask]".'
+
+
+def require_dask() -> Any:
+    """Import ``dask.array``, or raise a :class:`QuashError` naming the extra to install."""
+    return require("dask.array", "dask", "The dask backend")
+
+
+def require_zarr() -> Any:
+    """Import ``zarr``, or raise a :class:`QuashError` naming the extra to install."""
+    return require("zarr", "dask", "Writing results to zarr")
+
+
+def _require_distributed() -> Any:
+    try:
+        import distributed
+    except ImportError as exc:  # pragma: no cover
+        raise QuashError(f"--backend dask needs dask.distributed ({exc}). {INSTALL_HINT}") from None
+    return distributed
+
+
+def machine_cores() -> int:
+    """CPU cores this process may use (respects affinity masks and cgroup pinning)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):  # pragma: no cover - not Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def local_cluster_client(
+    n_workers: int | None = None, threads_per_worker: int = 1, memory_limit: Any = "auto"
+) -> Any:
+    """Start a ``LocalCluster`` of worker processes on 127.0.0.1 and return its ``Client``.
+
+    Parameters
+    ----------
+    n_workers
+        Worker processes; default one per usable core.
+    threads_per_worker
+        Threads per worker process. One keeps a single chunk in flight per worker.
+    memory_limit
+        Per-worker limit (``"2GiB"``); ``"auto"`` shares the machine's memory evenly.
+    """
+    distributed = _require_distributed()
+    n = int(n_workers or machine_cores())
+    cluster = distributed.LocalCluster(
+        n_workers=n,
+        threads_per_worker=threads_per_worker,
+        processes=True,
+        host="127.0.0.1",
+        dashboard_address=None,
+        memory_limit=memory_limit,
+    )
+    client = distributed.Client(cluster)
+    log.info("started a LocalCluster: %d worker processes x %d threads", n, threads_per_worker)
+
+    def _close() -> None:
+        try:
+            client.close()
+            cluster.close()
+        except Exception:  # noqa: BLE001 - best effort at interpreter exit
+            pass
+
+    atexit.register(_close)
+    return client
+
+
+def client_from_cli(address: str | None) -> Any:
+    """The ``Client`` for ``--scheduler ADDRESS``; without an address, a local cluster.
+
+    Examples
+    --------
+    >>> client = client_from_cli("tcp://scheduler:8786")  # doctest: +SKIP
+    """
+    if address is None:
+        return local_cluster_client()
+    distributed = _require_distributed()
+    try:
+        import dask
+
+        timeout = dask.config.get("distributed.comm.timeouts.connect", "30s")
+        client = distributed.Client(address, timeout=timeout)
+    except (OSError, TimeoutError) as exc:
+        raise QuashError(
+            f"Cannot reach the Dask scheduler at {address} ({exc}). Start one with "
+            "`dask scheduler` and workers with `dask worker ADDRESS`, or leave out --scheduler "
+            "to run a local cluster (see docs/scale.md)."
+        ) from None
+    atexit.register(client.close)
+    return client
+
+
+def current_client(client: Any = None) -> Any:
+    """``client``, else the process's default distributed client, else None (threads)."""
+    if client is not None:
+        return client
+    try:
+        from distributed import default_client
+
+        return default_client()
+    except (ImportError, ValueError):
+        return None

@@ -1,0 +1,179 @@
+"""Classification as one ``map_blocks`` pass over row chunks, on any Dask scheduler."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from ..core.errors import QuashError
+from ..core.types import LatentMap, prepare_block
+from .classify import BlockScorer, extra_bytes_per_row
+from .dask_arrays import as_dask
+from .dask_client import current_client, require_dask
+
+log = logging.getLogger(__name__)
+
+
+class ClusterError(QuashError):
+    """The Dask cluster failed (workers lost, scheduler gone); no partial result is kept."""
+
+
+def score_block(
+    block: np.ndarray,
+    scorer: BlockScorer,
+    normalize: bool,
+    source: dict[str, Any],
+    block_info: Any = None,
+) -> np.ndarray:
+    """Scores of one row chunk: ``(rows, Q + 1)`` float32, the last column ``observed``.
+
+    The block is cast to float32, checked for NaN/Inf and L2-normalised when the map asks
+    for it, exactly as :meth:`LatentMap.iter_chunks` does for the in-memory path, then
+    scored by the same :class:`BlockScorer`.
+    """
+    start = int(block_info[0]["array-location"][0][0]) if block_info else 0
+    x = prepare_block(np.array(block, dtype=np.float32), start, normalize, source)
+    return scorer.score(x)
+
+
+def ship(scorer: BlockScorer) -> Any:
+    """Hold ``scorer`` once in the graph: one task every chunk task depends on.
+
+    Each worker receives it once (from the client or a peer) and keeps it while the pass
+    runs. Unlike ``Client.scatter`` data, a graph task can be recomputed when the worker
+    holding it dies, so a killed worker never loses the classifiers.
+    """
+    import dask
+
+    return dask.delayed(scorer, pure=False)
+
+
+def scores_graph(
+    lmap: LatentMap,
+    classifiers: Sequence[Any],
+    chunk_bytes: int,
+    client: Any = None,
+    held: Any = None,
+) -> Any:
+    """The lazy ``(N, Q + 1)`` float32 dask array of raw scores plus the observed column.
+
+    Chunks hold ``lmap.chunk_rows(chunk_bytes, ...)`` rows, the same rows as the in-memory
+    path, so a worker's working set is bounded by ``chunk_bytes`` whatever N is. ``held`` is
+    an already shipped :class:`~quash_plugins.engine.classify.BlockScorer` (from
+    :func:`ship`), if any.
+    """
+    require_dask()
+    rows = lmap.chunk_rows(int(chunk_bytes), extra_bytes_per_row(classifiers))
+    emb = as_dask(lmap, rows)
+    if held is None:
+        held = ship(BlockScorer(classifiers, chunk_bytes))
+    return emb.map_blocks(
+        score_block,
+        held,
+        bool(lmap.normalize),
+        dict(lmap.source),
+        chunks=(emb.chunks[0], (len(classifiers) + 1,)),
+        dtype=np.float32,
+        meta=np.empty((0, 0), np.float32),
+        token="quash-scores",
+    )
+
+
+def _cluster_errors() -> tuple[type[BaseException], ...]:
+    import importlib
+
+    errors: list[type[BaseException]] = [OSError, TimeoutError]
+    for module, name in (
+        ("distributed.scheduler", "KilledWorker"),
+        ("distributed.comm.core", "CommClosedError"),
+        ("distributed.client", "FutureCancelledError"),
+        ("asyncio", "CancelledError"),
+        ("concurrent.futures", "CancelledError"),
+    ):
+        try:
+            errors.append(getattr(importlib.import_module(module), name))
+        except (ImportError, AttributeError):  # pragma: no cover - older distributed
+            continue
+    return tuple(errors)
+
+
+def compute(client: Any, *arrays: Any) -> tuple[Any, ...]:
+    """Compute dask collections on ``client`` (or threads), turning cluster faults into
+    :class:`ClusterError`."""
+    import dask
+
+    try:
+        if client is not None:
+            return tuple(client.compute(list(arrays), sync=True))
+        return dask.compute(*arrays, scheduler="threads")
+    except QuashError:
+        raise
+    except _cluster_errors() as exc:
+        raise ClusterError(
+            f"The Dask cluster failed during the query ({type(exc).__name__}: {exc}). No "
+            "result was written. Check that the workers have enough memory for the chunk "
+            "size (lower chunk_mb), then run the query again."
+        ) from exc
+
+
+def classify_dask(
+    lmap: LatentMap,
+    classifiers: Sequence[Any],
+    chunk_bytes: int = 256 * 2**20,
+    client: Any = None,
+) -> tuple[list[np.ndarray], np.ndarray]:
+    """Run every fitted classifier over ``lmap`` in one ``map_blocks`` pass on Dask.
+
+    Parameters
+    ----------
+    lmap
+        The map; its embeddings may be numpy, memmap, h5py, zarr or dask.
+    classifiers
+        Fitted classifiers; they travel to the workers once.
+    chunk_bytes
+        Float32 working-set budget of one chunk task.
+    client
+        A ``dask.distributed.Client``; default the current client, else local threads.
+
+    Returns
+    -------
+    scores
+        One ``(N,)`` float32 raw score vector per classifier (before postprocessing).
+    observed
+        ``(N,)`` bool, False for zero rows (they never match).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from quash_plugins import registry
+    >>> clf = registry.create("classifiers", "contrast").fit(
+    ...     np.eye(2, dtype=np.float32), np.array([1, 0]))
+    >>> m = LatentMap(np.array([[1, 0], [0, 1], [0, 0]], dtype=np.float32))
+    >>> scores, observed = classify_dask(m, [clf])
+    >>> scores[0].tolist(), observed.tolist()
+    ([1.0, -1.0, 0.0], [True, True, False])
+    """
+    if not classifiers:
+        raise QuashError("classify_dask needs at least one fitted classifier.")
+    client = current_client(client)
+    graph = scores_graph(lmap, classifiers, chunk_bytes, client)
+    log.info(
+        "dask pass: %d chunks of %d rows, %d queries, %s",
+        graph.numblocks[0],
+        graph.chunks[0][0],
+        len(classifiers),
+        "client " + str(getattr(client, "scheduler", "")) if client is not None else "threads",
+    )
+    (out,) = compute(client, graph)
+    out = np.asarray(out)
+    q = len(classifiers)
+    if out.shape != (lmap.n, q + 1) or np.isnan(out).any():
+        raise ClusterError(
+            f"The Dask pass returned an incomplete result (shape {out.shape}, expected "
+            f"{(lmap.n, q + 1)}); refusing to return a partial mask. Run the query again."
+        )
+    observed = out[:, q] > 0
+    return [np.ascontiguousarray(out[:, i]) for i in range(q)], observed

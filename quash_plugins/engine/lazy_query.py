@@ -1,0 +1,304 @@
+"""Lazy query results: masks and scores as dask arrays, written to zarr chunk by chunk.
+
+Map-level postprocessing (``Classifier.postprocess_scores``) needs the whole score
+vector. Here it is done with dask reductions: a classifier whose postprocess depends only
+on the minimum and maximum of the observed scores (identity, min-max normalisation,
+clipping) is applied block by block with those two values; any other postprocess is
+detected by a probe and falls back to one ``(N,)`` float32 vector per such query.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import shutil
+import uuid
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from sklearn.base import clone
+
+from ..core.types import QuerySet, check_query
+from .classify import BlockScorer
+from .dask_client import current_client, require_dask, require_zarr
+from .dask_executor import compute, scores_graph, ship
+
+log = logging.getLogger(__name__)
+
+
+def postprocess_kind(clf: Any) -> str:
+    """``"identity"``, ``"minmax"`` (depends only on min and max) or ``"global"``."""
+    from ..core.interfaces import Classifier
+
+    method = getattr(type(clf), "postprocess_scores", None)
+    if method is None or method is Classifier.postprocess_scores:
+        return "identity"
+    rng = np.random.default_rng(7)
+    v = rng.normal(size=257).astype(np.float32) * 3
+    try:
+        full = np.asarray(clf.postprocess_scores(v.copy()), np.float32)
+        part = v[100:140]
+        sub = np.concatenate([[v.min(), v.max()], part]).astype(np.float32)
+        got = np.asarray(clf.postprocess_scores(sub), np.float32)[2:]
+        v2 = np.concatenate([v, [v.mean()] * 50]).astype(np.float32)
+        shifted = np.asarray(clf.postprocess_scores(v2), np.float32)[100:140]
+    except Exception:  # noqa: BLE001 - an odd postprocess takes the safe path
+        return "global"
+    ok = np.allclose(full[100:140], got, atol=1e-6) and np.allclose(
+        full[100:140], shifted, atol=1e-6
+    )
+    return "minmax" if ok else "global"
+
+
+def _minmax_post(clf: Any, values: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    if values.size == 0:
+        return values
+    sub = np.concatenate([np.float32([lo, hi]), values]).astype(np.float32)
+    return np.asarray(clf.postprocess_scores(sub), np.float32)[2:]
+
+
+def _global_post(clf: Any, raw: np.ndarray, observed: np.ndarray) -> np.ndarray:
+    out = np.array(raw, dtype=np.float32)
+    if observed.any():
+        out[observed] = np.asarray(clf.postprocess_scores(out[observed]), np.float32)
+    return out
+
+
+def _minmax_block(
+    col: np.ndarray,
+    observed: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    fitted: BlockScorer,
+    i: int,
+) -> np.ndarray:
+    """One query's postprocessed block; NaN marks unobserved rows."""
+    out = np.full(col.shape, np.nan, dtype=np.float32)
+    out[observed] = _minmax_post(fitted.classifiers[i], col[observed], float(lo[0]), float(hi[0]))
+    return out
+
+
+def _global_block(col: np.ndarray, observed: np.ndarray, fitted: BlockScorer, i: int) -> np.ndarray:
+    out = _global_post(fitted.classifiers[i], col, observed)
+    out[~observed] = np.nan
+    return out
+
+
+class LazyQuery:
+    """The lazy answer to several queries over one map (see :func:`query_lazy`).
+
+    Attributes
+    ----------
+    raw
+        ``(N, Q + 1)`` float32 dask array: raw decision values, last column observed.
+    """
+
+    def __init__(self, querysets, classifiers, raw, threshold, client, held, lmap) -> None:
+        self.querysets: list[QuerySet] = querysets
+        self.classifiers = classifiers
+        self.raw = raw
+        self.threshold = float(threshold)
+        self.client = client
+        self.lmap = lmap
+        self._held = held
+        self.kinds = [postprocess_kind(c) for c in classifiers]
+
+    @property
+    def queries(self) -> list[str]:
+        return [qs.query for qs in self.querysets]
+
+    @property
+    def observed(self) -> Any:
+        """``(N,)`` bool dask array: False for zero rows."""
+        return self.raw[:, len(self.classifiers)] > 0
+
+    def _post(self, raw: Any) -> Any:
+        """``(N, Q)`` float32 dask array of postprocessed scores, NaN where unobserved.
+
+        Min/max statistics are dask reductions passed to every block as one-element
+        arrays; a ``"global"`` postprocess sees its whole ``(N,)`` column in one task.
+        """
+        da = require_dask()
+        q = len(self.classifiers)
+        obs = raw[:, q] > 0
+        cols = []
+        for i, kind in enumerate(self.kinds):
+            col = raw[:, i]
+            if kind == "identity":
+                cols.append(da.where(obs, col, np.float32(np.nan)))
+            elif kind == "minmax":
+                masked = da.where(obs, col, np.float32(np.nan))
+                lo, hi = da.nanmin(masked).reshape(1), da.nanmax(masked).reshape(1)
+                cols.append(
+                    da.map_blocks(
+                        _minmax_block,
+                        col,
+                        obs,
+                        lo,
+                        hi,
+                        self._held,
+                        i,
+                        dtype=np.float32,
+                        meta=np.empty((0,), np.float32),
+                    )
+                )
+            else:
+                whole = da.map_blocks(
+                    _global_block,
+                    col.rechunk(-1),
+                    obs.rechunk(-1),
+                    self._held,
+                    i,
+                    dtype=np.float32,
+                    meta=np.empty((0,), np.float32),
+                )
+                cols.append(whole.rechunk(col.chunks))
+        # One chunk across the queries: the zarr stores are chunked (Q, rows), and two
+        # tasks writing parts of one zarr chunk without a lock would overwrite each other.
+        return da.stack(cols, axis=1).rechunk({1: -1}).astype(np.float32)
+
+    def _final(self, post: Any, floors: Any) -> tuple[Any, Any]:
+        """``(Q, N)`` scores (unobserved rows at ``floors``) and masks."""
+        da = require_dask()
+        scores = da.where(da.isnan(post), floors[None, :], post).astype(np.float32)
+        masks = post > np.float32(self.threshold)
+        return scores.T, masks.T
+
+    def _floors(self, post: Any) -> Any:
+        """Per-query score given to unobserved rows: below every observed score and the
+        threshold, as in :meth:`Quash.query_many`."""
+        da = require_dask()
+        m = da.nanmin(post, axis=0)
+        thr = np.float32(self.threshold)
+        return (da.where(da.isnan(m), thr, da.minimum(m, thr)) - np.float32(1.0)).astype(np.float32)
+
+    def _lazy(self) -> tuple[Any, Any]:
+        post = self._post(self.raw)
+        return self._final(post, self._floors(post))
+
+    @property
+    def scores(self) -> Any:
+        """``(Q, N)`` float32 dask array, as :attr:`QueryResult.scores` (postprocessed)."""
+        return self._lazy()[0]
+
+    @property
+    def masks(self) -> Any:
+        """``(Q, N)`` bool dask array, as :attr:`QueryResult.mask`."""
+        return self._lazy()[1]
+
+    def compute(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(scores (Q, N) float32, masks (Q, N) bool, observed (N,) bool)`` in memory."""
+        scores, masks = self._lazy()
+        return tuple(np.asarray(x) for x in compute(self.client, scores, masks, self.observed))
+
+    def to_zarr(self, path: str | Path, overwrite: bool = True) -> Path:
+        """Write ``scores``, ``masks`` and ``observed`` to a zarr store, atomically.
+
+        Three passes, each bounded by the chunk size: the map pass writes raw scores
+        (``4 (Q + 1)`` bytes per row) into the store; the two small passes over them
+        compute the map-level statistics and write the final arrays.
+        """
+        zarr = require_zarr()
+        da = require_dask()
+        path = Path(path).expanduser()
+        if path.exists() and not overwrite:
+            from ..core.errors import QuashError
+
+            raise QuashError(f"{path} exists. Remove it or pass overwrite=True.")
+        tmp = path.parent / f".{path.name}.tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+        n, q = self.raw.shape[0], len(self.classifiers)
+        rows = self.raw.chunks[0][0]
+        try:
+            group = zarr.open_group(str(tmp), mode="w", zarr_format=3)
+            zraw = group.create_array(
+                "_raw", shape=(n, q + 1), chunks=(rows, q + 1), dtype="float32"
+            )
+            (_,) = compute(self.client, da.store(self.raw, zraw, lock=False, compute=False))
+            raw = da.from_zarr(zraw, chunks=(rows, q + 1))
+            post = self._post(raw)
+            (floors,) = compute(self.client, self._floors(post))
+            scores, masks = self._final(post, np.asarray(floors, np.float32))
+            zs = group.create_array("scores", shape=(q, n), chunks=(q, rows), dtype="float32")
+            zm = group.create_array("masks", shape=(q, n), chunks=(q, rows), dtype="bool")
+            zo = group.create_array("observed", shape=(n,), chunks=(rows,), dtype="bool")
+            store = da.store(
+                [scores, masks, raw[:, q] > 0], [zs, zm, zo], lock=False, compute=False
+            )
+            compute(self.client, store)
+            del group["_raw"]
+            group.attrs.update(
+                {
+                    "queries": self.queries,
+                    "threshold": self.threshold,
+                    "querysets": [qs.to_dict() for qs in self.querysets],
+                    "classifiers": [_describe(c) for c in self.classifiers],
+                    "map_source": {
+                        k: v
+                        for k, v in self.lmap.source.items()
+                        if isinstance(v, (str, int, float))
+                    },
+                }
+            )
+            if path.exists():
+                shutil.rmtree(path)
+            os.replace(tmp, path)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+        log.info("wrote %s: %d queries x %d items", path, q, n)
+        return path
+
+
+def _describe(clf: Any) -> str:
+    describe = getattr(clf, "describe", None)
+    return describe() if callable(describe) else type(clf).__name__
+
+
+def query_lazy(
+    quash: Any, source: Any, texts: Sequence[str] | str, client: Any = None, **read_options: Any
+) -> LazyQuery:
+    """Fit one classifier per query and build the lazy one-pass graph over the map.
+
+    Nothing touches the embeddings until the result is computed or written.
+
+    Examples
+    --------
+    >>> lazy = query_lazy(quash, "map.zarr", ["chair", "sofa"], client)  # doctest: +SKIP
+    >>> lazy.masks            # (2, N) bool dask array          # doctest: +SKIP
+    >>> lazy.to_zarr("result.zarr")                              # doctest: +SKIP
+    """
+    if isinstance(texts, str):
+        texts = [texts]
+    texts = [check_query(t) for t in texts]
+    client = current_client(client if client is not None else getattr(quash, "client", None))
+    lmap = quash.read_map(source, **read_options)
+    quash.check_dimension(lmap)
+    querysets, classifiers = [], []
+    for text in texts:
+        qs = quash.expand(text, lmap)
+        X, y, _ = quash.training_set(qs)
+        querysets.append(qs)
+        classifiers.append(clone(quash.classifier).fit(X, y))
+    chunk_bytes = int(getattr(quash, "chunk_mb", 256.0) * 2**20)
+    held = ship(BlockScorer(classifiers, chunk_bytes))
+    raw = scores_graph(lmap, classifiers, chunk_bytes, client, held=held)
+    return LazyQuery(querysets, classifiers, raw, quash.threshold, client, held, lmap)
+
+
+def query_to_zarr(
+    quash: Any,
+    source: Any,
+    texts: Sequence[str] | str,
+    out_path: str | Path,
+    client: Any = None,
+    **read_options: Any,
+) -> Path:
+    """Answer ``texts`` on ``source`` and write the results to the zarr store ``out_path``.
+
+    The store holds ``scores (Q, N) float32``, ``masks (Q, N) bool``, ``observed (N,) bool``
+    and the queries, query sets and classifiers as attributes. With a distributed client
+    the workers write the chunks, so ``out_path`` must be on storage they share.
+    """
+    return query_lazy(quash, source, texts, client, **read_options).to_zarr(out_path)

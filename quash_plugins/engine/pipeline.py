@@ -1,0 +1,426 @@
+"""The QuASH pipeline: expand, encode, fit, classify, group.
+
+Examples
+--------
+>>> import numpy as np
+>>> from quash_plugins import Quash, LatentMap, registry
+>>> from quash_plugins.encoders import TableEncoder
+>>> enc = TableEncoder(table={"chair": [1, 0, 0], "other": [0, 1, 0],
+...                           "background": [0, 0, 1], "nothing": [0, 1, 1]})
+>>> q = Quash(enc, classifier=registry.create("classifiers", "contrast"))
+>>> m = LatentMap(np.array([[1, .1, 0], [0, 1, .2]], dtype=np.float32))
+>>> q.query(m, "chair").mask.tolist()
+[True, False]
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+import weakref
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from sklearn.base import clone
+
+from ..core import registry
+from ..core.config import DEFAULT_CLASSIFIER, DEFAULT_HEURISTIC, PluginSpec, QuashConfig
+from ..core.errors import ConfigError, DimensionMismatchError, QuashError
+from ..core.interfaces import Encoder, ExpansionContext, Heuristic
+from ..core.text import TextCache, load_templates
+from ..core.types import DEFAULT_NEGATIVES, LatentMap, QueryResult, QuerySet, check_query
+from .classify import classify_local
+from .training import training_set
+
+log = logging.getLogger(__name__)
+
+#: Encoder presets by embedding dimension, suggested on a dimension mismatch.
+PRESETS_BY_DIM = {
+    384: "minilm (sentence-transformers all-MiniLM-L6-v2)",
+    512: "open-clip preset 'lseg' (CLIP ViT-B/32, for LSeg/VLMaps maps)",
+    768: "open-clip preset 'openseg' (ViT-L/14@336, for OpenSeg maps)",
+    1024: "open-clip preset 'conceptfusion' (ViT-H-14 laion2b, for ConceptFusion maps)",
+}
+
+
+class Quash:
+    """Answer text queries against latent-semantic maps.
+
+    Parameters
+    ----------
+    encoder
+        Text encoder matching the map's embedding space.
+    heuristic
+        Expands a query into positives and negatives; default ``none``.
+    classifier
+        Unfitted scikit-learn estimator; cloned and fitted per query. Default
+        ``nearest-sample`` (k=2), chosen by the quality benchmark; the paper's is ``svm-rbf``.
+    negatives
+        Generic negatives always added to the antonyms.
+    threshold
+        Items with ``score > threshold`` match.
+    prompt_templates
+        ``{"mode": "mean"|"all", "templates": "default"|list|path}`` or None.
+    map_negatives
+        Options for map-mined negatives (the ``map-negatives`` heuristic wraps
+        ``heuristic``), or None.
+    refine
+        Options for transductive refinement (``quash_plugins.engine.refine.RefineOptions``):
+        re-fit on the map's own confident items and classify again. None turns it off.
+    instances
+        Options for instance grouping (True for defaults), or None/False to skip it.
+    cache
+        A text-embedding cache (anything with ``lookup`` and ``store``, e.g.
+        :class:`quash_plugins.engine.TextEmbeddingCache`), or None. :meth:`from_config`
+        opens the default on-disk cache when the config says ``cache: true``.
+    chunk_mb
+        Working-set budget of the classification pass.
+    backend
+        ``"numpy"`` (in-process chunks) or ``"dask"``.
+    client
+        A ``dask.distributed.Client`` for the dask backend.
+    """
+
+    def __init__(
+        self,
+        encoder: Encoder,
+        heuristic: Heuristic | None = None,
+        classifier: Any = None,
+        *,
+        negatives: Sequence[str] = DEFAULT_NEGATIVES,
+        threshold: float = 0.0,
+        prompt_templates: dict[str, Any] | None = None,
+        map_negatives: dict[str, Any] | None = None,
+        refine: dict[str, Any] | None = None,
+        adapter: str | PluginSpec = "auto",
+        instances: dict[str, Any] | bool | None = True,
+        seed: int = 0,
+        cache: TextCache | None = None,
+        chunk_mb: float = 256.0,
+        name: str = "quash",
+        backend: str = "numpy",
+        client: Any = None,
+        device: str = "auto",
+    ) -> None:
+        self.encoder = encoder
+        self.heuristic = (
+            heuristic
+            if heuristic is not None
+            else registry.create("heuristics", DEFAULT_HEURISTIC.name, **DEFAULT_HEURISTIC.params)
+        )
+        self.classifier = (
+            classifier
+            if classifier is not None
+            else registry.create(
+                "classifiers", DEFAULT_CLASSIFIER.name, **DEFAULT_CLASSIFIER.params
+            )
+        )
+        self.negatives = list(negatives)
+        self.threshold = float(threshold)
+        if prompt_templates is None:
+            # A heuristic may ask for templates (the `templates` heuristic); config wins.
+            prompt_templates = getattr(self.heuristic, "prompt_templates", None)
+        self.prompt_templates = prompt_templates
+        self._templates = None
+        if prompt_templates is not None:
+            unknown = set(prompt_templates) - {"mode", "templates"}
+            if unknown:
+                raise ConfigError(
+                    f"prompt_templates does not accept {sorted(unknown)}; it takes mode and templates."
+                )
+            self._templates = load_templates(prompt_templates.get("templates", "default"))
+        self.map_negatives = map_negatives
+        if map_negatives is not None:
+            self.heuristic = registry.create(
+                "heuristics", "map-negatives", base=self.heuristic, **dict(map_negatives)
+            )
+        self.refine = None
+        if refine is not None:
+            from .refine import RefineOptions
+
+            self.refine = RefineOptions.parse(dict(refine))
+            self._refine_template = self.refine.build_classifier()
+        self.adapter = adapter if isinstance(adapter, PluginSpec) else PluginSpec(str(adapter))
+        if instances is True:
+            instances = {}
+        self.instances = dict(instances) if isinstance(instances, dict) else None
+        self.seed = seed
+        if cache is True or cache is False:
+            if cache:
+                raise ConfigError(
+                    "Quash(cache=True): pass a cache object, e.g. "
+                    "quash_plugins.engine.TextEmbeddingCache(), or build with "
+                    "Quash.from_config (which opens the default cache for 'cache: true')."
+                )
+            cache = None
+        self.cache = cache
+        self.chunk_mb = float(chunk_mb)
+        self.name = name
+        self.backend = backend
+        self.client = client
+        self.device = device
+        self._maps: dict[Any, LatentMap] = {}
+        self._querysets: dict[tuple[str, int], tuple[Any, QuerySet]] = {}
+
+    # ------------------------------------------------------------------ building
+    @classmethod
+    def from_config(
+        cls, config: str | Path | dict[str, Any] | QuashConfig, **overrides: Any
+    ) -> Quash:
+        """Build from a :class:`QuashConfig`, a dict or a YAML file.
+
+        ``overrides`` replace constructor arguments (e.g. ``cache=None``, ``backend="dask"``).
+        See :func:`quash_plugins.engine.build.build_quash`.
+        """
+        from .build import build_quash
+
+        return build_quash(config, cls, **overrides)
+
+    # ------------------------------------------------------------------ maps
+    def read_map(self, source: Any, adapter: str | None = None, **options: Any) -> LatentMap:
+        """Read a map once; later calls with the same unchanged file reuse it."""
+        from ..core.maps import read_map
+
+        if isinstance(source, LatentMap):
+            return source
+        name = adapter or self.adapter.name
+        opts = {**self.adapter.params, **options} if name == self.adapter.name else options
+        key: Any
+        if isinstance(source, (str, Path)):
+            p = Path(source).expanduser()
+            try:
+                key = (str(p.resolve()), p.stat().st_mtime_ns, name, repr(sorted(opts.items())))
+            except OSError:
+                key = None
+        else:
+            key = (id(source), name)
+        if key is not None and key in self._maps:
+            return self._maps[key]
+        lmap = read_map(source, name, **opts)
+        if key is not None:
+            self._maps[key] = lmap
+        return lmap
+
+    def check_dimension(self, lmap: LatentMap) -> None:
+        """Fail up front when the encoder's dimension differs from the map's."""
+        enc_dim = int(self.encoder.dim)
+        if enc_dim != lmap.dim:
+            where = lmap.source.get("path", "the map")
+            hint = PRESETS_BY_DIM.get(lmap.dim)
+            suggestion = f" A matching encoder: {hint}." if hint else ""
+            raise DimensionMismatchError(
+                f"{where} has {lmap.dim}-dimensional embeddings, but encoder "
+                f"{self.encoder.name!r} produces {enc_dim}-dimensional ones. Use the text "
+                f"encoder that built the map.{suggestion}"
+            )
+
+    # ------------------------------------------------------------------ steps
+    def context(self, lmap: LatentMap | None = None) -> ExpansionContext:
+        return ExpansionContext(
+            encoder=self.encoder,
+            label_names=list(lmap.label_names) if lmap is not None and lmap.label_names else None,
+            map=lmap,
+            seed=self.seed,
+            negatives=tuple(self.negatives),
+            extra={"cache": self.cache},
+        )
+
+    def expand(self, text: str, lmap: LatentMap | None = None) -> QuerySet:
+        """Expand ``text`` into a query set, adding the generic negatives."""
+        text = check_query(text)
+        key = (text, id(lmap) if lmap is not None else 0)
+        cached = self._querysets.get(key)
+        if cached is not None and cached[0]() is lmap:
+            return cached[1]
+        qs = self.heuristic.expand(text, self.context(lmap))
+        if not isinstance(qs, QuerySet):
+            raise QuashError(
+                f"Heuristic {getattr(self.heuristic, 'name', '?')!r} returned "
+                f"{type(qs).__name__}, not a QuerySet."
+            )
+        qs = qs.with_negatives(self.negatives)
+        if not qs.negatives:
+            raise QuashError(
+                f"Query set for {text!r} has no negatives; configure 'negatives' or a heuristic "
+                "that produces antonyms."
+            )
+        if self.prompt_templates is not None:
+            qs.provenance["prompt_templates"] = {
+                "mode": self.prompt_templates.get("mode", "mean"),
+                "count": len(self._templates or []),
+            }
+        # A weak reference to the map guards against a new map reusing a freed one's id.
+        self._querysets[key] = (weakref.ref(lmap) if lmap is not None else _none_ref, qs)
+        return qs
+
+    def training_set(self, qs: QuerySet) -> tuple[np.ndarray, np.ndarray, list[str]]:
+        mode = (self.prompt_templates or {}).get("mode", "mean")
+        return training_set(self.encoder, qs, self.cache, self._templates, mode)
+
+    def fit(self, qs: QuerySet) -> Any:
+        """Clone the classifier template and fit it on the query set's embeddings."""
+        X, y, _ = self.training_set(qs)
+        clf = clone(self.classifier)
+        return clf.fit(X, y)
+
+    # ------------------------------------------------------------------ queries
+    def query(self, source: Any, text: str, **read_options: Any) -> QueryResult:
+        """Answer one query. ``source`` is a path, a live map object or a LatentMap."""
+        return self.query_many(source, [text], **read_options)[0]
+
+    def query_many(
+        self, source: Any, texts: Sequence[str], progress: Any = None, **read_options: Any
+    ) -> list[QueryResult]:
+        """Answer several queries with one pass over the map's embeddings."""
+        if isinstance(texts, str):
+            texts = [texts]
+        texts = [check_query(t) for t in texts]
+        if not texts:
+            raise QuashError("No query given.")
+        t0 = time.perf_counter()
+        lmap = self.read_map(source, **read_options)
+        t_read = time.perf_counter() - t0
+        self.check_dimension(lmap)
+        pending: list[_Pending] = []
+        for text in texts:
+            timings: dict[str, float] = {"read": t_read / len(texts)}
+            t = time.perf_counter()
+            qs = self.expand(text, lmap)
+            timings["expand"] = time.perf_counter() - t
+            t = time.perf_counter()
+            X, y, _ = self.training_set(qs)
+            timings["encode"] = time.perf_counter() - t
+            t = time.perf_counter()
+            clf = clone(self.classifier).fit(X, y)
+            timings["fit"] = time.perf_counter() - t
+            pending.append(_Pending(qs, X, y, clf, timings))
+        t = time.perf_counter()
+        scores, observed = self._classify(lmap, [p.clf for p in pending], progress)
+        t_cls = (time.perf_counter() - t) / len(texts)
+        for p, raw in zip(pending, scores):
+            p.timings["classify"] = t_cls
+            t = time.perf_counter()
+            p.raw, p.mask, p.display = self._finish(p.clf, raw, observed)
+            p.timings["postprocess"] = time.perf_counter() - t
+        if self.refine is not None:
+            self._refine_pass(lmap, pending, observed, progress)
+        results = []
+        for p in pending:
+            instances = []
+            if self.instances is not None:
+                from .instances import find_instances
+
+                t = time.perf_counter()
+                instances = find_instances(lmap, p.mask, p.display, **self.instances)
+                p.timings["instances"] = time.perf_counter() - t
+            p.timings["total"] = sum(p.timings.values())
+            describe = getattr(p.clf, "describe", None)
+            results.append(
+                QueryResult(
+                    queryset=p.queryset,
+                    mask=p.mask,
+                    scores=p.raw,
+                    display_scores=p.display,
+                    threshold=self.threshold,
+                    instances=instances,
+                    timings=p.timings,
+                    classifier=describe() if callable(describe) else type(p.clf).__name__,
+                    config_name=self.name,
+                    map_source=dict(lmap.source),
+                )
+            )
+        return results
+
+    def query_many_lazy(self, source: Any, texts: Sequence[str], **read_options: Any) -> Any:
+        """Like :meth:`query_many`, but masks and scores stay dask arrays until written.
+
+        Returns a :class:`quash_plugins.engine.LazyQuery` (``.masks``, ``.scores``,
+        ``.to_zarr(path)``); runs on :attr:`client` when set. Needs the ``[dask]`` extra.
+        """
+        from .lazy_query import query_lazy
+
+        return query_lazy(self, source, texts, self.client, **read_options)
+
+    def _finish(
+        self, clf: Any, raw: Any, observed: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Map-level postprocess, unobserved floor, mask and display scores of one query."""
+        raw = np.asarray(raw, dtype=np.float32)
+        if observed.any():
+            raw[observed] = np.asarray(clf.postprocess_scores(raw[observed]), np.float32)
+            floor = min(float(raw[observed].min()), self.threshold) - 1.0
+        else:
+            floor = self.threshold - 1.0
+        raw[~observed] = floor
+        mask = (raw > self.threshold) & observed
+        display = np.asarray(clf.display_scores(raw, self.threshold), dtype=np.float32)
+        display[~observed] = 0.0
+        return raw, mask, display
+
+    def _refine_pass(
+        self, lmap: LatentMap, pending: list[_Pending], observed: np.ndarray, progress: Any
+    ) -> None:
+        """Re-fit each query on its map samples and classify again, in one shared pass."""
+        from .refine import pseudo_labels
+
+        todo = []
+        for p in pending:
+            t = time.perf_counter()
+            extra = pseudo_labels(lmap, p.raw, p.mask, observed, self.refine, p.queryset.query)
+            seed_matches = int(p.mask.sum())
+            if extra is None:
+                p.queryset.provenance["refine"] = {"applied": False, "seed_matches": seed_matches}
+                p.timings["refine"] = time.perf_counter() - t
+                continue
+            Xm, ym = extra
+            refined = clone(self._refine_template).fit(
+                np.concatenate([p.X, Xm]), np.concatenate([p.y, ym])
+            )
+            p.queryset.provenance["refine"] = {
+                "applied": True,
+                "seed_matches": seed_matches,
+                "map_positives": int(ym.sum()),
+                "map_negatives": int(len(ym) - ym.sum()),
+            }
+            p.timings["refine"] = time.perf_counter() - t
+            todo.append((p, refined))
+        if not todo:
+            return
+        t = time.perf_counter()
+        scores, _ = self._classify(lmap, [r for _, r in todo], progress)
+        share = (time.perf_counter() - t) / len(todo)
+        for (p, refined), raw in zip(todo, scores):
+            p.clf = refined
+            p.raw, p.mask, p.display = self._finish(refined, raw, observed)
+            p.timings["refine"] += share
+
+    def _classify(self, lmap: LatentMap, classifiers: list[Any], progress: Any):
+        chunk_bytes = int(self.chunk_mb * 2**20)
+        if self.backend == "dask":
+            from .dask_executor import classify_dask
+
+            return classify_dask(lmap, classifiers, chunk_bytes=chunk_bytes, client=self.client)
+        if self.backend not in ("numpy", "local", None):
+            raise ConfigError(f"Unknown backend {self.backend!r}. Known: numpy, dask.")
+        return classify_local(lmap, classifiers, chunk_bytes, progress)
+
+
+@dataclass
+class _Pending:
+    """One query on its way through :meth:`Quash.query_many`."""
+
+    queryset: QuerySet
+    X: np.ndarray
+    y: np.ndarray
+    clf: Any
+    timings: dict[str, float]
+    raw: np.ndarray | None = None
+    mask: np.ndarray | None = None
+    display: np.ndarray | None = None
+
+
+def _none_ref() -> None:
+    return None

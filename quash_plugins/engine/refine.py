@@ -1,0 +1,117 @@
+"""Transductive refinement: re-fit the classifier on the map's own confident items.
+
+A classifier fitted on text embeddings alone sees only one modality; map embeddings sit
+elsewhere (the modality gap). Refinement takes the first pass's most confident matches
+as extra positives and a random sample of clearly unmatched items as extra negatives,
+fits a second classifier on text + map samples, and classifies the map again. It never
+uses ground truth. A first pass that matches fewer than ``min_seed`` items is kept as
+it is, so an absent object stays absent.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, fields
+from typing import Any
+
+import numpy as np
+
+from ..core.errors import ConfigError, closest
+from ..core.types import LatentMap, prepare_block
+
+
+@dataclass
+class RefineOptions:
+    """Options of the ``refine`` config section."""
+
+    classifier: Any = "svm-rbf"
+    n_positives: int = 100
+    n_negatives: int = 1000
+    negative_quantile: float = 0.5
+    min_seed: int = 10
+    seed: int = 0
+
+    @classmethod
+    def parse(cls, options: dict[str, Any]) -> RefineOptions:
+        known = [f.name for f in fields(cls)]
+        for key in options:
+            if key not in known:
+                guess = closest(str(key), known)
+                hint = f" Did you mean {guess!r}?" if guess else ""
+                raise ConfigError(
+                    f"refine: unknown option {key!r}. Options: {', '.join(known)}.{hint}"
+                )
+        opts = cls(**options)
+        if opts.n_positives < 1 or opts.n_negatives < 1 or opts.min_seed < 1:
+            raise ConfigError("refine: n_positives, n_negatives and min_seed must be >= 1.")
+        if not 0.0 < opts.negative_quantile <= 1.0:
+            raise ConfigError("refine: negative_quantile must be in (0, 1].")
+        return opts
+
+    def build_classifier(self) -> Any:
+        from ..core import registry
+
+        spec = self.classifier
+        if isinstance(spec, str):
+            return registry.create("classifiers", spec)
+        if not isinstance(spec, dict) or "name" not in spec:
+            raise ConfigError("refine: 'classifier' must be a name or {name: ..., <param>: ...}.")
+        params = {k: v for k, v in spec.items() if k != "name"}
+        return registry.create("classifiers", spec["name"], **params)
+
+
+def take_rows(lmap: LatentMap, index: np.ndarray) -> np.ndarray:
+    """Rows ``index`` of the map's embeddings as ``(k, D)`` float32, prepared as the
+    classification pass prepares them (normalised when the map asks for it)."""
+    index = np.unique(np.asarray(index, dtype=np.int64))
+    emb = lmap.embeddings
+    try:
+        rows = emb[index]
+        rows = rows.compute() if hasattr(rows, "compute") else rows
+        block = np.asarray(rows, dtype=np.float32)
+        if block.shape != (len(index), lmap.dim):
+            raise ValueError
+    except (TypeError, ValueError, IndexError):
+        # Array-likes without fancy indexing: read the covering row range by range.
+        parts = []
+        for start in range(0, len(index), 4096):
+            part = index[start : start + 4096]
+            lo, hi = int(part[0]), int(part[-1]) + 1
+            parts.append(np.asarray(emb[lo:hi], dtype=np.float32)[part - lo])
+        block = np.concatenate(parts)
+    return prepare_block(np.array(block, dtype=np.float32), 0, lmap.normalize, lmap.source)
+
+
+def pseudo_labels(
+    lmap: LatentMap,
+    scores: np.ndarray,
+    mask: np.ndarray,
+    observed: np.ndarray,
+    opts: RefineOptions,
+    salt: str,
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Map samples ``(k, D)`` and labels ``(k,)`` from a first pass, or None to keep it.
+
+    Positives: the ``n_positives`` highest-scoring matched items. Negatives: a seeded
+    random sample of observed items scoring below the ``negative_quantile`` of the
+    observed scores (and not matched).
+    """
+    matched = np.flatnonzero(mask)
+    if len(matched) < opts.min_seed:
+        return None
+    top = matched[np.argsort(-scores[matched], kind="stable")[: opts.n_positives]]
+    obs = np.flatnonzero(observed & ~mask)
+    if len(obs) == 0:
+        return None
+    cut = np.quantile(scores[observed], opts.negative_quantile)
+    pool = obs[scores[obs] <= cut]
+    if len(pool) == 0:
+        return None
+    digest = hashlib.sha256(f"{opts.seed}|{salt}".encode()).digest()
+    rng = np.random.default_rng(int.from_bytes(digest[:8], "little"))
+    neg = rng.choice(pool, size=min(opts.n_negatives, len(pool)), replace=False)
+    rows = take_rows(lmap, np.concatenate([top, neg]))
+    # take_rows sorts; rebuild labels in that order
+    order = np.unique(np.concatenate([top, neg]))
+    y = np.isin(order, top).astype(np.int64)
+    return rows, y

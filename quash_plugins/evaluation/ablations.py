@@ -1,0 +1,187 @@
+"""The ablation runner: the paper's tables on a labelled map, as Markdown and PNG plots.
+
+Tables (each one :func:`~quash_plugins.evaluation.report.evaluate` call):
+
+1. prompt engineering on/off, for the contrast baseline and QuASH (taxonomy);
+2. antonym words for the contrast baseline: other, others, background, texture, stuff,
+   nothing, object, things and the zero vector (``<zero>``);
+3. synonym source x antonym source over taxonomy, adjectives, lexicon and llm (the llm
+   only from its cache, ``offline: true``; skipped with a note when the cache is empty);
+4. classifiers on the taxonomy query sets.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from ..core.errors import QuashError
+from ..core.text import ZERO_TOKEN
+from .plot import plot_precision_recall
+from .report import evaluate, report_markdown
+
+log = logging.getLogger(__name__)
+
+ANTONYMS = (
+    "other",
+    "others",
+    "background",
+    "texture",
+    "stuff",
+    "nothing",
+    "object",
+    "things",
+    ZERO_TOKEN,
+)
+SOURCES = ("taxonomy", "adjectives", "lexicon", "llm")
+QUASH_CLASSIFIER: dict[str, Any] = {"name": "nearest-sample", "k": 2}
+CLASSIFIERS: dict[str, Any] = {
+    "nearest-sample k=1 (= contrast)": {"name": "nearest-sample", "k": 1},
+    "nearest-sample k=2": {"name": "nearest-sample", "k": 2},
+    "nearest-sample k=3": {"name": "nearest-sample", "k": 3},
+    "nearest-sample k=5": {"name": "nearest-sample", "k": 5},
+    "svm-rbf": "svm-rbf",
+    "svm-rbf balanced": {"name": "svm-rbf", "class_weight": "balanced"},
+    "svm-cosine": "svm-cosine",
+    "lerf-relevancy": "lerf-relevancy",
+}
+TABLES = ("prompt", "antonyms", "sources", "classifiers")
+
+
+def _cfg(name: str, encoder: Any, heuristic: Any, classifier: Any, **extra: Any) -> dict:
+    return {
+        "name": name,
+        "encoder": encoder,
+        "heuristic": heuristic,
+        "classifier": classifier,
+        "instances": False,
+        **extra,
+    }
+
+
+def _source_spec(source: str, taxonomy: str | None, llm: dict[str, Any] | None) -> Any:
+    if source == "taxonomy":
+        return {"name": "taxonomy", "file": taxonomy, "n_synonyms": 20, "n_antonyms": 200}
+    if source == "llm":
+        return {"name": "llm", "offline": True, **(llm or {})}
+    return source
+
+
+def bench_configs(
+    taxonomy: str | None, encoder: Any = "minilm", llm: dict[str, Any] | None = None
+) -> dict[str, list[dict[str, Any]]]:
+    """The configs of every table (dicts, ready for :meth:`Quash.from_config`)."""
+    tax = _source_spec("taxonomy", taxonomy, llm)
+    pe = {"mode": "mean"}
+    tables: dict[str, list[dict[str, Any]]] = {}
+    tables["prompt"] = [
+        _cfg("baseline PE", encoder, "none", "contrast", negatives=["other"], prompt_templates=pe),
+        _cfg("baseline no PE", encoder, "none", "contrast", negatives=["other"]),
+    ]
+    if taxonomy:
+        tables["prompt"] += [
+            _cfg("quash-taxonomy PE", encoder, tax, QUASH_CLASSIFIER, prompt_templates=pe),
+            _cfg("quash-taxonomy no PE", encoder, tax, QUASH_CLASSIFIER),
+        ]
+    tables["antonyms"] = [
+        _cfg(
+            f"baseline {'zero vector' if a == ZERO_TOKEN else a}",
+            encoder,
+            "none",
+            "contrast",
+            negatives=[a],
+            **({} if a == ZERO_TOKEN else {"prompt_templates": pe}),
+        )
+        for a in ANTONYMS
+    ]
+    sources = [s for s in SOURCES if (s != "taxonomy" or taxonomy) and (s != "llm" or llm)]
+    tables["sources"] = [
+        _cfg(
+            f"{s} x {a}",
+            encoder,
+            {
+                "name": "combine",
+                "synonyms": _source_spec(s, taxonomy, llm),
+                "antonyms": _source_spec(a, taxonomy, llm),
+            },
+            QUASH_CLASSIFIER,
+        )
+        for s in sources
+        for a in sources
+    ]
+    if taxonomy:
+        tables["classifiers"] = [
+            _cfg(f"taxonomy + {k}", encoder, tax, v) for k, v in CLASSIFIERS.items()
+        ] + [
+            _cfg(
+                f"taxonomy + nearest-sample k=2 + refine ({r})",
+                encoder,
+                tax,
+                QUASH_CLASSIFIER,
+                refine={"classifier": r, "n_positives": 100, "n_negatives": 1000},
+            )
+            for r in ("svm-rbf", "nearest-sample")
+        ]
+    return tables
+
+
+def run_bench(
+    source: Any,
+    taxonomy: str | None,
+    out: str | Path,
+    tables: tuple[str, ...] = TABLES,
+    encoder: Any = "minilm",
+    llm: dict[str, Any] | None = None,
+    overrides: dict[str, Any] | None = None,
+    queries: list[str] | None = None,
+    absent: tuple[str, ...] = (),
+    on_table: Callable[[str], None] | None = None,
+) -> dict[str, Any]:
+    """Run the tables; write ``bench.md``, ``bench.json`` and ``<table>.png`` into ``out``."""
+    import json
+
+    from ..core.atomic import atomic_write_text
+    from ..engine.pipeline import Quash
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    all_cfgs = bench_configs(taxonomy, encoder, llm)
+    overrides = dict(overrides or {})
+    lmap = Quash.from_config(all_cfgs["prompt"][1], **overrides).read_map(source)
+    results: dict[str, Any] = {}
+    md = ["# quash bench", "", f"Map: {lmap.describe()}", ""]
+    titles = {
+        "prompt": "Prompt engineering (PE)",
+        "antonyms": "Antonyms (baseline)",
+        "sources": "Synonym source x antonym source",
+        "classifiers": "Classifiers",
+    }
+    for table in tables:
+        cfgs = all_cfgs.get(table)
+        if not cfgs:
+            md += [f"## {titles[table]}", "", "_skipped: needs --taxonomy_", ""]
+            continue
+        rows, notes = [], []
+        if table == "sources" and not llm:
+            notes.append("- llm rows skipped: give the model of a filled llm cache (--llm-model).")
+        for cfg in cfgs:
+            try:
+                rep = evaluate(lmap, [cfg], queries=queries, absent=absent, overrides=overrides)
+                rows.extend(rep.configs)
+            except QuashError as exc:
+                notes.append(f"- {cfg['name']}: skipped ({str(exc).splitlines()[0]})")
+                log.warning("bench %s: %s skipped: %s", table, cfg["name"], exc)
+        rows.sort(key=lambda c: -c["mean"]["f1"])
+        results[table] = {"configs": rows, "notes": notes}
+        md += [f"## {titles[table]}", "", report_markdown(rows, per_query=False)]
+        md += [*notes, ""] if notes else []
+        if rows:
+            plot_precision_recall(rows, out / f"{table}.png", title=titles[table])
+            md += [f"![{titles[table]}]({table}.png)", ""]
+        if on_table is not None:
+            on_table(table)
+    atomic_write_text(out / "bench.md", "\n".join(md) + "\n")
+    atomic_write_text(out / "bench.json", json.dumps(results, indent=2) + "\n")
+    return results

@@ -1,0 +1,204 @@
+"""Drop-in QuASH for VLMaps projects.
+
+VLMaps answers ``VLMap.index_map(language_desc, with_init_cat=True)`` with an ``(N,)``
+bool mask over the rows of ``vlmap.grid_feat``: a row matches when the query's text
+embedding (the mean over 63 prompt templates) scores highest among
+``[categories..., "other"]`` (with ``with_init_cat=True`` and categories set by
+``init_categories``) or among ``[language_desc, "other"]`` otherwise. Everything else in
+VLMaps that locates objects (``get_pos``, ``get_nearest_pos``, the navigation
+primitives) calls ``index_map``.
+
+This module returns a mask with the same meaning and shape, decided by QuASH instead:
+
+* :func:`index_map` ``(vlmap, text, with_init_cat=True, quash=...)`` -> ``(N,)`` bool;
+* :func:`patch_vlmap` replaces ``index_map`` on one VLMap object, so the rest of VLMaps
+  uses QuASH unchanged; :func:`unpatch_vlmap` restores it;
+* :class:`QuashIndexMixin` does the same for a subclass;
+* :func:`query` returns the full :class:`~quash_plugins.core.types.QueryResult` (scores,
+  instances with centroids in metres).
+
+With ``with_init_cat=True`` and ``vlmap.categories`` set, the other categories are added
+to the query's negatives, which mirrors VLMaps' argmax over the category list. Unlike
+VLMaps, a missing category list is not an error: the query then stands on its own.
+Zero rows of ``grid_feat`` never match.
+
+Examples
+--------
+>>> import numpy as np
+>>> from types import SimpleNamespace
+>>> vlmap = SimpleNamespace(grid_feat=np.array([[1, 0.1], [0.1, 1], [0, 0]], np.float32),
+...                         grid_pos=np.array([[500, 500, 0], [501, 500, 0], [502, 500, 0]]))
+>>> cfg = {"encoder": {"name": "table", "table": {"chair": [1, 0], "other": [0, 1],
+...        "background": [0, 1], "nothing": [0, 1]}}, "classifier": "contrast", "cache": False}
+>>> index_map(vlmap, "chair", quash=cfg).tolist()
+[True, False, False]
+"""
+
+from __future__ import annotations
+
+import contextlib
+import copy
+import types
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..core.errors import QuashError
+from ..core.types import LatentMap, QueryResult
+
+__all__ = ["index_map", "query", "patch_vlmap", "unpatch_vlmap", "QuashIndexMixin", "as_latent_map"]
+
+_CACHE_ATTR = "_quash_latent_map"
+_QUASH_ATTR = "_quash"
+_ORIGINAL_ATTR = "_vlmaps_index_map"
+
+
+def resolve_quash(quash: Any, vlmap: Any = None) -> Any:
+    """A :class:`~quash_plugins.engine.pipeline.Quash` from an instance, a config or the VLMap.
+
+    ``quash`` may be a ``Quash``, a :class:`~quash_plugins.core.config.QuashConfig`, a dict, or
+    a path to a YAML config. ``None`` uses the one attached by :func:`patch_vlmap`.
+    """
+    from ..core.config import QuashConfig
+    from ..engine.pipeline import Quash
+
+    if quash is None and vlmap is not None:
+        quash = getattr(vlmap, _QUASH_ATTR, None) or getattr(vlmap, "quash", None)
+    if quash is None:
+        raise QuashError(
+            "No QuASH configuration given. Pass quash=CONFIG (a YAML path, a dict or a Quash) "
+            "or attach one first with patch_vlmap(vlmap, CONFIG)."
+        )
+    if isinstance(quash, Quash):
+        return quash
+    if isinstance(quash, (str, Path, dict, QuashConfig)):
+        return Quash.from_config(quash)
+    raise QuashError(
+        f"quash must be a Quash, a QuashConfig, a dict or a YAML path; got {type(quash).__name__}."
+    )
+
+
+def as_latent_map(vlmap: Any, **options: Any) -> LatentMap:
+    """The live VLMap as a :class:`LatentMap`, cached on the object until its arrays change.
+
+    ``options`` are those of the ``vlmaps-live`` adapter (``gs``, ``cs``, ``pose_type``,
+    ``label_names``).
+    """
+    from ..adapters import VLMapsLiveAdapter
+
+    feat = getattr(vlmap, "grid_feat", None)
+    pos = getattr(vlmap, "grid_pos", None)
+    key = (id(feat), getattr(feat, "shape", None), id(pos), repr(sorted(options.items())))
+    cached = getattr(vlmap, _CACHE_ATTR, None)
+    if cached is not None and cached[0] == key:
+        return cached[1]
+    lmap = VLMapsLiveAdapter().read(vlmap, **options)
+    with contextlib.suppress(AttributeError):  # __slots__ objects: no cache, still correct
+        setattr(vlmap, _CACHE_ATTR, (key, lmap))
+    return lmap
+
+
+def _other_categories(vlmap: Any, text: str) -> list[str]:
+    cats = getattr(vlmap, "categories", None) or []
+    low = " ".join(text.split()).lower()
+    return [str(c) for c in cats if str(c).strip().lower() != low]
+
+
+def query(
+    vlmap: Any,
+    language_desc: str,
+    with_init_cat: bool = True,
+    quash: Any = None,
+    **read_options: Any,
+) -> QueryResult:
+    """Answer ``language_desc`` over a live VLMap with QuASH; the full result.
+
+    Parameters
+    ----------
+    vlmap
+        A VLMaps ``VLMap`` (or any object with ``grid_feat`` and ``grid_pos``).
+    language_desc
+        The query, e.g. ``"chair"``.
+    with_init_cat
+        Add ``vlmap.categories`` (other than the query) to the negatives when present.
+    quash
+        A ``Quash``, a config (dict, ``QuashConfig`` or YAML path), or None for the one
+        attached by :func:`patch_vlmap`.
+    read_options
+        Options of the ``vlmaps-live`` adapter (``gs``, ``cs``, ``pose_type``).
+
+    Returns
+    -------
+    QueryResult
+        ``mask`` and ``scores`` are ``(N,)`` over the rows of ``vlmap.grid_feat``.
+    """
+    q = resolve_quash(quash, vlmap)
+    lmap = as_latent_map(vlmap, **read_options)
+    extra = _other_categories(vlmap, language_desc) if with_init_cat else []
+    if extra:
+        q = copy.copy(q)
+        q.negatives = [*q.negatives, *[e for e in extra if e not in q.negatives]]
+        q._querysets = {}  # the copy must not reuse query sets built without these negatives
+    return q.query(lmap, language_desc)
+
+
+def index_map(
+    vlmap: Any,
+    language_desc: str,
+    with_init_cat: bool = True,
+    quash: Any = None,
+    **read_options: Any,
+) -> np.ndarray:
+    """QuASH's answer to ``VLMap.index_map``: an ``(N,)`` bool mask over ``grid_feat`` rows.
+
+    Same arguments as :func:`query`; returns ``query(...).mask``.
+    """
+    return query(vlmap, language_desc, with_init_cat, quash, **read_options).mask
+
+
+def patch_vlmap(vlmap: Any, quash: Any) -> Any:
+    """Make ``vlmap.index_map`` (and so ``get_pos`` & co.) answer with QuASH.
+
+    The original method is kept and restored by :func:`unpatch_vlmap`. Returns ``vlmap``.
+    """
+    resolved = resolve_quash(quash)
+    if not hasattr(vlmap, _ORIGINAL_ATTR):
+        setattr(vlmap, _ORIGINAL_ATTR, getattr(vlmap, "index_map", None))
+    setattr(vlmap, _QUASH_ATTR, resolved)
+
+    def _index_map(self: Any, language_desc: str, with_init_cat: bool = True) -> np.ndarray:
+        return index_map(self, language_desc, with_init_cat, quash=getattr(self, _QUASH_ATTR))
+
+    vlmap.index_map = types.MethodType(_index_map, vlmap)
+    return vlmap
+
+
+def unpatch_vlmap(vlmap: Any) -> Any:
+    """Undo :func:`patch_vlmap`; returns ``vlmap``."""
+    if hasattr(vlmap, _ORIGINAL_ATTR):
+        original = getattr(vlmap, _ORIGINAL_ATTR)
+        del vlmap.index_map  # the instance attribute; the class method shows again
+        if original is not None and getattr(vlmap, "index_map", None) is None:
+            vlmap.index_map = original
+        delattr(vlmap, _ORIGINAL_ATTR)
+    for attr in (_QUASH_ATTR, _CACHE_ATTR):
+        if hasattr(vlmap, attr):
+            delattr(vlmap, attr)
+    return vlmap
+
+
+class QuashIndexMixin:
+    """Mixin whose ``index_map`` is decided by QuASH: ``class MyMap(QuashIndexMixin, VLMap)``.
+
+    Set ``self.quash`` (a ``Quash``, a config dict or a YAML path) before querying.
+    """
+
+    quash: Any = None
+
+    def index_map(self, language_desc: str, with_init_cat: bool = True) -> np.ndarray:
+        from ..engine.pipeline import Quash
+
+        if not isinstance(self.quash, Quash):
+            self.quash = resolve_quash(self.quash, self)
+        return index_map(self, language_desc, with_init_cat, quash=self.quash)

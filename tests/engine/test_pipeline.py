@@ -1,0 +1,196 @@
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from quash_plugins import LatentMap, Quash, QuerySet
+from quash_plugins.core import registry
+from quash_plugins.core.errors import DimensionMismatchError, MapFormatError, QuashError
+from quash_plugins.core.text import ZERO_TOKEN
+from quash_plugins.encoders import TableEncoder
+from quash_plugins.engine.training import training_set
+
+
+def _contrast_rule(E, T, words, query, negatives):
+    """VLMaps' rule computed independently: cosine to query beats every negative."""
+    En = E / np.linalg.norm(E, axis=1, keepdims=True)
+    q = En @ T[words.index(query)]
+    n = np.max(np.stack([En @ T[words.index(w)] for w in negatives]), axis=0)
+    return q > n
+
+
+def test_query_matches_independent_contrast_rule(tiny_world):
+    quash = Quash.from_config(tiny_world["config"])
+    results = quash.query_many(tiny_world["map"], ["chair", "sofa"])
+    for r in results:
+        expected = _contrast_rule(
+            tiny_world["E"],
+            tiny_world["T"],
+            tiny_world["words"],
+            r.query,
+            ["other", "background", "nothing"],
+        )
+        np.testing.assert_array_equal(r.mask, expected)
+        assert r.scores.dtype == np.float32 and r.scores.shape == (600,)
+        assert set(r.timings) >= {"read", "expand", "encode", "fit", "classify", "total"}
+        assert ((r.display_scores >= 0) & (r.display_scores <= 1)).all()
+        # the mask really finds the label (contrast over-predicts, so recall, not precision)
+        label = tiny_world["label_names"].index(r.query)
+        assert r.mask[tiny_world["labels"] == label].mean() > 0.9
+
+
+def test_map_is_read_once(tiny_world, monkeypatch):
+    import quash_plugins.core.maps as adapters
+
+    calls = []
+    original = adapters.read_map
+    monkeypatch.setattr(adapters, "read_map", lambda *a, **k: calls.append(a) or original(*a, **k))
+    quash = Quash.from_config(tiny_world["config"])
+    quash.query(tiny_world["map"], "chair")
+    quash.query(tiny_world["map"], "sofa")
+    assert len(calls) == 1
+
+
+def test_chunking_does_not_change_results(tiny_world):
+    big = Quash.from_config(tiny_world["config"])
+    small = Quash.from_config(tiny_world["config"], chunk_mb=0.001)  # ~15 rows per chunk
+    a = big.query(tiny_world["map"], "table")
+    b = small.query(tiny_world["map"], "table")
+    np.testing.assert_array_equal(a.mask, b.mask)
+    np.testing.assert_allclose(a.scores, b.scores, atol=1e-6)
+
+
+def test_zero_rows_never_match_and_normalize_flag():
+    enc = TableEncoder(
+        table={"chair": [1, 0], "other": [0, 1], "background": [-1, 0], "nothing": [0, -1]}
+    )
+    E = np.array([[3, 0.2], [0, 0], [0.1, 5]], dtype=np.float32)
+    m = LatentMap(E, normalize=True)
+    r = Quash(enc, classifier=registry.create("classifiers", "contrast")).query(m, "chair")
+    assert r.mask.tolist() == [True, False, False]
+    assert r.display_scores[1] == 0.0
+
+
+def test_threshold_trades_precision_for_recall(tiny_world):
+    base = Quash.from_config(tiny_world["config"]).query(tiny_world["map"], "chair")
+    strict = Quash.from_config(tiny_world["config"], threshold=0.2).query(
+        tiny_world["map"], "chair"
+    )
+    assert strict.n_matched < base.n_matched
+    assert not (strict.mask & ~base.mask).any()
+
+
+def test_generic_negatives_are_added_once():
+    enc = TableEncoder(table={"chair": [1, 0], "other": [0, 1], "nothing": [0, -1]})
+    quash = Quash(enc, negatives=["other", "nothing", "other"])
+    qs = quash.expand("  chair ")
+    assert (
+        qs.query == "chair" and qs.positives == ["chair"] and qs.negatives == ["other", "nothing"]
+    )
+
+
+def test_dimension_mismatch_names_both_dims():
+    enc = TableEncoder(table={"chair": [1, 0, 0], "other": [0, 1, 0]})
+    m = LatentMap(np.ones((4, 512), dtype=np.float32), source={"path": "map.npz"})
+    with pytest.raises(DimensionMismatchError) as err:
+        Quash(enc).query(m, "chair")
+    msg = str(err.value)
+    assert "512" in msg and "3-dimensional" in msg and "lseg" in msg
+
+
+def test_nan_in_embeddings_is_reported_with_row():
+    enc = TableEncoder(table={"chair": [1, 0], "other": [0, 1]})
+    E = np.ones((10, 2), dtype=np.float32)
+    E[7, 1] = np.nan
+    with pytest.raises(MapFormatError, match="row 7"):
+        Quash(enc, negatives=["other"]).query(LatentMap(E), "chair")
+
+
+def test_empty_query_is_rejected():
+    enc = TableEncoder(table={"chair": [1, 0], "other": [0, 1]})
+    with pytest.raises(QuashError, match="query is empty"):
+        Quash(enc).query(LatentMap(np.ones((2, 2), np.float32)), "   ")
+
+
+def test_queryset_yaml_round_trip():
+    qs = QuerySet(
+        "chair",
+        ["chair", "armchair", "chair"],
+        ["other", "armchair"],
+        {"heuristic": "static", "seed": np.int64(3)},
+    )
+    assert qs.positives == ["chair", "armchair"] and qs.negatives == ["other"]
+    import yaml
+
+    again = QuerySet.from_dict(yaml.safe_load(qs.to_yaml()))
+    assert again.to_dict() == qs.to_dict()
+
+
+def test_templates_mean_and_all_and_zero_vector():
+    class Echo(TableEncoder):
+        pass
+
+    words = ["a chair", "the chair", "a other", "the other"]
+    rng = np.random.default_rng(0)
+    T = rng.normal(size=(4, 8))
+    enc = Echo(table=dict(zip(words, T.tolist())))
+    qs = QuerySet("chair", ["chair"], ["other", ZERO_TOKEN])
+    X, y, texts = training_set(enc, qs, templates=["a {}", "the {}"], mode="mean")
+    Tn = T / np.linalg.norm(T, axis=1, keepdims=True)
+    expect = Tn[0] + Tn[1]
+    np.testing.assert_allclose(X[0], expect / np.linalg.norm(expect), atol=1e-6)
+    assert y.tolist() == [1, 0, 0] and not X[2].any()
+    X, y, texts = training_set(enc, qs, templates=["a {}", "the {}"], mode="all")
+    assert X.shape == (6, 8) and y.tolist() == [1, 1, 0, 0, 0, 0]
+    assert texts[:4] == words and not X[4:].any()
+
+
+def test_npz_round_trip_keeps_frames(tmp_path):
+    from quash_plugins import FrameInfo
+    from quash_plugins.adapters import read_map
+    from quash_plugins.adapters._npz import write_npz_map
+
+    frames = [FrameInfo("f0", 2, 3, 0), FrameInfo("f1", 1, 4, 6)]
+    E = np.random.default_rng(0).normal(size=(10, 4)).astype(np.float32)
+    path = write_npz_map(tmp_path / "px.npz", LatentMap(E, kind="pixels", frames=frames))
+    back = read_map(path)
+    assert back.kind == "pixels"
+    assert [(f.frame_id, f.height, f.width, f.offset) for f in back.frames] == [
+        ("f0", 2, 3, 0),
+        ("f1", 1, 4, 6),
+    ]
+
+
+def test_atomic_write_gives_normal_permissions(tmp_path):
+    import os
+    import stat
+
+    from quash_plugins.core.atomic import atomic_write_text
+
+    mask = os.umask(0o022)
+    try:
+        path = atomic_write_text(tmp_path / "out.txt", "hello")
+    finally:
+        os.umask(mask)
+    assert stat.S_IMODE(path.stat().st_mode) == 0o644
+    assert path.read_text() == "hello"
+
+
+def test_query_sets_are_not_reused_across_maps_with_recycled_ids():
+    enc = TableEncoder(table={"chair": [1, 0], "other": [0, 1], "sofa": [1, 1]})
+
+    class LabelEcho:
+        name = "label-echo"
+
+        def expand(self, query, context=None):
+            return QuerySet(query, [query], list(context.label_names or ["other"]))
+
+    quash = Quash(enc, LabelEcho(), negatives=[])
+    first = LatentMap(np.ones((2, 2), np.float32), labels=np.array([0, 0]), label_names=["other"])
+    assert quash.expand("chair", first).negatives == ["other"]
+    key = next(iter(quash._querysets))
+    del first
+    second = LatentMap(np.ones((2, 2), np.float32), labels=np.array([0, 0]), label_names=["sofa"])
+    # simulate the allocator handing the freed id to the new map
+    quash._querysets[("chair", id(second))] = quash._querysets.pop(key)
+    assert quash.expand("chair", second).negatives == ["sofa"]

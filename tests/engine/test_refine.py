@@ -1,0 +1,149 @@
+"""Transductive refinement: pseudo-labels from the first pass, a second shared pass."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from quash_plugins import LatentMap, Quash
+from quash_plugins.core import registry
+from quash_plugins.core.errors import ConfigError
+from quash_plugins.encoders import TableEncoder
+from quash_plugins.engine.refine import RefineOptions, pseudo_labels, take_rows
+
+
+def _world(seed=0, n=3000, d=24, shift=2.5):
+    """Two classes whose map embeddings are text directions plus a shared offset and noise
+    (a modality gap), so text-only classifiers and refined ones can differ."""
+    rng = np.random.default_rng(seed)
+    T = rng.normal(size=(6, d))
+    T /= np.linalg.norm(T, axis=1, keepdims=True)
+    words = ["chair", "armchair", "table", "other", "background", "nothing"]
+    labels = rng.integers(0, 2, size=n)  # 0 chair, 1 table
+    offset = rng.normal(size=d) * shift / np.sqrt(d)
+    E = np.where(labels[:, None] == 0, T[0], T[2]) + offset + 0.6 * rng.normal(size=(n, d))
+    E[:50] = 0.0  # unobserved rows
+    enc = TableEncoder(table=dict(zip(words, T.tolist())))
+    lmap = LatentMap(
+        E.astype(np.float32), labels=labels, label_names=["chair", "table"], normalize=True
+    )
+    return enc, lmap, labels
+
+
+def test_options_are_checked():
+    with pytest.raises(ConfigError, match="unknown option 'n_positive'.*n_positives"):
+        RefineOptions.parse({"n_positive": 3})
+    with pytest.raises(ConfigError, match="negative_quantile"):
+        RefineOptions.parse({"negative_quantile": 0})
+    with pytest.raises(ConfigError, match="does not accept parameter 'gama'"):
+        Quash(
+            TableEncoder(table={"a": [1, 0]}), refine={"classifier": {"name": "svm-rbf", "gama": 1}}
+        )
+
+
+def test_pseudo_labels_pick_confident_matches_and_clear_non_matches():
+    enc, lmap, labels = _world()
+    rng = np.random.default_rng(1)
+    scores = rng.normal(size=lmap.n).astype(np.float32)
+    observed = np.ones(lmap.n, bool)
+    observed[:50] = False
+    mask = (scores > 1.0) & observed
+    opts = RefineOptions(n_positives=20, n_negatives=100, negative_quantile=0.3)
+    rows, y = pseudo_labels(lmap, scores, mask, observed, opts, "chair")
+    assert y.sum() == 20 and (y == 0).sum() == 100
+    # independently: the 20 best matched items, and negatives below the 30% quantile
+    top = np.flatnonzero(mask)[np.argsort(-scores[mask])[:20]]
+    idx = np.unique(np.concatenate([top, np.flatnonzero(~mask)]))
+    E = np.asarray(lmap.embeddings, np.float32)
+    En = E / np.maximum(np.linalg.norm(E, axis=1, keepdims=True), 1e-12)
+    pos_rows = rows[y == 1]
+    np.testing.assert_allclose(np.sort(pos_rows, axis=0), np.sort(En[top], axis=0), atol=1e-6)
+    cut = np.quantile(scores[observed], 0.3)
+    neg_rows = rows[y == 0]
+    neg_idx = [int(np.argmin(np.abs(En - r).sum(1))) for r in neg_rows[:10]]
+    assert all(scores[i] <= cut and observed[i] and not mask[i] for i in neg_idx)
+    assert set(neg_idx) <= set(idx.tolist())
+    # too few seed matches: the first pass is kept
+    assert pseudo_labels(lmap, scores, mask & (scores > 3.5), observed, opts, "x") is None
+
+
+def test_take_rows_matches_fancy_indexing_and_normalises():
+    enc, lmap, _ = _world()
+    idx = np.array([900, 60, 77, 77, 2999])
+    rows = take_rows(lmap, idx)
+    assert not take_rows(lmap, np.array([3])).any()  # a zero row stays zero
+    E = np.asarray(lmap.embeddings, np.float32)[np.unique(idx)]
+    np.testing.assert_allclose(rows, E / np.linalg.norm(E, axis=1, keepdims=True), atol=1e-6)
+
+
+def test_refinement_second_pass_and_provenance():
+    enc, lmap, labels = _world()
+    plain = Quash(enc, classifier=registry.create("classifiers", "contrast"), instances=None)
+    refined = Quash(
+        enc,
+        classifier=registry.create("classifiers", "contrast"),
+        refine={
+            "classifier": {"name": "svm-rbf", "class_weight": "balanced"},
+            "n_positives": 100,
+            "n_negatives": 400,
+        },
+        instances=None,
+    )
+    a = plain.query(lmap, "chair")
+    b = refined.query(lmap, "chair")
+    assert b.queryset.provenance["refine"]["applied"] is True
+    assert b.queryset.provenance["refine"]["map_positives"] == 100
+    assert "refine" in b.timings
+    assert b.classifier.startswith("RbfSvmClassifier")
+    assert not b.mask[:50].any()  # unobserved rows never match
+    assert (b.mask == (b.scores > 0)).all()
+    f1 = []
+    for r in (a, b):
+        tp = (r.mask & (labels == 0)).sum()
+        f1.append(2 * tp / (r.mask.sum() + (labels == 0).sum()))
+    assert f1[1] >= f1[0] - 0.02  # refinement does not break a working first pass
+    # deterministic
+    c = refined.query(lmap, "chair")
+    np.testing.assert_array_equal(b.mask, c.mask)
+
+
+def test_absent_query_stays_empty():
+    enc, lmap, _ = _world()
+    quash = Quash(
+        enc,
+        classifier=registry.create("classifiers", "contrast"),
+        instances=None,
+        threshold=5.0,
+        refine={},
+    )
+    r = quash.query(lmap, "chair")
+    assert r.n_matched == 0 and r.queryset.provenance["refine"]["applied"] is False
+
+
+def test_refine_from_config():
+    from quash_plugins.core.config import QuashConfig
+
+    assert QuashConfig.from_dict({"refine": {"n_positives": 50}}).refine == {"n_positives": 50}
+    assert QuashConfig.from_dict({"refine": None}).refine is None
+    table = {"chair": [1.0, 0.0], "other": [0.0, 1.0]}
+    quash = Quash.from_config(
+        {"encoder": {"name": "table", "table": table}, "refine": {"n_positives": 50}}
+    )
+    assert quash.refine.n_positives == 50 and quash.refine.n_negatives == 1000
+    assert Quash.from_config({"encoder": {"name": "table", "table": table}}).refine is None
+
+
+def test_refinement_reuses_the_first_pass_text_embeddings():
+    enc, lmap, _ = _world()
+    calls = []
+    original = enc.encode_text
+    enc.encode_text = lambda texts: calls.append(list(texts)) or original(texts)
+    quash = Quash(
+        enc,
+        classifier=registry.create("classifiers", "contrast"),
+        instances=None,
+        refine={"n_positives": 50, "n_negatives": 200},
+    )
+    r = quash.query(lmap, "chair")
+    assert r.queryset.provenance["refine"]["applied"] is True
+    assert len(calls) == 1  # the refit takes X, y from the first pass; no second encode

@@ -1,0 +1,168 @@
+"""The zarr map store, the zarr adapter and as_dask wrappers (no cluster needed)."""
+
+from __future__ import annotations
+
+import pickle
+
+import dask.array as da
+import numpy as np
+import pytest
+import zarr  # noqa: F401 - the zarr store is tested here
+
+from quash_plugins.adapters import detect_adapter, read_map, write_zarr_map
+from quash_plugins.core.types import FrameInfo, LatentMap
+from quash_plugins.engine import as_dask, classify_dask
+
+
+def _map(n=500, d=8, dtype=np.float16, seed=0):
+    rng = np.random.default_rng(seed)
+    emb = rng.normal(size=(n, d)).astype(dtype)
+    emb[::50] = 0
+    return LatentMap(
+        emb,
+        kind="voxels",
+        positions=rng.uniform(0, 3, size=(n, 3)).astype(np.float32),
+        colors=rng.integers(0, 255, size=(n, 3), dtype=np.uint8),
+        labels=rng.integers(0, 3, size=n),
+        label_names=["floor", "chair", "table"],
+        voxel_size=0.05,
+        grid_index=rng.integers(0, 100, size=(n, 3)),
+        normalize=True,
+        source={"encoder_hint": "test 8"},
+    )
+
+
+def test_round_trip_keeps_everything(tmp_path):
+    m = _map()
+    path = write_zarr_map(m, tmp_path / "m.zarr", chunk_mb=0.001)
+    assert detect_adapter(path) == "zarr"
+    back = read_map(path)
+    assert back.embeddings.dtype == np.float16
+    assert back.embeddings.chunks[0] < m.n  # really chunked by rows
+    np.testing.assert_array_equal(np.asarray(back.embeddings[...]), m.embeddings)
+    for key in ("positions", "colors", "labels", "grid_index"):
+        np.testing.assert_array_equal(getattr(back, key), getattr(m, key))
+    assert back.kind == "voxels" and back.voxel_size == pytest.approx(0.05)
+    assert back.label_names == m.label_names and back.normalize is True
+    assert back.source["encoder_hint"] == "test 8" and back.source["adapter"] == "zarr"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.zarr"]  # no temp dirs left
+
+
+def test_dask_option_and_frames(tmp_path):
+    rng = np.random.default_rng(1)
+    frames = [FrameInfo("a", 2, 3, 0), FrameInfo("b", 2, 2, 6)]
+    m = LatentMap(rng.normal(size=(10, 4)).astype(np.float32), kind="pixels", frames=frames)
+    path = write_zarr_map(m, tmp_path / "px.zarr")
+    back = read_map(path, adapter="zarr", dask=True, chunk_rows=3)
+    assert isinstance(back.embeddings, da.Array) and back.embeddings.chunks[0][0] == 3
+    np.testing.assert_array_equal(back.embeddings.compute(), m.embeddings)
+    assert back.frames == frames and back.kind == "pixels"
+
+
+def test_overwrite_is_atomic_and_optional(tmp_path):
+    path = write_zarr_map(_map(seed=1), tmp_path / "m.zarr")
+    with pytest.raises(Exception, match="exists"):
+        write_zarr_map(_map(seed=2), path, overwrite=False)
+    m2 = _map(seed=2)
+    write_zarr_map(m2, path)
+    np.testing.assert_array_equal(np.asarray(read_map(path).embeddings[...]), m2.embeddings)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.zarr"]
+
+
+def test_sniff_rejects_other_things(tmp_path):
+    from quash_plugins.adapters._zarr import ZarrAdapter
+
+    a = ZarrAdapter()
+    (tmp_path / "empty").mkdir()
+    np.savez(tmp_path / "m.npz", embeddings=np.eye(3, dtype=np.float32))
+    assert not a.sniff(tmp_path / "empty")
+    assert not a.sniff(tmp_path / "m.npz")
+    assert not a.sniff(tmp_path / "missing.zarr")
+    assert not a.sniff(np.eye(3))
+    assert a.sniff(a.write_example(tmp_path))
+
+
+def test_bare_array_store_and_missing_embeddings(tmp_path):
+
+    z = zarr.create_array(str(tmp_path / "bare.zarr"), shape=(20, 4), chunks=(5, 4), dtype="f4")
+    z[:] = np.arange(80, dtype=np.float32).reshape(20, 4)
+    assert detect_adapter(tmp_path / "bare.zarr") == "zarr"
+    np.testing.assert_array_equal(
+        np.asarray(read_map(tmp_path / "bare.zarr").embeddings[:2]),
+        np.arange(8, dtype=np.float32).reshape(2, 4),
+    )
+    g = zarr.open_group(str(tmp_path / "g.zarr"), mode="w")
+    g.create_array("positions", shape=(3, 3), dtype="f4")
+    with pytest.raises(Exception, match="missing array 'embeddings'"):
+        read_map(tmp_path / "g.zarr", adapter="zarr")
+
+
+def test_as_dask_h5py_and_memmap_readers_pickle(tmp_path):
+    h5py = pytest.importorskip("h5py")
+    rng = np.random.default_rng(3)
+    data = rng.normal(size=(103, 6)).astype(np.float32)
+    with h5py.File(tmp_path / "m.h5", "w") as f:
+        f.create_dataset("grp/emb", data=data)
+    np.save(tmp_path / "m.npy", data)
+    with h5py.File(tmp_path / "m.h5", "r") as f:
+        x = as_dask(LatentMap(f["grp/emb"]), 10)
+    # The file is closed now: the graph reopens it by name, and survives pickling.
+    x = pickle.loads(pickle.dumps(x))
+    assert x.chunks[0][:2] == (10, 10)
+    np.testing.assert_array_equal(x.compute(), data)
+    mm = np.load(tmp_path / "m.npy", mmap_mode="r")
+    y = pickle.loads(pickle.dumps(as_dask(LatentMap(mm), 25)))
+    assert len(pickle.dumps(y)) < data.nbytes  # the data is not inside the graph
+    np.testing.assert_array_equal(y.compute(), data)
+
+
+def test_classify_dask_threads_matches_reference():
+    from quash_plugins.core import registry
+
+    rng = np.random.default_rng(5)
+    T = rng.normal(size=(4, 8)).astype(np.float32)
+    clf = registry.create("classifiers", "contrast").fit(T, np.array([1, 0, 0, 0]))
+    m = _map(n=300, seed=4)
+    scores, observed = classify_dask(m, [clf], chunk_bytes=1000)
+    E = m.embeddings.astype(np.float32)
+    norms = np.linalg.norm(E, axis=1, keepdims=True)
+    E = np.divide(E, norms, out=np.zeros_like(E), where=norms > 0)
+    Tn = T / np.linalg.norm(T, axis=1, keepdims=True)
+    expected = (E @ Tn[:1].T).max(1) - (E @ Tn[1:].T).max(1)
+    np.testing.assert_allclose(scores[0], expected, atol=1e-5)
+    np.testing.assert_array_equal(observed, norms[:, 0] > 0)
+
+
+def test_nan_row_is_reported_with_its_index():
+    from quash_plugins.core import registry
+    from quash_plugins.core.errors import MapFormatError
+
+    T = np.eye(4, dtype=np.float32)
+    clf = registry.create("classifiers", "contrast").fit(T, np.array([1, 0, 0, 0]))
+    emb = np.ones((100, 4), dtype=np.float32)
+    emb[77, 2] = np.nan
+    with pytest.raises(MapFormatError, match="row 77"):
+        classify_dask(LatentMap(emb), [clf], chunk_bytes=16 * 10)
+
+
+def test_backend_options_validate_without_starting_a_cluster():
+    import argparse
+
+    from quash_plugins.cli._backend_opts import add_backend_arguments, backend_overrides
+    from quash_plugins.core.errors import QuashError, UsageError
+
+    p = argparse.ArgumentParser()
+    add_backend_arguments(p)
+    assert backend_overrides(p.parse_args([])) == {}
+    with pytest.raises(UsageError, match="--workers needs --backend dask"):
+        backend_overrides(p.parse_args(["--workers", "2"]))
+    with pytest.raises(UsageError, match="N >= 1"):
+        backend_overrides(p.parse_args(["--backend", "dask", "--workers", "0"]))
+    # --scheduler implies dask; an unreachable scheduler is a clear QuashError
+    import dask
+
+    with (
+        dask.config.set({"distributed.comm.timeouts.connect": "1s"}),
+        pytest.raises(QuashError, match="Cannot reach the Dask scheduler"),
+    ):
+        backend_overrides(p.parse_args(["--scheduler", "tcp://127.0.0.1:1"]))

@@ -1,0 +1,132 @@
+"""docs/vlmaps.md: every code block runs against a fake VLMap and a small .h5df."""
+
+from __future__ import annotations
+
+import re
+import shlex
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from _vlmaps_writers import mobile_map, sha256, write_vlmaps_h5df
+
+from quash_plugins.core.config import QuashConfig
+from quash_plugins.integrations.vlmaps import QuashIndexMixin, index_map, unpatch_vlmap
+
+DOC = Path(__file__).resolve().parents[2] / "docs" / "vlmaps.md"
+D = 8
+WORDS = ["chair", "sofa", "other", "background", "nothing"]
+
+
+def blocks(lang):
+    return re.findall(rf"```{lang}\n(.*?)```", DOC.read_text(encoding="utf-8"), flags=re.S)
+
+
+def features(n, seed):
+    """Rows near chair (e0), sofa (e1) or other (e2), each leaning towards "other" so that
+    a chair row loses to "other" on the sofa query and vice versa; two zero rows."""
+    rng = np.random.default_rng(seed)
+    kind = rng.integers(0, 3, n)
+    feat = np.eye(D)[kind] + rng.normal(0, 0.05, (n, D))
+    feat[:, 2] += 0.5
+    feat *= rng.uniform(0.2, 8, (n, 1))
+    feat[:2] = 0
+    kind[:2] = -1
+    return feat.astype(np.float32), kind
+
+
+class FakeVLMap:
+    """What VLMaps' ``VLMap`` exposes after ``load_map`` (mobile base)."""
+
+    def __init__(self, n=80, seed=0):
+        arrays = mobile_map(n=n, d=D, seed=seed)
+        self.grid_feat, self.kind = features(n, seed)
+        self.grid_pos = arrays["grid_pos"]
+        self.grid_rgb = arrays["grid_rgb"]
+        self.gs, self.cs = 1000, 0.05
+        self.map_config = {"pose_info": {"pose_type": "mobile_base"}}
+        self.categories = None
+
+    def index_map(self, language_desc, with_init_cat=True):
+        raise AssertionError("VLMaps' own index_map must not run once patched")
+
+    def get_pos(self, name):  # like VLMaps: builds on index_map
+        return self.grid_pos[self.index_map(name, with_init_cat=True)]
+
+
+@pytest.fixture
+def project(tmp_path, monkeypatch):
+    """A VLMaps project folder with a table-encoder quash.yaml and a saved map."""
+    table = {w: np.eye(D)[i].tolist() for i, w in enumerate(WORDS)}
+    (tmp_path / "table.yaml").write_text(yaml.safe_dump(table))
+    cfg = {
+        "encoder": {"name": "table", "file": "table.yaml"},
+        "classifier": "contrast",
+        "cache": False,
+    }
+    (tmp_path / "quash.yaml").write_text(yaml.safe_dump(cfg))
+    arrays = mobile_map(n=60, d=D, seed=5)
+    arrays["grid_feat"], kind = features(60, 5)
+    h5 = write_vlmaps_h5df(tmp_path / "data/scene/vlmap/vlmaps.h5df", arrays)
+    monkeypatch.chdir(tmp_path)
+    return {"h5": h5, "kind": kind}
+
+
+def test_doc_has_the_examples():
+    assert len(blocks("python")) >= 3 and blocks("yaml") and blocks("bash")
+
+
+def test_yaml_block_is_a_valid_config(tmp_path):
+    path = tmp_path / "quash.yaml"
+    path.write_text(blocks("yaml")[0])
+    cfg = QuashConfig.load(path)
+    assert cfg.encoder.name == "open-clip" and cfg.adapter.name == "vlmaps"
+    assert cfg.adapter.params == {"gs": 1000, "cs": 0.05}
+
+
+def test_python_blocks_run(project, capsys):
+    vlmap = FakeVLMap()
+    ns = {"vlmap": vlmap}
+    before = sha256(project["h5"])
+    for code in blocks("python"):
+        exec(compile(code, str(DOC), "exec"), ns)
+    # block 2: the patched index_map has VLMaps' contract and QuASH's answer
+    expected = vlmap.kind == 0
+    assert ns["mask"].dtype == bool and ns["mask"].shape == (len(vlmap.grid_feat),)
+    np.testing.assert_array_equal(ns["chair_cells"], vlmap.grid_pos[expected])
+    np.testing.assert_array_equal(vlmap.get_pos("chair"), vlmap.grid_pos[expected])
+    # block 3: sofa through index_map/query
+    np.testing.assert_array_equal(index_map(vlmap, "sofa", quash="quash.yaml"), vlmap.kind == 1)
+    # block 4: the saved file
+    result = ns["result"]
+    np.testing.assert_array_equal(result.mask, project["kind"] == 0)
+    assert str(result.n_matched) in capsys.readouterr().out
+    assert sha256(project["h5"]) == before
+    unpatch_vlmap(vlmap)
+    with pytest.raises(AssertionError, match="must not run"):
+        vlmap.index_map("chair")
+
+
+def test_bash_block_runs(project):
+    from quash_plugins.cli.main import main
+
+    for line in blocks("bash")[0].splitlines():
+        if line.startswith("quash "):
+            assert main(shlex.split(line)[1:]) == 0
+    with np.load("chair.npz") as z:
+        np.testing.assert_array_equal(z["masks"][0], project["kind"] == 0)
+
+
+def test_mixin_and_categories(project):
+    class MyMap(QuashIndexMixin, FakeVLMap):
+        pass
+
+    vlmap = MyMap(seed=3)
+    vlmap.quash = "quash.yaml"
+    np.testing.assert_array_equal(vlmap.index_map("chair"), vlmap.kind == 0)
+    # with categories, the other categories become negatives (VLMaps' argmax rule)
+    vlmap.grid_feat[2:6] = np.eye(D)[0] + np.eye(D)[1] * 1.2  # chair beats other, sofa wins
+    vlmap.categories = ["chair", "sofa"]
+    assert not vlmap.index_map("chair")[2:6].any()
+    assert index_map(vlmap, "chair", with_init_cat=False, quash="quash.yaml")[2:6].all()
