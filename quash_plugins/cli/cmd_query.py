@@ -13,7 +13,9 @@ examples:
   quash query map.npz chair --adapter npz --rrd chair.rrd
 The --out file holds queries (Q,) str, masks (Q, N) bool, scores (Q, N) float32 and
 display_scores (Q, N) float32 in [0, 1]. With --out RESULT.zarr the masks and scores
-stay lazy and stream to a zarr store (maps larger than memory; see docs/scale.md)."""
+stay lazy and stream to a zarr store (maps larger than memory; see docs/scale.md).
+--out never replaces the map or any other input; an existing file is replaced only when
+it is a previous result of quash query, or with --force."""
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -30,6 +32,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="Adapter name, or 'auto' to sniff the format (default: the config's).",
     )
     p.add_argument("--out", metavar="RESULT.npz|.zarr", help="Write masks and scores (atomically).")
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="Let --out replace an existing file that is not a previous query result.",
+    )
     p.add_argument("--json", action="store_true", help="Print the per-query summary as JSON.")
     add_runtime_options(p)
     add_viewer_arguments(p)
@@ -45,6 +52,7 @@ def run(args: argparse.Namespace) -> int:
     from ._viewer_opts import open_viewer
 
     cfg = apply_runtime_options(load_config(args.config), args)
+    _check_outputs(args)
     quash = Quash.from_config(cfg, **backend_overrides(args))
     if args.out and str(args.out).rstrip("/").endswith(".zarr"):
         return _query_to_zarr(args, quash)
@@ -64,6 +72,37 @@ def run(args: argparse.Namespace) -> int:
         if viewer is not None:
             viewer.close()  # with --serve-web this serves until Ctrl-C
     return 0
+
+
+def _check_outputs(args: argparse.Namespace) -> None:
+    """Refuse, before any work, outputs that would replace an input or a user's file."""
+    from ..core.atomic import check_output
+    from ..engine.results import is_results_npz
+
+    inputs = (args.map, args.config)
+    if args.out:
+        zarr_out = str(args.out).rstrip("/").endswith(".zarr")
+        check_output(
+            args.out,
+            inputs,
+            what="--out",
+            overwrite=args.force,
+            replaceable=_is_results_zarr if zarr_out else is_results_npz,
+            folder=zarr_out,
+        )
+    if getattr(args, "rrd", None):
+        check_output(
+            args.rrd,
+            inputs,
+            what="--rrd",
+            overwrite=True,  # an existing .rrd is a previous recording
+        )
+
+
+def _is_results_zarr(path) -> bool:
+    from pathlib import Path
+
+    return (Path(path) / "masks").exists() and (Path(path) / "scores").exists()
 
 
 def _query_to_zarr(args, quash) -> int:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import zipfile
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -9,6 +10,23 @@ import numpy as np
 
 from ..core.atomic import atomic_write
 from ..core.types import QueryResult
+
+#: The arrays of a results file, as :func:`write_results_npz` writes them.
+RESULT_ARRAYS = ("queries", "masks", "scores", "display_scores")
+
+
+def is_results_npz(path: str | Path) -> bool:
+    """True when ``path`` is a results file written by :func:`write_results_npz`.
+
+    Such a file may be replaced by a new result without ``--force``; anything else (a
+    map, a file of the user's) may not.
+    """
+    try:
+        with zipfile.ZipFile(path) as zf:
+            names = set(zf.namelist())
+    except (OSError, zipfile.BadZipFile):
+        return False
+    return names == {f"{a}.npy" for a in RESULT_ARRAYS}
 
 
 def write_results_npz(path: str | Path, results: Sequence[QueryResult]) -> Path:

@@ -1,0 +1,142 @@
+"""``quash query --out`` and ``--rrd`` never replace an input or a user's file.
+
+Each case reproduces an input that used to be replaced (exit 0, data gone): the map
+itself (npz and VLMaps h5df), the map through a symbolic or hard link, an existing
+file of the user's, a symbolic link, a folder and a device node.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+
+import numpy as np
+import pytest
+
+from quash_plugins.cli.main import main
+from quash_plugins.core.atomic import atomic_write, check_output
+from quash_plugins.core.errors import UsageError
+
+
+def _sha(path) -> str:
+    return hashlib.sha256(open(path, "rb").read()).hexdigest()
+
+
+@pytest.fixture
+def world(tiny_world, tmp_path):
+    return tiny_world["map"], tiny_world["config"]
+
+
+def _query(*extra, map_path, config):
+    return main(["-q", "query", str(map_path), "chair", "-c", str(config), *map(str, extra)])
+
+
+def test_out_naming_the_map_is_refused_and_the_map_kept(world, capsys):
+    map_path, config = world
+    before = _sha(map_path)
+    assert _query("--out", map_path, map_path=map_path, config=config) == 2
+    assert "is the input" in capsys.readouterr().err
+    assert _sha(map_path) == before
+    # --force never lets an output replace an input
+    assert _query("--out", map_path, "--force", map_path=map_path, config=config) == 2
+    assert _sha(map_path) == before
+
+
+def test_out_through_a_symlink_or_hard_link_to_the_map_is_refused(world, tmp_path, capsys):
+    map_path, config = world
+    before = _sha(map_path)
+    sym = tmp_path / "alias.npz"
+    sym.symlink_to(map_path)
+    hard = tmp_path / "hard.npz"
+    os.link(map_path, hard)
+    for out in (sym, hard):
+        assert _query("--out", out, "--force", map_path=map_path, config=config) == 2
+        assert "is the input" in capsys.readouterr().err
+    assert _sha(map_path) == before and sym.is_symlink()
+
+
+def test_out_naming_a_vlmaps_h5df_map_is_refused(tmp_path, capsys):
+    h5py = pytest.importorskip("h5py")
+    rng = np.random.default_rng(0)
+    path = tmp_path / "vlmaps.h5df"
+    with h5py.File(path, "w") as f:
+        f["grid_feat"] = rng.normal(size=(20, 4)).astype(np.float32)
+        f["grid_pos"] = rng.integers(0, 10, size=(20, 3)).astype(np.int32)
+        f["occupied_ids"] = np.full((10, 10, 10), -1, np.int32)
+    before = _sha(path)
+    code = main(["-q", "query", str(path), "chair", "--out", str(path)])
+    assert code == 2 and "is the input" in capsys.readouterr().err
+    assert _sha(path) == before
+
+
+def test_an_existing_file_needs_force_but_a_previous_result_does_not(world, tmp_path, capsys):
+    map_path, config = world
+    mine = tmp_path / "notes.npz"
+    np.savez(mine, important=np.arange(3))
+    before = _sha(mine)
+    assert _query("--out", mine, map_path=map_path, config=config) == 2
+    err = capsys.readouterr().err
+    assert "already exists" in err and "--force" in err
+    assert _sha(mine) == before
+    assert _query("--out", mine, "--force", map_path=map_path, config=config) == 0
+    with np.load(mine) as z:
+        assert set(z.files) == {"queries", "masks", "scores", "display_scores"}
+    # now mine is a previous result: running again replaces it without --force
+    assert _query("--out", mine, map_path=map_path, config=config) == 0
+
+
+@pytest.mark.parametrize("kind", ["symlink", "folder", "device"])
+def test_non_regular_targets_are_refused(world, tmp_path, capsys, kind):
+    map_path, config = world
+    if kind == "symlink":
+        target = tmp_path / "elsewhere.npz"
+        np.savez(target, x=np.zeros(1))
+        out = tmp_path / "link.npz"
+        out.symlink_to(target)
+        expected = "symbolic link"
+    elif kind == "folder":
+        out = tmp_path / "dir.npz"
+        out.mkdir()
+        expected = "is a folder"
+    else:
+        out = "/dev/null"
+        expected = "not a regular file"
+    assert _query("--out", out, "--force", map_path=map_path, config=config) == 2
+    assert expected in capsys.readouterr().err
+    if kind == "device":
+        assert os.path.exists("/dev/null") and not os.path.isfile("/dev/null")
+    if kind == "symlink":
+        assert out.is_symlink()
+
+
+def test_rrd_naming_the_map_is_refused(world, capsys):
+    map_path, config = world
+    before = _sha(map_path)
+    assert _query("--rrd", map_path, map_path=map_path, config=config) == 2
+    assert _sha(map_path) == before
+
+
+def test_out_into_an_unwritable_folder_names_the_output(world, tmp_path, capsys):
+    if os.geteuid() == 0:
+        pytest.skip("root can write into any folder")
+    map_path, config = world
+    ro = tmp_path / "ro"
+    ro.mkdir(mode=0o555)
+    assert _query("--out", ro / "r.npz", map_path=map_path, config=config) == 2
+    assert "not writable" in capsys.readouterr().err
+
+
+def test_atomic_write_refuses_non_regular_targets_whoever_calls_it(tmp_path):
+    link = tmp_path / "l"
+    link.symlink_to(tmp_path / "missing")
+    with pytest.raises(UsageError, match="symbolic link"), atomic_write(link) as tmp:
+        tmp.write_text("x")
+    assert link.is_symlink() and not (tmp_path / "missing").exists()
+    assert [p.name for p in tmp_path.iterdir()] == ["l"]  # no temporary file left
+
+
+def test_check_output_refuses_outputs_inside_an_input_folder(tmp_path):
+    (tmp_path / "pointclouds").mkdir()
+    with pytest.raises(UsageError, match="inside the input folder"):
+        check_output(tmp_path / "pointclouds" / "r.npz", [tmp_path / "pointclouds"])
+    assert check_output(tmp_path / "r.npz", [tmp_path / "pointclouds"]) == tmp_path / "r.npz"
