@@ -11,12 +11,14 @@ import contextlib
 import io
 import json
 import re
+from pathlib import Path
 
 import pytest
 import yaml
 
 from quash_plugins.adapters import read_map
 from quash_plugins.cli.main import main
+from quash_plugins.core.config import QuashConfig
 from quash_plugins.demo.runner import cache_root, demo_config_paths
 from quash_plugins.evaluation.report import evaluate
 
@@ -24,6 +26,27 @@ from quash_plugins.evaluation.report import evaluate
 def test_demo_configs_ship_as_package_data():
     paths = demo_config_paths()
     assert len(paths) >= 5 and all(p.exists() for p in paths)
+
+
+def test_demo_list_configs_prints_the_shipped_paths_and_runs_nothing(tmp_path, capsys):
+    out = tmp_path / "never"
+    assert main(["demo", "--list-configs", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out.splitlines()
+    assert printed == [str(p) for p in demo_config_paths()]
+    for line in printed:  # each line is a config a user can copy and run
+        cfg = QuashConfig.from_yaml(line)
+        assert cfg.name and cfg.encoder.name
+    assert not out.exists() and not cache_root().exists()
+
+
+def test_demo_list_configs_prints_long_paths_whole(monkeypatch, capsys):
+    """An install path longer than a terminal line is printed on one line, as it is."""
+    import quash_plugins.demo.runner as runner
+
+    long = [f"/{'deep/' * 30}[v1]/demo-{i}.yaml" for i in range(2)]
+    monkeypatch.setattr(runner, "demo_config_paths", lambda: [Path(p) for p in long])
+    assert main(["demo", "--list-configs"]) == 0
+    assert capsys.readouterr().out.splitlines() == long
 
 
 @pytest.fixture(scope="module")
