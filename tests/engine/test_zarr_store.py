@@ -71,9 +71,9 @@ def test_overwrite_is_atomic_and_optional(tmp_path):
 
 
 def test_sniff_rejects_other_things(tmp_path):
-    from quash_plugins.adapters._zarr import ZarrAdapter
+    from quash_plugins.core import registry
 
-    a = ZarrAdapter()
+    a = registry.create("adapters", "zarr")
     (tmp_path / "empty").mkdir()
     np.savez(tmp_path / "m.npz", embeddings=np.eye(3, dtype=np.float32))
     assert not a.sniff(tmp_path / "empty")

@@ -15,7 +15,7 @@ from quash_plugins.core.interfaces import Encoder, ExpansionContext
 from quash_plugins.core.types import LatentMap, QuerySet
 from quash_plugins.encoders import TableEncoder
 from quash_plugins.engine.pipeline import Quash
-from quash_plugins.heuristics._mined import add_map_negatives
+from quash_plugins.heuristics import add_map_negatives
 
 
 @pytest.fixture(autouse=True)
