@@ -38,7 +38,7 @@ def tiny_world(tmp_path):
     Returns a dict with paths and the arrays used to build them, so tests can compute
     expectations independently.
     """
-    from quash_plugins.adapters._npz import write_npz_map
+    from quash_plugins.adapters import write_npz_map
     from quash_plugins.core.types import LatentMap
 
     rng = np.random.default_rng(42)

@@ -14,13 +14,16 @@ from typing import Any
 
 import numpy as np
 
-from ..core.interfaces import Classifier, check_training_set
+from ..core.interfaces import Classifier
 from ._params import (
     ClassifierParamError,
     check_choice,
+    check_finite_block,
     check_positive,
     iter_blocks,
+    map_rows,
     piecewise_display,
+    training_set,
     unit_rows,
 )
 
@@ -28,26 +31,36 @@ BLOCK_ROWS = 16384
 
 
 class _CosineRule(Classifier):
-    """Stores unit positives ``P (p, D)`` and negatives ``N (n, D)``; scores in blocks."""
+    """Stores unit positives ``P (p, D)`` and negatives ``N (n, D)``; scores in blocks.
+
+    Parameters are validated by :meth:`check_params` in ``fit`` (scikit-learn's contract),
+    and by ``registry.create`` when a config builds the rule.
+    """
+
+    _who = "cosine rule"
+
+    def check_params(self) -> None:
+        """Raise :class:`ClassifierParamError` naming the first invalid parameter."""
 
     def fit(self, X: np.ndarray, y: np.ndarray) -> _CosineRule:
-        X, y = check_training_set(X, y)
+        self.check_params()
+        X, y = training_set(self, self._who, X, y)
         self.positives_ = unit_rows(X[y == 1])
         self.negatives_ = unit_rows(X[y == 0])
         self.labels_ = np.concatenate([self.positives_, self.negatives_])
         self.labels_t_ = np.ascontiguousarray(self.labels_.T)
-        self.classes_ = np.array([0, 1])
         self.working_set_width_ = len(self.labels_)
         return self
 
     def cosines(self, E: Any) -> np.ndarray:
         """``(N, p + n)`` float32 cosines of map rows with ``[positives..., negatives...]``."""
-        if not hasattr(self, "labels_"):
-            raise ClassifierParamError(f"{type(self).__name__}: call fit(X, y) first.")
+        E = map_rows(self, self._who, E)
         out = np.empty((len(E), len(self.labels_)), dtype=np.float32)
         for start, stop, x in iter_blocks(E, BLOCK_ROWS):
+            sq = np.einsum("ij,ij->i", x, x)
+            check_finite_block(self._who, x, start, sq)
             g = x @ self.labels_t_
-            n = np.sqrt(np.einsum("ij,ij->i", x, x))
+            n = np.sqrt(sq)
             np.divide(g, n[:, None], out=g, where=n[:, None] > 0)
             g[n == 0] = 0.0
             out[start:stop] = g
@@ -69,6 +82,8 @@ class ContrastClassifier(_CosineRule):
     ``prompt_templates``.
     """
 
+    _who = "contrast"
+
     def decision_function(self, E: Any) -> np.ndarray:
         return self.margin(E)
 
@@ -88,9 +103,13 @@ class LabelArgmaxClassifier(_CosineRule):
         Softmax temperature for display (CLIP's 100); it does not change the argmax.
     """
 
+    _who = "label-argmax"
+
     def __init__(self, logit_scale: float = 100.0) -> None:
         self.logit_scale = logit_scale
-        check_positive("label-argmax", "logit_scale", logit_scale)
+
+    def check_params(self) -> None:
+        check_positive(self._who, "logit_scale", self.logit_scale)
 
     def decision_function(self, E: Any) -> np.ndarray:
         return self.margin(E)
@@ -121,10 +140,36 @@ class CosineThresholdClassifier(_CosineRule):
         [-1, 1]; required (there is no published default).
     """
 
+    _who = "cosine-threshold"
+
     def __init__(self, mode: str = "relative", cut: float | None = None) -> None:
         self.mode = mode
         self.cut = cut
+
+    def check_params(self) -> None:
         self._check()
+
+    def __sklearn_tags__(self) -> Any:
+        tags = super().__sklearn_tags__()
+        # ConceptFusion's rule ignores the negatives, so it cannot reach scikit-learn's
+        # 0.83 training accuracy on two blobs; it is the published rule, kept as it is.
+        tags.classifier_tags.poor_score = True
+        return tags
+
+    def expected_failed_checks(self) -> dict[str, str]:
+        """scikit-learn checks the relative mode fails by design (none for absolute)."""
+        if self.mode != "relative":
+            return {}
+        why = (
+            "mode 'relative' decides on the whole map (ConceptFusion's min-max over every "
+            "observed item, applied by postprocess_scores): "
+        )
+        return {
+            "check_classifiers_train": why + "predict is the normalised score above the cut, "
+            "not the raw cosine decision_function > 0.",
+            "check_methods_subset_invariance": why + "a subset of the items has another "
+            "minimum and maximum, so its predictions differ.",
+        }
 
     def _check(self) -> float:
         who = "cosine-threshold"
@@ -163,7 +208,8 @@ class CosineThresholdClassifier(_CosineRule):
         return (rel - self._check()).astype(np.float32)
 
     def predict(self, E: Any) -> np.ndarray:
-        return np.asarray(self.postprocess_scores(self.decision_function(E))) > 0
+        match = np.asarray(self.postprocess_scores(self.decision_function(E))) > 0
+        return self.classes_[match.astype(np.intp)]
 
     def display_scores(self, scores: np.ndarray, threshold: float = 0.0) -> np.ndarray:
         cut = self._check()
@@ -190,10 +236,15 @@ class LerfRelevancyClassifier(_CosineRule):
         Relevancy cut in (0, 1) (0.5).
     """
 
+    _who = "lerf-relevancy"
+
     def __init__(self, temperature: float = 10.0, cut: float = 0.5) -> None:
         self.temperature = temperature
         self.cut = cut
-        check_positive("lerf-relevancy", "temperature", temperature)
+
+    def check_params(self) -> None:
+        check_positive(self._who, "temperature", self.temperature)
+        cut = self.cut
         if isinstance(cut, bool) or not isinstance(cut, (int, float)) or not 0 < cut < 1:
             raise ClassifierParamError(f"lerf-relevancy: 'cut' must be in (0, 1); got {cut!r}.")
 
@@ -228,13 +279,13 @@ class NearestSampleClassifier(_CosineRule):
         Samples averaged on each side (capped by each side's size).
     """
 
+    _who = "nearest-sample"
+
     def __init__(self, k: int = 2) -> None:
         self.k = k
-        _check_k(k)
 
-    def fit(self, X: np.ndarray, y: np.ndarray) -> NearestSampleClassifier:
-        _check_k(self.k)  # set_params bypasses __init__
-        return super().fit(X, y)
+    def check_params(self) -> None:
+        _check_k(self.k)
 
     def decision_function(self, E: Any) -> np.ndarray:
         c = self.cosines(E)

@@ -8,8 +8,15 @@ from typing import Any
 import numpy as np
 from sklearn.base import clone
 
-from ..core.interfaces import Classifier, check_training_set
-from ._params import ClassifierParamError, iter_blocks, piecewise_display
+from ..core.interfaces import Classifier
+from ._params import (
+    ClassifierParamError,
+    check_finite_rows,
+    iter_blocks,
+    map_rows,
+    piecewise_display,
+    training_set,
+)
 
 
 def _import_estimator(path: Any) -> type:
@@ -67,6 +74,9 @@ class SklearnClassifier(Classifier):
         self.estimator = estimator
         self.params = params
         self.block_rows = block_rows
+
+    def check_params(self) -> None:
+        """Import the estimator and check ``params`` and ``block_rows`` without fitting."""
         self._build()
 
     def _build(self) -> Any:
@@ -93,27 +103,31 @@ class SklearnClassifier(Classifier):
         return est
 
     def fit(self, X: np.ndarray, y: np.ndarray) -> SklearnClassifier:
-        X, y = check_training_set(X, y)
-        self.estimator_ = clone(self._build()).fit(X, y)
-        self.classes_ = np.asarray(self.estimator_.classes_)
-        self._pos = int(np.flatnonzero(self.classes_ == 1)[0])
+        est = self._build()
+        X, y = training_set(self, "sklearn", X, y)
+        self.estimator_ = clone(est).fit(X, y)
+        self.positive_index_ = int(np.flatnonzero(np.asarray(self.estimator_.classes_) == 1)[0])
         self.uses_proba_ = not hasattr(self.estimator_, "decision_function")
         return self
 
     def _block_scores(self, block: np.ndarray) -> np.ndarray:
         est = self.estimator_
+        pos = self.positive_index_
         if self.uses_proba_:
-            return est.predict_proba(block)[:, self._pos] - 0.5
+            return est.predict_proba(block)[:, pos] - 0.5
         d = np.asarray(est.decision_function(block))
         if d.ndim == 2:
-            d = d[:, self._pos]
-        elif self._pos == 0:
+            d = d[:, pos]
+        elif pos == 0:
             d = -d
         return d
 
     def decision_function(self, E: Any) -> np.ndarray:
+        """``(N,)`` float32 scores, > 0 for the positive class; ``E`` is read in blocks."""
+        E = map_rows(self, "sklearn", E)
         out = np.empty(len(E), dtype=np.float32)
         for start, stop, block in iter_blocks(E, self.block_rows):
+            check_finite_rows("sklearn", block, offset=start)
             out[start:stop] = self._block_scores(block)
         return out
 

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 from sklearn.svm import SVC
 
-from ..core.interfaces import Classifier, check_training_set
+from ..core.interfaces import Classifier
 from ..core.kernels import (
     KernelExpansion,
     KernelPart,
@@ -27,7 +27,10 @@ from ._params import (
     ClassifierParamError,
     check_choice,
     check_class_weight,
+    check_finite_rows,
     check_positive,
+    map_rows,
+    training_set,
     unit_rows,
 )
 
@@ -49,9 +52,18 @@ def _check_gamma(who: str, gamma: Any) -> Any:
 
 
 class _FastSvm(Classifier):
-    """Shared parameters, validation and fast inference of the SVM classifiers."""
+    """Shared parameters, validation and fast inference of the SVM classifiers.
+
+    scikit-learn's contract: ``__init__`` only stores the parameters, :meth:`fit`
+    validates them (and :func:`~quash_plugins.core.registry.create` does, through
+    :meth:`check_params`, when a config builds the classifier).
+    """
 
     _who = "svm"
+
+    def check_params(self) -> None:
+        """Raise :class:`ClassifierParamError` naming the first invalid parameter."""
+        self._check_common()
 
     def _check_common(self) -> None:
         who = self._who
@@ -85,15 +97,6 @@ class _FastSvm(Classifier):
             return None
         return KernelExpansion(self.kernel_part_, self.backend_, self.device_, self.unit_rows)
 
-    def _check_input(self, E: Any) -> None:
-        if not hasattr(self, "stack_"):
-            raise ClassifierParamError(f"{self._who}: call fit(X, y) before decision_function.")
-        shape = getattr(E, "shape", None)
-        if shape is None or len(shape) != 2 or shape[1] != self.stack_.dim:
-            raise ValueError(
-                f"{self._who}: expected embeddings of shape (N, {self.stack_.dim}); got {shape}."
-            )
-
     def decision_function(self, E: Any, sq_norms: np.ndarray | None = None) -> np.ndarray:
         """Decision values ``(N,)`` float32, > 0 for matches.
 
@@ -103,10 +106,20 @@ class _FastSvm(Classifier):
             ``(N, D)`` map embeddings, any float dtype (float16 is up-cast block by block).
         sq_norms
             Optional ``(N,)`` squared row norms, when the caller computed them already.
+
+        Raises
+        ------
+        sklearn.exceptions.NotFittedError
+            Before :meth:`fit`.
+        ValueError
+            NaN or Inf in ``E`` (checked block by block: one extra read of ``E``; the
+            pipeline reads a map once and checks it as it reads), complex values, or a
+            dimension other than the training set's.
+        TypeError
+            Sparse ``E``.
         """
-        if not hasattr(E, "shape"):
-            E = np.asarray(E, dtype=np.float32)
-        self._check_input(E)
+        E = map_rows(self, self._who, E)
+        check_finite_rows(self._who, E)
         return self.stack_.evaluate(E, sq=sq_norms, unit=self.unit_rows)[:, 0]
 
 
@@ -155,11 +168,11 @@ class RbfSvmClassifier(_FastSvm):
         self.working_set_mb = working_set_mb
         self.block_rows = block_rows
         self.unit_rows = unit_rows
-        self._check_common()
 
     def fit(self, X: np.ndarray, y: np.ndarray) -> RbfSvmClassifier:
-        self._check_common()
-        X, y = check_training_set(X, y)
+        """Validate the parameters and ``X, y``, fit the SVC, extract its expansion."""
+        self.check_params()
+        X, y = training_set(self, self._who, X, y)
         self.svc_ = SVC(
             kernel="rbf",
             C=float(self.C),
@@ -167,7 +180,6 @@ class RbfSvmClassifier(_FastSvm):
             class_weight=check_class_weight(self._who, self.class_weight),
         )
         self.svc_.fit(X.astype(np.float64), y)
-        self.classes_ = self.svc_.classes_
         self.gamma_ = float(self.svc_._gamma)
         self.support_vectors_ = self.svc_.support_vectors_.astype(np.float32)
         self.dual_coef_ = self.svc_.dual_coef_[0].astype(np.float64)
@@ -219,9 +231,9 @@ class CosineSvmClassifier(_FastSvm):
         self.working_set_mb = working_set_mb
         self.block_rows = block_rows
         self.unit_rows = unit_rows
-        self._check_all()
 
-    def _check_all(self) -> None:
+    def check_params(self) -> None:
+        """Raise :class:`ClassifierParamError` naming the first invalid parameter."""
         self._check_common()
         check_choice(self._who, "kernel", self.kernel, ("rbf-cosine", "linear-cosine"))
         check_choice(self._who, "distance", self.distance, ("squared", "plain"))
@@ -252,8 +264,9 @@ class CosineSvmClassifier(_FastSvm):
         return float(gamma)
 
     def fit(self, X: np.ndarray, y: np.ndarray) -> CosineSvmClassifier:
-        self._check_all()
-        X, y = check_training_set(X, y)
+        """Validate the parameters and ``X, y``, fit the SVC on the precomputed kernel."""
+        self.check_params()
+        X, y = training_set(self, self._who, X, y)
         Xu = unit_rows(X)
         self.gamma_ = self._resolve_gamma(Xu)
         K = reference_kernel(self.kernel, Xu, Xu, self.gamma_, self._power)
@@ -264,7 +277,6 @@ class CosineSvmClassifier(_FastSvm):
         )
         self.svc_.fit(K, y)
         self.X_fit_ = Xu
-        self.classes_ = self.svc_.classes_
         self.support_vectors_ = Xu[self.svc_.support_]
         self.dual_coef_ = self.svc_.dual_coef_[0].astype(np.float64)
         self.intercept_ = float(self.svc_.intercept_[0])

@@ -51,11 +51,12 @@ def run(args: argparse.Namespace) -> int:
     from ._output import console
     from ._viewer_opts import open_viewer
 
-    out = console()
     if args.list_configs:
+        # plain lines, one path each: never wrapped or parsed as markup (pipe-friendly)
         for path in demo_config_paths():
-            out.print(str(path))
+            print(path)
         return 0
+    out = console()
     t0 = time.perf_counter()
     outdir = Path(args.out)
     outdir.mkdir(parents=True, exist_ok=True)

@@ -18,6 +18,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 from sklearn.base import BaseEstimator
+from sklearn.utils import ClassifierTags
 
 from .errors import EncoderError
 from .kernels import KernelExpansion
@@ -145,11 +146,28 @@ class Heuristic(ABC):
 class Classifier(BaseEstimator):
     """A scikit-learn estimator trained on text embeddings and applied to map items.
 
-    Contract (scikit-learn's): ``__init__`` stores its keyword arguments unchanged;
-    fitted state ends in ``_``. ``fit(X, y)`` takes ``X (n, D)`` float32 unit-norm text
-    embeddings and ``y (n,)`` with 1 for positives and 0 for negatives.
-    ``decision_function(E)`` returns ``(m,)`` with positive values for matches.
+    Contract (scikit-learn's): ``__init__`` stores its keyword arguments unchanged and
+    validates nothing; parameters are validated in ``fit``; fitted state ends in ``_``.
+    ``fit(X, y)`` takes ``X (n, D)`` float32 unit-norm text embeddings and ``y (n,)``
+    with 1 for positives and 0 for negatives (any two labels work: the larger one,
+    ``classes_[1]``, is the positive class). ``decision_function(E)`` returns ``(m,)``
+    with positive values for matches.
+
+    The estimator tags declare a binary-only classifier on dense input, so
+    scikit-learn's ``check_estimator`` feeds two-class targets. A classifier may define
+    ``check_params()``, which validates its parameters without fitting (and which
+    ``fit`` calls): :func:`~quash_plugins.core.registry.create` calls it, so a bad value
+    in a config fails when the classifier is built, before any model is loaded.
     """
+
+    def __sklearn_tags__(self) -> Any:
+        tags = super().__sklearn_tags__()
+        tags.estimator_type = "classifier"
+        tags.classifier_tags = ClassifierTags(multi_class=False)
+        tags.target_tags.required = True
+        tags.input_tags.sparse = False
+        tags.input_tags.allow_nan = False
+        return tags
 
     def fit(self, X: np.ndarray, y: np.ndarray) -> Classifier:  # pragma: no cover - abstract
         raise NotImplementedError
@@ -158,8 +176,14 @@ class Classifier(BaseEstimator):
         raise NotImplementedError
 
     def predict(self, E: np.ndarray) -> np.ndarray:
-        """Boolean match per row: ``decision_function(E) > 0``."""
-        return np.asarray(self.decision_function(E)) > 0
+        """The class of each row: ``classes_[1]`` (1, a match) where
+        ``decision_function(E) > 0``, else ``classes_[0]``; booleans when the classifier
+        sets no ``classes_``."""
+        match = np.asarray(self.decision_function(E)) > 0
+        classes = getattr(self, "classes_", None)
+        if classes is None or len(classes) != 2:
+            return match
+        return np.asarray(classes)[match.astype(np.intp)]
 
     def postprocess_scores(self, scores: np.ndarray) -> np.ndarray:
         """Map-level rescaling of the full score vector (e.g. min-max). Identity by default."""
@@ -190,20 +214,6 @@ class StackableClassifier(Protocol):
     """
 
     def kernel_expansion(self) -> KernelExpansion | None: ...
-
-
-def check_training_set(X: Any, y: Any) -> tuple[np.ndarray, np.ndarray]:
-    """Validate a text training set: 2-D float X, binary y with both classes."""
-    X = np.asarray(X, dtype=np.float32)
-    y = np.asarray(y).astype(np.int64).ravel()
-    if X.ndim != 2 or len(X) != len(y):
-        raise ValueError(f"X must be (n, D) with n == len(y); got X {X.shape}, y {y.shape}.")
-    values = set(np.unique(y).tolist())
-    if not values <= {0, 1} or len(values) < 2:
-        raise ValueError(
-            f"y must contain both 1 (positive) and 0 (negative); got {sorted(values)}."
-        )
-    return X, y
 
 
 class MapAdapter(ABC):

@@ -294,7 +294,8 @@ def accepted_params(obj: Any) -> list[str] | None:
 def create(kind: str, name: str, /, **params: Any) -> Any:
     """Build the plugin ``name`` of ``kind`` with ``params`` as keyword arguments.
 
-    An unknown parameter is rejected with the list of accepted ones.
+    An unknown parameter is rejected with the list of accepted ones; a classifier's
+    ``check_params()``, when it has one, runs here, so a bad value fails at build time.
 
     Examples
     --------
@@ -318,6 +319,11 @@ def create(kind: str, name: str, /, **params: Any) -> Any:
             )
     try:
         instance = obj(**params)
+        # scikit-learn estimators validate in fit, not __init__; a classifier's
+        # check_params() lets a bad config value fail here, before any model loads.
+        check = getattr(instance, "check_params", None) if kind == "classifiers" else None
+        if callable(check):
+            check()
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"{_TITLE[kind]} {entry.name!r}: {exc}") from exc
     if getattr(instance, "name", None) in (None, "encoder", "heuristic", "adapter"):

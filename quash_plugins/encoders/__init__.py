@@ -22,8 +22,6 @@ _LAZY = {
     "OPEN_CLIP_PRESETS": "._open_clip",
     "SentenceTransformerEncoder": "._sentence_transformers",
     "MiniLMEncoder": "._sentence_transformers",
-    "TextEmbeddingCache": ".cache",
-    "default_cache_dir": ".cache",
 }
 
 __all__ = ["TableEncoder", *_LAZY]

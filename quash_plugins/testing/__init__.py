@@ -9,6 +9,12 @@ whole kit over their distribution's plugins in one line::
     def test_conformance(check, tmp_path):
         check(tmp_path)
 
+Classifiers also run scikit-learn's own ``check_estimator`` (binary targets, as the
+:class:`~quash_plugins.core.interfaces.Classifier` tags declare). A check a decision
+rule cannot pass by design is declared, with its reason, by a method
+``expected_failed_checks(self) -> {check_name: reason}``; a declared check that passes
+fails the kit, so the list stays true.
+
 Plugins that need parameters to be built (a file, a URL...) provide a classmethod
 ``conformance_params(tmp_path) -> dict`` returning working parameters; plugins that
 cannot run offline may set ``conformance_skip = "reason"``.
@@ -24,6 +30,7 @@ from ._checks import (
     check_encoder,
     check_heuristic,
     check_plugin,
+    expected_failed_checks,
     plugin_checks,
 )
 
@@ -35,6 +42,7 @@ __all__ = [
     "check_encoder",
     "check_heuristic",
     "check_plugin",
+    "expected_failed_checks",
     "parametrize_with_checks",
     "plugin_checks",
 ]

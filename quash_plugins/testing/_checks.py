@@ -182,6 +182,56 @@ def _toy(rng: np.random.Generator, d: int = 32) -> tuple[np.ndarray, np.ndarray,
     return X.astype(np.float32), y, E.astype(np.float32)
 
 
+def expected_failed_checks(clf: Any) -> dict[str, str]:
+    """The scikit-learn checks ``clf`` declares it fails by design: ``{check: reason}``.
+
+    A classifier declares them with a method ``expected_failed_checks(self)`` returning
+    that mapping (the form scikit-learn's ``check_estimator`` takes), one reason per
+    check; none by default.
+    """
+    declared = getattr(clf, "expected_failed_checks", None)
+    out = dict(declared()) if callable(declared) else {}
+    for check, reason in out.items():
+        assert isinstance(reason, str) and reason.strip(), (
+            f"{type(clf).__name__}.expected_failed_checks(): {check!r} needs a reason"
+        )
+    return out
+
+
+def check_classifier_sklearn_estimator(clf: Any, tmp_path: Path) -> None:
+    """scikit-learn's own ``check_estimator``: every check passes or is declared.
+
+    A declared expected failure that passes is reported too (the declaration is stale),
+    as is one naming a check that scikit-learn does not run on this classifier.
+    """
+    import warnings
+
+    from sklearn.utils.estimator_checks import check_estimator
+
+    expected = expected_failed_checks(clf)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        results = check_estimator(clf, on_fail=None, on_skip=None, expected_failed_checks=expected)
+    failed = [
+        f"{r['check_name']}: {type(r['exception']).__name__}: "
+        f"{str(r['exception']).strip().splitlines()[0] if str(r['exception']).strip() else ''}"
+        for r in results
+        if r["status"] == "failed"
+    ]
+    ran = {r["check_name"] for r in results}
+    xfailed = {r["check_name"] for r in results if r["status"] == "xfail"}
+    stale = sorted(set(expected) - xfailed)
+    problems = []
+    if failed:
+        problems.append("failed scikit-learn checks:\n  " + "\n  ".join(failed))
+    if stale:
+        problems.append(
+            "declared in expected_failed_checks() but "
+            + ", ".join(f"{c} ({'passes' if c in ran else 'not run'})" for c in stale)
+        )
+    assert not problems, f"{type(clf).__name__}: " + "\n".join(problems)
+
+
 def check_classifier_params(clf: Any, tmp_path: Path) -> None:
     from sklearn.base import clone
 
@@ -296,6 +346,7 @@ _CHECKS: dict[str, list[Callable[[Any, Path], None]]] = {
         check_classifier_params,
         check_classifier_fit_predict,
         check_classifier_chunk_invariant,
+        check_classifier_sklearn_estimator,
     ],
     "adapters": [check_adapter_roundtrip, check_adapter_sniff_rejects, check_adapter_bad_input],
 }

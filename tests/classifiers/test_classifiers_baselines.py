@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from quash_plugins import Quash
+from quash_plugins.classifiers import ClassifierParamError
 from quash_plugins.core import registry
 from quash_plugins.core.errors import ConfigError
 from quash_plugins.encoders import TableEncoder
@@ -126,7 +127,7 @@ def test_relative_threshold_is_map_level_in_the_pipeline(tiny_world):
 )
 def test_raising_the_threshold_reduces_matches_monotonically(tiny_world, name):
     enc = TableEncoder(file=str(tiny_world["table"]))
-    counts, displays = [], []
+    counts, displays, scores = [], [], []
     for t in (-0.4, -0.2, -0.1, 0.0, 0.05, 0.1, 0.2, 0.4):
         quash = Quash(
             enc, classifier=registry.create("classifiers", name), threshold=t, instances=None
@@ -139,8 +140,16 @@ def test_raising_the_threshold_reduces_matches_monotonically(tiny_world, name):
         assert (above == r.mask).mean() > 0.99
         counts.append(int(r.mask.sum()))
         displays.append(r.display_scores)
+        scores.append(r.scores)
     assert counts == sorted(counts, reverse=True), counts
     assert counts[0] > counts[-1]
+    # the threshold moves the cut, not the scores ...
+    for s in scores[1:]:
+        np.testing.assert_array_equal(s, scores[0])
+    # ... so no item's display score rises when the threshold does, and some fall
+    for lower, higher in zip(displays, displays[1:]):
+        assert (higher <= lower + 1e-6).all(), float((higher - lower).max())
+    assert (displays[-1] < displays[0] - 1e-3).any()
 
 
 @pytest.mark.parametrize(
@@ -154,9 +163,14 @@ def test_raising_the_threshold_reduces_matches_monotonically(tiny_world, name):
         ("label-argmax", {"logit_scale": -1}, "logit_scale"),
     ],
 )
-def test_bad_baseline_params_are_rejected(name, params, field):
+def test_bad_baseline_params_are_rejected(name, params, field, world):
     with pytest.raises(ConfigError, match=field):
         registry.create("classifiers", name, **params)
+    # scikit-learn's contract: the constructor stores the value, fit rejects it
+    clf = registry.load("classifiers", name)(**params)
+    assert {k: clf.get_params()[k] for k in params} == params
+    with pytest.raises(ClassifierParamError, match=field):
+        clf.fit(world["X"], world["y"])
 
 
 def test_float16_and_zero_rows(world):
@@ -181,15 +195,16 @@ def test_example_configs_load_and_build_their_classifier():
     for f in files:
         cfg = QuashConfig.from_yaml(f)
         clf = registry.create("classifiers", cfg.classifier.name, **cfg.classifier.params)
-        assert clf.get_params() is not None
+        assert isinstance(clf, registry.load("classifiers", cfg.classifier.name)), f.name
+        # every parameter the example sets reaches the classifier unchanged
+        params = clf.get_params(deep=False)
+        assert {k: params[k] for k in cfg.classifier.params} == cfg.classifier.params, f.name
         if cfg.classifier.name == "lerf-relevancy":
             assert list(cfg.negatives) == ["object", "things", "stuff", "texture"]
 
 
 def test_nearest_sample_is_the_top_k_cosine_vote():
     """Independent reimplementation: mean of the k best cosines per side, by sorting."""
-    from quash_plugins.core import registry
-
     rng = np.random.default_rng(3)
     X = rng.normal(size=(9, 12)).astype(np.float32)
     y = np.array([1, 1, 1, 1, 0, 0, 0, 0, 0])
@@ -207,9 +222,9 @@ def test_nearest_sample_is_the_top_k_cosine_vote():
 
 
 @pytest.mark.parametrize("k", [0, -1, 1.5, True, "2"])
-def test_nearest_sample_rejects_bad_k(k):
-    from quash_plugins.core import registry
-    from quash_plugins.core.errors import ConfigError
-
-    with pytest.raises((ConfigError, ValueError), match="k must be an integer"):
+def test_nearest_sample_rejects_bad_k(k, world):
+    with pytest.raises(ConfigError, match="k must be an integer"):
         registry.create("classifiers", "nearest-sample", k=k)
+    clf = registry.create("classifiers", "nearest-sample").set_params(k=k)
+    with pytest.raises(ClassifierParamError, match="k must be an integer"):
+        clf.fit(world["X"], world["y"])

@@ -8,6 +8,7 @@ import time
 import numpy as np
 import pytest
 from sklearn.base import clone
+from sklearn.exceptions import NotFittedError
 from sklearn.metrics.pairwise import cosine_similarity
 
 from quash_plugins.classifiers import ClassifierParamError, CosineSvmClassifier, RbfSvmClassifier
@@ -176,11 +177,17 @@ def test_registry_create_fit_on_64_texts_and_classify_200k_x_512():
     ],
 )
 def test_bad_params_are_rejected(name, params, field):
+    # a config fails when it builds the classifier, before any model is loaded
     with pytest.raises(ConfigError, match=field):
         registry.create("classifiers", name, **params)
+    # scikit-learn's contract: the constructor stores the value unchanged, fit rejects it
     cls = registry.load("classifiers", name)
-    with pytest.raises(ValueError, match=field):
-        cls(**params)
+    clf = cls(**params)
+    assert {k: clf.get_params()[k] for k in params} == params
+    X, y = _text_set(np.random.default_rng(0))
+    with pytest.raises(ClassifierParamError, match=field):
+        clf.fit(X, y)
+    assert not hasattr(clf, "n_features_in_"), "a rejected fit must leave no fitted state"
     with pytest.raises(ConfigError, match="does not accept"):
         registry.create("classifiers", name, kernel_size=3)
 
@@ -199,13 +206,15 @@ def test_clone_pickle_and_unfitted():
     E = _map(rng, X)
     clf = CosineSvmClassifier(gamma=3.0, backend="torch", device="cpu")
     assert clone(clf).get_params() == clf.get_params()
-    with pytest.raises(ValueError, match="fit"):
+    with pytest.raises(NotFittedError, match=r"svm-cosine: .*call fit\(X, y\)"):
         clf.decision_function(E)
+    with pytest.raises(NotFittedError, match="not fitted"):
+        clf.predict(E)
     clf.fit(X, y)
     before = clf.decision_function(E)  # builds torch state, which must not be pickled
     again = pickle.loads(pickle.dumps(clf))
     np.testing.assert_allclose(again.decision_function(E), before, atol=1e-6)
-    with pytest.raises(ValueError, match=str(D)):
+    with pytest.raises(ValueError, match=f"X has 10 features, but .* expecting {D} features"):
         clf.decision_function(E[:, :10])
 
 

@@ -4,13 +4,19 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
+import re
 import subprocess
 import sys
+from importlib.metadata import entry_points
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+from quash_plugins import __version__
 from quash_plugins.cli.main import main
+from quash_plugins.core.errors import MapFormatError
 
 
 def run_cli(*args, capsys):
@@ -164,17 +170,62 @@ def test_bad_input_clear_message_no_traceback(case, tiny_world, tmp_path, capsys
     assert _digest(map_path) == before
 
 
+def _console_script() -> Path:
+    """The installed ``quash`` script: the one pip generated from the entry point."""
+    (ep,) = entry_points(group="console_scripts", name="quash")
+    assert ep.value == "quash_plugins.cli.main:main"
+    script = Path(sys.executable).parent / ("quash.exe" if os.name == "nt" else "quash")
+    assert script.exists(), f"{script} missing: install the package (pip install -e .)"
+    return script
+
+
 def test_console_script_entry_point(tiny_world):
+    """The ``quash`` command itself, as a user runs it, not ``python -m``."""
+    script = _console_script()
+    exe = subprocess.run([str(script), "--version"], capture_output=True, text=True)
+    assert exe.returncode == 0 and exe.stdout.strip() == f"quash-plugins {__version__}"
     exe = subprocess.run(
-        [sys.executable, "-m", "quash_plugins.cli.main", "--version"],
+        [
+            str(script),
+            "query",
+            str(tiny_world["map"]),
+            "chair",
+            "-c",
+            str(tiny_world["config"]),
+            "--json",
+        ],
         capture_output=True,
         text=True,
+        cwd=tiny_world["dir"],
     )
-    assert exe.returncode == 0 and "quash-plugins" in exe.stdout
+    assert exe.returncode == 0, exe.stderr
+    assert json.loads(exe.stdout)["results"][0]["query"] == "chair"
 
 
-def test_debug_shows_traceback(tmp_path, capsys):
-    with pytest.raises(Exception, match="Map not found"):
+def test_debug_shows_traceback(tmp_path):
+    """Without --debug: one line, no traceback. With it: Python's traceback through the
+    package, ending in the error the user caused."""
+    script = _console_script()
+    args = [str(script), "query", str(tmp_path / "nope.npz"), "chair"]
+    plain = subprocess.run(args, capture_output=True, text=True)
+    assert plain.returncode == 1
+    assert "Traceback" not in plain.stderr
+    assert plain.stderr.strip().splitlines() == [
+        f"quash query: error: Map not found: {tmp_path / 'nope.npz'}. Check the path."
+    ]
+    debug = subprocess.run([*args, "--debug"], capture_output=True, text=True)
+    assert debug.returncode == 1
+    err = debug.stderr
+    assert err.startswith("Traceback (most recent call last):"), err
+    assert re.search(r'File ".*quash_plugins[/\\]cli[/\\]main\.py", line \d+, in main', err)
+    assert re.search(r'File ".*quash_plugins[/\\]core[/\\]maps\.py", line \d+, in read_map', err)
+    assert (
+        err.strip()
+        .splitlines()[-1]
+        .endswith(f"MapFormatError: Map not found: {tmp_path / 'nope.npz'}. Check the path.")
+    )
+    # in-process, --debug lets the error itself propagate (for debuggers and notebooks)
+    with pytest.raises(MapFormatError, match="Map not found"):
         main(["query", str(tmp_path / "nope.npz"), "chair", "--debug"])
 
 

@@ -1,13 +1,26 @@
-"""quash demo end to end on the tiny scene with the shipped configs (real MiniLM)."""
+"""quash demo end to end on the tiny scene with the shipped configs (real MiniLM).
+
+The demo runs once per module (it builds the scene and loads MiniLM); the tests read
+what it wrote. Expected values are computed from the shipped configs and the scene, never
+copied from an earlier run.
+"""
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
+import re
+from pathlib import Path
 
 import pytest
+import yaml
 
+from quash_plugins.adapters import read_map
 from quash_plugins.cli.main import main
+from quash_plugins.core.config import QuashConfig
 from quash_plugins.demo.runner import cache_root, demo_config_paths
+from quash_plugins.evaluation.report import evaluate
 
 
 def test_demo_configs_ship_as_package_data():
@@ -15,15 +28,117 @@ def test_demo_configs_ship_as_package_data():
     assert len(paths) >= 5 and all(p.exists() for p in paths)
 
 
+def test_demo_list_configs_prints_the_shipped_paths_and_runs_nothing(tmp_path, capsys):
+    out = tmp_path / "never"
+    assert main(["demo", "--list-configs", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out.splitlines()
+    assert printed == [str(p) for p in demo_config_paths()]
+    for line in printed:  # each line is a config a user can copy and run
+        cfg = QuashConfig.from_yaml(line)
+        assert cfg.name and cfg.encoder.name
+    assert not out.exists() and not cache_root().exists()
+
+
+def test_demo_list_configs_prints_long_paths_whole(monkeypatch, capsys):
+    """An install path longer than a terminal line is printed on one line, as it is."""
+    import quash_plugins.demo.runner as runner
+
+    long = [f"/{'deep/' * 30}[v1]/demo-{i}.yaml" for i in range(2)]
+    monkeypatch.setattr(runner, "demo_config_paths", lambda: [Path(p) for p in long])
+    assert main(["demo", "--list-configs"]) == 0
+    assert capsys.readouterr().out.splitlines() == long
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory):
+    """``quash demo --tiny`` once, with its own cache folder (never the user's)."""
+    out = tmp_path_factory.mktemp("demo")
+    cache = tmp_path_factory.mktemp("demo-cache")
+    stdout = io.StringIO()
+    with pytest.MonkeyPatch.context() as mp, contextlib.redirect_stdout(stdout):
+        mp.setenv("QUASH_CACHE_DIR", str(cache))
+        code = main(["demo", "--tiny", "--out", str(out)])
+        scenes = sorted(cache_root().glob("scene-v*-tiny-seed0-*.npz"))
+    return {
+        "code": code,
+        "out": out,
+        "stdout": stdout.getvalue(),
+        "scenes": scenes,
+        "json": json.loads((out / "demo.json").read_text()) if code == 0 else None,
+    }
+
+
+def _is_quash(name: str) -> bool:
+    return name.startswith("quash")
+
+
+def _summary_rows(markdown: str) -> list[str]:
+    """Method names of the first table of a report, in order."""
+    lines = markdown.splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith("| method |"))
+    names = []
+    for line in lines[start + 2 :]:
+        if not line.startswith("| "):
+            break
+        names.append(line.split("|")[1].strip())
+    return names
+
+
 @pytest.mark.slow
-def test_demo_tiny_end_to_end(tmp_path, capsys):
-    out = tmp_path / "demo"
-    assert main(["demo", "--tiny", "--out", str(out)]) == 0
+def test_demo_tiny_end_to_end(demo):
+    assert demo["code"] == 0, demo["stdout"]
+    out = demo["out"]
     for name in ("demo.md", "demo.json", "demo.png", "demo.rrd"):
         assert (out / name).stat().st_size > 0, name
-    data = json.loads((out / "demo.json").read_text())
-    names = [c["name"] for c in data["configs"]]
-    assert names[:4] == ["vlmaps", "conceptfusion", "lerf", "quash-taxonomy"]
-    assert "| quash-taxonomy |" in capsys.readouterr().out
-    # the scene is cached under $QUASH_CACHE_DIR/demo (set per test by conftest)
-    assert list(cache_root().glob("scene-v*-tiny-seed0-*.npz"))
+    # the scene is cached under $QUASH_CACHE_DIR/demo
+    assert len(demo["scenes"]) == 1
+
+
+@pytest.mark.slow
+def test_demo_table_order_follows_the_shipped_configs(demo):
+    """One row per shipped config, in the order of demo_config_paths(); the peers' rules
+    first, then QuASH, in the JSON, demo.md and what the command printed."""
+    assert demo["code"] == 0, demo["stdout"]
+    expected = [yaml.safe_load(p.read_text())["name"] for p in demo_config_paths()]
+    names = [c["name"] for c in demo["json"]["configs"]]
+    assert names == expected
+    assert _summary_rows((demo["out"] / "demo.md").read_text()) == expected
+    printed = [n for n in expected if re.search(rf"^\| {re.escape(n)} \|", demo["stdout"], re.M)]
+    assert printed == expected
+    kinds = [_is_quash(n) for n in names]
+    assert any(kinds) and not all(kinds), "the demo compares peers with QuASH"
+    assert kinds == sorted(kinds), f"peers first, then QuASH: {names}"
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(
+    strict=True,
+    raises=AssertionError,
+    reason="issue 12: on the tiny demo the shipped QuASH (quash-taxonomy) does not beat "
+    "label-argmax given the scene's label list (F1 0.637 against 0.702 when this test "
+    "was written); remove this mark when it does",
+)
+def test_quash_beats_the_fair_peer(demo):
+    """QuASH's F1 (the demo's first QuASH row) against OpenScene's/VLMaps' label argmax
+    given the same information, the scene's label list, scored by the same evaluate()
+    on the same scene, queries and absence queries."""
+    assert demo["code"] == 0, demo["stdout"]
+    report = demo["json"]
+    quash = next(c for c in report["configs"] if _is_quash(c["name"]))
+    scene = demo["scenes"][0]
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("QUASH_CACHE_DIR", str(scene.parent.parent))
+        lmap = read_map(scene, adapter="npz")
+        peer = {
+            "name": "label-argmax (scene labels)",
+            "encoder": "minilm",
+            "heuristic": "none",
+            "negatives": list(lmap.label_names),
+            "classifier": "label-argmax",
+            "instances": False,
+        }
+        queries = list(quash["per_query"])
+        absent = list(quash["absence"]["per_query"])
+        fair = evaluate(lmap, [peer], queries=queries, absent=absent).configs[0]
+    assert list(fair["per_query"]) == queries
+    assert quash["mean"]["f1"] > fair["mean"]["f1"], (quash["mean"], fair["mean"])

@@ -16,7 +16,7 @@ pytest.importorskip("sentence_transformers")
 @pytest.fixture
 def minilm_map(minilm, tmp_path):
     """A 384-d NPZ map: 40 items near 'chair', 40 near 'bathtub' (MiniLM's own space)."""
-    from quash_plugins.adapters._npz import write_npz_map
+    from quash_plugins.adapters import write_npz_map
     from quash_plugins.core.types import LatentMap
 
     rng = np.random.default_rng(0)
@@ -117,7 +117,7 @@ def test_cache_dir_option_and_missing_action(tmp_path, capsys):
 
 
 def test_dimension_mismatch_names_dims_and_preset(tmp_path, capsys):
-    from quash_plugins.adapters._npz import write_npz_map
+    from quash_plugins.adapters import write_npz_map
     from quash_plugins.core.types import LatentMap
 
     E = np.random.default_rng(1).normal(size=(10, 512)).astype(np.float32)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from quash_plugins.core import registry
-from quash_plugins.core.errors import EncoderError
+from quash_plugins.core.errors import ConfigError, EncoderError
 
 pytest.importorskip("sentence_transformers")
 
@@ -76,7 +76,7 @@ def test_dim_and_fingerprint_without_loading():
 def test_registry_creates_minilm_and_rejects_unknown_params():
     enc = registry.create("encoders", "minilm", device="cpu")
     assert enc.name == "minilm" and enc.dim == 384
-    with pytest.raises(Exception, match="nope"):
+    with pytest.raises(ConfigError, match="'minilm' does not accept parameter 'nope'"):
         registry.create("encoders", "minilm", nope=1)
 
 

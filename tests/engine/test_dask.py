@@ -327,7 +327,7 @@ def test_cli_query_zarr_with_dask_backend(client, world, tmp_path, capsys):
 
 
 def test_cli_convert_to_zarr(tmp_path, world):
-    from quash_plugins.adapters._npz import write_npz_map
+    from quash_plugins.adapters import write_npz_map
     from quash_plugins.cli.main import main
 
     emb = world["emb"][:1000]

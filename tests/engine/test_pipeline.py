@@ -147,8 +147,7 @@ def test_templates_mean_and_all_and_zero_vector():
 
 def test_npz_round_trip_keeps_frames(tmp_path):
     from quash_plugins import FrameInfo
-    from quash_plugins.adapters import read_map
-    from quash_plugins.adapters._npz import write_npz_map
+    from quash_plugins.adapters import read_map, write_npz_map
 
     frames = [FrameInfo("f0", 2, 3, 0), FrameInfo("f1", 1, 4, 6)]
     E = np.random.default_rng(0).normal(size=(10, 4)).astype(np.float32)

@@ -12,22 +12,41 @@ from quash_plugins.encoders import TableEncoder
 from quash_plugins.engine.refine import RefineOptions, pseudo_labels, take_rows
 
 
-def _world(seed=0, n=3000, d=24, shift=2.5):
-    """Two classes whose map embeddings are text directions plus a shared offset and noise
-    (a modality gap), so text-only classifiers and refined ones can differ."""
+def _world(seed=0, n=3000, d=24, gap=0.5, side=2.0, noise=0.2):
+    """The world refinement is built for: a modality gap that costs the text-only first
+    pass recall, not precision, over map classes that are compact on the map's side.
+
+    Map rows are their class's text direction (chair or table) plus one offset shared by
+    every row, plus noise. The offset has a component ``gap`` towards ``table - chair``
+    (so a text-only rule finds only the chairs nearest to their text: precise, low
+    recall) and a part ``side`` orthogonal to it (the rest of the gap). The map's own
+    chairs and tables stay separable, which a classifier fitted on map samples can learn.
+    """
     rng = np.random.default_rng(seed)
     T = rng.normal(size=(6, d))
     T /= np.linalg.norm(T, axis=1, keepdims=True)
     words = ["chair", "armchair", "table", "other", "background", "nothing"]
     labels = rng.integers(0, 2, size=n)  # 0 chair, 1 table
-    offset = rng.normal(size=d) * shift / np.sqrt(d)
-    E = np.where(labels[:, None] == 0, T[0], T[2]) + offset + 0.6 * rng.normal(size=(n, d))
+    towards_table = (T[2] - T[0]) / np.linalg.norm(T[2] - T[0])
+    r = rng.normal(size=d)
+    r -= (r @ towards_table) * towards_table
+    offset = gap * towards_table + side * r / np.linalg.norm(r)
+    E = np.where(labels[:, None] == 0, T[0], T[2]) + offset + noise * rng.normal(size=(n, d))
     E[:50] = 0.0  # unobserved rows
     enc = TableEncoder(table=dict(zip(words, T.tolist())))
     lmap = LatentMap(
         E.astype(np.float32), labels=labels, label_names=["chair", "table"], normalize=True
     )
     return enc, lmap, labels
+
+
+#: The first pass sees the other label as a negative, as with a label list.
+NEGATIVES = ("table", "other", "background", "nothing")
+
+
+def _f1(mask, truth):
+    tp = np.count_nonzero(mask & truth)
+    return 2 * tp / (np.count_nonzero(mask) + np.count_nonzero(truth))
 
 
 def test_options_are_checked():
@@ -78,18 +97,13 @@ def test_take_rows_matches_fancy_indexing_and_normalises():
 
 def test_refinement_second_pass_and_provenance():
     enc, lmap, labels = _world()
-    plain = Quash(enc, classifier=registry.create("classifiers", "contrast"), instances=None)
     refined = Quash(
         enc,
         classifier=registry.create("classifiers", "contrast"),
-        refine={
-            "classifier": {"name": "svm-rbf", "class_weight": "balanced"},
-            "n_positives": 100,
-            "n_negatives": 400,
-        },
+        negatives=NEGATIVES,
+        refine={"n_positives": 100, "n_negatives": 400},
         instances=None,
     )
-    a = plain.query(lmap, "chair")
     b = refined.query(lmap, "chair")
     assert b.queryset.provenance["refine"]["applied"] is True
     assert b.queryset.provenance["refine"]["map_positives"] == 100
@@ -97,14 +111,51 @@ def test_refinement_second_pass_and_provenance():
     assert b.classifier.startswith("RbfSvmClassifier")
     assert not b.mask[:50].any()  # unobserved rows never match
     assert (b.mask == (b.scores > 0)).all()
-    f1 = []
-    for r in (a, b):
-        tp = (r.mask & (labels == 0)).sum()
-        f1.append(2 * tp / (r.mask.sum() + (labels == 0).sum()))
-    assert f1[1] >= f1[0] - 0.02  # refinement does not break a working first pass
     # deterministic
     c = refined.query(lmap, "chair")
     np.testing.assert_array_equal(b.mask, c.mask)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_refinement_helps_on_the_world_built_for_it(seed):
+    """The shipped refinement (svm-rbf on 100 map positives and 1,000 negatives) lifts
+    F1 over its text-only first pass by more than chance could.
+
+    The margin is computed, not chosen: three standard errors of the paired F1 gain,
+    estimated by resampling the map's items (200 bootstrap draws). A gain above it is not
+    an accident of which items this map happens to hold.
+    """
+    enc, lmap, labels = _world(seed)
+    observed = np.ones(lmap.n, bool)
+    observed[:50] = False
+    truth = (labels == 0)[observed]
+    plain = Quash(
+        enc,
+        classifier=registry.create("classifiers", "contrast"),
+        negatives=NEGATIVES,
+        instances=None,
+    )
+    refined = Quash(
+        enc,
+        classifier=registry.create("classifiers", "contrast"),
+        negatives=NEGATIVES,
+        refine={},
+        instances=None,
+    )
+    a = plain.query(lmap, "chair").mask[observed]
+    b = refined.query(lmap, "chair").mask[observed]
+    gain = _f1(b, truth) - _f1(a, truth)
+    rng = np.random.default_rng(seed)
+    draws = rng.integers(0, len(truth), size=(200, len(truth)))
+    boot = np.array([_f1(b[i], truth[i]) - _f1(a[i], truth[i]) for i in draws])
+    margin = 3.0 * boot.std()
+    assert margin > 0
+    assert gain > margin, (gain, margin)
+    # how it helps: the first pass is precise and misses; refinement keeps the precision
+    # and finds what the text alone missed
+    precision = [np.count_nonzero(m & truth) / max(1, np.count_nonzero(m)) for m in (a, b)]
+    recall = [np.count_nonzero(m & truth) / np.count_nonzero(truth) for m in (a, b)]
+    assert recall[1] > recall[0] and precision[1] >= precision[0] - margin, (precision, recall)
 
 
 def test_absent_query_stays_empty():

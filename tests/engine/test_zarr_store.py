@@ -10,6 +10,7 @@ import pytest
 import zarr  # noqa: F401 - the zarr store is tested here
 
 from quash_plugins.adapters import detect_adapter, read_map, write_zarr_map
+from quash_plugins.core.errors import MapFormatError, QuashError
 from quash_plugins.core.types import FrameInfo, LatentMap
 from quash_plugins.engine import as_dask, classify_dask
 
@@ -61,7 +62,7 @@ def test_dask_option_and_frames(tmp_path):
 
 def test_overwrite_is_atomic_and_optional(tmp_path):
     path = write_zarr_map(_map(seed=1), tmp_path / "m.zarr")
-    with pytest.raises(Exception, match="exists"):
+    with pytest.raises(QuashError, match="m.zarr exists. Remove it or pass overwrite=True"):
         write_zarr_map(_map(seed=2), path, overwrite=False)
     m2 = _map(seed=2)
     write_zarr_map(m2, path)
@@ -70,9 +71,9 @@ def test_overwrite_is_atomic_and_optional(tmp_path):
 
 
 def test_sniff_rejects_other_things(tmp_path):
-    from quash_plugins.adapters._zarr import ZarrAdapter
+    from quash_plugins.core import registry
 
-    a = ZarrAdapter()
+    a = registry.create("adapters", "zarr")
     (tmp_path / "empty").mkdir()
     np.savez(tmp_path / "m.npz", embeddings=np.eye(3, dtype=np.float32))
     assert not a.sniff(tmp_path / "empty")
@@ -93,7 +94,7 @@ def test_bare_array_store_and_missing_embeddings(tmp_path):
     )
     g = zarr.open_group(str(tmp_path / "g.zarr"), mode="w")
     g.create_array("positions", shape=(3, 3), dtype="f4")
-    with pytest.raises(Exception, match="missing array 'embeddings'"):
+    with pytest.raises(MapFormatError, match="missing array 'embeddings'.*Found: positions"):
         read_map(tmp_path / "g.zarr", adapter="zarr")
 
 

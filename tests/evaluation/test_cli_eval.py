@@ -153,3 +153,81 @@ def test_eval_scores_match_an_independent_query(world, tmp_path):
 
 def test_eval_needs_a_config(world):
     assert main(["eval", str(world / "scene.npz")]) == 2
+
+
+def _eval_json(world, tmp_path, *args):
+    out = tmp_path / f"e{len(list(tmp_path.glob('e*.json')))}.json"
+    cmd = ["eval", str(world / "scene.npz"), "-c", str(world / "base.yaml"), "--json", str(out)]
+    assert main([*cmd, *args]) == 0
+    return json.loads(out.read_text())["configs"][0]
+
+
+def _scene_labels(world):
+    with np.load(world / "scene.npz") as m:
+        return m["labels"], [str(n) for n in m["label_names"]]
+
+
+def test_eval_all_labels_scores_every_present_label(world, tmp_path):
+    from quash_plugins.evaluation.report import DEFAULT_EXCLUDE
+
+    labels, names = _scene_labels(world)
+    present = {names[i] for i in np.unique(labels[labels >= 0])}
+    expected = present - set(DEFAULT_EXCLUDE)
+    assert expected and len(expected) < len(names)  # some labels are absent from the scene
+    data = _eval_json(world, tmp_path, "--all-labels")
+    assert set(data["per_query"]) == expected
+    assert data["absence"]["per_query"] == {}
+    # --all-labels is the documented default
+    assert _eval_json(world, tmp_path) == data
+
+
+def test_eval_all_labels_and_queries_exclude_each_other(world, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(
+            [
+                "eval",
+                str(world / "scene.npz"),
+                "-c",
+                str(world / "base.yaml"),
+                "--all-labels",
+                "--queries",
+                "wall",
+            ]
+        )
+    assert exc.value.code == 2
+    assert "not allowed with argument" in capsys.readouterr().err
+
+
+def test_eval_exclude_ignores_those_items_and_never_queries_them(world, tmp_path):
+    """--exclude wall: wall is not queried, and a wall item in a mask is neither TP nor FP;
+    checked against `quash query`'s own masks."""
+    labels, names = _scene_labels(world)
+    counts = {n: int((labels == i).sum()) for i, n in enumerate(names)}
+    assert counts["wall"] > 0 and counts["floor"] > 0
+    data = _eval_json(world, tmp_path, "--exclude", "wall")
+    assert "wall" not in data["per_query"] and "floor" in data["per_query"]
+    default = _eval_json(world, tmp_path)
+    assert "wall" in default["per_query"]
+    assert (
+        main(
+            [
+                "query",
+                str(world / "scene.npz"),
+                "floor",
+                "-c",
+                str(world / "base.yaml"),
+                "--out",
+                str(tmp_path / "q.npz"),
+            ]
+        )
+        == 0
+    )
+    with np.load(tmp_path / "q.npz") as q:
+        mask = q["masks"][0]
+    truth = labels == names.index("floor")
+    wall = labels == names.index("wall")
+    assert (mask & wall).any(), "the floor mask must hit walls for this test to mean anything"
+    ref = query_metrics(mask, truth, valid=(labels >= 0) & ~wall)
+    got = data["per_query"]["floor"]
+    assert (got["tp"], got["fp"], got["fn"]) == (ref["tp"], ref["fp"], ref["fn"])
+    assert got["fp"] == default["per_query"]["floor"]["fp"] - int((mask & wall).sum())

@@ -35,8 +35,18 @@ def test_query_metrics_match_set_computation(seed):
 
 
 def test_empty_denominators():
+    """The documented rules (docs/evaluation.md): nothing predicted and nothing true is a
+    perfect answer (precision 1, recall 1, so F1 1, IoU 1)."""
     none = np.zeros(4, bool)
-    assert query_metrics(none, none)["f1"] == 0.0 or query_metrics(none, none)["precision"] == 1.0
+    m = query_metrics(none, none)
+    assert (m["tp"], m["fp"], m["fn"], m["n_true"], m["n_pred"]) == (0, 0, 0, 0, 0)
+    assert (m["precision"], m["recall"], m["f1"], m["iou"]) == (1.0, 1.0, 1.0, 1.0)
+    assert m == query_metrics(none, none, valid=np.ones(4, bool))
+    # and the independent set computation agrees
+    assert _reference(none, none, np.ones(4, bool))[3:] == (1.0, 1.0, 1.0, 1.0)
+    # all items excluded: the same empty-set answer, whatever the mask says
+    m = query_metrics(np.ones(4, bool), np.ones(4, bool), valid=np.zeros(4, bool))
+    assert (m["precision"], m["recall"], m["f1"], m["iou"]) == (1.0, 1.0, 1.0, 1.0)
     m = query_metrics(np.array([1, 0, 0, 0], bool), none)
     assert m["precision"] == 0.0 and m["recall"] == 0.0
     m = query_metrics(none, np.array([1, 0, 0, 0], bool))

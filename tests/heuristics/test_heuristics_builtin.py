@@ -10,12 +10,12 @@ import pytest
 import yaml
 
 from quash_plugins.core import registry
-from quash_plugins.core.errors import ConfigError, HeuristicError
+from quash_plugins.core.errors import ConfigError, HeuristicError, PluginError
 from quash_plugins.core.interfaces import Encoder, ExpansionContext
 from quash_plugins.core.types import LatentMap, QuerySet
 from quash_plugins.encoders import TableEncoder
 from quash_plugins.engine.pipeline import Quash
-from quash_plugins.heuristics._mined import add_map_negatives
+from quash_plugins.heuristics import add_map_negatives
 
 
 @pytest.fixture(autouse=True)
@@ -289,7 +289,7 @@ def test_combine_takes_each_side_from_its_heuristic():
     assert qs.provenance["antonyms"]["heuristic"] == "lexicon"
     with pytest.raises(ConfigError, match="both"):
         registry.create("heuristics", "combine", synonyms="none")
-    with pytest.raises(Exception, match="combine.antonyms"):
+    with pytest.raises(PluginError, match="combine.antonyms: Heuristic 'nope' is not registered"):
         registry.create("heuristics", "combine", synonyms="none", antonyms="nope")
 
 

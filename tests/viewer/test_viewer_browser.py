@@ -187,7 +187,7 @@ async def drive(url: str, devtools_port: int, tmp: Path, expected: dict[str, int
 def test_serve_web_in_headless_chromium(tmp_path):
     from _viewer_maps import voxel_map, write_table_config
 
-    from quash_plugins.adapters._npz import write_npz_map
+    from quash_plugins.adapters import write_npz_map
 
     lmap = voxel_map(shape=(12, 10, 4), colors="gray")  # only the matches are magenta
     map_path = write_npz_map(tmp_path / "map.npz", lmap)

@@ -227,7 +227,7 @@ def test_never_touches_the_global_recording(tmp_path):
 
 
 def test_cli_query_rrd(tmp_path, capsys):
-    from quash_plugins.adapters._npz import write_npz_map
+    from quash_plugins.adapters import write_npz_map
     from quash_plugins.cli.main import main
 
     lmap = voxel_map()
@@ -247,7 +247,7 @@ def test_cli_query_rrd(tmp_path, capsys):
 
 
 def test_cli_rejects_bad_rrd_name(tmp_path):
-    from quash_plugins.adapters._npz import write_npz_map
+    from quash_plugins.adapters import write_npz_map
     from quash_plugins.cli.main import main
 
     map_path = write_npz_map(tmp_path / "map.npz", voxel_map())

@@ -1,0 +1,164 @@
+"""quash bench (run_bench, bench_configs) on a tiny generated scene, fast and offline.
+
+The scene and every text are embedded by the conformance kit's hashing encoder,
+registered for this module, so every word of every ablation has an embedding.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from quash_plugins.cli.main import main
+from quash_plugins.core import registry
+from quash_plugins.core.config import QuashConfig
+from quash_plugins.core.text import ZERO_TOKEN
+from quash_plugins.engine.pipeline import Quash
+from quash_plugins.evaluation.ablations import (
+    ANTONYMS,
+    CLASSIFIERS,
+    SOURCES,
+    TABLES,
+    bench_configs,
+    run_bench,
+)
+from quash_plugins.evaluation.metrics import macro_mean, query_metrics, valid_items
+from quash_plugins.evaluation.report import DEFAULT_EXCLUDE
+from quash_plugins.testing import HashingEncoder
+
+ENCODER = "hashing-bench"
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    registry.register("encoders", ENCODER, HashingEncoder, replace=True)
+    d = tmp_path_factory.mktemp("bench")
+    args = ["make-scene", str(d / "scene.npz"), "--encoder", ENCODER, "--no-cache"]
+    assert main([*args, "--rooms", "1", "--voxel-size", "0.25"]) == 0
+    yield d
+    registry.unregister("encoders", ENCODER)
+
+
+def _names(cfgs):
+    return [c["name"] for c in cfgs]
+
+
+def test_bench_configs_cover_every_table_and_parse():
+    tax = "scene.taxonomy.yaml"
+    full = bench_configs(tax, ENCODER, llm={"model": "m"})
+    assert list(full) == list(TABLES)
+    # antonyms: one contrast row per antonym word, the zero vector without templates
+    rows = full["antonyms"]
+    assert [c["negatives"] for c in rows] == [[a] for a in ANTONYMS]
+    assert all(c["classifier"] == "contrast" and c["heuristic"] == "none" for c in rows)
+    assert [("prompt_templates" in c) for c in rows] == [a != ZERO_TOKEN for a in ANTONYMS]
+    # sources: the full synonym x antonym grid; llm reads its cache only
+    assert _names(full["sources"]) == [f"{s} x {a}" for s in SOURCES for a in SOURCES]
+    llm = [c for c in full["sources"] if c["name"] == "llm x llm"][0]["heuristic"]
+    assert llm["synonyms"] == {"name": "llm", "offline": True, "model": "m"}
+    # classifiers: every ablated classifier on the taxonomy sets, then the refinements
+    cls = full["classifiers"]
+    assert [c["classifier"] for c in cls[: len(CLASSIFIERS)]] == list(CLASSIFIERS.values())
+    assert [c["refine"]["classifier"] for c in cls[len(CLASSIFIERS) :]] == [
+        "svm-rbf",
+        "nearest-sample",
+    ]
+    assert all(c["heuristic"]["file"] == tax for c in cls)
+    for table, cfgs in full.items():
+        assert len(set(_names(cfgs))) == len(cfgs), f"duplicate names in {table}"
+        for c in cfgs:
+            parsed = QuashConfig.from_dict(c)  # an unknown key would raise ConfigError
+            assert parsed.name == c["name"]
+    # without a taxonomy or an llm: no taxonomy rows, no classifier table, a 2 x 2 grid
+    bare = bench_configs(None, ENCODER)
+    assert "classifiers" not in bare and len(bare["prompt"]) == 2
+    offline = [s for s in SOURCES if s not in ("taxonomy", "llm")]
+    assert _names(bare["sources"]) == [f"{s} x {a}" for s in offline for a in offline]
+
+
+def test_quash_bench_cli_writes_the_tables_it_was_asked_for(scene, tmp_path, capsys):
+    out = tmp_path / "bench"
+    code = main(
+        [
+            "bench",
+            str(scene / "scene.npz"),
+            "--encoder",
+            ENCODER,
+            "--tables",
+            "antonyms,classifiers",
+            "--no-cache",
+            "--out",
+            str(out),
+        ]
+    )
+    assert code == 0, capsys.readouterr().err
+    printed = capsys.readouterr().out
+    data = json.loads((out / "bench.json").read_text())
+    assert list(data) == ["antonyms"]  # classifiers need --taxonomy
+    md = (out / "bench.md").read_text()
+    assert "## Classifiers\n\n_skipped: needs --taxonomy_" in md
+    assert "table antonyms: done" in printed and "## Antonyms (baseline)" in printed
+    assert (out / "antonyms.png").read_bytes()[:4] == b"\x89PNG"
+    assert not (out / "classifiers.png").exists()
+    rows = data["antonyms"]["configs"]
+    cfgs = {c["name"]: c for c in bench_configs(None, ENCODER)["antonyms"]}
+    assert sorted(_names(rows)) == sorted(cfgs)
+    f1 = [r["mean"]["f1"] for r in rows]
+    assert f1 == sorted(f1, reverse=True), "rows are ranked by F1"
+    # one row recomputed independently: its config's masks, scored query by query
+    row = next(r for r in rows if r["name"] == "baseline other")
+    quash = Quash.from_config({**cfgs["baseline other"], "cache": False})
+    lmap = quash.read_map(scene / "scene.npz")
+    names = list(lmap.label_names)
+    present = [names[i] for i in np.unique(lmap.labels) if names[i] not in DEFAULT_EXCLUDE]
+    assert sorted(row["per_query"]) == sorted(present)
+    valid = valid_items(lmap.labels, names, exclude=DEFAULT_EXCLUDE)
+    results = quash.query_many(lmap, present)
+    per = {
+        q: query_metrics(r.mask, lmap.labels == names.index(q), valid)
+        for q, r in zip(present, results)
+    }
+    for q in present:
+        assert row["per_query"][q]["f1"] == pytest.approx(per[q]["f1"])
+    assert row["mean"]["f1"] == pytest.approx(macro_mean(per)["f1"])
+    assert "| baseline other | " in md
+
+
+def test_run_bench_with_a_taxonomy_queries_and_absence(scene, tmp_path):
+    done = []
+    results = run_bench(
+        scene / "scene.npz",
+        str(scene / "scene.taxonomy.yaml"),
+        tmp_path / "b",
+        tables=("classifiers",),
+        encoder=ENCODER,
+        overrides={"cache": False},
+        queries=["wall", "floor", "chair"],
+        absent=("piano",),
+        on_table=done.append,
+    )
+    assert done == ["classifiers"] and list(results) == ["classifiers"]
+    expected = _names(bench_configs(str(scene / "scene.taxonomy.yaml"), ENCODER)["classifiers"])
+    rows = results["classifiers"]["configs"]
+    assert sorted(_names(rows)) == sorted(expected) and not results["classifiers"]["notes"]
+    for r in rows:
+        assert set(r["per_query"]) == {"wall", "floor", "chair"}
+        assert set(r["absence"]["per_query"]) == {"piano"}
+    on_disk = json.loads((tmp_path / "b" / "bench.json").read_text())
+    assert on_disk == json.loads(json.dumps(results))
+
+
+@pytest.mark.parametrize(
+    "args,message",
+    [
+        (["--tables", "antonym"], "Unknown table 'antonym'; known: prompt, antonyms"),
+        (["--taxonomy", "missing.yaml"], "Taxonomy file not found: missing.yaml"),
+    ],
+)
+def test_bench_usage_errors(scene, tmp_path, capsys, args, message):
+    code = main(["bench", str(scene / "scene.npz"), "--out", str(tmp_path / "o"), *args])
+    assert code == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
