@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import logging
 import time
+import warnings
 import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -28,7 +29,7 @@ from sklearn.base import clone
 
 from ..core import registry
 from ..core.config import DEFAULT_CLASSIFIER, DEFAULT_HEURISTIC, PluginSpec, QuashConfig
-from ..core.errors import ConfigError, DimensionMismatchError, QuashError
+from ..core.errors import ConfigError, DimensionMismatchError, EmptyMapWarning, QuashError
 from ..core.interfaces import Encoder, ExpansionContext, Heuristic
 from ..core.text import TextCache, load_templates
 from ..core.types import DEFAULT_NEGATIVES, LatentMap, QueryResult, QuerySet, check_query
@@ -284,6 +285,7 @@ class Quash:
         lmap = self.read_map(source, **read_options)
         t_read = time.perf_counter() - t0
         self.check_dimension(lmap)
+        warn_if_empty(lmap)
         pending: list[_Pending] = []
         for text in texts:
             timings: dict[str, float] = {"read": t_read / len(texts)}
@@ -420,6 +422,22 @@ class _Pending:
     raw: np.ndarray | None = None
     mask: np.ndarray | None = None
     display: np.ndarray | None = None
+
+
+def warn_if_empty(lmap: LatentMap) -> None:
+    """Warn (:class:`~quash_plugins.core.errors.EmptyMapWarning`) when ``lmap`` has no items.
+
+    Upstream mappers write empty maps when nothing was fused; a query on one is an empty
+    result, not an error.
+    """
+    if lmap.n == 0:
+        where = lmap.source.get("path", "the map")
+        warnings.warn(
+            f"{where} is empty (0 items x {lmap.dim}): nothing was fused into it, so every "
+            "query matches nothing.",
+            EmptyMapWarning,
+            stacklevel=3,
+        )
 
 
 def _none_ref() -> None:
