@@ -183,12 +183,17 @@ class Quash:
     # ------------------------------------------------------------------ maps
     def read_map(self, source: Any, adapter: str | None = None, **options: Any) -> LatentMap:
         """Read a map once; later calls with the same unchanged file reuse it."""
-        from ..core.maps import read_map
+        from ..core.maps import read_map, resolve_adapter
 
         if isinstance(source, LatentMap):
             return source
         name = adapter or self.adapter.name
-        opts = {**self.adapter.params, **options} if name == self.adapter.name else options
+        if name in (None, "auto"):
+            # Resolve "auto" first, so the options the config gives for the adapter it
+            # picks (or for "auto" itself) apply.
+            source, name = resolve_adapter(source, name)
+        configured = self.adapter.name in (name, "auto")
+        opts = {**self.adapter.params, **options} if configured else options
         key: Any
         if isinstance(source, (str, Path)):
             p = Path(source).expanduser()
