@@ -64,7 +64,9 @@ class Quash:
     threshold
         Items with ``score > threshold`` match.
     prompt_templates
-        ``{"mode": "mean"|"all", "templates": "default"|list|path}`` or None.
+        ``{"mode": "mean"|"all", "templates": "default"|"vlmaps"|list|path,
+        "normalize": bool}`` or None. ``normalize: false`` keeps the template mean as it
+        is (VLMaps' rule); see :func:`quash_plugins.engine.training.training_set`.
     map_negatives
         Options for map-mined negatives (the ``map-negatives`` heuristic wraps
         ``heuristic``), or None.
@@ -127,11 +129,14 @@ class Quash:
         self.prompt_templates = prompt_templates
         self._templates = None
         if prompt_templates is not None:
-            unknown = set(prompt_templates) - {"mode", "templates"}
+            unknown = set(prompt_templates) - {"mode", "templates", "normalize"}
             if unknown:
                 raise ConfigError(
-                    f"prompt_templates does not accept {sorted(unknown)}; it takes mode and templates."
+                    f"prompt_templates does not accept {sorted(unknown)}; it takes mode, "
+                    "templates and normalize."
                 )
+            if not isinstance(prompt_templates.get("normalize", True), bool):
+                raise ConfigError("prompt_templates: normalize must be true or false.")
             self._templates = load_templates(prompt_templates.get("templates", "default"))
         self.map_negatives = map_negatives
         if map_negatives is not None:
@@ -257,14 +262,22 @@ class Quash:
             qs.provenance["prompt_templates"] = {
                 "mode": self.prompt_templates.get("mode", "mean"),
                 "count": len(self._templates or []),
+                "normalize": bool(self.prompt_templates.get("normalize", True)),
             }
         # A weak reference to the map guards against a new map reusing a freed one's id.
         self._querysets[key] = (weakref.ref(lmap) if lmap is not None else _none_ref, qs)
         return qs
 
     def training_set(self, qs: QuerySet) -> tuple[np.ndarray, np.ndarray, list[str]]:
-        mode = (self.prompt_templates or {}).get("mode", "mean")
-        return training_set(self.encoder, qs, self.cache, self._templates, mode)
+        opts = self.prompt_templates or {}
+        return training_set(
+            self.encoder,
+            qs,
+            self.cache,
+            self._templates,
+            opts.get("mode", "mean"),
+            bool(opts.get("normalize", True)),
+        )
 
     def fit(self, qs: QuerySet) -> Any:
         """Clone the classifier template and fit it on the query set's embeddings."""
