@@ -38,7 +38,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         action="append",
         default=[],
         metavar="KEY=VALUE",
-        help="Adapter option, e.g. -o gs=1000 -o cs=0.05 (values parsed as YAML); repeatable.",
+        help="Adapter option, e.g. -o cs=0.05 -o positions=upstream (values parsed as YAML); "
+        "repeatable.",
     )
     p.add_argument("--compress", action="store_true", help="Compress in-memory maps (slower).")
     p.add_argument("--json", action="store_true", help="Print a JSON summary.")
