@@ -399,7 +399,10 @@ def test_live_vlmap_mobile_and_camera(tmp_path):
     )
     assert detect_adapter(live) == "vlmaps-live"
     lmap = read_map(live, positions="upstream")
-    assert lmap.embeddings is arrays["grid_feat"]  # not copied
+    assert lmap.embeddings.base is arrays["grid_feat"]  # not copied whole
+    before = arrays["grid_feat"].copy()
+    assert np.isfinite(read_all(lmap)).all()
+    np.testing.assert_array_equal(arrays["grid_feat"], before)  # read, never normalised in place
     gp = arrays["grid_pos"].astype(np.float64)
     np.testing.assert_allclose(lmap.positions[:, 1], (30 - gp[:, 1]) * 0.1, atol=1e-5)
     np.testing.assert_array_equal(lmap.colors, arrays["grid_rgb"])
