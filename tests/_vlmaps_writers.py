@@ -7,6 +7,13 @@ int32, ``weight`` (N,) float32, ``occupied_ids`` (gs, gs, vh) int32 (-1 empty, e
 scalar ``cs``. 2D (``create_lseg_map_batch``): ``map/grid_lseg_1.npy`` (gs, gs, D) float32,
 ``color_top_down_1.npy`` (gs, gs, 3) uint8, ``grid_1_gt.npy`` (gs, gs) int32,
 ``obstacles.npy`` (gs, gs) uint8, ``weight_lseg_1.npy`` (gs, gs) float64.
+
+:func:`mobile_map` / :func:`write_vlmaps_h5df` write arrays of random cells. The builders
+below (:func:`build_mobile_map`, :func:`build_camera_map`, :func:`build_lseg_grid`) bin
+metric points the way VLMaps' own builders do, and :func:`save_3d_map`,
+:func:`save_3d_map_cam` and :func:`save_lseg_folder` save them as its save functions do,
+so tests know the true points behind every cell (both signs of the origin, any gs,
+camera base, empty maps).
 """
 
 from __future__ import annotations
