@@ -28,6 +28,8 @@ __all__ = [
     "read_zarr_map",
     "write_zarr_map",
     "VLMapsLiveAdapter",
+    "write_openlex3d_map",
+    "write_pcd",
 ]
 
 #: Public helpers, imported on first use (keeps ``import quash_plugins.adapters`` light).
@@ -39,6 +41,8 @@ _LAZY = {
     "read_zarr_map": "._zarr_store",
     "write_zarr_map": "._zarr_store",
     "VLMapsLiveAdapter": "._vlmaps_live",
+    "write_openlex3d_map": "._openlex3d",
+    "write_pcd": "._openlex3d",
 }
 
 

@@ -156,9 +156,9 @@ class ConceptFusionAdapter(MapAdapter):
             raise MapFormatError(
                 f"{label_emb}: field 'embeddings' must be 2-D (N, D); got shape {emb.shape}."
             )
-        if emb.shape[0] == 0 or emb.shape[1] == 0 or n == 0:
+        if emb.shape[1] == 0:
             raise MapFormatError(
-                f"{label_emb}: the map is empty (embeddings {emb.shape}, points {points_ds.shape})."
+                f"{label_emb}: field 'embeddings' has no feature dimension (shape {emb.shape})."
             )
         if emb.dtype.kind not in "fiu":
             raise MapFormatError(

@@ -63,16 +63,25 @@ def write_npz_streaming(path: str | Path, lmap: LatentMap, chunk_rows: int = 655
     return path
 
 
+#: Output formats of :func:`convert_map`; ``auto`` picks npz or zarr by the suffix.
+FORMATS = ("auto", "npz", "zarr", "openlex3d")
+
+
 def convert_map(
     source: Any,
     destination: str | Path,
     adapter: str = "auto",
     compress: bool = False,
+    format: str = "auto",
     **options: Any,
 ) -> Path:
-    """Read ``source`` with ``adapter`` and write it to ``destination`` (``.npz`` or ``.zarr``).
+    """Read ``source`` with ``adapter`` and write it to ``destination``.
 
-    The source is never written to; ``destination`` must differ from it.
+    ``format``: ``"npz"`` (our portable map), ``"zarr"`` (a chunked store),
+    ``"openlex3d"`` (a folder holding OpenLex3D's ``embeddings.npy``, ``index.npy`` and
+    ``point_cloud.pcd``; see :func:`~quash_plugins.adapters._openlex3d.write_openlex3d_map`)
+    or ``"auto"``: npz or zarr by the destination's suffix. The source is never written
+    to; ``destination`` must differ from it and lie outside it.
 
     Examples
     --------
@@ -88,11 +97,25 @@ def convert_map(
             dst.resolve() == src.resolve() or src.resolve() in dst.resolve().parents
         ):
             raise UsageError(f"Destination {dst} would overwrite or sit inside the input {src}.")
+    if format not in FORMATS:
+        raise UsageError(f"Unknown output format {format!r}; use one of {', '.join(FORMATS)}.")
     suffix = dst.suffix.lower()
-    if suffix not in (".npz", ".zarr"):
+    if format == "openlex3d":
+        from ._openlex3d import write_openlex3d_map
+
+        if suffix in (".npz", ".zarr"):
+            raise UsageError(
+                f"Destination {dst}: --format openlex3d writes a folder (the scene folder "
+                f"of OpenLex3D's predictions), not a {suffix} file."
+            )
+        return write_openlex3d_map(read_map(source, adapter, **options), dst)
+    if format == "auto" and suffix not in (".npz", ".zarr"):
         raise UsageError(
-            f"Destination {dst} must end in .npz (portable map) or .zarr (Zarr store)."
+            f"Destination {dst} must end in .npz (portable map) or .zarr (Zarr store), or "
+            "pass --format openlex3d to write OpenLex3D's prediction folder."
         )
+    if format in ("npz", "zarr") and suffix != f".{format}":
+        raise UsageError(f"Destination {dst} must end in .{format} for --format {format}.")
     lmap = read_map(source, adapter, **options)
     if suffix == ".zarr":
         from ._zarr_store import write_zarr_map

@@ -30,7 +30,7 @@ import numpy as np
 from ..core.errors import MapFormatError, QuashError
 from ..core.interfaces import MapAdapter
 from ..core.types import LatentMap
-from ._rows import IndexedRows, colors_to_uint8, scan_finite, should_scan
+from ._rows import IndexedRows, colors_to_uint8, copy_on_read, scan_finite, should_scan
 
 log = logging.getLogger(__name__)
 
@@ -156,8 +156,10 @@ class OpenLex3DAdapter(MapAdapter):
             raise MapFormatError(
                 f"{emb_label}: field 'embeddings' must be 2-D (n_objects, D); got shape {table.shape}."
             )
-        if table.shape[0] == 0 or table.shape[1] == 0:
-            raise MapFormatError(f"{emb_label}: field 'embeddings' is empty (shape {table.shape}).")
+        if table.shape[1] == 0:
+            raise MapFormatError(
+                f"{emb_label}: field 'embeddings' has no feature dimension (shape {table.shape})."
+            )
         if table.dtype.kind not in "fiu":
             raise MapFormatError(
                 f"{emb_label}: field 'embeddings' must hold numbers; got {table.dtype}."
@@ -179,7 +181,7 @@ class OpenLex3DAdapter(MapAdapter):
         ):
             scan_finite(table, str(emb_label), "embeddings")
         dense = len(index) == table.shape[0] and np.array_equal(index, np.arange(len(index)))
-        embeddings = table if dense else IndexedRows(table, index)
+        embeddings = copy_on_read(table) if dense else IndexedRows(table, index)
         return LatentMap(
             embeddings=embeddings,
             kind="points",
@@ -197,8 +199,8 @@ class OpenLex3DAdapter(MapAdapter):
 
     @staticmethod
     def _check_index(index: np.ndarray, label: Path, n_objects: int) -> np.ndarray:
-        if index.size == 0:
-            raise MapFormatError(f"{label}: field 'index' is empty; the map has no points.")
+        if index.size == 0:  # an empty map (0 points)
+            return np.zeros(0, dtype=np.int64)
         if index.dtype.kind == "f":
             if not np.isfinite(index).all() or not np.array_equal(index, np.round(index)):
                 raise MapFormatError(
@@ -207,25 +209,21 @@ class OpenLex3DAdapter(MapAdapter):
         elif index.dtype.kind not in "iu":
             raise MapFormatError(f"{label}: field 'index' must hold integers; got {index.dtype}.")
         index = index.astype(np.int64)
+        if int(index.min()) < -1:
+            raise MapFormatError(f"{label}: field 'index' must be >= -1 (-1 = no object).")
         top = int(index.max())
         if top >= n_objects:
             raise MapFormatError(
                 f"{label}: field 'index' refers to row {top}, but embeddings.npy has only "
                 f"{n_objects} rows."
             )
-        if int(index.min()) < -1:
-            raise MapFormatError(f"{label}: field 'index' must be >= -1 (-1 = no object).")
         return index
 
     @staticmethod
     def _read_cloud(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
         o3d = _open3d()
         pcd = o3d.io.read_point_cloud(str(path))
-        points = np.asarray(pcd.points, dtype=np.float32)
-        if points.ndim != 2 or len(points) == 0:
-            raise MapFormatError(
-                f"{path}: field 'points' is empty or unreadable (open3d read no points)."
-            )
+        points = np.asarray(pcd.points, dtype=np.float32).reshape(-1, 3)
         if not np.isfinite(points).all():
             bad = int(np.argwhere(~np.isfinite(points))[0][0])
             raise MapFormatError(
@@ -266,4 +264,131 @@ def write_openlex3d(
     o3d.io.write_point_cloud(str(folder / "point_cloud.pcd"), pcd)
     np.save(folder / "embeddings.npy", np.asarray(embeddings))
     np.save(folder / "index.npy", np.asarray(index))
+    return folder
+
+
+# ---------------------------------------------------------------------------------------
+# Export: any map as OpenLex3D's prediction layout (``quash convert --format openlex3d``)
+
+#: Written beside the triple: where it came from, and the mark that lets a later export
+#: replace the folder.
+EXPORT_MARKER = "quash_export.json"
+PCD_POINT = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("rgb", "<u4")])
+PCD_POINT_XYZ = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4")])
+
+
+def pcd_header(n: int, colors: bool) -> bytes:
+    """A binary PCD v0.7 header (the layout open3d writes: x y z float32, packed rgb)."""
+    fields = "x y z rgb" if colors else "x y z"
+    size = "4 4 4 4" if colors else "4 4 4"
+    types = "F F F U" if colors else "F F F"
+    count = "1 1 1 1" if colors else "1 1 1"
+    return (
+        "# .PCD v0.7 - Point Cloud Data file format\n"
+        "VERSION 0.7\n"
+        f"FIELDS {fields}\nSIZE {size}\nTYPE {types}\nCOUNT {count}\n"
+        f"WIDTH {n}\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {n}\nDATA binary\n"
+    ).encode("ascii")
+
+
+def write_pcd(
+    path: str | Path, points: np.ndarray, colors: np.ndarray | None = None, chunk: int = 1 << 20
+) -> Path:
+    """Write a binary PCD file: ``points (N, 3)`` metres, optional ``colors (N, 3)`` uint8.
+
+    Our own writer (no open3d needed, exact uint8 colours, empty clouds allowed, written
+    in chunks); its output is the layout open3d itself writes and reads: fields
+    ``x y z rgb``, float32 coordinates, colour packed as ``r << 16 | g << 8 | b``.
+    """
+    points = np.asarray(points)
+    n = len(points)
+    if points.shape != (n, 3):
+        raise ValueError(f"points must be (N, 3); got {points.shape}")
+    if colors is not None:
+        colors = np.asarray(colors, dtype=np.uint8)
+        if colors.shape != (n, 3):
+            raise ValueError(f"colors must be (N, 3) like the points; got {colors.shape}")
+    path = Path(path)
+    with open(path, "wb") as fh:
+        fh.write(pcd_header(n, colors is not None))
+        for start in range(0, n, chunk):
+            stop = min(n, start + chunk)
+            rec = np.empty(stop - start, PCD_POINT if colors is not None else PCD_POINT_XYZ)
+            p = np.asarray(points[start:stop], dtype=np.float32)
+            rec["x"], rec["y"], rec["z"] = p[:, 0], p[:, 1], p[:, 2]
+            if colors is not None:
+                c = colors[start:stop].astype(np.uint32)
+                rec["rgb"] = (c[:, 0] << 16) | (c[:, 1] << 8) | c[:, 2]
+            fh.write(rec.tobytes())
+    return path
+
+
+def is_openlex3d_export(path: str | Path) -> bool:
+    """True for a folder written by :func:`write_openlex3d_map` (it may be replaced)."""
+    p = Path(path)
+    return p.is_dir() and (p / EXPORT_MARKER).is_file()
+
+
+def write_openlex3d_map(lmap: LatentMap, folder: str | Path, chunk_rows: int = 65536) -> Path:
+    """Write ``lmap`` as OpenLex3D's prediction folder, atomically.
+
+    ``embeddings.npy`` (N, D) float32 (values as stored, not normalised: OpenLex3D takes
+    cosines), ``index.npy`` (N,) int64 ``arange`` (a dense map: one row per point),
+    ``point_cloud.pcd`` (the map's positions and colours) and ``quash_export.json``
+    (provenance). Embeddings are copied ``chunk_rows`` rows at a time. The folder is
+    written beside ``folder`` and renamed into place; an existing ``folder`` is replaced
+    only when it is a previous export.
+    """
+    import json
+    import os
+    import shutil
+    import uuid
+
+    from ..core.errors import UsageError
+
+    folder = Path(folder).expanduser()
+    if lmap.positions is None:
+        raise UsageError(
+            f"{lmap.source.get('path', 'the map')} has no positions (a pixel map?); "
+            "OpenLex3D's point_cloud.pcd needs one 3D point per item."
+        )
+    replaceable = not folder.exists() or is_openlex3d_export(folder)
+    if not replaceable and (not folder.is_dir() or any(folder.iterdir())):
+        raise UsageError(
+            f"{folder} exists and is not a previous OpenLex3D export of quash (no "
+            f"{EXPORT_MARKER}); choose a new folder so nothing of yours is replaced."
+        )
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    tmp = folder.parent / f".{folder.name}.tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+    n, d = lmap.n, lmap.dim
+    try:
+        tmp.mkdir()
+        out = np.lib.format.open_memmap(tmp / "embeddings.npy", "w+", np.float32, (n, d))
+        for start in range(0, n, chunk_rows):
+            stop = min(n, start + chunk_rows)
+            out[start:stop] = np.asarray(lmap.embeddings[start:stop], dtype=np.float32)
+        out.flush()
+        del out
+        np.save(tmp / "index.npy", np.arange(n, dtype=np.int64))
+        write_pcd(tmp / "point_cloud.pcd", lmap.positions, lmap.colors)
+        meta = {
+            "format": "openlex3d-predictions",
+            "written_by": "quash-plugins",
+            "n_points": n,
+            "dim": d,
+            "dense": True,
+            "source": {k: v for k, v in lmap.source.items() if isinstance(v, (str, int, float))},
+        }
+        (tmp / EXPORT_MARKER).write_text(json.dumps(meta, indent=2) + "\n", encoding="utf-8")
+        if folder.exists():
+            old = folder.parent / f".{folder.name}.old-{uuid.uuid4().hex[:8]}"
+            os.replace(folder, old)
+            os.replace(tmp, folder)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(tmp, folder)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    log.info("wrote OpenLex3D predictions %s: %d points x %d", folder, n, d)
     return folder

@@ -9,14 +9,23 @@ VLMaps writes one HDF5 file per scene (``vlmap/vlmaps.h5df`` for mobile-base map
 ``grid_pos``       (N, 3) int32     ``[row, col, height]`` cells (required)
 ``grid_rgb``       (N, 3) uint8     colour (float 0-255 in some builds)
 ``weight``         (N,) float32     accumulated fusion weight
-``occupied_ids``   (gs, gs, vh)     -1 where empty, else the row index
+``occupied_ids``   (gs, gs, vh)     -1 where empty, else the row index (camera-base:
+                   (nx, ny, nz))
 ``mapped_iter_list`` (F,) int32     frames already fused
-``pcd_min/pcd_max`` (3,) float      camera-base maps only
-``cs``             scalar           camera-base maps only: cell size in metres
+``pcd_min/pcd_max`` (3,) float64    camera-base maps only
+``cs``             scalar float64   camera-base maps only: cell size in metres
 ``grid_semantic``  (N,) int         forks: ground-truth class per row
 ================== ================ ===================================================
 
-Only ``grid_feat`` and ``grid_pos`` are required. ``grid_feat`` stays an ``h5py.Dataset``
+Only ``grid_feat`` and ``grid_pos`` are required. The grid size ``gs`` of a mobile-base
+map is ``occupied_ids.shape[0]``; a camera-base map stores ``cs``. Both are read from the
+file, and a configured ``gs`` or ``cs`` that disagrees with it is an error naming both
+(a map built with gs = 400 and read with 1000 would be off by 15 m). Mobile-base files
+do not store ``cs``: it comes from the ``cs`` option (VLMaps' default 0.05).
+
+Positions are cell centres by default (see :mod:`._vlmaps_common`); pass
+``positions="upstream"`` for VLMaps' own ``grid_id2base_pos_3d``. An empty map (no point
+was fused: ``grid_feat`` of shape (0, D)) is read as a map of 0 items. ``grid_feat`` stays an ``h5py.Dataset``
 (never copied; float16 stays float16) and is L2-normalised chunk by chunk when read
 (``LatentMap.normalize``). Zero rows are unobserved and never match.
 
@@ -42,14 +51,17 @@ from ..core.interfaces import MapAdapter
 from ..core.types import LatentMap
 from ._vlmaps_common import (
     DEFAULT_CS,
-    DEFAULT_GS,
     POSE_TYPES,
     camera_base_positions,
+    check_against_stored,
+    check_cells_in_grid,
     check_labels,
+    check_positions_option,
     find_obj2cls,
     fit_label_names,
     load_label_names,
     mobile_base_positions,
+    mobile_grid_size,
     rgb_to_uint8,
     scan_finite,
 )
@@ -95,10 +107,17 @@ class VLMapsAdapter(MapAdapter):
     Parameters
     ----------
     gs
-        Grid size in cells for mobile-base maps (VLMaps ``map_config.grid_size``, 1000).
+        Grid size in cells of mobile-base maps (VLMaps ``map_config.grid_size``). Read
+        from ``occupied_ids`` when the file has it; a value here must then agree. Used
+        (default 1000) only for files without ``occupied_ids``.
     cs
-        Cell size in metres (``map_config.cell_size``, 0.05). Camera-base files store
-        their own ``cs``; an explicit value here overrides it.
+        Cell size in metres (``map_config.cell_size``, default 0.05) of mobile-base maps,
+        whose files do not store it. Camera-base files store ``cs``; a value here must
+        then agree.
+    positions
+        ``"centre"`` (default): each cell's centre in metres. ``"upstream"``: VLMaps' own
+        ``grid_id2base_pos_3d`` (the cell face nearest the origin). Camera-base maps:
+        both are ``pcd_min + grid_pos * cs``, the exact cell centre.
     pose_type
         ``"auto"`` (camera-base when the file holds ``pcd_min``), ``"mobile_base"`` or
         ``"camera_base"``.
@@ -133,9 +152,11 @@ class VLMapsAdapter(MapAdapter):
         label_names: Any = None,
         semantic_field: str = "grid_semantic",
         check_finite: bool = True,
+        positions: str = "centre",
     ) -> None:
         self.gs = gs
         self.cs = cs
+        self.positions = positions
         self.pose_type = pose_type
         self.label_names = label_names
         self.semantic_field = semantic_field
@@ -185,7 +206,15 @@ class VLMapsAdapter(MapAdapter):
         return lmap
 
     def _options(self, options: dict[str, Any]) -> dict[str, Any]:
-        known = ("gs", "cs", "pose_type", "label_names", "semantic_field", "check_finite")
+        known = (
+            "gs",
+            "cs",
+            "pose_type",
+            "label_names",
+            "semantic_field",
+            "check_finite",
+            "positions",
+        )
         unknown = set(options) - set(known)
         if unknown:
             raise QuashError(
@@ -197,6 +226,7 @@ class VLMapsAdapter(MapAdapter):
                 f"Adapter 'vlmaps': pose_type must be one of {POSE_TYPES}; "
                 f"got {opts['pose_type']!r}."
             )
+        opts["positions"] = check_positions_option(opts["positions"], self.name)
         return opts
 
     def _read_open(self, f: Any, path: Path, opts: dict[str, Any]) -> LatentMap:
@@ -214,11 +244,15 @@ class VLMapsAdapter(MapAdapter):
                 f"{getattr(feat, 'shape', None)}."
             )
         n, d = (int(x) for x in feat.shape)
-        if n == 0 or d == 0:
-            raise MapFormatError(f"{where}: field 'grid_feat' is empty (shape {feat.shape}).")
+        if d == 0:
+            raise MapFormatError(
+                f"{where}: field 'grid_feat' has no feature dimension (shape {feat.shape})."
+            )
         if feat.dtype.kind not in "fiu":
             raise MapFormatError(f"{where}: field 'grid_feat' must hold numbers; got {feat.dtype}.")
         grid_pos = np.asarray(f["grid_pos"][()])
+        if n == 0 and grid_pos.size == 0:
+            grid_pos = grid_pos.reshape(0, 3)
         if grid_pos.shape != (n, 3):
             raise MapFormatError(
                 f"{where}: field 'grid_pos' must have shape (N, 3) with N = {n} (rows of "
@@ -228,7 +262,7 @@ class VLMapsAdapter(MapAdapter):
             grid_pos.dtype.kind == "f" and not np.isfinite(grid_pos).all()
         ):
             raise MapFormatError(f"{where}: field 'grid_pos' must hold finite cell indices.")
-        if opts["check_finite"]:
+        if opts["check_finite"] and n:
             scan_finite(feat, where, "grid_feat", rows=max(1, (64 * 2**20) // (4 * d)))
 
         pose_type = opts["pose_type"]
@@ -241,6 +275,7 @@ class VLMapsAdapter(MapAdapter):
             "pose_type": pose_type,
             "encoder_hint": f"lseg CLIP ViT-B/32 {d}" if d == 512 else f"{d}-d features",
         }
+        occupied = f["occupied_ids"].shape if "occupied_ids" in f else None
         if pose_type == "camera_base":
             if "pcd_min" not in f:
                 raise MapFormatError(
@@ -251,23 +286,42 @@ class VLMapsAdapter(MapAdapter):
             if pcd_min.shape != (3,) or not np.isfinite(pcd_min).all():
                 raise MapFormatError(f"{where}: field 'pcd_min' must be 3 finite numbers.")
             cs = opts["cs"]
-            if cs is None:
-                if "cs" not in f:
+            if "cs" in f:
+                stored = np.asarray(f["cs"][()], dtype=np.float64).reshape(-1)
+                if stored.size != 1:
                     raise MapFormatError(
-                        f"{where}: camera-base map lacks field 'cs'; pass the cell size as "
-                        "option cs."
+                        f"{where}: field 'cs' must be one number (the cell size); got shape "
+                        f"{stored.shape}."
                     )
-                cs = float(np.asarray(f["cs"][()]).reshape(-1)[0])
+                check_against_stored(
+                    cs,
+                    float(stored[0]),
+                    "cs",
+                    where,
+                    "field 'cs'",
+                    "Drop the cs option: camera-base maps store their cell size.",
+                )
+                cs = float(stored[0])
+            elif cs is None:
+                raise MapFormatError(
+                    f"{where}: camera-base map lacks field 'cs'; pass the map config's "
+                    "cell_size as option cs."
+                )
+            _check_cs(cs, where)
             positions = camera_base_positions(grid_pos, pcd_min, float(cs))
             source["pcd_min"] = pcd_min.tolist()
+            if occupied is not None:
+                source["grid_shape"] = [int(x) for x in occupied]
         else:
-            gs = DEFAULT_GS if opts["gs"] is None else opts["gs"]
+            gs, gs_from = mobile_grid_size(occupied, opts["gs"], where, "occupied_ids")
+            check_cells_in_grid(grid_pos, gs, where, "grid_pos")
             cs = DEFAULT_CS if opts["cs"] is None else opts["cs"]
-            positions = mobile_base_positions(grid_pos, float(gs), float(cs))
-            source["gs"] = float(gs)
+            _check_cs(cs, where)
+            positions = mobile_base_positions(grid_pos, gs, float(cs), opts["positions"])
+            source["gs"] = int(gs)
+            source["gs_from"] = gs_from
+            source["positions"] = opts["positions"]
         cs = float(cs)
-        if not np.isfinite(cs) or cs <= 0:
-            raise MapFormatError(f"{where}: cell size cs must be a positive number; got {cs}.")
         source["cs"] = cs
 
         colors = None
@@ -325,6 +379,15 @@ class VLMapsAdapter(MapAdapter):
             f.create_dataset("occupied_ids", data=occupied)
             f.create_dataset("grid_rgb", data=rng.integers(0, 256, (n, 3), dtype=np.uint8))
         return path
+
+
+def _check_cs(cs: Any, where: str) -> None:
+    try:
+        ok = float(cs) > 0 and np.isfinite(float(cs))
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise MapFormatError(f"{where}: cell size cs must be a positive number; got {cs!r}.")
 
 
 def _close_quietly(f: Any) -> None:

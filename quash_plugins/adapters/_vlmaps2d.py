@@ -11,12 +11,17 @@ VLMaps' original release (``create_lseg_map_batch``) writes, in ``<scene>/map/``
 ========================== =============== ========================================
 
 with ``gs = 1000`` and ``cs = 0.05`` (the defaults of ``create_lseg_map_batch``). A
-point at camera-frame ``(x, z)`` of the first frame lands in row ``gs/2 - z/cs`` and
-column ``gs/2 + x/cs``. We report each cell in the same right-handed, z-up frame as the
-3D mobile-base maps: ``x = (gs/2 - row) * cs`` (forward), ``y = (gs/2 - col) * cs``
-(left), ``z = 0``, evaluated at the cell centre (``row + 0.5``, ``col + 0.5``). VLMaps'
-own ``grid_id2pos`` uses ``row`` itself, which, because VLMaps truncates when binning,
-is the cell corner nearest the map origin; pass ``cell_offset=0`` to get exactly that.
+point at ``(x, z)`` of the first camera frame (x right, z forward) lands in column
+``int(gs/2 + int(x/cs))`` and row ``int(gs/2 - int(z/cs))``; ``int`` truncates toward
+zero, so the cells at the origin row and column are two cells wide and every other
+cell's centre lies half a cell further from the origin than the nearest face.
+
+We report each cell in the same right-handed, z-up frame as the 3D mobile-base maps
+(x forward = camera z, y left = -camera x, z = 0), at the cell centre by default:
+``x = (k + 0.5 * sign(k)) * cs`` with ``k = gs//2 - row``, and likewise ``y`` with
+``k = gs//2 - col``. ``positions="upstream"`` gives VLMaps' own ``grid_id2pos``
+instead (``x = (gs/2 - row) * cs``, ``y = (gs/2 - col) * cs``: the face nearest the
+origin). The grid size is the file's; ``cs`` is not stored (option, default 0.05).
 
 Design choices:
 
@@ -28,7 +33,8 @@ Design choices:
   ``np.load(mmap_mode="r")``; non-zero cells are found in row blocks, and the map's
   embeddings are a lazy :class:`~quash_plugins.adapters._vlmaps_common.RowSubset` of the
   memory map, so the grid is never loaded whole. ``keep_empty=True`` keeps all
-  ``gs * gs`` cells (zero rows never match).
+  ``gs * gs`` cells (zero rows never match). A grid with no observed cell is an empty
+  map (0 items).
 """
 
 from __future__ import annotations
@@ -42,10 +48,13 @@ import numpy as np
 from ..core.errors import MapFormatError, QuashError
 from ..core.interfaces import MapAdapter
 from ..core.types import LatentMap
+from ._rows import copy_on_read
 from ._vlmaps_common import (
     DEFAULT_CS,
     RowSubset,
+    cell_centres,
     check_labels,
+    check_positions_option,
     find_obj2cls,
     fit_label_names,
     load_label_names,
@@ -97,9 +106,9 @@ class VLMaps2DAdapter(MapAdapter):
         scene's ``obj2cls_dict.txt`` if present.
     keep_empty
         Keep unobserved (all-zero) cells as items instead of dropping them.
-    cell_offset
-        Fraction of a cell added to ``row``/``col`` before converting to metres: 0.5
-        (default) gives cell centres, 0 VLMaps' ``grid_id2pos`` corner.
+    positions
+        ``"centre"`` (default): cell centres. ``"upstream"``: VLMaps' own ``grid_id2pos``
+        (the cell face nearest the origin).
     block_rows
         Grid rows scanned per block when finding observed cells.
 
@@ -120,13 +129,13 @@ class VLMaps2DAdapter(MapAdapter):
         cs: float = DEFAULT_CS,
         label_names: Any = None,
         keep_empty: bool = False,
-        cell_offset: float = 0.5,
+        positions: str = "centre",
         block_rows: int = 64,
     ) -> None:
         self.cs = cs
         self.label_names = label_names
         self.keep_empty = keep_empty
-        self.cell_offset = cell_offset
+        self.positions = positions
         self.block_rows = block_rows
 
     def sniff(self, source: Any) -> bool:
@@ -140,7 +149,7 @@ class VLMaps2DAdapter(MapAdapter):
             return False
 
     def read(self, source: Any, **options: Any) -> LatentMap:
-        known = ("cs", "label_names", "keep_empty", "cell_offset", "block_rows")
+        known = ("cs", "label_names", "keep_empty", "positions", "block_rows")
         unknown = set(options) - set(known)
         if unknown:
             raise QuashError(
@@ -148,6 +157,7 @@ class VLMaps2DAdapter(MapAdapter):
                 f"{', '.join(known)}."
             )
         opts = {k: options.get(k, getattr(self, k)) for k in known}
+        opts["positions"] = check_positions_option(opts["positions"], self.name)
         grid_path = resolve_grid(source)
         if grid_path is None:
             raise MapFormatError(
@@ -166,18 +176,19 @@ class VLMaps2DAdapter(MapAdapter):
             raise MapFormatError(f"{where}: the feature grid is empty (shape {grid.shape}).")
         flat = grid.reshape(gs * gs, d)  # a view of the memory map, not a copy
         observed = _observed_cells(grid, where, int(opts["block_rows"]))
-        if observed.size == 0 and not opts["keep_empty"]:
-            raise MapFormatError(f"{where}: every cell is zero (unobserved); the map is empty.")
         index = np.arange(gs * gs, dtype=np.int64) if opts["keep_empty"] else observed
-        embeddings: Any = flat if opts["keep_empty"] else RowSubset(flat, index)
+        embeddings: Any = copy_on_read(flat) if opts["keep_empty"] else RowSubset(flat, index)
         rows, cols = np.divmod(index, gs)
         cs = float(opts["cs"])
         if not np.isfinite(cs) or cs <= 0:
             raise MapFormatError(f"{where}: cell size cs must be positive; got {cs}.")
-        off = float(opts["cell_offset"])
         positions = np.zeros((len(index), 3), dtype=np.float32)
-        positions[:, 0] = (gs / 2.0 - (rows + off)) * cs
-        positions[:, 1] = (gs / 2.0 - (cols + off)) * cs
+        if opts["positions"] == "upstream":  # grid_id2pos, turned into the base frame
+            positions[:, 0] = (gs / 2.0 - rows) * cs
+            positions[:, 1] = (gs / 2.0 - cols) * cs
+        else:
+            positions[:, 0] = cell_centres(gs // 2 - rows, cs)
+            positions[:, 1] = cell_centres(gs // 2 - cols, cs)
         grid_index = np.stack([rows, cols, np.zeros_like(rows)], axis=1)
 
         colors = labels = None
@@ -199,6 +210,7 @@ class VLMaps2DAdapter(MapAdapter):
             "gs": gs,
             "cs": cs,
             "observed_cells": int(observed.size),
+            "positions": opts["positions"],
             "encoder_hint": f"lseg CLIP ViT-B/32 {d}" if d == 512 else f"{d}-d features",
         }
         if obstacles_path.is_file():

@@ -1,12 +1,26 @@
 """Helpers shared by the VLMaps adapters (3D file, 2D grids, live object).
 
-Coordinate conventions follow VLMaps' own ``vlmaps/utils/mapping_utils.py``:
+Grid conventions, from VLMaps' own ``vlmaps/utils/mapping_utils.py`` and its builders:
 
-* mobile-base 3D maps store ``grid_pos`` as ``[row, col, height]`` and convert with
-  ``x = (gs/2 - row) * cs``, ``y = (gs/2 - col) * cs``, ``z = height * cs`` (x forward,
-  y left, z up, origin at the first base pose);
-* camera-base 3D maps store ``pcd_min`` and ``cs`` and ``grid_pos = round((p - pcd_min) / cs)``
-  per axis, so ``p = pcd_min + grid_pos * cs``.
+* mobile-base 3D maps store ``grid_pos`` as ``[row, col, height]``. The builder bins a
+  point ``(x, y, z)`` of the first base frame (x forward, y left, z up) with
+  ``row = int(gs/2 - int(x/cs))``, ``col = int(gs/2 - int(y/cs))``, ``h = int(z/cs)``;
+  Python's ``int`` truncates toward zero. Upstream's inverse ``grid_id2base_pos_3d``
+  returns ``x = (gs/2 - row) * cs``, ``y = (gs/2 - col) * cs``, ``z = h * cs``: the face
+  of the cell nearest the origin, not its centre.
+* camera-base 3D maps store ``pcd_min`` and ``cs``, and bin with
+  ``grid_pos = round((p - pcd_min) / cs)`` per axis, so ``p = pcd_min + grid_pos * cs``
+  is both the exact inverse and the cell centre.
+* 2023 top-down grids bin the first camera frame's ``(x, z)`` (x right, z forward) with
+  ``col = int(gs/2 + int(x/cs))``, ``row = int(gs/2 - int(z/cs))``; upstream's inverse
+  ``grid_id2pos`` again returns the face nearest the origin.
+
+Because truncation toward zero folds ``(-cs, cs)`` into one index, the cell at the
+origin index is two cells wide (centre 0), and every other cell's centre lies half a
+cell further from the origin than upstream's inverse: ``(k + 0.5 * sign(k)) * cs`` for
+the signed cell count ``k`` from the origin index ``gs // 2``. :func:`cell_centres`
+computes that (``positions="centre"``, the default of every VLMaps adapter);
+``positions="upstream"`` reproduces upstream's inverse functions exactly.
 """
 
 from __future__ import annotations
@@ -19,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from ..core.errors import MapFormatError
+from ..core.errors import MapFormatError, QuashError
 
 log = logging.getLogger(__name__)
 
@@ -27,22 +41,129 @@ log = logging.getLogger(__name__)
 DEFAULT_GS = 1000
 DEFAULT_CS = 0.05
 POSE_TYPES = ("auto", "mobile_base", "camera_base")
+#: How grid cells become metres: the cell's centre, or upstream's own inverse function.
+POSITIONS = ("centre", "upstream")
 
 
-def mobile_base_positions(grid_pos: np.ndarray, gs: float, cs: float) -> np.ndarray:
-    """``(N, 3)`` float32 metres from VLMaps mobile-base ``[row, col, height]`` cells."""
-    g = np.asarray(grid_pos, dtype=np.float64)
+def check_positions_option(value: Any, adapter: str) -> str:
+    """``"centre"`` or ``"upstream"`` (``"center"`` is accepted as a spelling)."""
+    v = "centre" if value == "center" else value
+    if v not in POSITIONS:
+        raise QuashError(
+            f"Adapter {adapter!r}: positions must be 'centre' (the cell's centre, default) or "
+            f"'upstream' (VLMaps' own inverse function, the cell face nearest the origin); "
+            f"got {value!r}."
+        )
+    return str(v)
+
+
+def cell_centres(k: np.ndarray, cs: float) -> np.ndarray:
+    """Metres of the centre of signed cell offsets ``k`` from the origin cell.
+
+    ``int()`` truncation bins ``(k * cs, (k + 1) * cs)`` into ``k > 0``,
+    ``((k - 1) * cs, k * cs)`` into ``k < 0`` and ``(-cs, cs)`` into ``k = 0``, so the
+    centre is ``(k + 0.5 * sign(k)) * cs``.
+    """
+    k = np.asarray(k, dtype=np.float64)
+    return (k + 0.5 * np.sign(k)) * float(cs)
+
+
+def mobile_base_positions(
+    grid_pos: np.ndarray, gs: float, cs: float, positions: str = "centre"
+) -> np.ndarray:
+    """``(N, 3)`` float32 metres from VLMaps mobile-base ``[row, col, height]`` cells.
+
+    ``positions="centre"``: cell centres (origin index ``gs // 2``; height 0 is the
+    two-cell-wide cell around the floor, centre 0). ``"upstream"``:
+    ``grid_id2base_pos_3d``: ``x = (gs/2 - row) * cs``, ``y = (gs/2 - col) * cs``,
+    ``z = height * cs``.
+    """
+    g = np.asarray(grid_pos, dtype=np.float64).reshape(-1, 3)
     out = np.empty((len(g), 3), dtype=np.float64)
-    out[:, 0] = (gs / 2.0 - g[:, 0]) * cs
-    out[:, 1] = (gs / 2.0 - g[:, 1]) * cs
-    out[:, 2] = g[:, 2] * cs
+    if positions == "upstream":
+        out[:, 0] = (gs / 2.0 - g[:, 0]) * cs
+        out[:, 1] = (gs / 2.0 - g[:, 1]) * cs
+        out[:, 2] = g[:, 2] * cs
+    else:
+        origin = float(int(gs) // 2)
+        out[:, 0] = cell_centres(origin - g[:, 0], cs)
+        out[:, 1] = cell_centres(origin - g[:, 1], cs)
+        out[:, 2] = cell_centres(g[:, 2], cs)
     return out.astype(np.float32)
 
 
 def camera_base_positions(grid_pos: np.ndarray, pcd_min: np.ndarray, cs: float) -> np.ndarray:
-    """``(N, 3)`` float32 metres from VLMaps camera-base cells: ``pcd_min + grid_pos * cs``."""
-    g = np.asarray(grid_pos, dtype=np.float64)
+    """``(N, 3)`` float32 metres from VLMaps camera-base cells: ``pcd_min + grid_pos * cs``.
+
+    The builder rounds ``(p - pcd_min) / cs``, so this is the exact inverse and the cell
+    centre at once.
+    """
+    g = np.asarray(grid_pos, dtype=np.float64).reshape(-1, 3)
     return (np.asarray(pcd_min, dtype=np.float64).reshape(1, 3) + g * float(cs)).astype(np.float32)
+
+
+def check_against_stored(
+    option: Any, stored: float, name: str, where: str, field: str, fix: str
+) -> None:
+    """Raise :class:`MapFormatError` when a configured ``option`` disagrees with the map's.
+
+    The message names both values, the field they come from and the fix.
+    """
+    if option is None:
+        return
+    try:
+        same = bool(np.isclose(float(option), float(stored), rtol=1e-9, atol=0.0))
+    except (TypeError, ValueError):
+        same = False
+    if not same:
+        raise MapFormatError(
+            f"{where}: option {name}={option!r} disagrees with the map, whose {field} gives "
+            f"{name} = {stored:g}. {fix}"
+        )
+
+
+def mobile_grid_size(occupied_shape: Any, option: Any, where: str, field: str) -> tuple[int, str]:
+    """``(gs, origin)`` of a mobile-base map: from ``occupied_ids`` when stored, else the
+    option, else VLMaps' default 1000. A disagreeing option is an error naming both."""
+    if occupied_shape is not None:
+        shape = tuple(int(x) for x in occupied_shape)
+        if len(shape) != 3 or shape[0] != shape[1] or shape[0] == 0:
+            raise MapFormatError(
+                f"{where}: field {field!r} of a mobile-base map must have shape (gs, gs, vh); "
+                f"got {shape}. If this is a camera-base map, it needs 'pcd_min' and 'cs'."
+            )
+        check_against_stored(
+            option,
+            shape[0],
+            "gs",
+            where,
+            f"{field!r} (shape {shape})",
+            "Drop the gs option: the grid size is read from the map.",
+        )
+        return shape[0], field
+    if option is not None:
+        return int(option), "option"
+    log.warning(
+        "%s: no %r to read the grid size from; assuming VLMaps' default gs = %d (pass the "
+        "map config's grid_size as option gs if it differs)",
+        where,
+        field,
+        DEFAULT_GS,
+    )
+    return DEFAULT_GS, "default"
+
+
+def check_cells_in_grid(grid_pos: np.ndarray, gs: int, where: str, field: str) -> None:
+    """Rows and columns of a mobile-base map lie in ``[0, gs)``, as the builder keeps them."""
+    if len(grid_pos) == 0:
+        return
+    rc = np.asarray(grid_pos[:, :2])
+    if rc.min() < 0 or rc.max() >= gs:
+        raise MapFormatError(
+            f"{where}: field {field!r} holds rows/columns outside [0, {gs}) (range "
+            f"{int(rc.min())}..{int(rc.max())}) for grid size gs = {gs}; the map and its "
+            "grid size disagree."
+        )
 
 
 def rgb_to_uint8(rgb: Any, where: str, field: str = "grid_rgb") -> np.ndarray:

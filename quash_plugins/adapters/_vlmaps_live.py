@@ -1,17 +1,26 @@
 """``vlmaps-live``: a VLMaps ``VLMap`` object already in memory, recognised by duck typing.
 
 Any object with ``grid_feat`` (N, D) and ``grid_pos`` (N, 3) attributes is accepted.
-Optional attributes: ``grid_rgb`` (N, 3), ``gs``, ``cs``, ``pcd_min`` (camera-base maps)
-and ``map_config.pose_info.pose_type`` (``"mobile_base"`` or ``"camera_base"``; an
-OmegaConf config or a plain dict). VLMaps itself is never imported.
+Optional attributes: ``grid_rgb`` (N, 3), ``occupied_ids``, ``gs``, ``cs``, ``pcd_min``
+(camera-base maps) and ``map_config.pose_info.pose_type`` (``"mobile_base"`` or
+``"camera_base"``; an OmegaConf config or a plain dict). VLMaps itself is never imported.
 
-``grid_feat`` is used as it is (no copy; a torch tensor is viewed through ``.numpy()``),
-rows are L2-normalised chunk by chunk when read, and zero rows never match. Positions
+The grid size of a mobile-base map is ``occupied_ids.shape[0]`` when the object has
+``occupied_ids`` (``VLMap.load_map`` loads it from the file): an explicit ``gs`` option
+that disagrees is an error naming both, and a ``vlmap.gs`` (VLMaps' config value) that
+disagrees is reported as a warning, since VLMaps' own ``get_pos`` would then use the
+wrong grid. Positions are cell centres by default (``positions="upstream"`` for VLMaps'
+``grid_id2base_pos_3d``), as for the ``vlmaps`` file adapter.
+
+``grid_feat`` is used as it is (never copied whole; a torch tensor is viewed through
+``.numpy()``), rows are L2-normalised chunk by chunk when read, each block a copy, so the
+object's own array is never changed; zero rows never match. Positions
 follow the same formulas as the ``vlmaps`` file adapter.
 """
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 from typing import Any
 
@@ -20,18 +29,24 @@ import numpy as np
 from ..core.errors import MapFormatError, QuashError
 from ..core.interfaces import MapAdapter
 from ..core.types import LatentMap
+from ._rows import copy_on_read
 from ._vlmaps_common import (
     DEFAULT_CS,
-    DEFAULT_GS,
     POSE_TYPES,
     camera_base_positions,
+    check_against_stored,
+    check_cells_in_grid,
     check_labels,
+    check_positions_option,
     fit_label_names,
     load_label_names,
     mobile_base_positions,
+    mobile_grid_size,
     rgb_to_uint8,
     scan_finite,
 )
+
+log = logging.getLogger(__name__)
 
 
 def _lookup(obj: Any, *names: str) -> Any:
@@ -68,8 +83,14 @@ class VLMapsLiveAdapter(MapAdapter):
 
     Parameters
     ----------
-    gs, cs
-        Override the object's ``gs``/``cs`` (defaults 1000 and 0.05 when it has none).
+    gs
+        Grid size of mobile-base maps; must agree with ``occupied_ids`` when the object
+        has it. Otherwise it overrides the object's ``gs`` (default 1000).
+    cs
+        Cell size in metres; overrides the object's ``cs`` (default 0.05). For
+        camera-base maps (whose ``cs`` ``VLMap.load_map`` reads from the file) it must agree.
+    positions
+        ``"centre"`` (default) or ``"upstream"``, as for the ``vlmaps`` adapter.
     pose_type
         ``"auto"`` (the object's ``map_config.pose_info.pose_type``; camera-base when it
         has ``pcd_min``), ``"mobile_base"`` or ``"camera_base"``.
@@ -83,7 +104,10 @@ class VLMapsLiveAdapter(MapAdapter):
     >>> vlmap = SimpleNamespace(grid_feat=np.eye(3, dtype=np.float32),
     ...                         grid_pos=np.array([[500, 500, 0], [499, 500, 2], [500, 498, 1]]))
     >>> m = VLMapsLiveAdapter().read(vlmap)
-    >>> [round(float(x), 2) for x in m.positions[1]]
+    >>> [round(float(x), 3) for x in m.positions[1]]
+    [0.075, 0.0, 0.125]
+    >>> up = VLMapsLiveAdapter(positions="upstream").read(vlmap)
+    >>> [round(float(x), 3) for x in up.positions[1]]
     [0.05, 0.0, 0.1]
     """
 
@@ -96,11 +120,13 @@ class VLMapsLiveAdapter(MapAdapter):
         cs: float | None = None,
         pose_type: str = "auto",
         label_names: Any = None,
+        positions: str = "centre",
     ) -> None:
         self.gs = gs
         self.cs = cs
         self.pose_type = pose_type
         self.label_names = label_names
+        self.positions = positions
 
     def sniff(self, source: Any) -> bool:
         try:
@@ -118,7 +144,7 @@ class VLMapsLiveAdapter(MapAdapter):
             return False
 
     def read(self, source: Any, **options: Any) -> LatentMap:
-        known = ("gs", "cs", "pose_type", "label_names")
+        known = ("gs", "cs", "pose_type", "label_names", "positions")
         unknown = set(options) - set(known)
         if unknown:
             raise QuashError(
@@ -126,6 +152,7 @@ class VLMapsLiveAdapter(MapAdapter):
                 f"{', '.join(known)}."
             )
         opts = {k: options.get(k, getattr(self, k)) for k in known}
+        opts["positions"] = check_positions_option(opts["positions"], self.name)
         where = f"live {type(source).__name__} object"
         for field in ("grid_feat", "grid_pos"):
             if getattr(source, field, None) is None:
@@ -134,13 +161,15 @@ class VLMapsLiveAdapter(MapAdapter):
                     "first (VLMap.load_map / create_map)."
                 )
         feat = as_array(source.grid_feat)
-        if len(feat.shape) != 2 or 0 in feat.shape:
+        if len(feat.shape) != 2 or feat.shape[1] == 0:
             raise MapFormatError(
-                f"{where}: 'grid_feat' must be a non-empty (N, D); got {feat.shape}."
+                f"{where}: 'grid_feat' must be (N, D) with D > 0; got {feat.shape}."
             )
         n = int(feat.shape[0])
         scan_finite(feat, where, "grid_feat")
         grid_pos = np.asarray(as_array(source.grid_pos))
+        if n == 0 and grid_pos.size == 0:
+            grid_pos = grid_pos.reshape(0, 3)
         if grid_pos.shape != (n, 3) or grid_pos.dtype.kind not in "fiu":
             raise MapFormatError(
                 f"{where}: 'grid_pos' must be numeric with shape (N, 3), N = {n}; got "
@@ -153,8 +182,21 @@ class VLMapsLiveAdapter(MapAdapter):
             pose_type = pose_type_of(source) or (
                 "camera_base" if getattr(source, "pcd_min", None) is not None else "mobile_base"
             )
-        cs = opts["cs"] if opts["cs"] is not None else getattr(source, "cs", None)
-        cs = float(DEFAULT_CS if cs is None else np.asarray(cs).reshape(-1)[0])
+        own_cs = getattr(source, "cs", None)
+        own_cs = None if own_cs is None else float(np.asarray(own_cs).reshape(-1)[0])
+        if pose_type == "camera_base" and own_cs is not None:
+            check_against_stored(
+                opts["cs"],
+                own_cs,
+                "cs",
+                where,
+                "attribute 'cs' (read from the camera-base file by VLMap.load_map)",
+                "Drop the cs option.",
+            )
+        cs = opts["cs"] if opts["cs"] is not None else own_cs
+        cs = float(DEFAULT_CS if cs is None else cs)
+        if not np.isfinite(cs) or cs <= 0:
+            raise MapFormatError(f"{where}: cell size cs must be a positive number; got {cs}.")
         source_meta: dict[str, Any] = {
             "adapter": self.name,
             "live": type(source).__name__,
@@ -169,10 +211,29 @@ class VLMapsLiveAdapter(MapAdapter):
                 )
             positions = camera_base_positions(grid_pos, np.asarray(pcd_min).reshape(3), cs)
         elif pose_type == "mobile_base":
-            gs = opts["gs"] if opts["gs"] is not None else getattr(source, "gs", None)
-            gs = float(DEFAULT_GS if gs is None else gs)
-            positions = mobile_base_positions(grid_pos, gs, cs)
-            source_meta["gs"] = gs
+            occupied = getattr(getattr(source, "occupied_ids", None), "shape", None)
+            own_gs = getattr(source, "gs", None)
+            fallback = opts["gs"]
+            if fallback is None and occupied is None and own_gs is not None:
+                fallback = int(own_gs)
+            gs, gs_from = mobile_grid_size(occupied, fallback, where, "occupied_ids")
+            if gs_from == "option" and opts["gs"] is None:
+                gs_from = "attribute"
+            if occupied is not None and own_gs is not None and int(own_gs) != gs:
+                log.warning(
+                    "%s: vlmap.gs = %s (the map config's grid_size) disagrees with "
+                    "occupied_ids, which gives gs = %d; using %d. Fix grid_size in your "
+                    "VLMaps map config: VLMaps' own get_pos uses it.",
+                    where,
+                    own_gs,
+                    gs,
+                    gs,
+                )
+            check_cells_in_grid(grid_pos, gs, where, "grid_pos")
+            positions = mobile_base_positions(grid_pos, gs, cs, opts["positions"])
+            source_meta["gs"] = int(gs)
+            source_meta["gs_from"] = gs_from
+            source_meta["positions"] = opts["positions"]
         else:
             raise MapFormatError(f"{where}: unknown map_config.pose_info.pose_type {pose_type!r}.")
         colors = None
@@ -190,7 +251,7 @@ class VLMapsLiveAdapter(MapAdapter):
             labels = check_labels(as_array(sem), n, where, "grid_semantic")
         names = fit_label_names(load_label_names(opts["label_names"]), labels)
         return LatentMap(
-            embeddings=feat,
+            embeddings=copy_on_read(feat),  # blocks are normalised in place: not vlmap's
             kind="voxels",
             positions=positions,
             colors=colors,

@@ -65,7 +65,7 @@ def write_zarr_map(
         group = zarr.open_group(str(tmp), mode="w", zarr_format=3)
         emb = lmap.embeddings
         dtype = np.dtype(emb.dtype)
-        rows = min(lmap.n, store_chunk_rows(lmap.dim, dtype.itemsize, chunk_mb))
+        rows = max(1, min(lmap.n, store_chunk_rows(lmap.dim, dtype.itemsize, chunk_mb)))
         z = group.create_array(
             "embeddings", shape=(lmap.n, lmap.dim), chunks=(rows, lmap.dim), dtype=dtype
         )
@@ -76,7 +76,7 @@ def write_zarr_map(
             value = getattr(lmap, key)
             if value is not None:
                 value = np.asarray(value)
-                step = min(lmap.n, max(1, rows * 4))
+                step = max(1, min(lmap.n, rows * 4))
                 group.create_array(key, data=value, chunks=(step, *value.shape[1:]))
         group.attrs.update(
             {

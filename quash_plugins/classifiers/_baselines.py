@@ -45,8 +45,11 @@ class _CosineRule(Classifier):
     def fit(self, X: np.ndarray, y: np.ndarray) -> _CosineRule:
         self.check_params()
         X, y = training_set(self, self._who, X, y)
-        self.positives_ = unit_rows(X[y == 1])
-        self.negatives_ = unit_rows(X[y == 0])
+        # A rule with normalize_text=False keeps the text vectors' norms (VLMaps' rule).
+        keep = getattr(self, "normalize_text", True) is False
+        prep = (lambda a: np.asarray(a, dtype=np.float32)) if keep else unit_rows
+        self.positives_ = prep(X[y == 1])
+        self.negatives_ = prep(X[y == 0])
         self.labels_ = np.concatenate([self.positives_, self.negatives_])
         self.labels_t_ = np.ascontiguousarray(self.labels_.T)
         self.working_set_width_ = len(self.labels_)
@@ -77,9 +80,10 @@ class ContrastClassifier(_CosineRule):
     """VLMaps' rule: match when the item is closer (cosine) to the query than to every
     negative. ``decision_function = max_p cos(x, p) - max_n cos(x, n)``.
 
-    With the ``none`` heuristic and negatives ``[other]`` this is VLMaps' argmax over
-    ``[query, other]``; prompt templates (VLMaps averages 63) come from the pipeline's
-    ``prompt_templates``.
+    With the ``none`` heuristic and negatives ``[other]`` this is close to VLMaps' argmax
+    over ``[query, other]``; the exact rule (text means not re-normalised, ties to the
+    query) is ``label-argmax`` with ``normalize_text: false, ties: earlier`` (see
+    ``docs/classifiers.md``).
     """
 
     _who = "contrast"
@@ -89,30 +93,78 @@ class ContrastClassifier(_CosineRule):
 
 
 class LabelArgmaxClassifier(_CosineRule):
-    """OpenScene, and VLMaps with categories: argmax over a label set.
+    """OpenScene, and VLMaps (``index_map``): argmax over a label set.
 
     The label set is ``[positives..., negatives...]`` of the query set (so put the
     other categories and ``other`` in ``negatives``); an item matches when its argmax is
-    a positive: ``decision_function = max_p cos - max_n cos`` (a tie is no match).
-    Display scores are the two-way softmax ``sigmoid(logit_scale * (margin - threshold))``
-    of the best positive against the best negative.
+    a positive: ``decision_function = max_p s - max_n s`` with ``s`` the item's cosine
+    with each (normalised) text vector. Display scores are the two-way softmax
+    ``sigmoid(logit_scale * (margin - threshold))`` of the best positive against the
+    best negative.
+
+    VLMaps' exact rule is ``normalize_text=False, ties="earlier"`` with the text vectors
+    averaged over VLMaps' templates without re-normalising them
+    (``prompt_templates: {mode: mean, templates: vlmaps, normalize: false}``): VLMaps
+    scores raw map features against those means, and a map row's scale never changes
+    its argmax, so ``s`` only needs the text vectors' own norms kept.
 
     Parameters
     ----------
     logit_scale
         Softmax temperature for display (CLIP's 100); it does not change the argmax.
+    normalize_text
+        L2-normalise the text vectors (default). False keeps their norms.
+    ties
+        ``"none"`` (default): a tie between the best positive and the best negative is
+        no match. ``"earlier"``: ties go to the earlier column, as ``numpy.argmax`` does,
+        with the positives in column ``query_column`` of the label set
+        ``[negatives[:query_column]..., positives, negatives[query_column:]...]``.
+    query_column
+        With ``ties="earlier"``: how many of the negatives, in the order of the query
+        set, come before the query (VLMaps' categories listed before it; 0 for
+        ``[query, "other"]``).
     """
 
     _who = "label-argmax"
 
-    def __init__(self, logit_scale: float = 100.0) -> None:
+    def __init__(
+        self,
+        logit_scale: float = 100.0,
+        normalize_text: bool = True,
+        ties: str = "none",
+        query_column: int = 0,
+    ) -> None:
         self.logit_scale = logit_scale
+        self.normalize_text = normalize_text
+        self.ties = ties
+        self.query_column = query_column
 
     def check_params(self) -> None:
         check_positive(self._who, "logit_scale", self.logit_scale)
+        check_choice(self._who, "normalize_text", self.normalize_text, (True, False))
+        check_choice(self._who, "ties", self.ties, ("none", "earlier"))
+        q = self.query_column
+        if isinstance(q, bool) or not isinstance(q, (int, np.integer)) or q < 0:
+            raise ClassifierParamError(
+                f"{self._who}: parameter 'query_column' must be an integer >= 0; got {q!r}."
+            )
 
     def decision_function(self, E: Any) -> np.ndarray:
-        return self.margin(E)
+        if self.ties == "none":
+            return self.margin(E)
+        c = self.cosines(E)
+        p = len(self.positives_)
+        best = c[:, :p].max(axis=1)
+        before = c[:, p : p + int(self.query_column)]
+        after = c[:, p + int(self.query_column) :]
+        out = np.full(len(best), np.inf, dtype=np.float32)
+        if before.shape[1]:  # an earlier column wins a tie: strictly greater needed
+            out = np.minimum(out, best - before.max(axis=1))
+        if after.shape[1]:  # the query wins a tie with a later column
+            d = best - after.max(axis=1)
+            d[d == 0] = np.finfo(np.float32).eps
+            out = np.minimum(out, d)
+        return out.astype(np.float32)
 
     def display_scores(self, scores: np.ndarray, threshold: float = 0.0) -> np.ndarray:
         z = float(self.logit_scale) * (np.asarray(scores, np.float64) - threshold)

@@ -5,25 +5,37 @@ from __future__ import annotations
 import argparse
 
 NAME = "convert"
-HELP = "Convert any readable map (VLMaps, ConceptFusion, OpenLex3D...) to a portable .npz."
+HELP = "Convert any readable map (VLMaps, ConceptFusion, OpenScene...) to .npz, zarr or OpenLex3D."
 ORDER = 40
 DESCRIPTION = """\
 Read a map with any adapter and write it as quash-plugins' portable NPZ (embeddings,
-positions, colours, labels...), or as a Zarr store when DST ends in .zarr. The input is
-only read; the output appears atomically. Lazy maps (HDF5, per-image features) are
-streamed block by block, so the map is never held whole in memory."""
+positions, colours, labels...), as a Zarr store when DST ends in .zarr, or, with
+--format openlex3d, as OpenLex3D's prediction folder DST/ (embeddings.npy, index.npy,
+point_cloud.pcd). The input is only read; the output appears atomically. Lazy maps (HDF5,
+per-image features) are streamed block by block, so the map is never held whole in
+memory."""
 EPILOG = """\
 examples:
   quash convert saved-map room0.npz                 # ConceptFusion pointclouds/
   quash convert vlmap/vlmaps.h5df office.npz --adapter vlmaps
   quash convert saved-feat frames.npz --adapter image-features
   quash convert map.pkl.gz map.npz --allow-pickle   # ConceptGraphs, trusted files only
-  quash convert saved-map room0.zarr                # chunked Zarr store (needs [dask])"""
+  quash convert saved-map room0.zarr                # chunked Zarr store (needs [dask])
+  quash convert saved-map preds/quash/replica/room0 --format openlex3d"""
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("source", metavar="SRC", help="Map file or directory to read.")
-    p.add_argument("destination", metavar="DST", help="Output: DST.npz or DST.zarr.")
+    p.add_argument(
+        "destination", metavar="DST", help="Output: DST.npz, DST.zarr, or a folder (openlex3d)."
+    )
+    p.add_argument(
+        "--format",
+        default="auto",
+        choices=("auto", "npz", "zarr", "openlex3d"),
+        help="Output format (default: auto, by DST's suffix). openlex3d writes OpenLex3D's "
+        "prediction folder: embeddings.npy, index.npy (arange) and point_cloud.pcd.",
+    )
     p.add_argument(
         "--adapter", default="auto", help="Adapter name, or 'auto' to sniff the format (default)."
     )
@@ -38,7 +50,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         action="append",
         default=[],
         metavar="KEY=VALUE",
-        help="Adapter option, e.g. -o gs=1000 -o cs=0.05 (values parsed as YAML); repeatable.",
+        help="Adapter option, e.g. -o cs=0.05 -o positions=upstream (values parsed as YAML); "
+        "repeatable.",
     )
     p.add_argument("--compress", action="store_true", help="Compress in-memory maps (slower).")
     p.add_argument("--json", action="store_true", help="Print a JSON summary.")
@@ -78,7 +91,14 @@ def run(args: argparse.Namespace) -> int:
         if accepted is not None and "allow_pickle" not in accepted:
             raise UsageError(f"--allow-pickle: adapter {name!r} does not read pickles.")
         options["allow_pickle"] = True
-    written = convert_map(args.source, args.destination, name, compress=args.compress, **options)
+    written = convert_map(
+        args.source,
+        args.destination,
+        name,
+        compress=args.compress,
+        format=args.format,
+        **options,
+    )
     if args.json:
         print_json({"source": args.source, "adapter": name, "destination": str(written)})
     else:

@@ -11,9 +11,14 @@ EPILOG = """\
 examples:
   quash query vlmap/vlmaps.h5df chair sofa -c quash.yaml --out result.npz
   quash query map.npz chair --adapter npz --rrd chair.rrd
+  quash query map.npz chair sofa -c quash.yaml --out chair-sofa --format openlex3d
 The --out file holds queries (Q,) str, masks (Q, N) bool, scores (Q, N) float32 and
 display_scores (Q, N) float32 in [0, 1]. With --out RESULT.zarr the masks and scores
 stay lazy and stream to a zarr store (maps larger than memory; see docs/scale.md).
+With --format openlex3d, --out is a folder of per-query files aligned with the rows of
+an OpenLex3D export of the map (quash convert MAP DIR --format openlex3d):
+query_scores.npy (N, Q) in [0, 1] (0.5 at the threshold), query_scores_raw.npy,
+query_masks.npy and queries.json (see docs/adapters.md#openlex3d).
 --out never replaces the map or any other input; an existing file is replaced only when
 it is a previous result of quash query, or with --force."""
 
@@ -31,7 +36,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=None,
         help="Adapter name, or 'auto' to sniff the format (default: the config's).",
     )
-    p.add_argument("--out", metavar="RESULT.npz|.zarr", help="Write masks and scores (atomically).")
+    p.add_argument(
+        "--out", metavar="RESULT.npz|.zarr|DIR", help="Write masks and scores (atomically)."
+    )
+    p.add_argument(
+        "--format",
+        default="auto",
+        choices=("auto", "npz", "zarr", "openlex3d"),
+        help="Format of --out (default: auto, .zarr or else npz). openlex3d: a folder of "
+        "per-query scores and masks aligned with an OpenLex3D export of the map.",
+    )
     p.add_argument(
         "--force",
         action="store_true",
@@ -54,12 +68,16 @@ def run(args: argparse.Namespace) -> int:
     cfg = apply_runtime_options(load_config(args.config), args)
     _check_outputs(args)
     quash = Quash.from_config(cfg, **backend_overrides(args))
-    if args.out and str(args.out).rstrip("/").endswith(".zarr"):
+    if args.out and _out_format(args) == "zarr":
         return _query_to_zarr(args, quash)
     lmap = quash.read_map(args.map, adapter=args.adapter)
     with progress(lmap.n, f"classifying {lmap.n} items") as advance:
         results = quash.query_many(lmap, args.queries, progress=advance)
-    if args.out:
+    if args.out and _out_format(args) == "openlex3d":
+        from ..engine.results import write_results_openlex3d
+
+        write_results_openlex3d(args.out, results, lmap.source)
+    elif args.out:
         write_results_npz(args.out, results)
     viewer = open_viewer(args, app_id="quash-query")
     if viewer is not None:
@@ -74,21 +92,34 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _out_format(args: argparse.Namespace) -> str:
+    """``npz``, ``zarr`` or ``openlex3d``: ``--format``, else by the suffix of ``--out``."""
+    fmt = getattr(args, "format", "auto") or "auto"
+    if fmt != "auto":
+        return fmt
+    return "zarr" if str(args.out).rstrip("/").endswith(".zarr") else "npz"
+
+
 def _check_outputs(args: argparse.Namespace) -> None:
     """Refuse, before any work, outputs that would replace an input or a user's file."""
     from ..core.atomic import check_output
-    from ..engine.results import is_results_npz
+    from ..engine.results import is_openlex3d_results, is_results_npz
 
     inputs = (args.map, args.config)
     if args.out:
-        zarr_out = str(args.out).rstrip("/").endswith(".zarr")
+        fmt = _out_format(args)
+        replaceable = {
+            "zarr": _is_results_zarr,
+            "openlex3d": is_openlex3d_results,
+            "npz": is_results_npz,
+        }[fmt]
         check_output(
             args.out,
             inputs,
             what="--out",
             overwrite=args.force,
-            replaceable=_is_results_zarr if zarr_out else is_results_npz,
-            folder=zarr_out,
+            replaceable=replaceable,
+            folder=fmt != "npz",
         )
     if getattr(args, "rrd", None):
         check_output(

@@ -88,7 +88,8 @@ class QuashConfig:
         default=None,
         metadata={
             "help": "Prompt engineering for any heuristic: {mode: mean|all, templates: "
-            "default|[...]|FILE}. null turns it off."
+            "default|vlmaps|[...]|FILE, normalize: true|false (re-normalise the mean; "
+            "VLMaps does not)}. null turns it off."
         },
     )
     map_negatives: dict[str, Any] | None = field(
@@ -213,7 +214,7 @@ def _convert(cls, key: str, value: Any, where: _Where, path) -> Any:
         if key == "prompt_templates":
             value = dict(value)
             tpl = value.get("templates")
-            if isinstance(tpl, str) and tpl != "default":
+            if isinstance(tpl, str) and tpl not in ("default", "vlmaps"):
                 value["templates"] = _resolve_path(tpl, path)
         return dict(value)
     typ = {

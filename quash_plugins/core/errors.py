@@ -31,6 +31,10 @@ class MapFormatError(QuashError):
     """A map file or object does not follow the format its adapter expects."""
 
 
+class EmptyMapWarning(UserWarning):
+    """A map has no items (nothing was fused): every query on it matches nothing."""
+
+
 class DimensionMismatchError(QuashError):
     """The encoder's embedding dimension differs from the map's."""
 

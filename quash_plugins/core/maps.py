@@ -43,16 +43,25 @@ def detect_adapter(source: Any) -> str:
     )
 
 
-def read_map(source: Any, adapter: str = "auto", **options: Any) -> LatentMap:
-    """Read ``source`` (path or live object) into a :class:`LatentMap`, read-only."""
-    if isinstance(source, LatentMap):
-        return source
+def resolve_adapter(source: Any, adapter: str | None = "auto") -> tuple[Any, str]:
+    """``(source, name)``: a path source checked and expanded, ``"auto"`` resolved by sniffing.
+
+    Raises :class:`MapFormatError` for a path that does not exist.
+    """
     if isinstance(source, (str, Path)):
         path = Path(source).expanduser()
         if not path.exists():
             raise MapFormatError(f"Map not found: {path}. Check the path.")
         source = path
-    name = detect_adapter(source) if adapter in (None, "auto") else adapter
+    name = detect_adapter(source) if adapter in (None, "auto") else str(adapter)
+    return source, name
+
+
+def read_map(source: Any, adapter: str = "auto", **options: Any) -> LatentMap:
+    """Read ``source`` (path or live object) into a :class:`LatentMap`, read-only."""
+    if isinstance(source, LatentMap):
+        return source
+    source, name = resolve_adapter(source, adapter)
     reader = registry.create("adapters", name, **options)
     lmap = reader.read(source)
     if not isinstance(lmap, LatentMap):

@@ -57,8 +57,88 @@ def encode_texts(
     return np.stack([found[t] for t in texts]).astype(np.float32, copy=False)
 
 
+#: ``templates: vlmaps``: VLMaps' own prompt templates, from the user's installed VLMaps.
+VLMAPS_TEMPLATES = "vlmaps"
+#: The module-level list that holds them in ``vlmaps/utils/clip_utils.py``.
+VLMAPS_TEMPLATES_VARIABLE = "multiple_templates"
+
+
+def vlmaps_templates_file() -> Path | None:
+    """``vlmaps/utils/clip_utils.py`` of the user's installed VLMaps, or None.
+
+    Found with :func:`importlib.util.find_spec` on the top-level ``vlmaps`` package, which
+    locates it without importing it (importing ``clip_utils`` would pull in torch, CLIP
+    and OpenCV). VLMaps' ``utils`` folder has no ``__init__.py``; the file is looked up in
+    every search location of the package.
+    """
+    import importlib.util
+
+    try:
+        spec = importlib.util.find_spec(VLMAPS_TEMPLATES)
+    except (ImportError, ValueError):
+        return None
+    if spec is None:
+        return None
+    for location in spec.submodule_search_locations or []:
+        candidate = Path(location) / "utils" / "clip_utils.py"
+        if candidate.is_file():
+            return candidate
+    return None
+
+
+def read_vlmaps_templates(path: str | Path) -> list[str]:
+    """The list assigned to ``multiple_templates`` at module level in ``path``, read with
+    :mod:`ast` (the file is parsed, never executed)."""
+    import ast
+
+    path = Path(path)
+    try:
+        tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    except (OSError, SyntaxError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path}: cannot parse the prompt templates ({exc}).") from None
+    value: Any = None
+    for node in tree.body:
+        if isinstance(node, ast.Assign):
+            targets, expr = node.targets, node.value
+        elif isinstance(node, ast.AnnAssign) and node.value is not None:
+            targets, expr = [node.target], node.value
+        else:
+            continue
+        if any(isinstance(t, ast.Name) and t.id == VLMAPS_TEMPLATES_VARIABLE for t in targets):
+            try:
+                value = ast.literal_eval(expr)  # the last assignment wins, as in Python
+            except ValueError:
+                raise ConfigError(
+                    f"{path}: {VLMAPS_TEMPLATES_VARIABLE!r} is not a literal list of strings."
+                ) from None
+    if not isinstance(value, (list, tuple)) or not all(isinstance(t, str) for t in value):
+        raise ConfigError(
+            f"{path}: no module-level list of strings named {VLMAPS_TEMPLATES_VARIABLE!r} "
+            "(VLMaps keeps its prompt templates there in vlmaps/utils/clip_utils.py)."
+        )
+    return list(value)
+
+
 def load_templates(spec: Any) -> list[str]:
-    """Resolve a ``templates`` setting: ``"default"``, a list, or a text/YAML file path."""
+    """Resolve a ``templates`` setting.
+
+    ``"default"`` (our list), ``"vlmaps"`` (VLMaps' own list from the installed ``vlmaps``
+    package, see :func:`vlmaps_templates_file`; our list with a warning when VLMaps is
+    not installed), a list, or a file: ``.txt`` (one per line), ``.yaml`` (a list) or
+    ``.py`` (its module-level ``multiple_templates`` list, e.g. VLMaps' ``clip_utils.py``
+    in a clone that is not installed).
+    """
+    if spec == VLMAPS_TEMPLATES:
+        found = vlmaps_templates_file()
+        if found is not None:
+            return _checked_templates(read_vlmaps_templates(found))
+        log.warning(
+            "templates: vlmaps: no installed VLMaps package was found (vlmaps/utils/"
+            "clip_utils.py), so the default templates are used and the rule is not VLMaps' "
+            "exactly. Install VLMaps from its clone (pip install -e .), or set templates: "
+            "to VLMaps' clip_utils.py or to a file with one template per line."
+        )
+        spec = "default"
     if spec is None or spec == "default":
         text = (
             resources.files("quash_plugins.data")
@@ -69,9 +149,11 @@ def load_templates(spec: Any) -> list[str]:
     elif isinstance(spec, (list, tuple)):
         templates = [str(t) for t in spec]
     else:
-        path = Path(str(spec))
+        path = Path(str(spec)).expanduser()
         if not path.exists():
             raise ConfigError(f"Prompt-template file not found: {path}")
+        if path.suffix == ".py":
+            return _checked_templates(read_vlmaps_templates(path))
         if path.suffix in (".yaml", ".yml"):
             import yaml
 
@@ -81,7 +163,10 @@ def load_templates(spec: Any) -> list[str]:
             templates = [str(t) for t in data]
         else:
             templates = [ln.strip() for ln in path.read_text(encoding="utf-8").splitlines()]
-    templates = [t for t in templates if t and not t.startswith("#")]
+    return _checked_templates([t for t in templates if t and not t.startswith("#")])
+
+
+def _checked_templates(templates: list[str]) -> list[str]:
     bad = [t for t in templates if t.count("{}") != 1]
     if bad:
         raise ConfigError(f"Prompt template {bad[0]!r} must contain exactly one '{{}}'.")

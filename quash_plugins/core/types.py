@@ -106,9 +106,9 @@ class LatentMap:
                 f"Field 'embeddings'{where} must be 2-D (N, D); got shape {tuple(shape)}."
             )
         n, d = int(shape[0]), int(shape[1])
-        if n == 0 or d == 0:
+        if d == 0:  # N = 0 is a valid empty map (nothing fused yet); D = 0 is not
             raise MapFormatError(
-                f"Field 'embeddings'{where} is empty (shape {tuple(shape)}); the map has no items."
+                f"Field 'embeddings'{where} has no feature dimension (shape {tuple(shape)})."
             )
         dtype = np.dtype(self.embeddings.dtype)
         if dtype.kind not in "fiu":

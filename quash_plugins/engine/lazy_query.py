@@ -170,8 +170,10 @@ class LazyQuery:
         """Per-query score given to unobserved rows: below every observed score and the
         threshold, as in :meth:`Quash.query_many`."""
         da = require_dask()
-        m = da.nanmin(post, axis=0)
         thr = np.float32(self.threshold)
+        if post.shape[0] == 0:  # an empty map: nothing to reduce over
+            return da.full((post.shape[1],), thr - np.float32(1.0), dtype=np.float32)
+        m = da.nanmin(post, axis=0)
         return (da.where(da.isnan(m), thr, da.minimum(m, thr)) - np.float32(1.0)).astype(np.float32)
 
     def _lazy(self) -> tuple[Any, Any]:
@@ -209,7 +211,7 @@ class LazyQuery:
             raise QuashError(f"{path} exists. Remove it or pass overwrite=True.")
         tmp = path.parent / f".{path.name}.tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}"
         n, q = self.raw.shape[0], len(self.classifiers)
-        rows = self.raw.chunks[0][0]
+        rows = max(1, self.raw.chunks[0][0])  # an empty map has one chunk of 0 rows
         try:
             group = zarr.open_group(str(tmp), mode="w", zarr_format=3)
             zraw = group.create_array(
@@ -275,6 +277,9 @@ def query_lazy(
     client = current_client(client if client is not None else getattr(quash, "client", None))
     lmap = quash.read_map(source, **read_options)
     quash.check_dimension(lmap)
+    from .pipeline import warn_if_empty
+
+    warn_if_empty(lmap)
     querysets, classifiers = [], []
     for text in texts:
         qs = quash.expand(text, lmap)

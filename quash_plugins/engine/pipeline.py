@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import logging
 import time
+import warnings
 import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -28,7 +29,7 @@ from sklearn.base import clone
 
 from ..core import registry
 from ..core.config import DEFAULT_CLASSIFIER, DEFAULT_HEURISTIC, PluginSpec, QuashConfig
-from ..core.errors import ConfigError, DimensionMismatchError, QuashError
+from ..core.errors import ConfigError, DimensionMismatchError, EmptyMapWarning, QuashError
 from ..core.interfaces import Encoder, ExpansionContext, Heuristic
 from ..core.text import TextCache, load_templates
 from ..core.types import DEFAULT_NEGATIVES, LatentMap, QueryResult, QuerySet, check_query
@@ -63,7 +64,9 @@ class Quash:
     threshold
         Items with ``score > threshold`` match.
     prompt_templates
-        ``{"mode": "mean"|"all", "templates": "default"|list|path}`` or None.
+        ``{"mode": "mean"|"all", "templates": "default"|"vlmaps"|list|path,
+        "normalize": bool}`` or None. ``normalize: false`` keeps the template mean as it
+        is (VLMaps' rule); see :func:`quash_plugins.engine.training.training_set`.
     map_negatives
         Options for map-mined negatives (the ``map-negatives`` heuristic wraps
         ``heuristic``), or None.
@@ -126,11 +129,14 @@ class Quash:
         self.prompt_templates = prompt_templates
         self._templates = None
         if prompt_templates is not None:
-            unknown = set(prompt_templates) - {"mode", "templates"}
+            unknown = set(prompt_templates) - {"mode", "templates", "normalize"}
             if unknown:
                 raise ConfigError(
-                    f"prompt_templates does not accept {sorted(unknown)}; it takes mode and templates."
+                    f"prompt_templates does not accept {sorted(unknown)}; it takes mode, "
+                    "templates and normalize."
                 )
+            if not isinstance(prompt_templates.get("normalize", True), bool):
+                raise ConfigError("prompt_templates: normalize must be true or false.")
             self._templates = load_templates(prompt_templates.get("templates", "default"))
         self.map_negatives = map_negatives
         if map_negatives is not None:
@@ -182,12 +188,17 @@ class Quash:
     # ------------------------------------------------------------------ maps
     def read_map(self, source: Any, adapter: str | None = None, **options: Any) -> LatentMap:
         """Read a map once; later calls with the same unchanged file reuse it."""
-        from ..core.maps import read_map
+        from ..core.maps import read_map, resolve_adapter
 
         if isinstance(source, LatentMap):
             return source
         name = adapter or self.adapter.name
-        opts = {**self.adapter.params, **options} if name == self.adapter.name else options
+        if name in (None, "auto"):
+            # Resolve "auto" first, so the options the config gives for the adapter it
+            # picks (or for "auto" itself) apply.
+            source, name = resolve_adapter(source, name)
+        configured = self.adapter.name in (name, "auto")
+        opts = {**self.adapter.params, **options} if configured else options
         key: Any
         if isinstance(source, (str, Path)):
             p = Path(source).expanduser()
@@ -251,14 +262,22 @@ class Quash:
             qs.provenance["prompt_templates"] = {
                 "mode": self.prompt_templates.get("mode", "mean"),
                 "count": len(self._templates or []),
+                "normalize": bool(self.prompt_templates.get("normalize", True)),
             }
         # A weak reference to the map guards against a new map reusing a freed one's id.
         self._querysets[key] = (weakref.ref(lmap) if lmap is not None else _none_ref, qs)
         return qs
 
     def training_set(self, qs: QuerySet) -> tuple[np.ndarray, np.ndarray, list[str]]:
-        mode = (self.prompt_templates or {}).get("mode", "mean")
-        return training_set(self.encoder, qs, self.cache, self._templates, mode)
+        opts = self.prompt_templates or {}
+        return training_set(
+            self.encoder,
+            qs,
+            self.cache,
+            self._templates,
+            opts.get("mode", "mean"),
+            bool(opts.get("normalize", True)),
+        )
 
     def fit(self, qs: QuerySet) -> Any:
         """Clone the classifier template and fit it on the query set's embeddings."""
@@ -284,6 +303,7 @@ class Quash:
         lmap = self.read_map(source, **read_options)
         t_read = time.perf_counter() - t0
         self.check_dimension(lmap)
+        warn_if_empty(lmap)
         pending: list[_Pending] = []
         for text in texts:
             timings: dict[str, float] = {"read": t_read / len(texts)}
@@ -420,6 +440,22 @@ class _Pending:
     raw: np.ndarray | None = None
     mask: np.ndarray | None = None
     display: np.ndarray | None = None
+
+
+def warn_if_empty(lmap: LatentMap) -> None:
+    """Warn (:class:`~quash_plugins.core.errors.EmptyMapWarning`) when ``lmap`` has no items.
+
+    Upstream mappers write empty maps when nothing was fused; a query on one is an empty
+    result, not an error.
+    """
+    if lmap.n == 0:
+        where = lmap.source.get("path", "the map")
+        warnings.warn(
+            f"{where} is empty (0 items x {lmap.dim}): nothing was fused into it, so every "
+            "query matches nothing.",
+            EmptyMapWarning,
+            stacklevel=3,
+        )
 
 
 def _none_ref() -> None:

@@ -39,3 +39,84 @@ def write_results_npz(path: str | Path, results: Sequence[QueryResult]) -> Path:
     with atomic_write(path, suffix=".npz") as tmp:
         np.savez(tmp, queries=queries, masks=masks, scores=scores, display_scores=display)
     return path
+
+
+# ---------------------------------------------------------------------------------------
+# OpenLex3D: per-query masks and scores beside its prediction layout
+
+#: Files of :func:`write_results_openlex3d`.
+OPENLEX3D_FILES = ("queries.json", "query_scores.npy", "query_scores_raw.npy", "query_masks.npy")
+
+
+def is_openlex3d_results(path: str | Path) -> bool:
+    """True for a folder written by :func:`write_results_openlex3d` (it may be replaced)."""
+    p = Path(path)
+    return p.is_dir() and all((p / f).is_file() for f in OPENLEX3D_FILES[:2])
+
+
+def write_results_openlex3d(
+    folder: str | Path, results: Sequence[QueryResult], map_source: dict | None = None
+) -> Path:
+    """Write per-query results for OpenLex3D-style evaluation, atomically, into ``folder``.
+
+    Rows are the map's items in order: for a map exported with ``quash convert
+    --format openlex3d`` (``index = arange``), the rows of ``embeddings.npy`` and the
+    points of ``point_cloud.pcd``. Files:
+
+    - ``query_scores.npy`` (N, Q) float32 in [0, 1]: each query's display scores, which
+      rise with QuASH's decision value, sit at exactly 0.5 on its threshold and are 0
+      for unobserved items. They play the part of OpenLex3D's normalised cosine: the
+      top k by them are the top k by QuASH's score, and ``> 0.5`` is QuASH's mask;
+    - ``query_scores_raw.npy`` (N, Q) float32: the decision values (``QueryResult.scores``);
+    - ``query_masks.npy`` (N, Q) bool: QuASH's own masks (scores above the threshold);
+    - ``queries.json``: the queries in column order, their query sets and counts.
+    """
+    import json
+    import os
+    import shutil
+    import uuid
+
+    folder = Path(folder).expanduser()
+    n = len(results[0].mask) if results else 0
+    scores = np.stack([np.asarray(r.display_scores, np.float32) for r in results], axis=1)
+    raw = np.stack([np.asarray(r.scores, np.float32) for r in results], axis=1)
+    masks = np.stack([np.asarray(r.mask, bool) for r in results], axis=1)
+    meta = {
+        "format": "quash-openlex3d-queries",
+        "version": 1,
+        "n_items": n,
+        "rows": "the map's items in order (dense OpenLex3D export: embeddings.npy rows "
+        "and point_cloud.pcd points)",
+        "map": {k: v for k, v in (map_source or {}).items() if isinstance(v, (str, int, float))},
+        "queries": [
+            {
+                "column": j,
+                "query_text": r.query,
+                "matched": r.n_matched,
+                "threshold": r.threshold,
+                "classifier": r.classifier,
+                "config": r.config_name,
+                "queryset": r.queryset.to_dict(),
+            }
+            for j, r in enumerate(results)
+        ],
+    }
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    tmp = folder.parent / f".{folder.name}.tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+    try:
+        tmp.mkdir()
+        np.save(tmp / "query_scores.npy", scores)
+        np.save(tmp / "query_scores_raw.npy", raw)
+        np.save(tmp / "query_masks.npy", masks)
+        (tmp / "queries.json").write_text(json.dumps(meta, indent=2) + "\n", encoding="utf-8")
+        if folder.exists():
+            old = folder.parent / f".{folder.name}.old-{uuid.uuid4().hex[:8]}"
+            os.replace(folder, old)
+            os.replace(tmp, folder)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(tmp, folder)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return folder

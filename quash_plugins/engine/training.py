@@ -18,13 +18,16 @@ def training_set(
     cache: TextCache | None = None,
     templates: Sequence[str] | None = None,
     mode: str = "mean",
+    normalize: bool = True,
 ) -> tuple[np.ndarray, np.ndarray, list[str]]:
     """Encode a query set into ``X (n, D)`` float32, ``y (n,)`` int and the row texts.
 
     Positives come first (the query itself first of all), then negatives. With
-    ``templates``, ``mode="mean"`` replaces each string by the normalised mean of its
-    templated embeddings, and ``mode="all"`` makes every templated variant a sample.
-    The negative ``"<zero>"`` is the zero vector.
+    ``templates``, ``mode="mean"`` replaces each string by the mean of its templated
+    embeddings (each unit-norm, from the encoder), re-normalised unless
+    ``normalize=False``: VLMaps does not re-normalise, so its text vectors keep norms
+    below one that differ per label. ``mode="all"`` makes every templated variant a
+    sample. The negative ``"<zero>"`` is the zero vector.
     """
     if templates and mode not in TEMPLATE_MODES:
         raise ConfigError(f"prompt_templates mode must be one of {TEMPLATE_MODES}; got {mode!r}.")
@@ -42,7 +45,8 @@ def training_set(
             W = V.reshape(len(variants), -1)
         else:
             W = V.mean(axis=1)
-            W /= np.linalg.norm(W, axis=1, keepdims=True)
+            if normalize:
+                W /= np.linalg.norm(W, axis=1, keepdims=True)
         texts_of = {s: ([t.format(s) for t in templates] if reps > 1 else [s]) for s in words}
     rows: list[np.ndarray] = []
     texts: list[str] = []

@@ -13,7 +13,8 @@ from ..core.types import QuerySet
 class NoneHeuristic(Heuristic):
     """No expansion: positives are the query, negatives the config's generic negatives.
 
-    With the ``contrast`` classifier this is exactly the VLMaps rule.
+    With ``label-argmax`` (``normalize_text: false, ties: earlier``) and VLMaps' prompt
+    templates (``normalize: false``) this is VLMaps' ``index_map`` rule (docs/vlmaps.md).
     """
 
     name = "none"

@@ -2,11 +2,13 @@
 
 VLMaps answers ``VLMap.index_map(language_desc, with_init_cat=True)`` with an ``(N,)``
 bool mask over the rows of ``vlmap.grid_feat``: a row matches when the query's text
-embedding (the mean over 63 prompt templates) scores highest among
-``[categories..., "other"]`` (with ``with_init_cat=True`` and categories set by
-``init_categories``) or among ``[language_desc, "other"]`` otherwise. Everything else in
-VLMaps that locates objects (``get_pos``, ``get_nearest_pos``, the navigation
-primitives) calls ``index_map``.
+embedding (the mean over VLMaps' prompt templates, not re-normalised) scores highest
+among ``[categories..., "other"]`` (with ``with_init_cat=True`` and categories set by
+``init_categories``; VLMaps raises when there are none) or among
+``[language_desc, "other"]`` otherwise. VLMaps' ``get_pos`` (and everything built on it:
+``get_nearest_pos``, the navigation primitives) calls ``index_map``, but also asserts
+``self.categories`` first, so patching ``index_map`` removes the need for categories
+only for ``index_map`` itself.
 
 This module returns a mask with the same meaning and shape, decided by QuASH instead:
 
@@ -18,9 +20,12 @@ This module returns a mask with the same meaning and shape, decided by QuASH ins
   instances with centroids in metres).
 
 With ``with_init_cat=True`` and ``vlmap.categories`` set, the other categories are added
-to the query's negatives, which mirrors VLMaps' argmax over the category list. Unlike
-VLMaps, a missing category list is not an error: the query then stands on its own.
-Zero rows of ``grid_feat`` never match.
+to the query's negatives in VLMaps' column order (those listed before the query first),
+which mirrors VLMaps' argmax over the category list; a classifier with a
+``query_column`` parameter (``label-argmax``) is told how many come before the query,
+so ties go to the earlier column as in VLMaps. Unlike VLMaps, a missing category list
+is not an error: the query then stands on its own. Zero rows of ``grid_feat`` never
+match.
 
 Examples
 --------
@@ -43,6 +48,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from sklearn.base import clone
 
 from ..core.errors import QuashError
 from ..core.types import LatentMap, QueryResult
@@ -99,10 +105,18 @@ def as_latent_map(vlmap: Any, **options: Any) -> LatentMap:
     return lmap
 
 
-def _other_categories(vlmap: Any, text: str) -> list[str]:
-    cats = getattr(vlmap, "categories", None) or []
+def _other_categories(vlmap: Any, text: str) -> tuple[list[str], int]:
+    """The categories other than ``text`` in VLMaps' order, and how many precede it.
+
+    A query that is not a category (VLMaps would ask a language model for the closest
+    one) is a label of its own in column 0.
+    """
+    cats = [str(c) for c in (getattr(vlmap, "categories", None) or [])]
     low = " ".join(text.split()).lower()
-    return [str(c) for c in cats if str(c).strip().lower() != low]
+    hits = [i for i, c in enumerate(cats) if c.strip().lower() == low]
+    others = [c for c in cats if c.strip().lower() != low]
+    before = len([c for c in cats[: hits[0]] if c.strip().lower() != low]) if hits else 0
+    return others, before
 
 
 def query(
@@ -135,10 +149,14 @@ def query(
     """
     q = resolve_quash(quash, vlmap)
     lmap = as_latent_map(vlmap, **read_options)
-    extra = _other_categories(vlmap, language_desc) if with_init_cat else []
+    extra, before = _other_categories(vlmap, language_desc) if with_init_cat else ([], 0)
     if extra:
         q = copy.copy(q)
-        q.negatives = [*q.negatives, *[e for e in extra if e not in q.negatives]]
+        # VLMaps' columns are [categories..., "other"]: the categories go first, in order.
+        q.negatives = [*extra, *[n for n in q.negatives if n not in extra]]
+        params = q.classifier.get_params() if hasattr(q.classifier, "get_params") else {}
+        if "query_column" in params:
+            q.classifier = clone(q.classifier).set_params(query_column=before)
         q._querysets = {}  # the copy must not reuse query sets built without these negatives
     return q.query(lmap, language_desc)
 

@@ -98,6 +98,8 @@ def pca_colors(
     """
     n = lmap.n
     items = np.arange(n, dtype=np.int64) if items is None else np.asarray(items, np.int64)
+    if n == 0 or len(items) == 0:  # an empty map, or nothing to colour
+        return np.empty((len(items), 3), dtype=np.uint8)
     rng = np.random.default_rng(seed)
     fit_idx = np.sort(rng.choice(n, size=min(n, sample), replace=False))
     fit = _read_rows(lmap, fit_idx)

@@ -102,16 +102,24 @@ def test_cf_nan_points(tmp_path):
     _check(_cf(tmp_path, pc_points=pts), "pc_points.h5", "'positions'", "NaN")
 
 
-def test_cf_empty(tmp_path):
+def test_cf_empty_cloud_is_an_empty_map(tmp_path):
+    """gradslam's save_to_h5 writes every attribute of a 0-point cloud: read, not refused."""
     root = _cf(
         tmp_path,
         pc_points=np.zeros((0, 3), np.float32),
         pc_embeddings=np.zeros((0, 6), np.float16),
-        pc_colors=None,
-        pc_features=None,
-        pc_confidences=None,
+        pc_colors=np.zeros((0, 3), np.float32),
+        pc_features=np.zeros((0, 3), np.float32),
+        pc_confidences=np.zeros((0, 1), np.float32),
     )
-    _check(root, "pc_embeddings.h5", "empty")
+    lmap = read_map(root)
+    assert (lmap.n, lmap.dim, lmap.dtype) == (0, 6, np.float16)
+    assert lmap.positions.shape == (0, 3) and lmap.colors.shape == (0, 3)
+
+
+def test_cf_no_feature_dimension(tmp_path):
+    root = _cf(tmp_path, pc_embeddings=np.zeros((20, 0), np.float16))
+    _check(root, "pc_embeddings.h5", "no feature dimension")
 
 
 def test_cf_truncated_hdf5(tmp_path):

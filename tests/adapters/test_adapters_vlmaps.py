@@ -39,12 +39,18 @@ def read_all(lmap):
     return np.concatenate([b for _, _, b in lmap.iter_chunks(7)])
 
 
+def _centre(k):
+    """Centre (in cells) of signed cell offset k under truncation-toward-zero binning."""
+    k = np.asarray(k, dtype=np.float64)
+    return np.where(k > 0, k + 0.5, np.where(k < 0, k - 0.5, 0.0))
+
+
 # ---------------------------------------------------------------------- 3D mobile base
 def test_mobile_base_rows_positions_colours(tmp_path):
     arrays = mobile_map(n=40, d=D, gs=60)
     path = write_vlmaps_h5df(tmp_path / "vlmap" / "vlmaps.h5df", arrays)
     before = sha256(path)
-    lmap = vlmaps(gs=60, cs=0.1).read(path)
+    lmap = vlmaps(gs=60, cs=0.1, positions="upstream").read(path)
     assert lmap.n == 40 and lmap.dim == D and lmap.kind == "voxels"
     assert isinstance(lmap.embeddings, h5py.Dataset)
     assert lmap.normalize is True
@@ -58,15 +64,16 @@ def test_mobile_base_rows_positions_colours(tmp_path):
     assert sha256(path) == before
 
 
-def test_mobile_base_defaults_are_vlmaps_config(tmp_path):
-    arrays = mobile_map(n=10, d=D)
+def test_mobile_base_gs_from_file_cs_default(tmp_path):
+    arrays = mobile_map(n=10, d=D)  # gs = 60 in occupied_ids
     path = write_vlmaps_h5df(tmp_path / "m.h5df", arrays)
-    lmap = read_map(path)  # auto-detected, default gs=1000, cs=0.05
+    lmap = read_map(path, positions="upstream")  # auto-detected; cs: VLMaps' 0.05
     gp = arrays["grid_pos"].astype(np.float64)
-    np.testing.assert_allclose(lmap.positions[:, 0], (500 - gp[:, 0]) * 0.05, atol=1e-5)
-    np.testing.assert_allclose(lmap.positions[:, 1], (500 - gp[:, 1]) * 0.05, atol=1e-5)
+    np.testing.assert_allclose(lmap.positions[:, 0], (30 - gp[:, 0]) * 0.05, atol=1e-5)
+    np.testing.assert_allclose(lmap.positions[:, 1], (30 - gp[:, 1]) * 0.05, atol=1e-5)
     np.testing.assert_allclose(lmap.positions[:, 2], gp[:, 2] * 0.05, atol=1e-5)
     assert lmap.voxel_size == pytest.approx(0.05)
+    assert lmap.source["gs"] == 60 and lmap.source["gs_from"] == "occupied_ids"
 
 
 def test_rows_are_normalised_and_zero_rows_stay_zero(tmp_path):
@@ -117,7 +124,7 @@ def test_camera_base_positions_use_stored_pcd_min_and_cs(tmp_path):
 def test_pose_type_can_be_forced(tmp_path):
     arrays, cam = camera_arrays()
     cam_path = write_vlmaps_h5df(tmp_path / "c.h5df", arrays, camera=cam)
-    lmap = vlmaps(pose_type="mobile_base", gs=20, cs=0.04).read(cam_path)
+    lmap = vlmaps(pose_type="mobile_base", gs=20, cs=0.04, positions="upstream").read(cam_path)
     gp = arrays["grid_pos"].astype(np.float64)
     np.testing.assert_allclose(lmap.positions[:, 0], (10 - gp[:, 0]) * 0.04, atol=1e-5)
     mob = write_vlmaps_h5df(tmp_path / "m.h5df", mobile_map(n=5, d=D))
@@ -220,11 +227,11 @@ def test_malformed_maps_name_file_and_field(tmp_path, name, kw, mutate, field):
     assert sha256(path) == before
 
 
-def test_empty_map(tmp_path):
+def test_no_feature_dimension(tmp_path):
     arrays = mobile_map(n=5, d=D)
-    arrays.update(grid_feat=np.zeros((0, D), np.float32), grid_pos=np.zeros((0, 3), np.int32))
-    path = write_vlmaps_h5df(tmp_path / "empty.h5df", arrays)
-    with pytest.raises(MapFormatError, match=r"empty\.h5df.*grid_feat.*empty"):
+    arrays.update(grid_feat=np.zeros((5, 0), np.float32))
+    path = write_vlmaps_h5df(tmp_path / "nodim.h5df", arrays)
+    with pytest.raises(MapFormatError, match=r"nodim\.h5df.*grid_feat.*no feature dimension"):
         vlmaps().read(path)
 
 
@@ -322,14 +329,14 @@ def test_vlmaps_2d_observed_cells_positions_colours_labels(tmp_path):
     rows, cols = np.nonzero(ref["seen"])  # row-major, as the adapter orders cells
     assert lmap.n == len(rows) and lmap.kind == "voxels" and lmap.normalize
     assert not isinstance(lmap.embeddings, np.ndarray)  # lazy view of the memory map
-    # cell centres: VLMaps bins x into row = floor(gs/2 - x/cs), so a cell spans
-    # (gs/2 - row - 1, gs/2 - row] * cs and its centre is (gs/2 - row - 0.5) * cs
+    # cell centres: VLMaps truncates toward zero when binning, so cell k = 15 - row
+    # spans (k, k + 1) * cs for k > 0, (k - 1, k) * cs for k < 0 and (-1, 1) * cs for 0
     expected = np.column_stack(
-        [(15 - rows - 0.5) * 0.1, (15 - cols - 0.5) * 0.1, np.zeros(len(rows))]
+        [_centre(15 - rows) * 0.1, _centre(15 - cols) * 0.1, np.zeros(len(rows))]
     )
     np.testing.assert_allclose(lmap.positions, expected, atol=1e-5)
-    corner = registry.create("adapters", "vlmaps-2d", cs=0.1, cell_offset=0).read(folder)
-    np.testing.assert_allclose(corner.positions[:, 0], (15 - rows) * 0.1, atol=1e-5)
+    face = registry.create("adapters", "vlmaps-2d", cs=0.1, positions="upstream").read(folder)
+    np.testing.assert_allclose(face.positions[:, 0], (15 - rows) * 0.1, atol=1e-5)
     np.testing.assert_array_equal(lmap.colors, ref["color"][rows, cols])
     np.testing.assert_array_equal(lmap.labels, ref["gt"][rows, cols])
     np.testing.assert_array_equal(lmap.grid_index[:, :2], np.column_stack([rows, cols]))
@@ -344,7 +351,7 @@ def test_vlmaps_2d_path_forms_and_default_cs(tmp_path):
         assert detect_adapter(src) == "vlmaps-2d"
         lmap = read_map(src)
         r, c = np.nonzero(ref["seen"])
-        np.testing.assert_allclose(lmap.positions[:, 0], (10 - r - 0.5) * 0.05, atol=1e-5)
+        np.testing.assert_allclose(lmap.positions[:, 0], _centre(10 - r) * 0.05, atol=1e-5)
     full = registry.create("adapters", "vlmaps-2d", keep_empty=True).read(folder)
     assert full.n == 400
 
@@ -358,8 +365,9 @@ def test_vlmaps_2d_bad_input(tmp_path):
     with pytest.raises(MapFormatError, match=r"grid_lseg_1\.npy.*NaN.*row 2, col 3"):
         a2d.read(folder)
     np.save(folder / "grid_lseg_1.npy", np.zeros((10, 10, 4), np.float32))
-    with pytest.raises(MapFormatError, match="empty"):
-        a2d.read(folder)
+    assert a2d.read(folder).n == 0  # nothing observed: an empty map, not an error
+    with pytest.raises(QuashError, match="positions"):
+        a2d.read(folder, positions="corner")
     np.save(folder / "grid_lseg_1.npy", np.ones((10, 4), np.float32))
     with pytest.raises(MapFormatError, match=r"\(gs, gs, D\)"):
         a2d.read(folder)
@@ -390,8 +398,11 @@ def test_live_vlmap_mobile_and_camera(tmp_path):
         map_config=SimpleNamespace(pose_info=PoseInfo("mobile_base")),
     )
     assert detect_adapter(live) == "vlmaps-live"
-    lmap = read_map(live)
-    assert lmap.embeddings is arrays["grid_feat"]  # not copied
+    lmap = read_map(live, positions="upstream")
+    assert lmap.embeddings.base is arrays["grid_feat"]  # not copied whole
+    before = arrays["grid_feat"].copy()
+    assert np.isfinite(read_all(lmap)).all()
+    np.testing.assert_array_equal(arrays["grid_feat"], before)  # read, never normalised in place
     gp = arrays["grid_pos"].astype(np.float64)
     np.testing.assert_allclose(lmap.positions[:, 1], (30 - gp[:, 1]) * 0.1, atol=1e-5)
     np.testing.assert_array_equal(lmap.colors, arrays["grid_rgb"])
@@ -433,17 +444,19 @@ def test_write_example_round_trip(tmp_path, name):
     n=st.integers(1, 40),
     d=st.integers(1, 12),
     dtype=st.sampled_from([np.float16, np.float32, np.float64]),
-    gs=st.integers(20, 2000),
+    gs=st.integers(3, 120),
     cs=st.floats(0.01, 0.5),
     seed=st.integers(0, 2**16),
 )
 def test_property_shapes_and_dtypes(tmp_path_factory, n, d, dtype, gs, cs, seed):
-    arrays = mobile_map(n=n, d=d, gs=20, vh=5, seed=seed, dtype=dtype)
+    arrays = mobile_map(n=n, d=d, gs=gs, vh=5, seed=seed, dtype=dtype)
     path = write_vlmaps_h5df(tmp_path_factory.mktemp("p") / "m.h5df", arrays)
-    lmap = vlmaps(gs=gs, cs=cs).read(path)
+    lmap = vlmaps(cs=cs, positions="upstream").read(path)
     assert (lmap.n, lmap.dim, lmap.dtype) == (n, d, np.dtype(dtype))
     gp = arrays["grid_pos"].astype(np.float64)
     np.testing.assert_allclose(lmap.positions[:, 0], (gs / 2 - gp[:, 0]) * cs, rtol=1e-5, atol=1e-4)
+    centre = vlmaps(cs=cs).read(path).positions
+    np.testing.assert_allclose(centre[:, 1], _centre(gs // 2 - gp[:, 1]) * cs, rtol=1e-5, atol=1e-4)
     got = read_all(lmap)
     ref = unit_rows(arrays["grid_feat"].astype(np.float32))
     np.testing.assert_allclose(got, ref, atol=2e-3 if dtype == np.float16 else 1e-5)
@@ -479,7 +492,9 @@ def test_property_2d_grids(tmp_path_factory, gs, d, dtype, share, cs, block_rows
     lmap = registry.create("adapters", "vlmaps-2d", cs=cs, block_rows=block_rows).read(folder)
     r, c = np.nonzero(seen)
     assert (lmap.n, lmap.dim, lmap.dtype) == (len(r), d, np.dtype(dtype))
-    np.testing.assert_allclose(lmap.positions[:, 1], (gs / 2 - c - 0.5) * cs, rtol=1e-5, atol=1e-4)
+    np.testing.assert_allclose(
+        lmap.positions[:, 1], _centre(gs // 2 - c) * cs, rtol=1e-5, atol=1e-4
+    )
     np.testing.assert_array_equal(np.asarray(lmap.embeddings), grid[r, c])
 
 

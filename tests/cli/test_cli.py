@@ -218,7 +218,10 @@ def test_debug_shows_traceback(tmp_path):
     err = debug.stderr
     assert err.startswith("Traceback (most recent call last):"), err
     assert re.search(r'File ".*quash_plugins[/\\]cli[/\\]main\.py", line \d+, in main', err)
-    assert re.search(r'File ".*quash_plugins[/\\]core[/\\]maps\.py", line \d+, in read_map', err)
+    assert re.search(
+        r'File ".*quash_plugins[/\\]core[/\\]maps\.py", line \d+, in (read_map|resolve_adapter)',
+        err,
+    )
     assert (
         err.strip()
         .splitlines()[-1]

@@ -82,7 +82,7 @@ def test_yaml_block_is_a_valid_config(tmp_path):
     path.write_text(blocks("yaml")[0])
     cfg = QuashConfig.load(path)
     assert cfg.encoder.name == "open-clip" and cfg.adapter.name == "vlmaps"
-    assert cfg.adapter.params == {"gs": 1000, "cs": 0.05}
+    assert cfg.adapter.params == {"cs": 0.05}
 
 
 def test_python_blocks_run(project, capsys):

@@ -1,0 +1,449 @@
+"""``openscene``: OpenScene's fused 2D features on the scene's points.
+
+OpenScene (Peng et al., CVPR 2023) projects OpenSeg or LSeg pixel features onto a
+scene's points and averages them over the views (``scripts/feature_fusion/*.py``,
+``save_fused_feature``). Each scene gets ``<scene_id>_<n>.pt``, written with
+``torch.save`` of a dict:
+
+============== =================== ==================================================
+``feat``       (M, D) float16      fused features (768 OpenSeg, 512 LSeg), not unit
+``mask_full``  (N,) bool           True for the M points that have a feature; row j of
+                                   ``feat`` belongs to the j-th True point
+============== =================== ==================================================
+
+The points come from the scene's preprocessed ``<scene_id>.pth`` (ScanNet:
+``<scene_id>_vh_clean_2.pth``), a pickled tuple of numpy arrays
+``(coords (N, 3), colors (N, 3) in [-1, 1], labels (N,))``; labels are class ids with
+255 = ignore (ScanNet stores them as float64; nuScenes stores the colours as a scalar 0).
+A ``.ply`` (read with open3d) or a ``.npy`` of ``(N, 3)`` coordinates can stand in.
+
+Validation and test splits write one file ``_0`` whose mask covers every visible point;
+training splits write several random subsets ``_0`` .. ``_4``: read the one you need.
+``<scene>_openscene_feat_<type>.npy`` (per-point features saved by OpenScene's
+``--save_feature_as_numpy``, in the ``.pth`` point order) is read the same way, every
+point having a feature.
+
+Reading is safe: the ``.pt`` is loaded with ``torch.load(weights_only=True)`` (tensors
+only), and the ``.pth`` tuple with ``weights_only=True`` plus an allow-list of exactly
+what numpy needs to rebuild arrays (``_reconstruct``, ``ndarray``, ``dtype`` and the
+numeric dtype classes). Anything else in the pickle (a class, a function such as
+``os.system``) is refused before it runs.
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+import warnings
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..core.errors import MapFormatError, QuashError
+from ..core.interfaces import MapAdapter
+from ..core.types import LatentMap
+from ._rows import IndexedRows, colors_to_uint8, scan_finite, should_scan
+from ._vlmaps_common import check_labels, fit_label_names, load_label_names
+
+log = logging.getLogger(__name__)
+
+#: Label values OpenScene ignores: 255 in the preprocessed files, -100 in some loaders.
+IGNORE_LABELS = (255, -100)
+#: ``<scene>_<n>.pt`` (``save_fused_feature``); the scene id is what precedes ``_<n>``.
+FUSED = re.compile(r"^(?P<scene>.+)_(?P<n>\d+)\.pt$")
+NUMPY_FEAT = re.compile(r"^(?P<scene>.+)_openscene_feat_(?P<kind>[A-Za-z0-9]+)\.npy$")
+
+
+def _torch() -> Any:
+    try:
+        import torch
+    except ImportError:
+        raise QuashError(
+            'Reading OpenScene maps needs torch: pip install "quash-plugins[clip]"'
+        ) from None
+    return torch
+
+
+def numpy_allow_list() -> list[Any]:
+    """What ``torch.load(weights_only=True)`` must allow to rebuild plain numpy arrays.
+
+    Exactly the array reconstructor (under its numpy 2 name and, as a ``(function,
+    name)`` pair, its numpy 1 name), ``ndarray``, ``dtype``, numpy's scalar reconstructor
+    and the dtype classes of the numeric types. Nothing that can run other code.
+    """
+    core = getattr(np, "_core", None) or np.core  # numpy 2, else numpy 1
+    multiarray = core.multiarray
+    allowed: list[Any] = [multiarray._reconstruct, multiarray.scalar, np.ndarray, np.dtype]
+    codes = ("b1", "u1", "u2", "u4", "u8", "i1", "i2", "i4", "i8", "f2", "f4", "f8")
+    allowed += sorted({type(np.dtype(c)) for c in codes} - {np.dtype}, key=str)
+    if multiarray.__name__ != "numpy.core.multiarray":  # files pickled under numpy 1.x
+        allowed.append((multiarray._reconstruct, "numpy.core.multiarray._reconstruct"))
+        allowed.append((multiarray.scalar, "numpy.core.multiarray.scalar"))
+    return allowed
+
+
+def load_safe(path: Path, what: str, numpy_arrays: bool = False) -> Any:
+    """``torch.load(path, weights_only=True)``, with :func:`numpy_allow_list` when asked.
+
+    Any refusal or read error becomes a :class:`MapFormatError` naming the file.
+    """
+    torch = _torch()
+    try:
+        with warnings.catch_warnings():  # torch warns about pickle protocols it reads anyway
+            warnings.filterwarnings("ignore", message="Detected pickle protocol")
+            return _load(torch, path, numpy_arrays)
+    except QuashError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - torch raises many types for bad files
+        raise _load_error(exc, path, what) from None
+
+
+def _load(torch: Any, path: Path, numpy_arrays: bool) -> Any:
+    if numpy_arrays:
+        safe_globals = getattr(torch.serialization, "safe_globals", None)
+        if safe_globals is None:  # pragma: no cover - torch < 2.5
+            raise QuashError(
+                f"{path}: reading OpenScene's .pth needs torch >= 2.5 "
+                "(torch.serialization.safe_globals)."
+            )
+        with safe_globals(numpy_allow_list()):
+            return torch.load(path, map_location="cpu", weights_only=True)
+    try:
+        return torch.load(path, map_location="cpu", weights_only=True, mmap=True)
+    except RuntimeError as exc:  # legacy (non-zip) files cannot be memory-mapped
+        if "mmap" not in str(exc):
+            raise
+        return torch.load(path, map_location="cpu", weights_only=True)
+
+
+def _load_error(exc: Exception, path: Path, what: str) -> MapFormatError:
+    text = str(exc)
+    hit = re.search(r"GLOBAL ([\w.]+)", text)
+    if hit or "Weights only load failed" in text:
+        found = (
+            f"references {hit.group(1)}"
+            if hit
+            else "holds pickled data that is not only tensors and numpy arrays"
+        )
+        return MapFormatError(
+            f"{path}: refused: the {what} {found}. Only tensors and plain numpy arrays "
+            "are read from OpenScene files; unpickling anything else could run code "
+            "from the file."
+        )
+    first = text.strip().splitlines()[0] if text.strip() else type(exc).__name__
+    return MapFormatError(f"{path}: not a readable {what} ({first}).")
+
+
+def _is_fused_file(path: Path) -> bool:
+    """A torch zip archive whose pickle mentions ``feat`` and ``mask_full`` (not unpickled)."""
+    try:
+        with zipfile.ZipFile(path) as z:
+            names = [n for n in z.namelist() if n.endswith("/data.pkl")]
+            if len(names) != 1 or z.getinfo(names[0]).file_size > 1 << 16:
+                return False
+            data = z.read(names[0])
+    except (OSError, zipfile.BadZipFile, KeyError):
+        return False
+    return b"mask_full" in data and b"feat" in data
+
+
+def scene_id(path: Path) -> str:
+    """The scene id of a fused-feature file name."""
+    for pattern in (FUSED, NUMPY_FEAT):
+        m = pattern.match(path.name)
+        if m:
+            return m.group("scene")
+    return path.stem  # nuScenes: <scene>.pt
+
+
+def find_points(features: Path) -> Path:
+    """The scene's ``.pth`` for a fused-feature file, searched near it.
+
+    Tries ``<scene>.pth`` and ``<scene>_vh_clean_2.pth`` in the file's folder, then one
+    and two folders below the folder above it (OpenScene keeps ``data/scannet_3d/val/``
+    beside ``data/scannet_multiview_openseg/``).
+    """
+    sid = scene_id(features)
+    names = (f"{sid}.pth", f"{sid}_vh_clean_2.pth")
+    hits: list[Path] = []
+    for name in names:
+        hits += [features.parent / name]
+    base = features.parent.parent
+    for name in names:
+        hits += sorted(base.glob(f"*/{name}")) + sorted(base.glob(f"*/*/{name}"))
+    found = list(dict.fromkeys(p for p in hits if p.is_file()))
+    if len(found) == 1:
+        return found[0]
+    if not found:
+        raise MapFormatError(
+            f"{features}: the scene's points were not found (looked for {names[0]} and "
+            f"{names[1]} beside it and under {base}). Pass them with the option "
+            "points=PATH (OpenScene's preprocessed .pth, a .ply or a .npy of (N, 3))."
+        )
+    raise MapFormatError(
+        f"{features}: several candidate point files: {', '.join(map(str, found))}. "
+        "Choose one with the option points=PATH."
+    )
+
+
+class OpenSceneAdapter(MapAdapter):
+    """Read OpenScene's fused features (``<scene>_<n>.pt``) with the scene's points.
+
+    Parameters
+    ----------
+    points
+        The scene's points: OpenScene's preprocessed ``.pth`` tuple, a ``.ply`` or a
+        ``.npy`` of ``(N, 3)`` coordinates. Default: ``<scene>.pth`` or
+        ``<scene>_vh_clean_2.pth`` found near the feature file (see :func:`find_points`).
+    label_names
+        Names of the ``.pth`` labels' class ids, in id order: a file (``.txt``, one name
+        per line; ``.yaml``/``.json`` list or ``{id: name}``) or the list itself. OpenScene
+        keeps its label lists in code, so give the one your preprocessing used (ScanNet:
+        its 20 benchmark classes). Labels 255 (ignore) become -1 (unlabelled).
+    all_points
+        True (default): every point of the scene is an item, and points without a fused
+        feature are zero rows that never match (OpenScene's evaluation counts them too).
+        False: only the points with a feature.
+    check_finite
+        Scan the features for NaN/Inf while reading: True, False or ``"auto"`` (up to
+        ``finite_check_mb``).
+    finite_check_mb
+        Size limit of the ``"auto"`` scan, MiB.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> adapter = OpenSceneAdapter()
+    >>> lmap = adapter.read(adapter.write_example(tempfile.mkdtemp()))
+    >>> lmap.kind, lmap.n, lmap.dim, str(lmap.dtype)
+    ('points', 120, 16, 'float16')
+    """
+
+    name = "openscene"
+    priority = 45  # above image-features, which takes any .pt
+
+    def __init__(
+        self,
+        points: str | Path | None = None,
+        label_names: Any = None,
+        all_points: bool = True,
+        check_finite: bool | str = "auto",
+        finite_check_mb: float = 512.0,
+    ) -> None:
+        self.points = points
+        self.label_names = label_names
+        self.all_points = all_points
+        self.check_finite = check_finite
+        self.finite_check_mb = finite_check_mb
+
+    def sniff(self, source: Any) -> bool:
+        try:
+            if not isinstance(source, (str, Path)):
+                return False
+            p = Path(source)
+            if not p.is_file():
+                return False
+            if p.suffix == ".npy":
+                return NUMPY_FEAT.match(p.name) is not None
+            return p.suffix == ".pt" and _is_fused_file(p)
+        except OSError:
+            return False
+
+    def read(self, source: Any, **options: Any) -> LatentMap:
+        opts = self.options(options)
+        path = Path(source).expanduser()
+        if not path.is_file():
+            raise MapFormatError(
+                f"{path}: not a file. Pass OpenScene's fused features <scene>_<n>.pt (or a "
+                "<scene>_openscene_feat_<type>.npy)."
+            )
+        if path.suffix == ".npy":
+            feat, mask = self._read_numpy_features(path)
+        else:
+            feat, mask = self._read_fused(path)
+        points_path = Path(opts["points"]).expanduser() if opts["points"] else find_points(path)
+        coords, colors, labels = read_points(points_path)
+        n = len(coords)
+        if len(mask) != n:
+            raise MapFormatError(
+                f"{path}: field 'mask_full' has {len(mask)} entries but {points_path.name} has "
+                f"{n} points; the features belong to another scene or preprocessing."
+            )
+        m, d = int(feat.shape[0]), int(feat.shape[1])
+        if should_scan(opts["check_finite"], m * d * feat.dtype.itemsize, opts["finite_check_mb"]):
+            scan_finite(feat, str(path), "feat")
+        if opts["all_points"]:
+            index = np.full(n, -1, dtype=np.int64)
+            index[mask] = np.arange(m, dtype=np.int64)
+            embeddings: Any = IndexedRows(feat, index)
+            keep = slice(None)
+        else:
+            embeddings = feat
+            keep = mask
+        names = load_label_names(opts["label_names"])
+        kept_labels = labels[keep] if labels is not None else None
+        names = fit_label_names(names, kept_labels)
+        hint = {768: "openseg ViT-L/14@336 768", 512: "lseg CLIP ViT-B/32 512"}.get(
+            d, f"{d}-d features"
+        )
+        return LatentMap(
+            embeddings=embeddings,
+            kind="points",
+            positions=coords[keep],
+            colors=colors[keep] if colors is not None else None,
+            labels=kept_labels,
+            label_names=names,
+            normalize=True,
+            source={
+                "adapter": self.name,
+                "path": str(path),
+                "points": str(points_path),
+                "scene": scene_id(path),
+                "featured_points": m,
+                "scene_points": n,
+                "encoder_hint": hint,
+            },
+        )
+
+    @staticmethod
+    def _read_fused(path: Path) -> tuple[np.ndarray, np.ndarray]:
+        obj = load_safe(path, "fused-feature file")
+        torch = _torch()
+        if not isinstance(obj, dict) or "feat" not in obj or "mask_full" not in obj:
+            keys = sorted(obj) if isinstance(obj, dict) else type(obj).__name__
+            raise MapFormatError(
+                f"{path}: expected OpenScene's dict with 'feat' (M, D) and 'mask_full' (N,); "
+                f"got {keys}."
+            )
+        feat, mask = obj["feat"], obj["mask_full"]
+        if not isinstance(feat, torch.Tensor) or feat.ndim != 2 or not feat.is_floating_point():
+            raise MapFormatError(
+                f"{path}: field 'feat' must be a float tensor (M, D); got "
+                f"{getattr(feat, 'shape', type(feat).__name__)}."
+            )
+        mask = mask.numpy() if isinstance(mask, torch.Tensor) else np.asarray(mask)
+        mask = _check_mask(mask, path)
+        if feat.dtype == torch.bfloat16:
+            feat = feat.float()
+        feat_np = feat.detach().numpy()
+        if int(mask.sum()) != feat_np.shape[0]:
+            raise MapFormatError(
+                f"{path}: field 'feat' has {feat_np.shape[0]} rows but 'mask_full' marks "
+                f"{int(mask.sum())} points; each True point needs one row."
+            )
+        if feat_np.shape[1] == 0:
+            raise MapFormatError(f"{path}: field 'feat' has no feature dimension.")
+        return feat_np, mask
+
+    @staticmethod
+    def _read_numpy_features(path: Path) -> tuple[np.ndarray, np.ndarray]:
+        try:
+            feat = np.load(path, mmap_mode="r", allow_pickle=False)
+        except (ValueError, OSError, EOFError) as exc:
+            raise MapFormatError(f"{path}: not a readable .npy array ({exc}).") from None
+        if feat.ndim != 2 or feat.shape[1] == 0 or feat.dtype.kind != "f":
+            raise MapFormatError(
+                f"{path}: per-point features must be a float array (N, D); got "
+                f"{feat.shape} {feat.dtype}."
+            )
+        return feat, np.ones(feat.shape[0], dtype=bool)
+
+    def write_example(self, directory: Path) -> Path:
+        """A small ScanNet-style scene: ``scannet_3d/val/<scene>_vh_clean_2.pth`` and
+        ``openseg/<scene>_0.pt``, written the way OpenScene's scripts write them."""
+        torch = _torch()
+        rng = np.random.default_rng(0)
+        root = Path(directory)
+        n, d = 120, 16
+        coords = rng.uniform(-2, 2, size=(n, 3))
+        colors = rng.integers(0, 256, size=(n, 3)) / 127.5 - 1
+        labels = rng.integers(0, 4, size=n).astype(np.float64)
+        labels[::9] = 255
+        pth = root / "scannet_3d" / "val" / "scene0000_00_vh_clean_2.pth"
+        pth.parent.mkdir(parents=True, exist_ok=True)
+        torch.save((coords, colors, labels), pth)
+        mask = torch.from_numpy(rng.random(n) < 0.8)
+        feat = torch.from_numpy(rng.normal(size=(int(mask.sum()), d))).half()
+        pt = root / "openseg" / "scene0000_00_0.pt"
+        pt.parent.mkdir(parents=True, exist_ok=True)
+        torch.save({"feat": feat, "mask_full": mask}, pt)
+        return pt
+
+
+def _check_mask(mask: np.ndarray, path: Path) -> np.ndarray:
+    if mask.ndim != 1:
+        raise MapFormatError(f"{path}: field 'mask_full' must be 1-D (N,); got {mask.shape}.")
+    if mask.dtype != bool:
+        if mask.dtype.kind not in "iu" or (mask.size and not np.isin(mask, (0, 1)).all()):
+            raise MapFormatError(f"{path}: field 'mask_full' must be bool; got {mask.dtype}.")
+        mask = mask.astype(bool)
+    return mask
+
+
+def read_points(path: Path) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """``(coords (N, 3) float32, colors (N, 3) uint8 or None, labels (N,) int64 or None)``.
+
+    From OpenScene's preprocessed ``.pth`` tuple, a ``.ply`` or a ``.npy`` of (N, 3).
+    """
+    if not path.is_file():
+        raise MapFormatError(f"{path}: points file not found. Check the 'points' option.")
+    suffix = path.suffix.lower()
+    if suffix == ".npy":
+        try:
+            arr = np.load(path, allow_pickle=False)
+        except (ValueError, OSError, EOFError) as exc:
+            raise MapFormatError(f"{path}: not a readable .npy array ({exc}).") from None
+        return _coords(arr, path), None, None
+    if suffix == ".ply":
+        try:
+            import open3d as o3d
+        except ImportError:
+            raise QuashError(
+                f'{path}: reading .ply points needs open3d: pip install "quash-plugins[open3d]"'
+            ) from None
+        pcd = o3d.io.read_point_cloud(str(path))
+        coords = _coords(np.asarray(pcd.points), path)
+        colors = (
+            colors_to_uint8(np.asarray(pcd.colors), str(path), "0-1") if pcd.has_colors() else None
+        )
+        return coords, colors, None
+    obj = load_safe(path, "scene file", numpy_arrays=True)
+    if not isinstance(obj, (tuple, list)) or len(obj) not in (2, 3):
+        raise MapFormatError(
+            f"{path}: expected OpenScene's preprocessed tuple (coords, colors, labels); got "
+            f"{type(obj).__name__}{f' of {len(obj)}' if isinstance(obj, (tuple, list)) else ''}."
+        )
+    coords = _coords(obj[0], path)
+    n = len(coords)
+    colors = None
+    raw = np.asarray(obj[1])
+    if raw.ndim == 2:
+        if raw.shape != (n, 3):
+            raise MapFormatError(
+                f"{path}: field 'colors' must be (N, 3) with N = {n}; got {raw.shape}."
+            )
+        if raw.dtype.kind != "f" or not np.isfinite(raw).all():
+            raise MapFormatError(f"{path}: field 'colors' must be finite floats in [-1, 1].")
+        colors = np.clip(np.rint((raw.astype(np.float64) + 1.0) * 127.5), 0, 255).astype(np.uint8)
+    elif raw.ndim != 0:  # nuScenes stores a scalar 0: no colours
+        raise MapFormatError(f"{path}: field 'colors' must be (N, 3) or a scalar; got {raw.shape}.")
+    labels = None
+    if len(obj) == 3:
+        lab = check_labels(obj[2], n, str(path), "labels")
+        lab[np.isin(lab, IGNORE_LABELS)] = -1
+        labels = lab
+    return coords, colors, labels
+
+
+def _coords(arr: Any, path: Path) -> np.ndarray:
+    arr = np.asarray(arr)
+    if arr.ndim != 2 or arr.shape[1] != 3 or arr.dtype.kind not in "fiu":
+        raise MapFormatError(
+            f"{path}: field 'coords' must be (N, 3) numbers; got {arr.shape} {arr.dtype}."
+        )
+    if arr.dtype.kind == "f" and not np.isfinite(arr).all():
+        bad = int(np.argwhere(~np.isfinite(arr))[0][0])
+        raise MapFormatError(f"{path}: field 'coords' contains NaN or Inf (first at point {bad}).")
+    return arr.astype(np.float32)
