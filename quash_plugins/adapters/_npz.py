@@ -138,10 +138,13 @@ def metadata_arrays(lmap: LatentMap) -> dict[str, Any]:
 
 def write_npz_map(path: str | Path, lmap: LatentMap, compress: bool = False) -> Path:
     """Write ``lmap`` as a portable NPZ atomically. Embeddings are read whole here; use
-    :func:`quash_plugins.adapters._convert.write_npz_streaming` for lazy maps."""
-    from ..core.atomic import atomic_write
+    :func:`quash_plugins.adapters._convert.write_npz_streaming` for lazy maps.
+
+    ``path`` may not be the map's own source file (through any link)."""
+    from ..core.atomic import atomic_write, refuse_own_input
 
     path = Path(path)
+    refuse_own_input(path, lmap.source)
     arrays = {"embeddings": np.asarray(lmap.embeddings), **metadata_arrays(lmap)}
     with atomic_write(path, suffix=".npz") as tmp:
         (np.savez_compressed if compress else np.savez)(tmp, **arrays)

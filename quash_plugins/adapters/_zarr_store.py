@@ -12,16 +12,14 @@ Layout of ``MAP.zarr`` (a zarr group, format 3):
 from __future__ import annotations
 
 import logging
-import os
-import shutil
-import uuid
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..core.errors import MapFormatError, QuashError
+from ..core.atomic import atomic_dir, refuse_own_input
+from ..core.errors import MapFormatError
 from ..core.optional import require
 from ..core.types import FrameInfo, LatentMap
 
@@ -42,7 +40,8 @@ def write_zarr_map(
     """Write ``lmap`` as a zarr store at ``path``, atomically.
 
     The store is written into a temporary sibling folder and renamed into place, so a
-    reader never sees half a store. Embeddings are copied one stored chunk at a time and
+    reader never sees half a store. ``path`` may not be the map's own source; an
+    existing ``path`` is replaced (``overwrite``) only when it is a zarr store. Embeddings are copied one stored chunk at a time and
     are never held whole in memory; values are kept as stored (``normalize`` is recorded,
     not applied).
 
@@ -57,11 +56,8 @@ def write_zarr_map(
     """
     zarr = require("zarr", "dask", "Zarr maps")
     path = Path(path).expanduser()
-    if path.exists() and not overwrite:
-        raise QuashError(f"{path} exists. Remove it or pass overwrite=True.")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.parent / f".{path.name}.tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}"
-    try:
+    refuse_own_input(path, lmap.source, folder=True)
+    with atomic_dir(path, overwrite=overwrite) as tmp:
         group = zarr.open_group(str(tmp), mode="w", zarr_format=3)
         emb = lmap.embeddings
         dtype = np.dtype(emb.dtype)
@@ -91,16 +87,6 @@ def write_zarr_map(
                 },
             }
         )
-        if path.exists():
-            old = path.parent / f".{path.name}.old-{uuid.uuid4().hex[:8]}"
-            os.replace(path, old)
-            os.replace(tmp, path)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, path)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     log.info("wrote %s: %d x %d %s in chunks of %d rows", path, lmap.n, lmap.dim, dtype, rows)
     return path
 

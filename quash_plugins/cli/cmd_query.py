@@ -19,8 +19,9 @@ With --format openlex3d, --out is a folder of per-query files aligned with the r
 an OpenLex3D export of the map (quash convert MAP DIR --format openlex3d):
 query_scores.npy (N, Q) in [0, 1] (0.5 at the threshold), query_scores_raw.npy,
 query_masks.npy and queries.json (see docs/adapters.md#openlex3d).
---out never replaces the map or any other input; an existing file is replaced only when
-it is a previous result of quash query, or with --force."""
+--out and --rrd never replace the map or any other input; an existing file is replaced
+only when it is a previous output of the same kind (a query result, a recording), or
+with --force."""
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -49,7 +50,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--force",
         action="store_true",
-        help="Let --out replace an existing file that is not a previous query result.",
+        help="Let --out and --rrd replace an existing file that is not a previous output "
+        "of the same kind (never an input).",
     )
     p.add_argument("--json", action="store_true", help="Print the per-query summary as JSON.")
     add_runtime_options(p)
@@ -103,13 +105,14 @@ def _out_format(args: argparse.Namespace) -> str:
 def _check_outputs(args: argparse.Namespace) -> None:
     """Refuse, before any work, outputs that would replace an input or a user's file."""
     from ..core.atomic import check_output
-    from ..engine.results import is_openlex3d_results, is_results_npz
+    from ..engine.results import is_openlex3d_results, is_results_npz, is_results_zarr
+    from ._viewer_opts import check_rrd
 
     inputs = (args.map, args.config)
     if args.out:
         fmt = _out_format(args)
         replaceable = {
-            "zarr": _is_results_zarr,
+            "zarr": is_results_zarr,
             "openlex3d": is_openlex3d_results,
             "npz": is_results_npz,
         }[fmt]
@@ -121,19 +124,7 @@ def _check_outputs(args: argparse.Namespace) -> None:
             replaceable=replaceable,
             folder=fmt != "npz",
         )
-    if getattr(args, "rrd", None):
-        check_output(
-            args.rrd,
-            inputs,
-            what="--rrd",
-            overwrite=True,  # an existing .rrd is a previous recording
-        )
-
-
-def _is_results_zarr(path) -> bool:
-    from pathlib import Path
-
-    return (Path(path) / "masks").exists() and (Path(path) / "scores").exists()
+    check_rrd(args, inputs)
 
 
 def _query_to_zarr(args, quash) -> int:

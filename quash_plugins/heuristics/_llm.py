@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit, urlunsplit
 
-from ..core.errors import ConfigError, HeuristicError
+from ..core.errors import ConfigError, HeuristicError, QuashError
 from ..core.interfaces import ExpansionContext, Heuristic
 from ..core.types import QuerySet
 from ._parse import clean_lists, parse_reply
@@ -227,7 +227,10 @@ class LLMHeuristic(Heuristic):
 
     def _read_cache(self, query: str) -> dict[str, Any] | None:
         path = self.cache_path(query)
-        if not path.exists():
+        if not path.exists() and not path.is_symlink():
+            return None
+        if path.is_symlink() or not path.is_file():
+            log.warning("ignoring LLM cache entry %s: not a regular file", path)
             return None
         try:
             data = json.loads(path.read_text(encoding="utf-8"))
@@ -249,7 +252,10 @@ class LLMHeuristic(Heuristic):
             "temperature": self.temperature,
             "created": datetime.now(UTC).isoformat(timespec="seconds"),
         }
-        atomic_write_text(path, json.dumps(record, indent=1, ensure_ascii=False))
+        try:
+            atomic_write_text(path, json.dumps(record, indent=1, ensure_ascii=False))
+        except QuashError as exc:  # a link or folder planted at the cache path: never followed
+            log.warning("llm: query set for %r not cached: %s", query, exc)
         return path
 
     # ------------------------------------------------------------------ expansion
