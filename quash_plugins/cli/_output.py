@@ -11,11 +11,12 @@ log = logging.getLogger("quash_plugins.cli")
 
 
 def setup_logging(verbose: int, quiet: bool) -> None:
-    """Route ``quash_plugins`` logging to stderr through rich."""
+    """Route ``quash_plugins`` logging to stderr through rich, credentials redacted."""
     from rich.console import Console
     from rich.logging import RichHandler
 
     from ..core import progress as _progress
+    from ..core.redact import RedactingFilter
 
     level = logging.WARNING if quiet else (logging.DEBUG if verbose else logging.INFO)
     _progress.QUIET = quiet
@@ -26,6 +27,7 @@ def setup_logging(verbose: int, quiet: bool) -> None:
         markup=False,
         rich_tracebacks=False,
     )
+    handler.addFilter(RedactingFilter())
     root = logging.getLogger("quash_plugins")
     root.handlers[:] = [handler]
     root.setLevel(level)

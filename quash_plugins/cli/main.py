@@ -23,6 +23,7 @@ from collections.abc import Iterator, Sequence
 
 from .. import __version__
 from ..core.errors import QuashError, UsageError
+from ..core.redact import redact
 from ._output import setup_logging
 
 log = logging.getLogger("quash_plugins.cli")
@@ -122,12 +123,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except UsageError as exc:
         if args.debug:
             raise
-        print(f"quash {args.command}: error: {exc}", file=sys.stderr)
+        print(f"quash {args.command}: error: {redact(exc)}", file=sys.stderr)
         return 2
     except QuashError as exc:
         if args.debug:
             raise
-        print(f"quash {args.command}: error: {exc}", file=sys.stderr)
+        print(f"quash {args.command}: error: {redact(exc)}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
@@ -136,7 +137,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.debug:
             raise
         print(
-            f"quash {args.command}: unexpected error: {type(exc).__name__}: {exc}\n"
+            f"quash {args.command}: unexpected error: {type(exc).__name__}: {redact(exc)}\n"
             "Re-run with --debug for the traceback.",
             file=sys.stderr,
         )
