@@ -64,8 +64,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _parse_options(items: list[str]) -> dict:
-    import yaml
-
+    from ..core.config import load_yaml_text
     from ..core.errors import UsageError
 
     out = {}
@@ -73,7 +72,7 @@ def _parse_options(items: list[str]) -> dict:
         key, sep, value = item.partition("=")
         if not sep or not key.strip():
             raise UsageError(f"--option expects KEY=VALUE; got {item!r}.")
-        out[key.strip()] = yaml.safe_load(value) if value else ""
+        out[key.strip()] = load_yaml_text(value, f"--option {key.strip()}") if value else ""
     return out
 
 
