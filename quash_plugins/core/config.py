@@ -45,6 +45,33 @@ DEFAULT_HEURISTIC = PluginSpec("none")
 DEFAULT_CLASSIFIER = PluginSpec("nearest-sample", {"k": 2})
 
 
+#: Devices a config may name: ``cuda:N`` picks one GPU. Anything else (``tpu``, ``xla``,
+#: a typo) is refused when the config is loaded, not silently ignored.
+DEVICES = ("auto", "cpu", "cuda", "cuda:N", "mps")
+
+
+def check_device(value: Any, where: str = "device") -> str:
+    """``value`` as a device string when it is one of :data:`DEVICES`; else ConfigError.
+
+    Examples
+    --------
+    >>> check_device("cuda:1")
+    'cuda:1'
+    """
+    if value is None:
+        return "auto"
+    text = str(value).strip().lower() if isinstance(value, str) else None
+    if text is not None:
+        kind, _, index = text.partition(":")
+        if (kind in ("auto", "cpu", "cuda", "mps") and not index) or (
+            kind == "cuda" and index.isdigit()
+        ):
+            return text
+    raise ConfigError(
+        f"{where}: {value!r} is not a supported device; use one of {', '.join(DEVICES)}."
+    )
+
+
 def _default(spec: PluginSpec):
     return lambda: PluginSpec(spec.name, dict(spec.params))
 
@@ -117,7 +144,10 @@ class QuashConfig:
         metadata={"help": "Instance grouping options ({min_size: 3, radius: ...}); null disables."},
     )
     seed: int = field(default=0, metadata={"help": "Seed for random heuristics."})
-    device: str = field(default="auto", metadata={"help": "cpu, cuda, mps or auto."})
+    device: str = field(
+        default="auto",
+        metadata={"help": "auto, cpu, cuda, cuda:N or mps; anything else is refused."},
+    )
     cache: bool = field(default=True, metadata={"help": "Cache text embeddings on disk."})
     chunk_mb: float = field(
         default=256.0, metadata={"help": "Working-set budget for classification, in MB."}
@@ -235,6 +265,8 @@ def _convert(cls, key: str, value: Any, where: _Where, path) -> Any:
         ) from None
     if key == "chunk_mb" and out <= 0:
         raise ConfigError(f"{where.at((key,))}'chunk_mb' must be positive.")
+    if key == "device":
+        out = check_device(value, f"{where.at((key,))}'device'")
     return out
 
 

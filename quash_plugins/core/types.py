@@ -111,8 +111,16 @@ class LatentMap:
                 f"Field 'embeddings'{where} has no feature dimension (shape {tuple(shape)})."
             )
         dtype = np.dtype(self.embeddings.dtype)
-        if dtype.kind not in "fiu":
-            raise MapFormatError(f"Field 'embeddings'{where} must hold numbers; got dtype {dtype}.")
+        if dtype.kind in "iu":
+            raise MapFormatError(
+                f"Field 'embeddings'{where} holds integers ({dtype}); embeddings must be "
+                "floating point (float16, float32 or float64). Quantised features must be "
+                "de-quantised first (e.g. codes.astype(np.float32) * scale + offset)."
+            )
+        if dtype.kind != "f":
+            raise MapFormatError(
+                f"Field 'embeddings'{where} must hold floating-point numbers; got dtype {dtype}."
+            )
         if self.kind not in MAP_KINDS:
             raise MapFormatError(f"LatentMap kind must be one of {MAP_KINDS}; got {self.kind!r}.")
         self.positions = self._check_rows("positions", self.positions, n, (3,), np.float32, where)
