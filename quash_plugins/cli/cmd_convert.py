@@ -80,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
     from ..adapters import convert_map, detect_adapter
     from ..core import registry
     from ..core.errors import UsageError
-    from ._output import console, print_json
+    from ._output import console, print_json, safe_text
 
     options = _parse_options(args.option)
     _check_destination(args)
@@ -108,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print_json({"source": args.source, "adapter": name, "destination": str(written)})
     else:
-        console().print(f"wrote {written} (read with adapter {name!r})")
+        console().print(safe_text(f"wrote {written} (read with adapter {name!r})"))
     return 0
 
 

@@ -54,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
     from ..demo.runner import demo_config_paths, run_demo
     from ..evaluation.plot import plot_precision_recall
     from ._backend_opts import backend_overrides
-    from ._output import console
+    from ._output import console, safe_text
     from ._viewer_opts import open_viewer
 
     if args.list_configs:
@@ -80,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
     atomic_write_text(outdir / "demo.json", json.dumps(report.to_json(), indent=2) + "\n")
     plot_precision_recall(report.configs, outdir / "demo.png", title=title)
     out.print(f"[bold]{title}[/] (scene {scene})")
-    out.print(md, markup=False)
+    out.print(safe_text(md, markup=False), markup=False)
     if viewer is not None:
         viewer.close()
     written = ["demo.md", "demo.json", "demo.png"] + (

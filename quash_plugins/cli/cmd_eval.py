@@ -88,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
     from ..evaluation.report import evaluate
     from ._backend_opts import backend_overrides
     from ._config_opts import apply_runtime_options, load_config
-    from ._output import console
+    from ._output import console, safe_text
     from ._viewer_opts import open_viewer
 
     if not args.configs:
@@ -128,12 +128,13 @@ def run(args: argparse.Namespace) -> int:
         viewer.close()
     out = console()
     out.print(
-        f"{lmap.describe()}: {len(report.queries)} queries, {len(report.absent)} absence queries"
+        safe_text(lmap.describe())
+        + f": {len(report.queries)} queries, {len(report.absent)} absence queries"
     )
-    out.print(md, markup=False)
+    out.print(safe_text(md, markup=False), markup=False)
     for f in (args.json, args.markdown, args.plot):
         if f:
-            out.print(f"wrote {f}")
+            out.print(f"wrote {safe_text(f)}")
     return 0
 
 

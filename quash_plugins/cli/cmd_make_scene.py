@@ -59,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core import registry
     from ..demo.scene import SceneOptions, make_scene, write_scene
     from ..engine.cache import open_cache
-    from ._output import console
+    from ._output import console, safe_text
 
     opts = SceneOptions(**{f.name: getattr(args, f.name) for f in dataclasses.fields(SceneOptions)})
     _check_outputs(args)
@@ -73,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
         f"{', '.join(scene.room_types)} (seed {opts.seed}, encoder {encoder.name})"
     )
     for k, v in paths.items():
-        out.print(f"wrote {k}: {v}")
+        out.print(safe_text(f"wrote {k}: {v}"))
     return 0
 
 

@@ -130,7 +130,7 @@ def _check_outputs(args: argparse.Namespace) -> None:
 def _query_to_zarr(args, quash) -> int:
     """Results too large for memory: masks and scores stay lazy and stream into zarr."""
     from ..core.errors import UsageError
-    from ._output import console, print_json
+    from ._output import console, print_json, safe_text
     from ._viewer_opts import viewer_requested
 
     if viewer_requested(args):
@@ -154,13 +154,13 @@ def _query_to_zarr(args, quash) -> int:
         return 0
     out = console()
     for r in rows:
-        out.print(f"{r['query']}: {r['matched']} of {n} items ({100 * r['share']:.2f}%)")
-    out.print(f"wrote {path}")
+        out.print(f"{safe_text(r['query'])}: {r['matched']} of {n} items ({100 * r['share']:.2f}%)")
+    out.print(f"wrote {safe_text(path)}")
     return 0
 
 
 def _report(args, cfg, lmap, results) -> None:
-    from ._output import console, print_json
+    from ._output import console, print_json, safe_text
 
     if args.json:
         print_json(
@@ -174,12 +174,12 @@ def _report(args, cfg, lmap, results) -> None:
         return
     from rich.table import Table
 
-    table = Table(title=f"{lmap.describe()} | config {cfg.name}")
+    table = Table(title=safe_text(f"{lmap.describe()} | config {cfg.name}"))
     for col in ("query", "matched", "share", "instances", "positives", "negatives", "time"):
         table.add_column(col, justify="right" if col not in ("query",) else "left")
     for r in results:
         table.add_row(
-            r.query,
+            safe_text(r.query),
             f"{r.n_matched}",
             f"{100 * r.share:.2f}%",
             f"{len(r.instances)}",
@@ -192,6 +192,6 @@ def _report(args, cfg, lmap, results) -> None:
     stages = ("read", "expand", "encode", "fit", "classify", "postprocess", "instances")
     for r in results:
         parts = [f"{s} {r.timings[s] * 1000:.1f} ms" for s in stages if s in r.timings]
-        out.print(f"[dim]{r.query}: " + ", ".join(parts) + "[/]")
+        out.print(f"[dim]{safe_text(r.query)}: " + ", ".join(parts) + "[/]")
     if args.out:
-        out.print(f"wrote {args.out}")
+        out.print(f"wrote {safe_text(args.out)}")

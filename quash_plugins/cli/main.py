@@ -42,6 +42,13 @@ examples:
 Run 'quash COMMAND --help' for the options of each command."""
 
 
+def _clean(exc: BaseException) -> str:
+    """An error message fit for the terminal: credentials redacted, controls escaped."""
+    from ..core.types import escape_control
+
+    return escape_control(redact(exc))
+
+
 class Terminated(KeyboardInterrupt):
     """SIGTERM, raised in the main thread so that ``finally`` blocks and cleanup run."""
 
@@ -123,12 +130,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except UsageError as exc:
         if args.debug:
             raise
-        print(f"quash {args.command}: error: {redact(exc)}", file=sys.stderr)
+        print(f"quash {args.command}: error: {_clean(exc)}", file=sys.stderr)
         return 2
     except QuashError as exc:
         if args.debug:
             raise
-        print(f"quash {args.command}: error: {redact(exc)}", file=sys.stderr)
+        print(f"quash {args.command}: error: {_clean(exc)}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
@@ -137,7 +144,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.debug:
             raise
         print(
-            f"quash {args.command}: unexpected error: {type(exc).__name__}: {redact(exc)}\n"
+            f"quash {args.command}: unexpected error: {type(exc).__name__}: {_clean(exc)}\n"
             "Re-run with --debug for the traceback.",
             file=sys.stderr,
         )
