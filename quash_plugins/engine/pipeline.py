@@ -33,7 +33,7 @@ from ..core.errors import ConfigError, DimensionMismatchError, EmptyMapWarning, 
 from ..core.interfaces import Encoder, ExpansionContext, Heuristic
 from ..core.text import TextCache, load_templates
 from ..core.types import DEFAULT_NEGATIVES, LatentMap, QueryResult, QuerySet, check_query
-from .classify import classify_local
+from .classify import classify_local, warn_unobserved
 from .training import training_set
 
 log = logging.getLogger(__name__)
@@ -204,7 +204,7 @@ class Quash:
             p = Path(source).expanduser()
             try:
                 key = (str(p.resolve()), p.stat().st_mtime_ns, name, repr(sorted(opts.items())))
-            except OSError:
+            except (OSError, RuntimeError):  # missing, unreadable, a symbolic-link loop
                 key = None
         else:
             key = (id(source), name)
@@ -319,6 +319,7 @@ class Quash:
             pending.append(_Pending(qs, X, y, clf, timings))
         t = time.perf_counter()
         scores, observed = self._classify(lmap, [p.clf for p in pending], progress)
+        warn_unobserved(lmap, observed)
         t_cls = (time.perf_counter() - t) / len(texts)
         for p, raw in zip(pending, scores):
             p.timings["classify"] = t_cls
