@@ -137,7 +137,13 @@ class TextEmbeddingCache:
 
     # ------------------------------------------------------------------ reading
     def _read(self, path: Path, fingerprint: str) -> dict[str, np.ndarray]:
-        """Read one shard; raise :class:`CorruptCacheFile` when it is damaged."""
+        """Read one shard; raise :class:`CorruptCacheFile` when it is damaged.
+
+        A symbolic link, folder or device planted at a shard's path is never read (a pipe
+        would block): it counts as damage, and a link is removed, never followed.
+        """
+        if path.is_symlink() or (path.exists() and not path.is_file()):
+            raise CorruptCacheFile("not a regular file")
         try:
             with np.load(path, allow_pickle=False) as z:
                 texts = np.asarray(z["texts"])

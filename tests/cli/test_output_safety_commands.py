@@ -222,3 +222,28 @@ def test_atomic_dir_puts_the_old_store_back_when_the_swap_fails(tmp_path, monkey
         (tmp / "zarr.json").write_text('{"new": 1}')
     assert (store / "zarr.json").read_text() == "{}"
     assert [p.name for p in tmp_path.iterdir()] == ["s.zarr"]
+
+
+# ---------------------------------------------------------------------- caches
+def test_links_and_pipes_planted_in_the_caches_are_never_followed(tmp_path, caplog):
+    from quash_plugins.engine.cache import TextEmbeddingCache, _safe_name, _shard_of
+    from quash_plugins.heuristics._llm import LLMHeuristic
+
+    victim = tmp_path / "victim.txt"
+    victim.write_text("keep")
+    cache = TextEmbeddingCache(tmp_path / "emb")
+    folder = cache.root / _safe_name("enc")
+    folder.mkdir(parents=True)
+    (folder / f"{_shard_of('chair')}.npz").symlink_to(victim)
+    os.mkfifo(folder / f"{_shard_of('sofa')}.npz")  # reading it would block forever
+    cache.store("enc", {"chair": np.ones(2, np.float32), "sofa": np.ones(2, np.float32)})
+    assert set(cache.lookup("enc", ["chair", "sofa"])) <= {"chair", "sofa"}
+    assert victim.read_text() == "keep"
+    llm = LLMHeuristic(model="m", offline=True, cache_dir=str(tmp_path / "llm"))
+    path = llm.cache_path("chair")
+    path.parent.mkdir(parents=True)
+    path.symlink_to(victim)
+    assert llm._read_cache("chair") is None
+    llm._write_cache("chair", ["seat"], ["lamp"])
+    assert victim.read_text() == "keep" and path.is_symlink()
+    assert "not a regular file" in caplog.text and "not cached" in caplog.text
