@@ -29,8 +29,7 @@ CHILD = textwrap.dedent(
 
         def __getitem__(self, key):
             time.sleep(1.0)
-            start, stop, _ = key.indices(self.shape[0])
-            return np.ones((stop - start, 8), np.float32)
+            return np.ones(self.shape, np.float32)[key]
 
     class SlowAdapter(MapAdapter):
         name = "slow"
@@ -39,14 +38,25 @@ CHILD = textwrap.dedent(
             return False
 
         def read(self, source, **options):
-            return LatentMap(SlowRows(), source={"path": str(source)})
+            n = SlowRows.shape[0]
+            rng = np.random.default_rng(0)
+            positions = rng.uniform(0, 1, (n, 3)) if n < 10000 else None  # the viewer's map
+            return LatentMap(SlowRows(), positions=positions, source={"path": str(source)})
 
     registry.register("adapters", "slow", SlowAdapter)
     from quash_plugins.cli.main import main
 
-    sys.exit(main(["-q", "convert", sys.argv[1], sys.argv[2], "--adapter", "slow"]))
+    src, dst = sys.argv[1], sys.argv[2]
+    if dst.endswith(".rrd"):  # a query whose recording is being written
+        SlowRows.shape = (2000, 8)
+        args = ["query", src, "chair", "-c", sys.argv[3], "--adapter", "slow", "--rrd", dst]
+    else:
+        args = ["convert", src, dst, "--adapter", "slow"]
+    sys.exit(main(["-q", *args]))
     """
 )
+
+CONFIG = "encoder: {name: table, table: {chair: [1, 0, 0, 0, 0, 0, 0, 0], other: [0, 1, 0, 0, 0, 0, 0, 0]}}\nnegatives: [other]\ninstances: false\ncache: false\n"
 
 
 def _hidden(folder):
@@ -59,18 +69,23 @@ def _hidden(folder):
         (signal.SIGTERM, 143, ".npz"),
         (signal.SIGINT, 130, ".npz"),
         (signal.SIGTERM, 143, ".zarr"),
+        (signal.SIGTERM, 143, ".rrd"),
     ],
 )
 def test_signal_mid_write_leaves_no_temporary_file(tmp_path, sig, code, suffix):
     if suffix == ".zarr":
         pytest.importorskip("zarr")
+    if suffix == ".rrd":
+        pytest.importorskip("rerun")
     src = tmp_path / "src.bin"
     src.write_bytes(b"x")
     out = tmp_path / "out"
     out.mkdir()
     dst = out / f"map{suffix}"
+    config = tmp_path / "c.yaml"
+    config.write_text(CONFIG)
     proc = subprocess.Popen(
-        [sys.executable, "-c", CHILD, str(src), str(dst)],
+        [sys.executable, "-c", CHILD, str(src), str(dst), str(config)],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         env={**os.environ, "PYTHONUNBUFFERED": "1"},
