@@ -268,12 +268,10 @@ def query_lazy(
     from .pipeline import warn_if_empty
 
     warn_if_empty(lmap)
-    querysets, classifiers = [], []
-    for text in texts:
-        qs = quash.expand(text, lmap)
-        X, y, _ = quash.training_set(qs)
-        querysets.append(qs)
-        classifiers.append(clone(quash.classifier).fit(X, y))
+    querysets = [quash.expand(text, lmap) for text in texts]
+    # one encoder call for the strings of every query set
+    sets = quash.training_sets(querysets)
+    classifiers = [clone(quash.classifier).fit(X, y) for X, y, _ in sets]
     chunk_bytes = int(getattr(quash, "chunk_mb", 256.0) * 2**20)
     held = ship(BlockScorer(classifiers, chunk_bytes))
     raw = scores_graph(lmap, classifiers, chunk_bytes, client, held=held)
