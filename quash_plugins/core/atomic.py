@@ -120,7 +120,7 @@ def check_output(
             raise UsageError(f"{what} {out} is a folder; give a file name inside it.")
         if folder and not stat.S_ISDIR(st.st_mode):
             raise UsageError(f"{what} {out} exists and is not a folder; refusing to replace it.")
-        known = replaceable is not None and replaceable(out)
+        known = (replaceable is not None and replaceable(out)) or _empty_dir(out)
         if folder and not known and not is_store_dir(out):
             raise UsageError(
                 f"{what} {out} is a folder that is neither a zarr store nor a previous "
@@ -211,6 +211,14 @@ def _refuse_non_regular(path: Path) -> None:
         raise UsageError(f"Output {path} is a {kind}; refusing to replace it.")
 
 
+def _empty_dir(path: Path) -> bool:
+    """An empty folder: replacing it loses nothing."""
+    try:
+        return path.is_dir() and not path.is_symlink() and not any(path.iterdir())
+    except OSError:
+        return False
+
+
 def is_store_dir(path: str | Path) -> bool:
     """True when ``path`` is a folder holding zarr metadata at its root (a zarr store)."""
     p = Path(path)
@@ -237,7 +245,7 @@ def atomic_dir(path: str | Path, overwrite: bool = True) -> Iterator[Path]:
     if path.exists():
         if not overwrite:
             raise UsageError(f"{path} exists. Remove it or pass overwrite=True.")
-        if not is_store_dir(path):
+        if not is_store_dir(path) and not _empty_dir(path):
             raise UsageError(
                 f"Output {path} is a folder that is not a zarr store; refusing to replace it. "
                 "Choose another name."

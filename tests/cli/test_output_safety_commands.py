@@ -59,7 +59,7 @@ def test_convert_never_replaces_a_folder_that_is_not_a_zarr_store(tiny_world, tm
     (folder / "holiday.jpg").write_bytes(b"precious")
     for extra in ([], ["--force"]):
         assert main(["-q", "convert", str(tiny_world["map"]), str(folder), *extra]) == 2
-        assert "not a zarr store" in capsys.readouterr().err
+        assert "neither a zarr store" in capsys.readouterr().err
     assert (folder / "holiday.jpg").read_bytes() == b"precious"
     # a zarr store written by convert is replaced with --force
     store = tmp_path / "m.zarr"
@@ -196,7 +196,7 @@ def test_npz_and_zarr_writers_refuse_their_own_source(tiny_world, tmp_path):
     folder = tmp_path / "mine"
     folder.mkdir()
     (folder / "keep.txt").write_text("keep")
-    with pytest.raises(UsageError, match="not a zarr store"):
+    with pytest.raises(UsageError, match="neither a zarr store"):
         write_zarr_map(lmap, folder)
     assert (folder / "keep.txt").read_text() == "keep"
 
@@ -247,3 +247,11 @@ def test_links_and_pipes_planted_in_the_caches_are_never_followed(tmp_path, capl
     llm._write_cache("chair", ["seat"], ["lamp"])
     assert victim.read_text() == "keep" and path.is_symlink()
     assert "not a regular file" in caplog.text and "not cached" in caplog.text
+
+
+def test_an_empty_folder_may_be_replaced_by_a_store(tiny_world, tmp_path):
+    pytest.importorskip("zarr")
+    empty = tmp_path / "m.zarr"
+    empty.mkdir()  # nothing in it to lose
+    assert main(["-q", "convert", str(tiny_world["map"]), str(empty)]) == 0
+    assert (empty / "zarr.json").is_file()
