@@ -41,9 +41,10 @@ def write_npz_streaming(path: str | Path, lmap: LatentMap, chunk_rows: int = 655
     Values and dtype are kept as stored (float16 stays float16, rows are not normalised;
     the ``normalize`` flag is recorded instead). The file appears atomically.
     """
-    from ..core.atomic import atomic_write
+    from ..core.atomic import atomic_write, refuse_own_input
 
     path = Path(path)
+    refuse_own_input(path, lmap.source)
     emb = lmap.embeddings
     n, d = lmap.n, lmap.dim
     dtype = np.dtype(emb.dtype)
@@ -81,24 +82,22 @@ def convert_map(
     ``"openlex3d"`` (a folder holding OpenLex3D's ``embeddings.npy``, ``index.npy`` and
     ``point_cloud.pcd``; see :func:`~quash_plugins.adapters._openlex3d.write_openlex3d_map`)
     or ``"auto"``: npz or zarr by the destination's suffix. The source is never written
-    to; ``destination`` must differ from it and lie outside it.
+    to; ``destination`` may not be the source (through any link) nor lie inside it. An
+    existing ``destination`` is replaced (a folder only when it is a zarr store, or a
+    previous OpenLex3D export for ``"openlex3d"``).
 
     Examples
     --------
     >>> convert_map("saved-map", "room0.npz")  # doctest: +SKIP
     PosixPath('room0.npz')
     """
+    from ..core.atomic import check_not_input, refuse_own_input
     from ..core.maps import read_map
 
     dst = Path(destination).expanduser()
-    if isinstance(source, (str, Path)):
-        src = Path(source).expanduser()
-        if src.exists() and (
-            dst.resolve() == src.resolve() or src.resolve() in dst.resolve().parents
-        ):
-            raise UsageError(f"Destination {dst} would overwrite or sit inside the input {src}.")
     if format not in FORMATS:
         raise UsageError(f"Unknown output format {format!r}; use one of {', '.join(FORMATS)}.")
+    sources = [source] if isinstance(source, (str, Path)) else []
     suffix = dst.suffix.lower()
     if format == "openlex3d":
         from ._openlex3d import write_openlex3d_map
@@ -108,6 +107,7 @@ def convert_map(
                 f"Destination {dst}: --format openlex3d writes a folder (the scene folder "
                 f"of OpenLex3D's predictions), not a {suffix} file."
             )
+        check_not_input(dst, sources, what="Destination")
         return write_openlex3d_map(read_map(source, adapter, **options), dst)
     if format == "auto" and suffix not in (".npz", ".zarr"):
         raise UsageError(
@@ -116,6 +116,7 @@ def convert_map(
         )
     if format in ("npz", "zarr") and suffix != f".{format}":
         raise UsageError(f"Destination {dst} must end in .{format} for --format {format}.")
+    refuse_own_input(dst, sources, folder=suffix == ".zarr")
     lmap = read_map(source, adapter, **options)
     if suffix == ".zarr":
         from ._zarr_store import write_zarr_map

@@ -33,11 +33,60 @@ OPTIONAL = (
 )
 
 
+def check_declared_sizes(path: Path) -> None:
+    """Refuse an NPZ whose arrays declare more data than the file holds.
+
+    A damaged or hostile header can declare ``(10**11, 16)`` rows; loading it would try
+    to allocate terabytes. Each ``.npy`` member's header is read and its declared size
+    compared with the member's stored size before anything is allocated.
+    """
+    fmt = np.lib.format
+    with zipfile.ZipFile(path) as zf:
+        for info in zf.infolist():
+            if not info.filename.endswith(".npy"):
+                continue
+            name = info.filename[: -len(".npy")]
+            try:
+                with zf.open(info) as f:
+                    version = fmt.read_magic(f)
+                    read = (
+                        fmt.read_array_header_1_0
+                        if version == (1, 0)
+                        else fmt.read_array_header_2_0
+                    )
+                    shape, _, dtype = read(f)
+                    header = f.tell()
+            except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
+                raise MapFormatError(
+                    f"{path}: array {name!r} has a damaged header ({exc}). Copy or convert "
+                    "the map again."
+                ) from None
+            if dtype.hasobject:
+                continue  # refused when loaded: pickles are never read
+            declared = int(np.prod(shape, dtype=object)) * dtype.itemsize
+            stored = info.file_size - header
+            if declared > stored:
+                raise MapFormatError(
+                    f"{path}: array {name!r} declares shape {tuple(shape)} {dtype} "
+                    f"({_size(declared)}), but the file holds only {_size(max(0, stored))} of "
+                    "it: the file is truncated or damaged. Copy or convert the map again."
+                )
+
+
+def _size(n: int) -> str:
+    for unit in ("B", "KiB", "MiB", "GiB", "TiB"):
+        if n < 1024 or unit == "TiB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1024
+    return f"{n:.1f} TiB"
+
+
 class NpzAdapter(MapAdapter):
     """Read quash-plugins' portable NPZ map (see :func:`write_npz_map`)."""
 
     name = "npz"
     priority = 10
+    suffixes = (".npz",)
 
     def sniff(self, source: Any) -> bool:
         if not isinstance(source, (str, Path)):
@@ -69,6 +118,7 @@ class NpzAdapter(MapAdapter):
                 raise MapFormatError(
                     f"{path}: missing array 'embeddings' (N, D). Found: {', '.join(z.files)}."
                 )
+            check_declared_sizes(path)
             try:
                 data = {k: z[k] for k in ("embeddings", *OPTIONAL) if k in z.files}
             except ValueError as exc:
@@ -138,10 +188,13 @@ def metadata_arrays(lmap: LatentMap) -> dict[str, Any]:
 
 def write_npz_map(path: str | Path, lmap: LatentMap, compress: bool = False) -> Path:
     """Write ``lmap`` as a portable NPZ atomically. Embeddings are read whole here; use
-    :func:`quash_plugins.adapters._convert.write_npz_streaming` for lazy maps."""
-    from ..core.atomic import atomic_write
+    :func:`quash_plugins.adapters._convert.write_npz_streaming` for lazy maps.
+
+    ``path`` may not be the map's own source file (through any link)."""
+    from ..core.atomic import atomic_write, refuse_own_input
 
     path = Path(path)
+    refuse_own_input(path, lmap.source)
     arrays = {"embeddings": np.asarray(lmap.embeddings), **metadata_arrays(lmap)}
     with atomic_write(path, suffix=".npz") as tmp:
         (np.savez_compressed if compress else np.savez)(tmp, **arrays)

@@ -143,6 +143,8 @@ class VLMapsAdapter(MapAdapter):
 
     name = "vlmaps"
     priority = 20
+    suffixes = (".h5df",)
+    magic = (b"\x89HDF\r\n\x1a\n",)
 
     def __init__(
         self,

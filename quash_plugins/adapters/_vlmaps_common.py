@@ -224,9 +224,9 @@ def _names_from_file(path: Path) -> list[str]:
             if suffix == ".json":
                 data = json.loads(text)
             else:
-                import yaml
+                from ..core.config import load_yaml_text
 
-                data = yaml.safe_load(text)
+                data = load_yaml_text(text, str(path))
         except Exception as exc:  # noqa: BLE001 - any parse error is a format error
             raise MapFormatError(f"{path}: cannot parse label names ({exc}).") from None
         if isinstance(data, Mapping):

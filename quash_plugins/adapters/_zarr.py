@@ -41,6 +41,7 @@ class ZarrAdapter(MapAdapter):
 
     name = "zarr"
     priority = 10
+    suffixes = (".zarr",)
 
     def __init__(self, dask: bool = False, chunk_rows: int | None = None) -> None:
         self.dask = dask

@@ -5,23 +5,28 @@ Layout of ``MAP.zarr`` (a zarr group, format 3):
 - ``embeddings`` ``(N, D)``, dtype kept (float16 stays float16), chunks of whole rows;
 - ``positions`` ``(N, 3)`` float32, ``colors`` ``(N, 3)`` uint8, ``labels`` ``(N,)`` int64,
   ``grid_index`` ``(N, 3)`` int64 when the map has them;
-- group attributes ``quash_map`` (format version), ``kind``, ``voxel_size``,
-  ``normalize``, ``label_names``, ``frames`` and ``source``.
+- group attributes ``quash_map`` (format version), ``chunks_complete`` (every chunk is
+  stored, even an all-zero one), ``kind``, ``voxel_size``, ``normalize``,
+  ``label_names``, ``frames`` and ``source``.
+
+Zarr reads a chunk missing from the store as the fill value (zeros), so a damaged store
+would silently read as unobserved rows. :func:`check_chunks` compares the chunks stored
+with the array's chunk grid when the map is opened: a store written here
+(``chunks_complete``) with a missing chunk is an error naming the chunk and its rows;
+any other store gets a warning with the share of rows that will read as zeros.
 """
 
 from __future__ import annotations
 
 import logging
-import os
-import shutil
-import uuid
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..core.errors import MapFormatError, QuashError
+from ..core.atomic import atomic_dir, refuse_own_input
+from ..core.errors import MapFormatError
 from ..core.optional import require
 from ..core.types import FrameInfo, LatentMap
 
@@ -42,7 +47,8 @@ def write_zarr_map(
     """Write ``lmap`` as a zarr store at ``path``, atomically.
 
     The store is written into a temporary sibling folder and renamed into place, so a
-    reader never sees half a store. Embeddings are copied one stored chunk at a time and
+    reader never sees half a store. ``path`` may not be the map's own source; an
+    existing ``path`` is replaced (``overwrite``) only when it is a zarr store. Embeddings are copied one stored chunk at a time and
     are never held whole in memory; values are kept as stored (``normalize`` is recorded,
     not applied).
 
@@ -57,17 +63,21 @@ def write_zarr_map(
     """
     zarr = require("zarr", "dask", "Zarr maps")
     path = Path(path).expanduser()
-    if path.exists() and not overwrite:
-        raise QuashError(f"{path} exists. Remove it or pass overwrite=True.")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.parent / f".{path.name}.tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}"
-    try:
+    refuse_own_input(path, lmap.source, folder=True)
+    with atomic_dir(path, overwrite=overwrite) as tmp:
         group = zarr.open_group(str(tmp), mode="w", zarr_format=3)
         emb = lmap.embeddings
         dtype = np.dtype(emb.dtype)
         rows = max(1, min(lmap.n, store_chunk_rows(lmap.dim, dtype.itemsize, chunk_mb)))
+        # Every chunk is written, even an all-zero one, so that a chunk missing from the
+        # store later is known to be damage (see check_chunks).
+        full = {"write_empty_chunks": True}
         z = group.create_array(
-            "embeddings", shape=(lmap.n, lmap.dim), chunks=(rows, lmap.dim), dtype=dtype
+            "embeddings",
+            shape=(lmap.n, lmap.dim),
+            chunks=(rows, lmap.dim),
+            dtype=dtype,
+            config=full,
         )
         for start in range(0, lmap.n, rows):
             stop = min(lmap.n, start + rows)
@@ -77,10 +87,11 @@ def write_zarr_map(
             if value is not None:
                 value = np.asarray(value)
                 step = max(1, min(lmap.n, rows * 4))
-                group.create_array(key, data=value, chunks=(step, *value.shape[1:]))
+                group.create_array(key, data=value, chunks=(step, *value.shape[1:]), config=full)
         group.attrs.update(
             {
                 "quash_map": FORMAT_VERSION,
+                "chunks_complete": True,
                 "kind": lmap.kind,
                 "voxel_size": lmap.voxel_size,
                 "normalize": bool(lmap.normalize),
@@ -91,18 +102,65 @@ def write_zarr_map(
                 },
             }
         )
-        if path.exists():
-            old = path.parent / f".{path.name}.old-{uuid.uuid4().hex[:8]}"
-            os.replace(path, old)
-            os.replace(tmp, path)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, path)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     log.info("wrote %s: %d x %d %s in chunks of %d rows", path, lmap.n, lmap.dim, dtype, rows)
     return path
+
+
+def missing_chunks(array: Any, root: Path, limit: int = 3) -> tuple[int, int, list[tuple]]:
+    """``(missing, total, first)``: chunks of ``array`` absent from its store.
+
+    ``first`` holds the grid coordinates of up to ``limit`` missing chunks, found by
+    checking each chunk's key in a local store (other stores give the count only).
+    """
+    total = int(array.nchunks)
+    try:
+        stored = int(array.nchunks_initialized)
+    except Exception:  # noqa: BLE001 - a store that cannot be listed: nothing to compare
+        return 0, total, []
+    if getattr(array, "shards", None) is not None or stored >= total:
+        return 0, total, []
+    first: list[tuple] = []
+    folder = root / array.path if array.path else root
+    if folder.is_dir():
+        import itertools
+
+        for coords in itertools.product(*(range(n) for n in array.cdata_shape)):
+            if not (folder / array.metadata.encode_chunk_key(coords)).exists():
+                first.append(coords)
+                if len(first) >= limit:
+                    break
+    return total - stored, total, first
+
+
+def check_chunks(array: Any, path: Path, name: str, complete: bool) -> None:
+    """Refuse (``complete``) or warn about chunks missing from a zarr array's store."""
+    missing, total, first = missing_chunks(array, path)
+    if not missing:
+        return
+    rows = array.chunks[0]
+    where = ", ".join(
+        f"{array.metadata.encode_chunk_key(c)} (rows {c[0] * rows}-"
+        f"{min(array.shape[0], (c[0] + 1) * rows) - 1})"
+        for c in first
+    )
+    what = f"{missing} of {total} chunks of {name!r} are missing from the store"
+    what += f", e.g. {where}" if where else ""
+    if complete:
+        raise MapFormatError(
+            f"{path}: {what}. The store was written whole, so it is damaged (a chunk file was "
+            "deleted or not copied). Copy it again or convert the original map again with "
+            "`quash convert SRC DST.zarr`."
+        )
+    share = 100.0 * missing / max(1, total)
+    log.warning(
+        "%s: %s; zarr reads them as the fill value (%s), so about %.1f%% of the rows will "
+        "count as unobserved and never match. If the store was copied or is damaged, "
+        "convert the original map again.",
+        path,
+        what,
+        array.fill_value,
+        share,
+    )
 
 
 def read_zarr_map(path: str | Path, *, dask: bool = False, chunk_rows: int | None = None):
@@ -130,6 +188,12 @@ def read_zarr_map(path: str | Path, *, dask: bool = False, chunk_rows: int | Non
         attrs = dict(node.attrs)
     if len(emb.shape) != 2:
         raise MapFormatError(f"{path}: 'embeddings' must be 2-D (N, D); got shape {emb.shape}.")
+    complete = bool(attrs.get("chunks_complete"))
+    check_chunks(emb, path, "embeddings", complete)
+    if not isinstance(node, zarr.Array):
+        for key in ROW_ARRAYS:
+            if key in node and complete:
+                check_chunks(node[key], path, key, complete)
     if dask:
         import dask.array as da
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib
+import keyword
 from typing import Any
 
 import numpy as np
@@ -19,14 +20,120 @@ from ._params import (
 )
 
 
-def _import_estimator(path: Any) -> type:
+def _split_estimator_path(path: Any) -> tuple[str, str]:
+    """``(module, class name)`` of ``module.path.Class`` or ``module.path:Class``.
+
+    Only the shape is checked here (every part an identifier); nothing is imported.
+    """
     who = "sklearn"
-    if not isinstance(path, str) or "." not in path:
+    example = "e.g. 'sklearn.neighbors.KNeighborsClassifier' or 'my_pkg.models:MyClassifier'"
+    if not isinstance(path, str) or not path.strip():
         raise ClassifierParamError(
-            f"{who}: parameter 'estimator' must be a dotted path such as "
-            f"'sklearn.neighbors.KNeighborsClassifier'; got {path!r}."
+            f"{who}: parameter 'estimator' must be a dotted path to a class, {example}; "
+            f"got {path!r}."
         )
-    module, _, name = path.rpartition(".")
+    text = path.strip()
+    if text.count(":") > 1:
+        raise ClassifierParamError(f"{who}: estimator {path!r} has more than one ':'; {example}.")
+    module, sep, name = text.partition(":")
+    if not sep:
+        module, _, name = text.rpartition(".")
+    parts = module.split(".") if module else []
+    bad = [p for p in [*parts, name] if not p.isidentifier() or keyword.iskeyword(p)]
+    if not parts or bad:
+        raise ClassifierParamError(
+            f"{who}: estimator {path!r} must be a dotted path to a class, module.path.Class "
+            f"or module.path:Class ({'bad part ' + repr(bad[0]) if bad else 'no module'}); "
+            f"{example}."
+        )
+    return module, name
+
+
+def _binds(module: str, name: str) -> str | None:
+    """How ``module``'s source binds ``name`` at top level, read without importing it.
+
+    ``"class"`` (a class statement), ``"function"`` (a def), ``"name"`` (an import or an
+    assignment), ``"absent"``; None when the source cannot tell (no Python source, a
+    module ``__getattr__`` or a star import). Finding the module imports its parent
+    packages (for ``sklearn.neighbors``: ``sklearn``), never the module itself.
+    """
+    import ast
+    import importlib.util
+
+    try:
+        spec = importlib.util.find_spec(module)
+    except (ImportError, ValueError) as exc:
+        raise ClassifierParamError(
+            f"sklearn: cannot find the module of estimator {module}.{name} "
+            f"({type(exc).__name__}: {exc})."
+        ) from None
+    if spec is None:
+        raise ClassifierParamError(
+            f"sklearn: no module {module!r} is installed (estimator {module}.{name})."
+        )
+    origin = spec.origin or ""
+    if not origin.endswith(".py"):
+        return None
+    try:
+        with open(origin, encoding="utf-8") as f:
+            tree = ast.parse(f.read(), filename=origin)
+    except (OSError, SyntaxError, UnicodeDecodeError, ValueError):
+        return None
+    found = "absent"
+    for node in _module_level(tree.body):
+        if isinstance(node, ast.FunctionDef) and node.name == "__getattr__":
+            return None
+        if isinstance(node, ast.ClassDef) and node.name == name:
+            found = "class"
+        elif isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef) and node.name == name:
+            found = "function"
+        elif isinstance(node, ast.Import | ast.ImportFrom):
+            for alias in node.names:
+                if alias.name == "*":
+                    return None
+                if (alias.asname or alias.name.split(".")[0]) == name:
+                    found = "name"
+        elif isinstance(node, ast.Assign | ast.AnnAssign):
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+            if any(isinstance(t, ast.Name) and t.id == name for t in targets):
+                found = "name"
+    return found
+
+
+def _module_level(body: list[Any]) -> Any:
+    """The statements run at module level: into if/try/with blocks, not into defs."""
+    import ast
+
+    for node in body:
+        yield node
+        if isinstance(node, ast.If | ast.For | ast.While | ast.With | ast.Try):
+            for field in ("body", "orelse", "finalbody"):
+                yield from _module_level(getattr(node, field, []))
+            for handler in getattr(node, "handlers", []):
+                yield from _module_level(handler.body)
+
+
+def _import_estimator(path: Any) -> type:
+    """The estimator class named by ``path``, checked before its module is imported.
+
+    A config can name any installed module here, and importing a module runs its
+    top-level code. So the name's shape is checked first, then the module's source is
+    read (without importing it) to see that it binds the class name; only then is it
+    imported. See docs/security.md.
+    """
+    who = "sklearn"
+    module, name = _split_estimator_path(path)
+    binding = _binds(module, name)
+    if binding == "absent":
+        raise ClassifierParamError(
+            f"{who}: module {module!r} defines no {name!r} (estimator {path!r}); it was not "
+            "imported. Check the spelling, e.g. 'sklearn.neighbors.KNeighborsClassifier'."
+        )
+    if binding == "function":
+        raise ClassifierParamError(
+            f"{who}: {path!r} is a function, not a class; it was not imported. Name an "
+            "estimator class, e.g. 'sklearn.neighbors.KNeighborsClassifier'."
+        )
     try:
         obj = getattr(importlib.import_module(module), name)
     except (ImportError, AttributeError) as exc:

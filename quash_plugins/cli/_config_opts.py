@@ -35,7 +35,9 @@ def add_runtime_options(parser: argparse.ArgumentParser) -> None:
         "--no-cache", action="store_true", help="Do not read or write the text-embedding cache."
     )
     parser.add_argument(
-        "--device", default=None, help="Override the config's device (cpu, cuda, mps, auto)."
+        "--device",
+        default=None,
+        help="Override the config's device (auto, cpu, cuda, cuda:N, mps).",
     )
 
 
@@ -51,5 +53,11 @@ def apply_runtime_options(cfg: QuashConfig, args: argparse.Namespace) -> QuashCo
     if getattr(args, "no_cache", False):
         cfg.cache = False
     if getattr(args, "device", None):
-        cfg.device = args.device
+        from ..core.config import check_device
+        from ..core.errors import ConfigError
+
+        try:
+            cfg.device = check_device(args.device, "--device")
+        except ConfigError as exc:
+            raise UsageError(str(exc)) from None
     return cfg

@@ -45,6 +45,22 @@ def add_viewer_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def check_rrd(args: argparse.Namespace, inputs: Any = ()) -> None:
+    """Refuse, before any work, an ``--rrd`` that is an input or replaces a file that is
+    not a Rerun recording (unless ``--force``)."""
+    from ..core.atomic import check_output
+    from ..viewer import is_rrd
+
+    if getattr(args, "rrd", None):
+        check_output(
+            args.rrd,
+            inputs,
+            what="--rrd",
+            overwrite=bool(getattr(args, "force", False)),
+            replaceable=is_rrd,
+        )
+
+
 def viewer_options(args: argparse.Namespace) -> ViewerOptions:
     """The :class:`ViewerOptions` of the parsed flags."""
     return ViewerOptions(

@@ -10,7 +10,8 @@ ORDER = 34
 DESCRIPTION = """\
 Runs each ablation table with `quash eval`'s metrics and writes bench.md, bench.json and
 one precision-vs-recall plot per table into --out. The llm source reads only its cache
-(offline: true); an empty cache skips those rows with a note."""
+(offline: true); an empty cache skips those rows with a note. Files in --out are
+replaced only when they are previous bench outputs, or with --force."""
 EPILOG = """\
 examples:
   quash make-scene scene.npz --seed 1
@@ -38,6 +39,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--absent", metavar="X,Y,...", default=None, help="Absence queries.")
     p.add_argument("--llm-model", default=None, help="Model name of the cached llm query sets.")
     p.add_argument("--no-cache", action="store_true", help="Do not use the text-embedding cache.")
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="Replace files in --out that are not previous bench outputs (never an input).",
+    )
     add_backend_arguments(p)
 
 
@@ -47,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.errors import UsageError
     from ..evaluation.ablations import TABLES, run_bench
     from ._backend_opts import backend_overrides
-    from ._output import console
+    from ._output import console, safe_text
 
     tables = tuple(t.strip() for t in args.tables.split(",") if t.strip())
     bad = [t for t in tables if t not in TABLES]
@@ -55,6 +61,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"Unknown table {bad[0]!r}; known: {', '.join(TABLES)}.")
     if args.taxonomy and not Path(args.taxonomy).exists():
         raise UsageError(f"Taxonomy file not found: {args.taxonomy}")
+    _check_outputs(args, Path(args.out), tables)
     overrides = backend_overrides(args)
     if args.no_cache:
         overrides["cache"] = False
@@ -72,5 +79,22 @@ def run(args: argparse.Namespace) -> int:
         absent=tuple(split(args.absent)),
         on_table=lambda t: out.print(f"table {t}: done"),
     )
-    out.print((Path(args.out) / "bench.md").read_text(encoding="utf-8"), markup=False)
+    md = (Path(args.out) / "bench.md").read_text(encoding="utf-8")
+    out.print(safe_text(md, markup=False), markup=False)
     return 0
+
+
+def _check_outputs(args: argparse.Namespace, outdir, tables) -> None:
+    """Refuse, before any work, to replace inputs or files that bench did not write."""
+    from ..core.atomic import check_output
+    from ..core.errors import UsageError
+    from ..evaluation.plot import is_plot_png
+    from ..evaluation.report import is_report_file
+
+    if outdir.exists() and not outdir.is_dir():
+        raise UsageError(f"--out {outdir} exists and is not a folder. Choose a folder.")
+    inputs = (args.map, args.taxonomy)
+    files = [("bench.md", is_report_file), ("bench.json", is_report_file)]
+    files += [(f"{t}.png", is_plot_png) for t in tables]
+    for name, known in files:
+        check_output(outdir / name, inputs, what="--out", overwrite=args.force, replaceable=known)

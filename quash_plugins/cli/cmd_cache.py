@@ -45,7 +45,7 @@ def _size(n: float) -> str:
 def run(args: argparse.Namespace) -> int:
     from ..core.errors import UsageError
     from ..engine.cache import TextEmbeddingCache
-    from ._output import console, print_json
+    from ._output import console, print_json, safe_text
 
     action = getattr(args, "cache_command", None)
     if action is None:
@@ -55,13 +55,13 @@ def run(args: argparse.Namespace) -> int:
     if action == "clear":
         freed = cache.clear(args.fingerprint)
         what = f"fingerprint {args.fingerprint}" if args.fingerprint else "all text embeddings"
-        out.print(f"cleared {what} from {cache.directory} ({_size(freed)} freed)")
+        out.print(safe_text(f"cleared {what} from {cache.directory} ({_size(freed)} freed)"))
         return 0
     info = cache.info()
     if args.json:
         print_json(info)
         return 0
-    out.print(f"directory: {info['directory']}")
+    out.print(f"directory: {safe_text(info['directory'])}")
     out.print(
         f"size: {_size(info['bytes'])} of {_size(info['max_bytes'])}, "
         f"{info['entries']} strings in {info['files']} files"
@@ -76,6 +76,6 @@ def run(args: argparse.Namespace) -> int:
             table.add_column(col, justify="left" if col == "fingerprint" else "right")
         for e in info["encoders"]:
             when = datetime.datetime.fromtimestamp(e["last_used"]).strftime("%Y-%m-%d %H:%M")
-            table.add_row(e["fingerprint"], str(e["entries"]), _size(e["bytes"]), when)
+            table.add_row(safe_text(e["fingerprint"]), str(e["entries"]), _size(e["bytes"]), when)
         out.print(table)
     return 0

@@ -13,7 +13,8 @@ positions, colours, labels...), as a Zarr store when DST ends in .zarr, or, with
 --format openlex3d, as OpenLex3D's prediction folder DST/ (embeddings.npy, index.npy,
 point_cloud.pcd). The input is only read; the output appears atomically. Lazy maps (HDF5,
 per-image features) are streamed block by block, so the map is never held whole in
-memory."""
+memory. DST is never SRC (nor inside it); an existing DST is replaced only with --force
+(an OpenLex3D folder: only a previous export of quash)."""
 EPILOG = """\
 examples:
   quash convert saved-map room0.npz                 # ConceptFusion pointclouds/
@@ -54,12 +55,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "repeatable.",
     )
     p.add_argument("--compress", action="store_true", help="Compress in-memory maps (slower).")
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="Replace an existing DST (never SRC, and a folder only if it is a zarr store).",
+    )
     p.add_argument("--json", action="store_true", help="Print a JSON summary.")
 
 
 def _parse_options(items: list[str]) -> dict:
-    import yaml
-
+    from ..core.config import load_yaml_text
     from ..core.errors import UsageError
 
     out = {}
@@ -67,7 +72,7 @@ def _parse_options(items: list[str]) -> dict:
         key, sep, value = item.partition("=")
         if not sep or not key.strip():
             raise UsageError(f"--option expects KEY=VALUE; got {item!r}.")
-        out[key.strip()] = yaml.safe_load(value) if value else ""
+        out[key.strip()] = load_yaml_text(value, f"--option {key.strip()}") if value else ""
     return out
 
 
@@ -75,9 +80,10 @@ def run(args: argparse.Namespace) -> int:
     from ..adapters import convert_map, detect_adapter
     from ..core import registry
     from ..core.errors import UsageError
-    from ._output import console, print_json
+    from ._output import console, print_json, safe_text
 
     options = _parse_options(args.option)
+    _check_destination(args)
     name = args.adapter
     if name in (None, "auto"):
         from pathlib import Path
@@ -102,5 +108,28 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print_json({"source": args.source, "adapter": name, "destination": str(written)})
     else:
-        console().print(f"wrote {written} (read with adapter {name!r})")
+        console().print(safe_text(f"wrote {written} (read with adapter {name!r})"))
     return 0
+
+
+def _check_destination(args: argparse.Namespace) -> None:
+    """Refuse, before reading anything, a destination that is the source or exists."""
+    from ..core.atomic import check_not_input, check_output
+    from ..core.errors import UsageError
+
+    if args.format == "openlex3d":  # a folder; write_openlex3d_map replaces only its exports
+        check_not_input(args.destination, (args.source,), what="DST")
+        return
+    dst = str(args.destination).rstrip("/").lower()
+    if args.format == "auto" and not dst.endswith((".npz", ".zarr")):
+        raise UsageError(
+            f"Destination {args.destination} must end in .npz (portable map) or .zarr (Zarr "
+            "store), or pass --format openlex3d to write OpenLex3D's prediction folder."
+        )
+    check_output(
+        args.destination,
+        (args.source,),
+        what="DST",
+        overwrite=args.force,
+        folder=dst.endswith(".zarr"),
+    )

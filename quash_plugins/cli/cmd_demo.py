@@ -13,7 +13,8 @@ indoor scene embedded with the shipped MiniLM model, then runs the VLMaps, Conce
 and LERF rules and QuASH (taxonomy and adjectives heuristics) on ten queries and three
 absence queries. Prints the comparison, writes demo.md, demo.json, demo.png and demo.rrd
 into --out. Needs no network. The method configs are package data; --list-configs
-prints their paths."""
+prints their paths. Files in --out are replaced only when they are previous demo
+outputs, or with --force."""
 EPILOG = """\
 examples:
   quash demo                      # writes ./quash-demo/{demo.rrd,demo.md,demo.json,demo.png}
@@ -35,6 +36,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--list-configs", action="store_true", help="Print the shipped demo config paths and exit."
     )
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="Replace files in --out that are not previous demo outputs.",
+    )
     add_viewer_arguments(p)
     add_backend_arguments(p)
 
@@ -48,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
     from ..demo.runner import demo_config_paths, run_demo
     from ..evaluation.plot import plot_precision_recall
     from ._backend_opts import backend_overrides
-    from ._output import console
+    from ._output import console, safe_text
     from ._viewer_opts import open_viewer
 
     if args.list_configs:
@@ -59,9 +65,10 @@ def run(args: argparse.Namespace) -> int:
     out = console()
     t0 = time.perf_counter()
     outdir = Path(args.out)
-    outdir.mkdir(parents=True, exist_ok=True)
     if not args.no_rrd and not args.rrd:
         args.rrd = str(outdir / "demo.rrd")
+    _check_outputs(args, outdir)
+    outdir.mkdir(parents=True, exist_ok=True)
     overrides = backend_overrides(args)
     if args.no_cache:
         overrides["cache"] = False
@@ -73,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
     atomic_write_text(outdir / "demo.json", json.dumps(report.to_json(), indent=2) + "\n")
     plot_precision_recall(report.configs, outdir / "demo.png", title=title)
     out.print(f"[bold]{title}[/] (scene {scene})")
-    out.print(md, markup=False)
+    out.print(safe_text(md, markup=False), markup=False)
     if viewer is not None:
         viewer.close()
     written = ["demo.md", "demo.json", "demo.png"] + (
@@ -83,3 +90,22 @@ def run(args: argparse.Namespace) -> int:
         f"wrote {', '.join(str(outdir / w) for w in written)} in {time.perf_counter() - t0:.1f} s"
     )
     return 0
+
+
+def _check_outputs(args: argparse.Namespace, outdir) -> None:
+    """Refuse, before any work, to replace files in --out that the demo did not write."""
+    from ..core.atomic import check_output
+    from ..core.errors import UsageError
+    from ..evaluation.plot import is_plot_png
+    from ..evaluation.report import is_report_file
+    from ._viewer_opts import check_rrd
+
+    if outdir.exists() and not outdir.is_dir():
+        raise UsageError(f"--out {outdir} exists and is not a folder. Choose a folder.")
+    for name, known in (
+        ("demo.md", is_report_file),
+        ("demo.json", is_report_file),
+        ("demo.png", is_plot_png),
+    ):
+        check_output(outdir / name, (), what="--out", overwrite=args.force, replaceable=known)
+    check_rrd(args)

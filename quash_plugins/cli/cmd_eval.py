@@ -19,7 +19,9 @@ examples:
   quash eval scene.npz -c vlmaps.yaml -c quash-taxonomy.yaml --all-labels \\
       --absent piano,bathtub --json eval.json --markdown eval.md --plot eval.png
 The JSON holds {"configs": [{"name", "mean": {precision, recall, f1, iou},
-"per_query": {label: {...}}, "absence": {score, empty_tolerance, per_query}}]}."""
+"per_query": {label: {...}}, "absence": {score, empty_tolerance, per_query}}]}.
+Outputs never replace an input; an existing file is replaced only when it is a previous
+quash report, plot or recording, or with --force."""
 
 
 def _split(text: str | None) -> list[str]:
@@ -64,6 +66,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", metavar="FILE", help="Write the report as JSON.")
     p.add_argument("--markdown", metavar="FILE", help="Write the comparison as Markdown.")
     p.add_argument("--plot", metavar="FILE.png", help="Plot precision vs recall per config.")
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="Let --json, --markdown, --plot and --rrd replace existing files that are not "
+        "previous outputs of quash (never an input).",
+    )
     add_runtime_options(p)
     add_viewer_arguments(p)
     add_backend_arguments(p)
@@ -80,11 +88,12 @@ def run(args: argparse.Namespace) -> int:
     from ..evaluation.report import evaluate
     from ._backend_opts import backend_overrides
     from ._config_opts import apply_runtime_options, load_config
-    from ._output import console
+    from ._output import console, safe_text
     from ._viewer_opts import open_viewer
 
     if not args.configs:
         raise UsageError("quash eval needs at least one -c CONFIG (repeat to compare).")
+    _check_outputs(args)
     overrides = backend_overrides(args)
     quashes = [
         Quash.from_config(apply_runtime_options(load_config(c), args), **overrides)
@@ -119,10 +128,34 @@ def run(args: argparse.Namespace) -> int:
         viewer.close()
     out = console()
     out.print(
-        f"{lmap.describe()}: {len(report.queries)} queries, {len(report.absent)} absence queries"
+        safe_text(lmap.describe())
+        + f": {len(report.queries)} queries, {len(report.absent)} absence queries"
     )
-    out.print(md, markup=False)
+    out.print(safe_text(md, markup=False), markup=False)
     for f in (args.json, args.markdown, args.plot):
         if f:
-            out.print(f"wrote {f}")
+            out.print(f"wrote {safe_text(f)}")
     return 0
+
+
+def _check_outputs(args: argparse.Namespace) -> None:
+    """Refuse, before any work, outputs that would replace an input or a user's file."""
+    from ..core.atomic import check_output
+    from ..evaluation.plot import is_plot_png
+    from ..evaluation.report import is_report_file
+    from ._viewer_opts import check_rrd
+
+    inputs = (args.map, *args.configs)
+    for flag, path, known in (
+        ("--json", args.json, is_report_file),
+        ("--markdown", args.markdown, is_report_file),
+        ("--plot", args.plot, is_plot_png),
+    ):
+        if path:
+            check_output(path, inputs, what=flag, overwrite=args.force, replaceable=known)
+    outs = [p for p in (args.json, args.markdown, args.plot, args.rrd) if p]
+    if len({str(p) for p in outs}) < len(outs):
+        from ..core.errors import UsageError
+
+        raise UsageError("--json, --markdown, --plot and --rrd must name different files.")
+    check_rrd(args, inputs)

@@ -37,7 +37,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print_json(qs.to_dict())
         return 0
-    from rich.markup import escape
+    from ._output import safe_text as escape
 
     out = console()
     out.print(f"[bold]query[/]: {escape(qs.query)}")

@@ -14,7 +14,8 @@ in metres with per-class colours. Each voxel's embedding is the normalised mean 
 "appearance" names of its class, embedded by a real text encoder, blended with neighbours
 at boundaries, mixed with other objects (semantic confusion), plus noise and a constant
 modality offset. OUT.taxonomy.yaml holds only "language" names, disjoint from the
-appearance names; OUT.queries.yaml lists present labels and absence queries."""
+appearance names; OUT.queries.yaml lists present labels and absence queries. Existing
+files are replaced only when they are a previous make-scene output, or with --force."""
 EPILOG = """\
 examples:
   quash make-scene scene.npz --seed 1
@@ -37,6 +38,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="'file' parameter of the encoder (e.g. a table encoder's NPZ/YAML).",
     )
     p.add_argument("--no-cache", action="store_true", help="Do not use the text-embedding cache.")
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="Replace existing files that are not a previous make-scene output.",
+    )
     defaults = SceneOptions()
     for f in dataclasses.fields(SceneOptions):
         v = getattr(defaults, f.name)
@@ -53,9 +59,10 @@ def run(args: argparse.Namespace) -> int:
     from ..core import registry
     from ..demo.scene import SceneOptions, make_scene, write_scene
     from ..engine.cache import open_cache
-    from ._output import console
+    from ._output import console, safe_text
 
     opts = SceneOptions(**{f.name: getattr(args, f.name) for f in dataclasses.fields(SceneOptions)})
+    _check_outputs(args)
     params = {"file": args.encoder_file} if args.encoder_file else {}
     encoder = registry.create("encoders", args.encoder, **params)
     scene = make_scene(encoder, opts, cache=open_cache(not args.no_cache))
@@ -66,5 +73,18 @@ def run(args: argparse.Namespace) -> int:
         f"{', '.join(scene.room_types)} (seed {opts.seed}, encoder {encoder.name})"
     )
     for k, v in paths.items():
-        out.print(f"wrote {k}: {v}")
+        out.print(safe_text(f"wrote {k}: {v}"))
     return 0
+
+
+def _check_outputs(args: argparse.Namespace) -> None:
+    """Refuse, before any work, to replace files that make-scene did not write."""
+    from ..core.atomic import check_output
+    from ..core.errors import UsageError
+    from ..demo.scene import is_scene_file, scene_paths
+
+    if not str(args.out).endswith(".npz"):
+        raise UsageError(f"{args.out}: the scene is written as our NPZ format; use a .npz name.")
+    inputs = (args.encoder_file,)
+    for path in scene_paths(args.out).values():
+        check_output(path, inputs, what="OUT", overwrite=args.force, replaceable=is_scene_file)

@@ -20,7 +20,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ..core import registry
-    from ._output import console, print_json
+    from ._output import console, print_json, safe_text
 
     infos = registry.plugins(args.kind, load=True)
     if args.json:
@@ -32,7 +32,11 @@ def run(args: argparse.Namespace) -> int:
     for col in ("kind", "name", "distribution", "version", "status"):
         table.add_column(col)
     for i in infos:
-        status = "[green]ok[/]" if i.status == "ok" else f"[red]{i.status}[/]: {i.error or ''}"
-        table.add_row(i.kind, i.name, i.dist, i.version, status)
+        status = (
+            "[green]ok[/]"
+            if i.status == "ok"
+            else f"[red]{safe_text(i.status)}[/]: {safe_text(i.error or '')}"
+        )
+        table.add_row(*(safe_text(x) for x in (i.kind, i.name, i.dist, i.version)), status)
     console().print(table)
     return 0

@@ -19,8 +19,9 @@ With --format openlex3d, --out is a folder of per-query files aligned with the r
 an OpenLex3D export of the map (quash convert MAP DIR --format openlex3d):
 query_scores.npy (N, Q) in [0, 1] (0.5 at the threshold), query_scores_raw.npy,
 query_masks.npy and queries.json (see docs/adapters.md#openlex3d).
---out never replaces the map or any other input; an existing file is replaced only when
-it is a previous result of quash query, or with --force."""
+--out and --rrd never replace the map or any other input; an existing file is replaced
+only when it is a previous output of the same kind (a query result, a recording), or
+with --force."""
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -49,7 +50,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--force",
         action="store_true",
-        help="Let --out replace an existing file that is not a previous query result.",
+        help="Let --out and --rrd replace an existing file that is not a previous output "
+        "of the same kind (never an input).",
     )
     p.add_argument("--json", action="store_true", help="Print the per-query summary as JSON.")
     add_runtime_options(p)
@@ -103,13 +105,14 @@ def _out_format(args: argparse.Namespace) -> str:
 def _check_outputs(args: argparse.Namespace) -> None:
     """Refuse, before any work, outputs that would replace an input or a user's file."""
     from ..core.atomic import check_output
-    from ..engine.results import is_openlex3d_results, is_results_npz
+    from ..engine.results import is_openlex3d_results, is_results_npz, is_results_zarr
+    from ._viewer_opts import check_rrd
 
     inputs = (args.map, args.config)
     if args.out:
         fmt = _out_format(args)
         replaceable = {
-            "zarr": _is_results_zarr,
+            "zarr": is_results_zarr,
             "openlex3d": is_openlex3d_results,
             "npz": is_results_npz,
         }[fmt]
@@ -121,25 +124,13 @@ def _check_outputs(args: argparse.Namespace) -> None:
             replaceable=replaceable,
             folder=fmt != "npz",
         )
-    if getattr(args, "rrd", None):
-        check_output(
-            args.rrd,
-            inputs,
-            what="--rrd",
-            overwrite=True,  # an existing .rrd is a previous recording
-        )
-
-
-def _is_results_zarr(path) -> bool:
-    from pathlib import Path
-
-    return (Path(path) / "masks").exists() and (Path(path) / "scores").exists()
+    check_rrd(args, inputs)
 
 
 def _query_to_zarr(args, quash) -> int:
     """Results too large for memory: masks and scores stay lazy and stream into zarr."""
     from ..core.errors import UsageError
-    from ._output import console, print_json
+    from ._output import console, print_json, safe_text
     from ._viewer_opts import viewer_requested
 
     if viewer_requested(args):
@@ -163,13 +154,13 @@ def _query_to_zarr(args, quash) -> int:
         return 0
     out = console()
     for r in rows:
-        out.print(f"{r['query']}: {r['matched']} of {n} items ({100 * r['share']:.2f}%)")
-    out.print(f"wrote {path}")
+        out.print(f"{safe_text(r['query'])}: {r['matched']} of {n} items ({100 * r['share']:.2f}%)")
+    out.print(f"wrote {safe_text(path)}")
     return 0
 
 
 def _report(args, cfg, lmap, results) -> None:
-    from ._output import console, print_json
+    from ._output import console, print_json, safe_text
 
     if args.json:
         print_json(
@@ -183,12 +174,12 @@ def _report(args, cfg, lmap, results) -> None:
         return
     from rich.table import Table
 
-    table = Table(title=f"{lmap.describe()} | config {cfg.name}")
+    table = Table(title=safe_text(f"{lmap.describe()} | config {cfg.name}"))
     for col in ("query", "matched", "share", "instances", "positives", "negatives", "time"):
         table.add_column(col, justify="right" if col not in ("query",) else "left")
     for r in results:
         table.add_row(
-            r.query,
+            safe_text(r.query),
             f"{r.n_matched}",
             f"{100 * r.share:.2f}%",
             f"{len(r.instances)}",
@@ -201,6 +192,6 @@ def _report(args, cfg, lmap, results) -> None:
     stages = ("read", "expand", "encode", "fit", "classify", "postprocess", "instances")
     for r in results:
         parts = [f"{s} {r.timings[s] * 1000:.1f} ms" for s in stages if s in r.timings]
-        out.print(f"[dim]{r.query}: " + ", ".join(parts) + "[/]")
+        out.print(f"[dim]{safe_text(r.query)}: " + ", ".join(parts) + "[/]")
     if args.out:
-        out.print(f"wrote {args.out}")
+        out.print(f"wrote {safe_text(args.out)}")

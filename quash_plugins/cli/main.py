@@ -3,21 +3,27 @@
 Subcommands are discovered from the ``cmd_*`` modules of this package. Each defines
 ``NAME``, ``HELP``, ``ORDER``, ``add_arguments(parser)`` and ``run(args) -> int``.
 
-Exit status: 0 on success, 2 for usage errors, 1 for other errors. Errors print one
-message and no traceback unless ``--debug`` is given.
+Exit status: 0 on success, 2 for usage errors, 1 for other errors, 130 after Ctrl-C and
+143 after SIGTERM. Errors print one message and no traceback unless ``--debug`` is given.
+SIGTERM is turned into an exception, as Ctrl-C is, so that every temporary file of an
+unfinished output is removed before the process exits.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import logging
 import pkgutil
+import signal
 import sys
-from collections.abc import Sequence
+import threading
+from collections.abc import Iterator, Sequence
 
 from .. import __version__
 from ..core.errors import QuashError, UsageError
+from ..core.redact import redact
 from ._output import setup_logging
 
 log = logging.getLogger("quash_plugins.cli")
@@ -34,6 +40,36 @@ examples:
   quash expand chair -c cfg.yaml --json
   quash plugins
 Run 'quash COMMAND --help' for the options of each command."""
+
+
+def _clean(exc: BaseException) -> str:
+    """An error message fit for the terminal: credentials redacted, controls escaped."""
+    from ..core.types import escape_control
+
+    return escape_control(redact(exc))
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised in the main thread so that ``finally`` blocks and cleanup run."""
+
+
+def _raise_terminated(signum, frame) -> None:
+    # A second SIGTERM during cleanup must not interrupt the cleanup itself.
+    signal.signal(signal.SIGTERM, lambda *_: None)
+    raise Terminated()
+
+
+@contextlib.contextmanager
+def _sigterm_as_exception() -> Iterator[None]:
+    """Turn SIGTERM into :class:`Terminated` while a command runs (main thread only)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGTERM, _raise_terminated)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def _commands():
@@ -86,16 +122,20 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     setup_logging(args.verbose, args.quiet)
     try:
-        return int(args._run(args) or 0)
+        with _sigterm_as_exception():
+            return int(args._run(args) or 0)
+    except Terminated:
+        print("terminated", file=sys.stderr)
+        return 143
     except UsageError as exc:
         if args.debug:
             raise
-        print(f"quash {args.command}: error: {exc}", file=sys.stderr)
+        print(f"quash {args.command}: error: {_clean(exc)}", file=sys.stderr)
         return 2
     except QuashError as exc:
         if args.debug:
             raise
-        print(f"quash {args.command}: error: {exc}", file=sys.stderr)
+        print(f"quash {args.command}: error: {_clean(exc)}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
@@ -104,7 +144,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.debug:
             raise
         print(
-            f"quash {args.command}: unexpected error: {type(exc).__name__}: {exc}\n"
+            f"quash {args.command}: unexpected error: {type(exc).__name__}: {_clean(exc)}\n"
             "Re-run with --debug for the traceback.",
             file=sys.stderr,
         )

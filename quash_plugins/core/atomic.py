@@ -1,21 +1,33 @@
 """Safe outputs: they appear whole or not at all, and never replace what the user owns.
 
-- :func:`check_output` refuses an output that is one of the inputs (the same file
-  through any link), that sits inside an input folder, that is not a regular file (a
-  folder, a device, a pipe, a symbolic link), or that already exists, unless the
-  caller allows replacing it (``--force``, or a previous result of the same kind).
-- :func:`atomic_write` writes beside the target and renames over it, and refuses
-  non-regular targets itself, whoever calls it.
+The policy, the same for every file quash-plugins writes:
+
+- An output is never one of the inputs (the same file through any symbolic or hard
+  link), never inside an input folder, and never a symbolic link, a device, a pipe or
+  a folder of another kind. ``--force`` does not change this.
+- The command line replaces an existing file only when it is recognisably a previous
+  output of the same kind (a ``quash query`` result, a ``quash eval`` report...), or
+  with ``--force``. Everything else that exists is refused before any work is done.
+- The Python writers (``write_results_npz``, ``write_npz_map``, ``write_zarr_map``,
+  ``LazyQuery.to_zarr``, ``convert_map``) refuse their own input map and non-regular
+  targets, and otherwise replace the file they are given, as ``open(path, "w")`` does.
+- Every write goes to a hidden temporary file (or folder) beside the target, renamed
+  over it at the end; an error, Ctrl-C or SIGTERM removes it.
+
+:func:`check_output` applies the first two rules; :func:`atomic_write` and
+:func:`atomic_dir` write.
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
+import secrets
+import shutil
 import stat
-import tempfile
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
+from typing import Any
 
 from .errors import UsageError
 
@@ -25,6 +37,36 @@ def _same_file(a: Path, b: Path) -> bool:
         return os.path.samefile(a, b)
     except OSError:
         return False
+
+
+def check_not_input(
+    path: str | Path, inputs: Iterable[str | Path | None] = (), *, what: str = "output"
+) -> Path:
+    """Refuse an output that is one of ``inputs`` (the same file through any link) or
+    lies inside an input folder; return it as a :class:`Path`."""
+    out = Path(path).expanduser()
+    for src in inputs:
+        if src is None or not isinstance(src, (str, os.PathLike)):
+            continue
+        src = Path(src).expanduser()
+        if not src.exists():
+            continue
+        if out.exists() and _same_file(out, src):
+            raise UsageError(
+                f"{what} {out} is the input {src}: writing it would replace your data. "
+                "Choose another output file."
+            )
+        if src.is_dir():
+            try:
+                parent = out.resolve().parent
+                root = src.resolve()
+            except (OSError, RuntimeError):  # a symbolic-link loop: checked by the caller
+                continue
+            if parent == root or root in parent.parents:
+                raise UsageError(
+                    f"{what} {out} lies inside the input folder {src}. Choose an output outside it."
+                )
+    return out
 
 
 def check_output(
@@ -52,32 +94,16 @@ def check_output(
         Returns True for an existing file that may be replaced without ``overwrite``
         (e.g. a previous result of the same kind).
     folder
-        The output is a folder (a zarr store) rather than a file.
+        The output is a folder (a zarr store, an export folder) rather than a file. An
+        existing folder that is neither a zarr store nor ``replaceable`` is never
+        replaced, even with ``overwrite``.
 
     Raises
     ------
     UsageError
         Naming the output, what is wrong and how to fix it.
     """
-    out = Path(path).expanduser()
-    for src in inputs:
-        if src is None or not isinstance(src, (str, os.PathLike)):
-            continue
-        src = Path(src).expanduser()
-        if not src.exists():
-            continue
-        if out.exists() and _same_file(out, src):
-            raise UsageError(
-                f"{what} {out} is the input {src}: writing it would replace your data. "
-                "Choose another output file."
-            )
-        if src.is_dir():
-            parent = out.resolve().parent
-            root = src.resolve()
-            if parent == root or root in parent.parents:
-                raise UsageError(
-                    f"{what} {out} lies inside the input folder {src}. Choose an output outside it."
-                )
+    out = check_not_input(path, inputs, what=what)
     try:
         st = out.lstat()
     except FileNotFoundError:
@@ -94,12 +120,18 @@ def check_output(
             raise UsageError(f"{what} {out} is a folder; give a file name inside it.")
         if folder and not stat.S_ISDIR(st.st_mode):
             raise UsageError(f"{what} {out} exists and is not a folder; refusing to replace it.")
+        known = (replaceable is not None and replaceable(out)) or _empty_dir(out)
+        if folder and not known and not is_store_dir(out):
+            raise UsageError(
+                f"{what} {out} is a folder that is neither a zarr store nor a previous "
+                "output; refusing to replace it (even with --force). Choose another name."
+            )
         if not folder and not stat.S_ISREG(st.st_mode):
             raise UsageError(
                 f"{what} {out} is not a regular file (a device, pipe or socket); refusing "
                 "to replace it."
             )
-        if not overwrite and not (replaceable is not None and replaceable(out)):
+        if not overwrite and not known:
             raise UsageError(
                 f"{what} {out} already exists. Pass --force to replace it, or choose another file."
             )
@@ -111,43 +143,133 @@ def check_output(
     return out
 
 
+def refuse_own_input(path: str | Path, source: Any, *, folder: bool = False) -> None:
+    """Refuse writing ``path`` when it is the map it was made from.
+
+    ``source`` is a map's ``source`` dict (its ``path`` is checked), a path, or a list
+    of them. The same file through any link, and a path inside a source folder, are
+    refused with :class:`UsageError`, as are non-regular targets (a zarr store when
+    ``folder``). Used by the Python writers, which otherwise replace what they are given.
+    """
+    if isinstance(source, dict):
+        sources: list[Any] = [source.get("path")]
+    elif isinstance(source, (str, os.PathLike)):
+        sources = [source]
+    else:
+        sources = list(source or [])
+    check_output(path, sources, what="Output", overwrite=True, folder=folder)
+
+
 @contextlib.contextmanager
 def atomic_write(path: str | Path, suffix: str = "") -> Iterator[Path]:
     """Yield a temporary path beside ``path``; rename it over ``path`` on success.
 
-    On error the temporary file is removed and ``path`` is left as it was. A ``path``
-    that exists and is not a regular file (a folder, device, pipe or symbolic link) is
-    refused before anything is written.
+    On error, ``KeyboardInterrupt`` or a SIGTERM that the CLI turns into an exception,
+    the temporary file is removed and ``path`` is left as it was. A ``path`` that exists
+    and is not a regular file (a folder, device, pipe or symbolic link) is refused before
+    anything is written.
     """
     path = Path(path)
-    try:
-        st = path.lstat()
-    except FileNotFoundError:
-        st = None
-    if st is not None and not stat.S_ISREG(st.st_mode):
-        kind = "symbolic link" if stat.S_ISLNK(st.st_mode) else "non-regular file"
-        raise UsageError(f"Output {path} is a {kind}; refusing to replace it.")
+    _refuse_non_regular(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(
-            prefix=f".{path.name}.", suffix=suffix or ".tmp", dir=path.parent
-        )
     except OSError as exc:
         raise UsageError(
             f"Cannot write {path}: {exc.strerror} ({path.parent}). Choose a writable folder."
         ) from None
-    os.close(fd)
-    tmp_path = Path(tmp)
+    tmp_path = path.parent / f".{path.name}.{secrets.token_hex(4)}{suffix or '.tmp'}"
+    # The temporary file is created inside the try block, so that an interrupt at any
+    # moment (even between creating it and yielding it) removes it.
     try:
+        try:
+            fd = os.open(tmp_path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+        except OSError as exc:
+            raise UsageError(
+                f"Cannot write {path}: {exc.strerror} ({path.parent}). Choose a writable folder."
+            ) from None
+        os.close(fd)
         yield tmp_path
         if tmp_path.is_file():
-            # mkstemp creates 0600; give the output the permissions of a normal new file.
+            # Created 0600; give the output the permissions of a normal new file.
             os.chmod(tmp_path, 0o666 & ~_umask())
         os.replace(tmp_path, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             tmp_path.unlink()
         raise
+
+
+def _refuse_non_regular(path: Path) -> None:
+    try:
+        st = path.lstat()
+    except FileNotFoundError:
+        return
+    except OSError as exc:
+        raise UsageError(f"Output {path}: cannot inspect the path ({exc.strerror}).") from None
+    if not stat.S_ISREG(st.st_mode):
+        kind = "symbolic link" if stat.S_ISLNK(st.st_mode) else "non-regular file"
+        raise UsageError(f"Output {path} is a {kind}; refusing to replace it.")
+
+
+def _empty_dir(path: Path) -> bool:
+    """An empty folder: replacing it loses nothing."""
+    try:
+        return path.is_dir() and not path.is_symlink() and not any(path.iterdir())
+    except OSError:
+        return False
+
+
+def is_store_dir(path: str | Path) -> bool:
+    """True when ``path`` is a folder holding zarr metadata at its root (a zarr store)."""
+    p = Path(path)
+    return (
+        p.is_dir()
+        and not p.is_symlink()
+        and any((p / m).is_file() for m in ("zarr.json", ".zgroup", ".zarray"))
+    )
+
+
+@contextlib.contextmanager
+def atomic_dir(path: str | Path, overwrite: bool = True) -> Iterator[Path]:
+    """Yield a temporary folder beside ``path``; move it into place on success.
+
+    For zarr stores. An existing ``path`` is replaced only when ``overwrite`` is true
+    and it is itself a zarr store (never a file, a symbolic link or any other folder).
+    The old store is moved aside first and removed only once the new one is in place;
+    if anything fails in between, the old store is put back. On error or interrupt the
+    temporary folder is removed.
+    """
+    path = Path(path).expanduser()
+    if path.is_symlink() or (path.exists() and not path.is_dir()):
+        raise UsageError(f"Output {path} exists and is not a folder; refusing to replace it.")
+    if path.exists():
+        if not overwrite:
+            raise UsageError(f"{path} exists. Remove it or pass overwrite=True.")
+        if not is_store_dir(path) and not _empty_dir(path):
+            raise UsageError(
+                f"Output {path} is a folder that is not a zarr store; refusing to replace it. "
+                "Choose another name."
+            )
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UsageError(
+            f"Cannot write {path}: {exc.strerror} ({path.parent}). Choose a writable folder."
+        ) from None
+    tag = f"{os.getpid()}-{secrets.token_hex(4)}"
+    tmp = path.parent / f".{path.name}.tmp-{tag}"
+    old = path.parent / f".{path.name}.old-{tag}"
+    try:
+        yield tmp
+        if path.exists():
+            os.replace(path, old)
+        os.replace(tmp, path)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        if old.exists() and not path.exists():
+            os.replace(old, path)  # put the previous store back
+        raise
+    shutil.rmtree(old, ignore_errors=True)
 
 
 def _umask() -> int:

@@ -45,6 +45,33 @@ DEFAULT_HEURISTIC = PluginSpec("none")
 DEFAULT_CLASSIFIER = PluginSpec("nearest-sample", {"k": 2})
 
 
+#: Devices a config may name: ``cuda:N`` picks one GPU. Anything else (``tpu``, ``xla``,
+#: a typo) is refused when the config is loaded, not silently ignored.
+DEVICES = ("auto", "cpu", "cuda", "cuda:N", "mps")
+
+
+def check_device(value: Any, where: str = "device") -> str:
+    """``value`` as a device string when it is one of :data:`DEVICES`; else ConfigError.
+
+    Examples
+    --------
+    >>> check_device("cuda:1")
+    'cuda:1'
+    """
+    if value is None:
+        return "auto"
+    text = str(value).strip().lower() if isinstance(value, str) else None
+    if text is not None:
+        kind, _, index = text.partition(":")
+        if (kind in ("auto", "cpu", "cuda", "mps") and not index) or (
+            kind == "cuda" and index.isdigit()
+        ):
+            return text
+    raise ConfigError(
+        f"{where}: {value!r} is not a supported device; use one of {', '.join(DEVICES)}."
+    )
+
+
 def _default(spec: PluginSpec):
     return lambda: PluginSpec(spec.name, dict(spec.params))
 
@@ -117,7 +144,10 @@ class QuashConfig:
         metadata={"help": "Instance grouping options ({min_size: 3, radius: ...}); null disables."},
     )
     seed: int = field(default=0, metadata={"help": "Seed for random heuristics."})
-    device: str = field(default="auto", metadata={"help": "cpu, cuda, mps or auto."})
+    device: str = field(
+        default="auto",
+        metadata={"help": "auto, cpu, cuda, cuda:N or mps; anything else is refused."},
+    )
     cache: bool = field(default=True, metadata={"help": "Cache text embeddings on disk."})
     chunk_mb: float = field(
         default=256.0, metadata={"help": "Working-set budget for classification, in MB."}
@@ -235,6 +265,8 @@ def _convert(cls, key: str, value: Any, where: _Where, path) -> Any:
         ) from None
     if key == "chunk_mb" and out <= 0:
         raise ConfigError(f"{where.at((key,))}'chunk_mb' must be positive.")
+    if key == "device":
+        out = check_device(value, f"{where.at((key,))}'device'")
     return out
 
 
@@ -277,11 +309,17 @@ def _resolve_path(value: str, config_path) -> str:
     return str(Path(config_path).resolve().parent / p)
 
 
+#: How many nodes aliases (``*name``) may add to a YAML document once expanded. A
+#: "billion laughs" document (aliases of aliases of aliases) is refused above it.
+MAX_ALIAS_EXPANSION = 100_000
+
+
 def load_yaml(path: str | Path) -> tuple[Any, dict[tuple, int]]:
     """Parse a YAML file safely; return the data and the 1-based line of each key path.
 
-    Raises :class:`ConfigError` naming the file and line for malformed YAML, and for a
-    missing or unreadable file.
+    Raises :class:`ConfigError` naming the file and line for malformed YAML, for a
+    missing or unreadable file, and for a document whose aliases expand beyond
+    :data:`MAX_ALIAS_EXPANSION` nodes (or refer to themselves).
     """
     p = Path(path)
     try:
@@ -290,31 +328,106 @@ def load_yaml(path: str | Path) -> tuple[Any, dict[tuple, int]]:
         raise ConfigError(f"Config file not found: {p}") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise ConfigError(f"Cannot read config file {p}: {exc}") from None
-    try:
-        node = yaml.compose(text, Loader=yaml.SafeLoader)
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None) or getattr(exc, "context_mark", None)
-        problem = getattr(exc, "problem", None) or str(exc)
-        loc = f"{p}:{mark.line + 1}:{mark.column + 1}" if mark else str(p)
-        raise ConfigError(
-            f"{loc}: malformed YAML: {problem}. Check indentation and quoting."
-        ) from None
+    data, node = _parse_yaml(text, str(p))
     lines: dict[tuple, int] = {}
-    _walk(node, (), lines)
+    _walk(node, (), lines, set())
     return data, lines
 
 
-def _walk(node, prefix: tuple, lines: dict[tuple, int]) -> None:
+def load_yaml_text(text: str, source: str = "<text>") -> Any:
+    """Parse YAML text safely, with the alias bound of :func:`load_yaml`.
+
+    Examples
+    --------
+    >>> load_yaml_text("a: [1, 2]")
+    {'a': [1, 2]}
+    """
+    return _parse_yaml(text, source)[0]
+
+
+def _parse_yaml(text: str, source: str) -> tuple[Any, Any]:
+    loader = yaml.SafeLoader(text)
+    try:
+        node = loader.get_single_node()
+        if node is None:
+            return None, None
+        _check_expansion(node, source)
+        return loader.construct_document(node), node
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None) or getattr(exc, "context_mark", None)
+        problem = getattr(exc, "problem", None) or str(exc)
+        loc = f"{source}:{mark.line + 1}:{mark.column + 1}" if mark else source
+        raise ConfigError(
+            f"{loc}: malformed YAML: {problem}. Check indentation and quoting."
+        ) from None
+    except RecursionError:
+        raise ConfigError(f"{source}: the YAML is nested too deeply to be a config.") from None
+    finally:
+        loader.dispose()
+
+
+def _check_expansion(root: Any, source: str) -> None:
+    """Refuse a document whose aliases expand too far, or into themselves."""
+    size: dict[int, int] = {}
+    distinct = 0
+    on_path: set[int] = set()
+    stack: list[tuple[Any, bool]] = [(root, False)]
+    while stack:
+        node, done = stack.pop()
+        key = id(node)
+        children = _children(node)
+        if done:
+            on_path.discard(key)
+            size[key] = 1 + sum(size[id(c)] for c in children)
+            if size[key] > distinct + MAX_ALIAS_EXPANSION:
+                raise ConfigError(
+                    f"{source}: the YAML's aliases (*name) expand to more than "
+                    f"{MAX_ALIAS_EXPANSION:,} extra nodes; refusing to load it (a YAML "
+                    "'billion laughs' document). Write the values out, or use fewer aliases."
+                )
+            continue
+        if key in size:
+            continue
+        if key in on_path:
+            raise ConfigError(
+                f"{source}: a YAML alias refers to the node that contains it (a recursive "
+                "alias); refusing to load it."
+            )
+        distinct += 1
+        on_path.add(key)
+        stack.append((node, True))
+        for child in children:
+            if id(child) in on_path:
+                raise ConfigError(
+                    f"{source}: a YAML alias refers to the node that contains it (a "
+                    "recursive alias); refusing to load it."
+                )
+            if id(child) not in size:
+                stack.append((child, False))
+
+
+def _children(node: Any) -> list[Any]:
+    if isinstance(node, yaml.MappingNode):
+        return [n for pair in node.value for n in pair]
+    if isinstance(node, yaml.SequenceNode):
+        return list(node.value)
+    return []
+
+
+def _walk(node, prefix: tuple, lines: dict[tuple, int], seen: set[int]) -> None:
+    # Each node is visited once: an alias does not repeat the walk of its anchor.
+    if node is None or id(node) in seen:
+        return
+    seen.add(id(node))
     if isinstance(node, yaml.MappingNode):
         for k, v in node.value:
             key = k.value
             lines[(*prefix, key)] = k.start_mark.line + 1
-            _walk(v, (*prefix, key), lines)
+            _walk(v, (*prefix, key), lines, seen)
     elif isinstance(node, yaml.SequenceNode):
         for i, v in enumerate(node.value):
             lines[(*prefix, i)] = v.start_mark.line + 1
-            _walk(v, (*prefix, i), lines)
+            _walk(v, (*prefix, i), lines, seen)
 
 
 def config_reference() -> str:

@@ -224,6 +224,13 @@ class MapAdapter(ABC):
     """
 
     name: str = "adapter"
+    #: File-name endings of this adapter's maps (``(".npz",)``). With ``adapter: auto``,
+    #: a file that no ``sniff`` accepts but whose name ends so is read with this adapter,
+    #: so that its own error says what is wrong with the file.
+    suffixes: tuple[str, ...] = ()
+    #: Leading bytes of this adapter's files (``(b"\x89HDF\r\n\x1a\n",)``), used the
+    #: same way when no suffix matches.
+    magic: tuple[bytes, ...] = ()
 
     @abstractmethod
     def sniff(self, source: Any) -> bool:

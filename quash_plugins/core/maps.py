@@ -2,26 +2,32 @@
 
 These know no adapter by name: they ask every registered adapter through the registry,
 so a third-party adapter is detected exactly as a built-in one is.
+
+Errors name the file and say what to do. When no adapter's ``sniff`` accepts a file but
+its name or first bytes say whose it is (an adapter's ``suffixes`` and ``magic``), that
+adapter reads it anyway, so that its own error (truncated, unreadable, a missing field)
+is reported instead of "No adapter recognises". Failures an adapter does not turn into
+a :class:`MapFormatError` itself (out of memory for a declared shape, a permission
+error, a symbolic-link loop, a decompression error) are reported with the file's name.
 """
 
 from __future__ import annotations
 
+import errno
 import logging
 from pathlib import Path
 from typing import Any
 
 from . import registry
-from .errors import MapFormatError, PluginError
+from .errors import MapFormatError, PluginError, QuashError
 from .types import LatentMap
 
 log = logging.getLogger(__name__)
 
 
-def detect_adapter(source: Any) -> str:
-    """Name of the first registered adapter whose ``sniff`` accepts ``source``.
-
-    Adapters are tried in order of their ``priority`` attribute (highest first), then name.
-    """
+def _ordered_adapters() -> list[tuple[str, Any]]:
+    """Loadable adapters by ``priority`` (highest first), then name. A broken one is
+    skipped (the registry warns about it once)."""
     candidates = []
     for name in registry.available("adapters"):
         try:
@@ -30,12 +36,54 @@ def detect_adapter(source: Any) -> str:
             log.debug("skipping adapter %s: %s", name, exc)
             continue
         candidates.append((-int(getattr(cls, "priority", 0)), name, cls))
-    for _, name, cls in sorted(candidates, key=lambda c: (c[0], c[1])):
+    return [(name, cls) for _, name, cls in sorted(candidates, key=lambda c: (c[0], c[1]))]
+
+
+def claimed_by(source: Any) -> tuple[str, str] | None:
+    """``(adapter, why)`` for the adapter whose ``suffixes`` or ``magic`` match ``source``.
+
+    Suffixes are tried first, over every adapter, then leading bytes; None when nothing
+    claims the path (or it is not a path).
+    """
+    if not isinstance(source, (str, Path)):
+        return None
+    path = Path(source)
+    adapters = _ordered_adapters()
+    name_lower = path.name.lower()
+    for name, cls in adapters:
+        for suffix in getattr(cls, "suffixes", ()) or ():
+            if name_lower.endswith(str(suffix).lower()):
+                return name, f"its name ends in {suffix}"
+    try:
+        with open(path, "rb") as f:
+            head = f.read(16)
+    except OSError:
+        return None
+    for name, cls in adapters:
+        for magic in getattr(cls, "magic", ()) or ():
+            if magic and head.startswith(magic):
+                return name, "its first bytes are those of that format"
+    return None
+
+
+def detect_adapter(source: Any, *, claimed: bool = False) -> str:
+    """Name of the first registered adapter whose ``sniff`` accepts ``source``.
+
+    Adapters are tried in order of their ``priority`` attribute (highest first), then name.
+    With ``claimed``, when none accepts it, the adapter whose ``suffixes``/``magic`` match
+    is returned instead (reading with it reports why the file is not a valid map).
+    """
+    for name, cls in _ordered_adapters():
         try:
             if cls().sniff(source):
                 return name
         except Exception as exc:  # noqa: BLE001 - a faulty sniff must not break detection
             log.debug("adapter %s failed to sniff %r: %s", name, source, exc)
+    if claimed:
+        claim = claimed_by(source)
+        if claim is not None:
+            log.debug("no adapter recognises %s, but %s: trying %s", source, claim[1], claim[0])
+            return claim[0]
     what = str(source) if isinstance(source, (str, Path)) else type(source).__name__
     raise MapFormatError(
         f"No adapter recognises {what}. Known adapters: "
@@ -43,17 +91,85 @@ def detect_adapter(source: Any) -> str:
     )
 
 
+def check_map_path(path: Path) -> Path:
+    """Refuse a map path that does not exist, is a symbolic-link loop or a broken link,
+    or cannot be inspected; the message names the path and the fix."""
+    try:
+        path.stat()
+    except FileNotFoundError:
+        if path.is_symlink():
+            raise MapFormatError(
+                f"Map {path} is a symbolic link to {_readlink(path)}, which does not exist."
+            ) from None
+        raise MapFormatError(f"Map not found: {path}. Check the path.") from None
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise MapFormatError(
+                f"Map {path} is a symbolic-link loop (it points back at itself). Point it "
+                "at the map file or folder."
+            ) from None
+        raise MapFormatError(_os_message(path, exc)) from None
+    return path
+
+
+def _readlink(path: Path) -> str:
+    try:
+        return str(path.readlink())
+    except OSError:
+        return "?"
+
+
+def _os_message(where: Any, exc: OSError) -> str:
+    target = exc.filename or where
+    if isinstance(exc, PermissionError):
+        return (
+            f"{where}: permission denied reading {target}. Check that you may read the map's "
+            "files (and enter its folders)."
+        )
+    if exc.errno == errno.ELOOP:
+        return f"{where}: {target} is a symbolic-link loop."
+    return (
+        f"{where}: cannot read {target} ({exc.strerror or exc}). The file may be damaged, "
+        "truncated or on a disk that is not available."
+    )
+
+
+def map_read_error(
+    where: Any, exc: BaseException, adapter: str | None = None, rows: str = ""
+) -> MapFormatError:
+    """A :class:`MapFormatError` for a failure reading a map, naming the file and the fix.
+
+    ``rows`` names what was being read (``"rows 0-999 of the embeddings"``), when the
+    failure came while the map's rows were read rather than when it was opened.
+    """
+    what = f" ({rows})" if rows else ""
+    if isinstance(exc, MemoryError):
+        return MapFormatError(
+            f"{where}: reading it{what} needs more memory than this machine has ({exc}). The "
+            "file may declare a wrong shape (damaged or truncated); if the map really is "
+            "that large, convert it to zarr (quash convert MAP MAP.zarr) and query it with "
+            "--backend dask."
+        )
+    if isinstance(exc, OSError):
+        return MapFormatError(_os_message(where, exc) + (f" While reading {rows}." if rows else ""))
+    by = f" with adapter {adapter!r}" if adapter else ""
+    return MapFormatError(
+        f"{where}: cannot read it{by}{what}: {type(exc).__name__}: {exc}. The file may be "
+        "damaged or truncated (a corrupt chunk or block); convert or copy it again from the "
+        "original map."
+    )
+
+
 def resolve_adapter(source: Any, adapter: str | None = "auto") -> tuple[Any, str]:
     """``(source, name)``: a path source checked and expanded, ``"auto"`` resolved by sniffing.
 
-    Raises :class:`MapFormatError` for a path that does not exist.
+    Raises :class:`MapFormatError` for a path that does not exist, a broken link or a
+    symbolic-link loop. With ``"auto"``, a file no sniff accepts but whose suffix or magic
+    an adapter claims resolves to that adapter (see :func:`detect_adapter`).
     """
     if isinstance(source, (str, Path)):
-        path = Path(source).expanduser()
-        if not path.exists():
-            raise MapFormatError(f"Map not found: {path}. Check the path.")
-        source = path
-    name = detect_adapter(source) if adapter in (None, "auto") else str(adapter)
+        source = check_map_path(Path(source).expanduser())
+    name = detect_adapter(source, claimed=True) if adapter in (None, "auto") else str(adapter)
     return source, name
 
 
@@ -63,7 +179,18 @@ def read_map(source: Any, adapter: str = "auto", **options: Any) -> LatentMap:
         return source
     source, name = resolve_adapter(source, adapter)
     reader = registry.create("adapters", name, **options)
-    lmap = reader.read(source)
+    try:
+        lmap = reader.read(source)
+    except QuashError as exc:
+        claim = _claim_for(source, name)
+        if claim is None:
+            raise
+        raise type(exc)(
+            f"{source} looks like a {name!r} map ({claim}) but cannot be read: {exc}"
+        ) from exc
+    except Exception as exc:  # noqa: BLE001 - anything else is reported with the file's name
+        where = str(source) if isinstance(source, Path) else type(source).__name__
+        raise map_read_error(where, exc, name) from exc
     if not isinstance(lmap, LatentMap):
         raise PluginError(f"Adapter {name!r} returned {type(lmap).__name__}, not a LatentMap.")
     lmap.source.setdefault("adapter", name)
@@ -71,3 +198,17 @@ def read_map(source: Any, adapter: str = "auto", **options: Any) -> LatentMap:
         lmap.source.setdefault("path", str(source))
     log.info("read %s", lmap.describe())
     return lmap
+
+
+def _claim_for(source: Any, name: str) -> str | None:
+    """Why ``source`` looks like adapter ``name``'s although its sniff refuses it (a
+    damaged file), or None. Only asked when reading has already failed."""
+    claim = claimed_by(source)
+    if claim is None or claim[0] != name:
+        return None
+    try:
+        if registry.load("adapters", name)().sniff(source):
+            return None  # a file of that format whose content the adapter refuses
+    except Exception:  # noqa: BLE001 - sniff never raises, but a plugin's might
+        pass
+    return claim[1]

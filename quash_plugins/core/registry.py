@@ -7,8 +7,10 @@ Built-ins register exactly as third parties do, through ``pyproject.toml``::
 
 Listing reads distribution metadata only; a plugin is imported on first use and the
 class is cached. An unknown name is answered with the known ones, a plugin that fails
-to import is reported with its distribution while the others keep working, and a name
-claimed by two distributions is an error unless qualified as ``dist:name``.
+to import is reported with its distribution (one warning per process) while the others
+keep working, and a name claimed by two distributions is an error unless qualified as
+``dist:name``, except that a built-in keeps its bare name: a third-party plugin that
+claims ``none`` cannot break the default config (a warning says how to choose it).
 
 Examples
 --------
@@ -36,6 +38,8 @@ from .errors import ConfigError, PluginError, closest, unknown_name_message
 log = logging.getLogger(__name__)
 
 KINDS: tuple[str, ...] = ("encoders", "heuristics", "classifiers", "adapters")
+#: The distribution of the built-in plugins; they keep their bare names.
+BUILTIN_DIST = "quash-plugins"
 GROUP_PREFIX = "quash_plugins."
 _SINGULAR = {k[:-1]: k for k in KINDS}
 _TITLE = {
@@ -77,6 +81,7 @@ class PluginInfo:
 
 
 _lock = threading.RLock()
+_warned: set[tuple[str, str, str]] = set()
 _scanned: dict[str, list[PluginInfo]] = {}
 _manual: dict[str, list[PluginInfo]] = {k: [] for k in KINDS}
 
@@ -197,6 +202,16 @@ def _resolve(kind: str, name: str) -> PluginInfo:
         raise PluginError(unknown_name_message(_TITLE[kind], name, available(kind)))
     dists = {i.dist for i in matches}
     if len(dists) > 1:
+        builtin = [i for i in matches if _same_dist(i.dist, BUILTIN_DIST)]
+        if builtin:
+            others = sorted(i.qualified for i in matches if i not in builtin)
+            _warn_once(
+                ("shadow", kind, name),
+                f"{_TITLE[kind]} {name!r} is also claimed by {', '.join(others)}; the "
+                f"built-in one keeps the name. Write {others[0]!r} in the config to use "
+                "the other one.",
+            )
+            return builtin[0]
         raise PluginError(
             f"{_TITLE[kind]} {name!r} is claimed by several distributions: "
             f"{', '.join(sorted(dists))}. Qualify it as one of: "
@@ -252,17 +267,30 @@ def _load_info(info: PluginInfo) -> Any:
                 f"{info.dist!r} {info.version} failed to import ({info.target}): "
                 f"{type(exc).__name__}: {exc}"
             )
-            log.debug("%s", info.error)
+            _warn_once(
+                ("broken", info.kind, info.qualified),
+                f"{info.error}. It is skipped; fix or uninstall {info.dist!r}.",
+            )
             raise PluginError(info.error) from exc
         try:
             _validate(info, obj)
         except PluginError as exc:
             info.status = "error"
             info.error = str(exc)
+            _warn_once(("broken", info.kind, info.qualified), f"{exc} It is skipped.")
             raise
         info._obj = obj
         info.status = "ok"
         return obj
+
+
+def _warn_once(key: tuple[str, str, str], message: str) -> None:
+    """Log ``message`` as a warning the first time ``key`` is seen in this process."""
+    with _lock:
+        if key in _warned:
+            return
+        _warned.add(key)
+    log.warning("%s", message)
 
 
 def load(kind: str, name: str) -> Any:

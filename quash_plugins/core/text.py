@@ -155,9 +155,9 @@ def load_templates(spec: Any) -> list[str]:
         if path.suffix == ".py":
             return _checked_templates(read_vlmaps_templates(path))
         if path.suffix in (".yaml", ".yml"):
-            import yaml
+            from .config import load_yaml
 
-            data = yaml.safe_load(path.read_text(encoding="utf-8"))
+            data, _ = load_yaml(path)
             if not isinstance(data, list):
                 raise ConfigError(f"{path}: expected a YAML list of templates with '{{}}'.")
             templates = [str(t) for t in data]

@@ -5,7 +5,9 @@ Shapes are checked here, at the boundary, so that nothing deeper has to.
 
 from __future__ import annotations
 
+import logging
 import math
+import unicodedata
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
@@ -13,6 +15,8 @@ from typing import Any, Literal
 import numpy as np
 
 from .errors import MapFormatError, QuashError
+
+log = logging.getLogger(__name__)
 
 MapKind = Literal["voxels", "points", "pixels"]
 MAP_KINDS = ("voxels", "points", "pixels")
@@ -111,8 +115,16 @@ class LatentMap:
                 f"Field 'embeddings'{where} has no feature dimension (shape {tuple(shape)})."
             )
         dtype = np.dtype(self.embeddings.dtype)
-        if dtype.kind not in "fiu":
-            raise MapFormatError(f"Field 'embeddings'{where} must hold numbers; got dtype {dtype}.")
+        if dtype.kind in "iu":
+            raise MapFormatError(
+                f"Field 'embeddings'{where} holds integers ({dtype}); embeddings must be "
+                "floating point (float16, float32 or float64). Quantised features must be "
+                "de-quantised first (e.g. codes.astype(np.float32) * scale + offset)."
+            )
+        if dtype.kind != "f":
+            raise MapFormatError(
+                f"Field 'embeddings'{where} must hold floating-point numbers; got dtype {dtype}."
+            )
         if self.kind not in MAP_KINDS:
             raise MapFormatError(f"LatentMap kind must be one of {MAP_KINDS}; got {self.kind!r}.")
         self.positions = self._check_rows("positions", self.positions, n, (3,), np.float32, where)
@@ -285,21 +297,66 @@ class QuerySet:
         return yaml.safe_dump(self.to_dict(), sort_keys=False, allow_unicode=True)
 
 
+#: Format characters that reorder text on a terminal (bidirectional overrides).
+_BIDI = frozenset("\u061c\u200e\u200f\u202a\u202b\u202c\u202d\u202e\u2066\u2067\u2068\u2069")
+
+
+def is_control(char: str) -> bool:
+    """True for a control character (C0, DEL, C1) or a bidirectional override."""
+    return unicodedata.category(char) == "Cc" or char in _BIDI
+
+
+def escape_control(text: str) -> str:
+    r"""``text`` with control characters written as escapes, safe to print on a terminal.
+
+    Newlines and tabs are kept; every other control character (escape sequences,
+    carriage returns, NUL, bidirectional overrides) is written as ``\xNN``/``\uNNNN``.
+
+    Examples
+    --------
+    >>> escape_control("chair\x1b[31m")
+    'chair\\x1b[31m'
+    """
+
+    def bad(c: str) -> bool:
+        return c not in "\n\t" and is_control(c)
+
+    if not any(bad(c) for c in text):
+        return text
+    return "".join(c.encode("unicode_escape").decode("ascii") if bad(c) else c for c in text)
+
+
 def check_query(text: Any) -> str:
-    """Strip a query and reject empty ones with a clear message."""
+    """Collapse a query's white space; reject empty queries and control characters.
+
+    Tabs and newlines count as spaces. Any other control character (an escape sequence
+    that would drive the terminal, a NUL that C code would cut the text at, a
+    bidirectional override) is refused with its position, never silently dropped.
+    """
     if not isinstance(text, str):
         raise QuashError(f"A query must be a string; got {type(text).__name__}.")
     stripped = " ".join(text.split())
     if not stripped:
         raise QuashError("The query is empty. Pass a word or phrase, e.g. 'chair'.")
+    bad = next((i for i, c in enumerate(stripped) if is_control(c)), None)
+    if bad is not None:
+        code = f"U+{ord(stripped[bad]):04X}"
+        raise QuashError(
+            f"The query '{escape_control(stripped)}' contains a control character ({code}) at "
+            f"position {bad}. Queries are plain text: remove it."
+        )
     return stripped
 
 
 def _dedupe(items: Sequence[str]) -> list[str]:
+    """Collapse white space and drop empty, repeated and control-character entries."""
     seen: set[str] = set()
     out = []
     for item in items:
         s = " ".join(str(item).split())
+        if s and any(is_control(c) for c in s):
+            log.warning("dropping %r from a query set: it holds control characters", s)
+            continue
         if s and s not in seen:
             seen.add(s)
             out.append(s)

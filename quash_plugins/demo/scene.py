@@ -381,6 +381,49 @@ def make_scene(encoder: Any, options: SceneOptions | None = None, cache: Any = N
     return Scene(lmap, taxonomy, absent, room_types, n_objects)
 
 
+_TAXONOMY_HEAD = "# language names only: disjoint from the appearance names that built the voxels\n"
+
+
+def scene_paths(out: str | Path) -> dict[str, Path]:
+    """The three files :func:`write_scene` writes for ``OUT.npz``."""
+    out = Path(out)
+    stem = out.with_suffix("")
+    return {
+        "map": out,
+        "taxonomy": Path(f"{stem}.taxonomy.yaml"),
+        "queries": Path(f"{stem}.queries.yaml"),
+    }
+
+
+def is_scene_file(path: str | Path) -> bool:
+    """True when ``path`` is one of the files a previous :func:`write_scene` wrote.
+
+    The queries file is a mapping with ``present``, ``absent`` and ``room_types``; the
+    taxonomy starts with the scene's comment; the map is an NPZ map whose queries file
+    is such a record. These may be replaced without ``--force``; nothing else may.
+    """
+    import zipfile
+
+    p = Path(path)
+    try:
+        if p.name.endswith(".queries.yaml"):
+            from ..core.config import load_yaml
+
+            data, _ = load_yaml(p)
+            return isinstance(data, dict) and {"present", "absent", "room_types"} <= set(data)
+        if p.name.endswith(".taxonomy.yaml"):
+            with open(p, encoding="utf-8") as f:
+                return f.readline() == _TAXONOMY_HEAD
+        if p.suffix == ".npz":
+            with zipfile.ZipFile(p) as zf:
+                if "embeddings.npy" not in zf.namelist():
+                    return False
+            return is_scene_file(scene_paths(p)["queries"])
+    except (OSError, UnicodeDecodeError, zipfile.BadZipFile, ConfigError):
+        return False
+    return False
+
+
 def write_scene(
     scene: Scene, out: str | Path, options: SceneOptions | None = None
 ) -> dict[str, Path]:
@@ -395,10 +438,9 @@ def write_scene(
         raise ConfigError(f"{out}: the scene is written as our NPZ format; use a .npz name.")
     out.parent.mkdir(parents=True, exist_ok=True)
     write_npz_map(out, scene.map)
-    stem = out.with_suffix("")
-    tax = Path(f"{stem}.taxonomy.yaml")
-    queries = Path(f"{stem}.queries.yaml")
-    head = "# language names only: disjoint from the appearance names that built the voxels\n"
+    paths = scene_paths(out)
+    tax, queries = paths["taxonomy"], paths["queries"]
+    head = _TAXONOMY_HEAD
     with atomic_write(tax, suffix=".yaml") as tmp:
         Path(tmp).write_text(head + yaml.safe_dump(scene.taxonomy, sort_keys=False), "utf-8")
     present = sorted({scene.map.label_names[i] for i in np.unique(scene.map.labels)})

@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from ..core.config import check_device
 from ..core.errors import ConfigError, EncoderError, closest
 from ..core.interfaces import Encoder
 from ._open_clip_weights import (
@@ -124,7 +125,7 @@ class OpenClipEncoder(Encoder):
         self.model = str(model or p_model)
         self.pretrained = pretrained if pretrained is not None else p_tag
         self.checkpoint = checkpoint
-        self.requested_device = device
+        self.requested_device = check_device(device, "encoder 'open-clip': 'device'")
         self.batch_size = int(batch_size)
         self.precision = precision
         self.offline = offline

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from ..core.config import check_device
 from ..core.errors import EncoderError
 from ..core.interfaces import Encoder
 from ._runtime import hf_offline, read_json, require, resolve_device, weights_identity
@@ -69,7 +70,7 @@ class SentenceTransformerEncoder(Encoder):
         if int(batch_size) < 1:
             raise EncoderError(f"batch_size must be >= 1; got {batch_size!r}.")
         self.model = str(model)
-        self.requested_device = device
+        self.requested_device = check_device(device, f"encoder {self.name!r}: 'device'")
         self.batch_size = int(batch_size)
         self.normalize = bool(normalize)
         self.offline = bool(offline)

@@ -28,6 +28,7 @@ import logging
 import os
 import re
 import shutil
+import stat
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -124,6 +125,9 @@ class TextEmbeddingCache:
         self.hits = 0
         self.misses = 0
         self.corrupt: list[Path] = []
+        # Shards read and checked, by path, with the file identity they were read at:
+        # a lookup re-reads a shard only when another process has replaced it.
+        self._memo: dict[Path, tuple[tuple, dict[str, np.ndarray]]] = {}
 
     def __repr__(self) -> str:
         return f"TextEmbeddingCache({str(self.directory)!r}, max_bytes={self.max_bytes})"
@@ -137,7 +141,23 @@ class TextEmbeddingCache:
 
     # ------------------------------------------------------------------ reading
     def _read(self, path: Path, fingerprint: str) -> dict[str, np.ndarray]:
-        """Read one shard; raise :class:`CorruptCacheFile` when it is damaged."""
+        """Read one shard; raise :class:`CorruptCacheFile` when it is damaged.
+
+        A symbolic link, folder or device planted at a shard's path is never read (a pipe
+        would block): it counts as damage, and a link is removed, never followed.
+        """
+        try:
+            st = path.lstat()
+        except FileNotFoundError:
+            return {}
+        except OSError as exc:
+            raise CorruptCacheFile(f"cannot inspect it ({exc.strerror})") from None
+        if not stat.S_ISREG(st.st_mode):
+            raise CorruptCacheFile("not a regular file")
+        stamp = (fingerprint, st.st_ino, st.st_size, st.st_mtime_ns)
+        memo = self._memo.get(path)
+        if memo is not None and memo[0] == stamp:
+            return memo[1]  # unchanged since it was read and checked
         try:
             with np.load(path, allow_pickle=False) as z:
                 texts = np.asarray(z["texts"])
@@ -153,7 +173,24 @@ class TextEmbeddingCache:
             raise CorruptCacheFile(f"shapes texts {texts.shape} and embeddings {emb.shape}")
         if meta.get("sha256") != _checksum(fingerprint, texts, emb):
             raise CorruptCacheFile("checksum mismatch")
-        return {str(t): emb[i] for i, t in enumerate(texts.tolist())}
+        table = {str(t): emb[i] for i, t in enumerate(texts.tolist())}
+        if len(self._memo) >= 4 * SHARDS:
+            self._memo.pop(next(iter(self._memo)))
+        self._memo[path] = (stamp, table)
+        return table
+
+    def _restamp(self, path: Path, fingerprint: str) -> None:
+        """After touching a shard's time (LRU), keep its memo valid."""
+        memo = self._memo.get(path)
+        if memo is None:
+            return
+        try:
+            st = path.lstat()
+        except OSError:
+            self._memo.pop(path, None)
+            return
+        if memo[0][:3] == (fingerprint, st.st_ino, st.st_size):
+            self._memo[path] = ((fingerprint, st.st_ino, st.st_size, st.st_mtime_ns), memo[1])
 
     def _report_corrupt(self, path: Path, why: Any) -> None:
         log.warning(
@@ -189,6 +226,7 @@ class TextEmbeddingCache:
                     found.update(hit)
                     with contextlib.suppress(OSError):
                         os.utime(path)  # LRU: a read refreshes the shard
+                        self._restamp(path, fingerprint)
         n_unique = len(set(texts))
         self.hits += len(found)
         self.misses += n_unique - len(found)
@@ -222,7 +260,7 @@ class TextEmbeddingCache:
             try:
                 with FileLock(str(path) + ".lock", timeout=LOCK_TIMEOUT):
                     try:
-                        table = self._read(path, fingerprint)
+                        table = dict(self._read(path, fingerprint))  # never the memo itself
                     except CorruptCacheFile as exc:
                         self._report_corrupt(path, exc)
                         table = {}

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from typing import Any
 
 import numpy as np
 
+from ..core.errors import QuashError
 from ..core.kernels import KernelExpansion, stack_expansions
+from ..core.maps import map_read_error
 from ..core.types import LatentMap
 
 log = logging.getLogger(__name__)
@@ -94,8 +96,71 @@ def classify_local(
     scorer = BlockScorer(classifiers, chunk_bytes)
     q = len(scorer)
     out = np.empty((q + 1, n), dtype=np.float32)  # one contiguous row per query
-    for start, stop, block in lmap.iter_chunks(rows):
+    for start, stop, block in read_blocks(lmap, rows):
         out[:, start:stop] = scorer.score(block).T
         if progress is not None:
             progress(stop - start)
     return [out[i] for i in range(q)], out[q] > 0
+
+
+def read_blocks(lmap: LatentMap, rows: int) -> Iterator[tuple[int, int, np.ndarray]]:
+    """:meth:`LatentMap.iter_chunks`, with a failure to read rows (a corrupt or unreadable
+    chunk, a file gone) reported as a :class:`MapFormatError` naming the file and rows."""
+    blocks = lmap.iter_chunks(rows)
+    start = 0
+    while True:
+        try:
+            start, stop, block = next(blocks)
+        except StopIteration:
+            return
+        except QuashError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - any failure to read rows is the map's
+            stop = min(lmap.n, start + rows)
+            raise map_read_error(
+                lmap.source.get("path", "the map"),
+                exc,
+                lmap.source.get("adapter"),
+                f"rows {start}-{stop - 1} of the embeddings",
+            ) from exc
+        yield start, stop, block
+        start = stop
+
+
+#: Share of unobserved (all-zero) items above which a query warns about the map.
+UNOBSERVED_WARNING = 0.5
+_warned: set[tuple[str, int, int]] = set()
+
+
+def warn_unobserved(lmap: LatentMap, observed: np.ndarray) -> None:
+    """Warn (once per map) when all or most of ``lmap`` is unobserved (zero rows).
+
+    Such items never match, so a map that is all zeros answers every query with nothing.
+    A damaged store (a missing zarr chunk reads as zeros) looks the same.
+    """
+    n = int(observed.size)
+    unobserved = n - int(np.count_nonzero(observed))
+    if n == 0 or unobserved <= UNOBSERVED_WARNING * n:
+        return
+    where = str(lmap.source.get("path", "the map"))
+    key = (where, n, unobserved)
+    if key in _warned:
+        return
+    _warned.add(key)
+    if unobserved == n:
+        log.warning(
+            "%s: every one of its %d items has an all-zero embedding (unobserved), so no "
+            "query can match. The map is empty or damaged (a missing chunk or block reads "
+            "as zeros).",
+            where,
+            n,
+        )
+    else:
+        log.warning(
+            "%s: %d of %d items (%.1f%%) have all-zero embeddings (unobserved) and never "
+            "match. If the map should be observed there, it may be damaged.",
+            where,
+            unobserved,
+            n,
+            100.0 * unobserved / n,
+        )

@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import QuashError
+from ..core.maps import map_read_error
 from ..core.types import LatentMap, prepare_block
 from .classify import BlockScorer, extra_bytes_per_row
 from .dask_arrays import as_dask
@@ -111,12 +112,20 @@ def compute(client: Any, *arrays: Any) -> tuple[Any, ...]:
         return dask.compute(*arrays, scheduler="threads")
     except QuashError:
         raise
+    except OSError as exc:
+        if exc.filename is not None:  # a file that cannot be read, not a cluster fault
+            raise
+        raise _cluster_error(exc) from exc
     except _cluster_errors() as exc:
-        raise ClusterError(
-            f"The Dask cluster failed during the query ({type(exc).__name__}: {exc}). No "
-            "result was written. Check that the workers have enough memory for the chunk "
-            "size (lower chunk_mb), then run the query again."
-        ) from exc
+        raise _cluster_error(exc) from exc
+
+
+def _cluster_error(exc: BaseException) -> ClusterError:
+    return ClusterError(
+        f"The Dask cluster failed during the query ({type(exc).__name__}: {exc}). No "
+        "result was written. Check that the workers have enough memory for the chunk "
+        "size (lower chunk_mb), then run the query again."
+    )
 
 
 def classify_dask(
@@ -167,7 +176,14 @@ def classify_dask(
         len(classifiers),
         "client " + str(getattr(client, "scheduler", "")) if client is not None else "threads",
     )
-    (out,) = compute(client, graph)
+    try:
+        (out,) = compute(client, graph)
+    except QuashError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - a chunk that cannot be read is the map's fault
+        raise map_read_error(
+            lmap.source.get("path", "the map"), exc, lmap.source.get("adapter"), "the embeddings"
+        ) from exc
     out = np.asarray(out)
     q = len(classifiers)
     if out.shape != (lmap.n, q + 1) or np.isnan(out).any():

@@ -10,9 +10,6 @@ detected by a probe and falls back to one ``(N,)`` float32 vector per such query
 from __future__ import annotations
 
 import logging
-import os
-import shutil
-import uuid
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -20,6 +17,7 @@ from typing import Any
 import numpy as np
 from sklearn.base import clone
 
+from ..core.atomic import atomic_dir, refuse_own_input
 from ..core.types import QuerySet, check_query
 from .classify import BlockScorer
 from .dask_client import current_client, require_dask, require_zarr
@@ -205,14 +203,10 @@ class LazyQuery:
         zarr = require_zarr()
         da = require_dask()
         path = Path(path).expanduser()
-        if path.exists() and not overwrite:
-            from ..core.errors import QuashError
-
-            raise QuashError(f"{path} exists. Remove it or pass overwrite=True.")
-        tmp = path.parent / f".{path.name}.tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+        refuse_own_input(path, self.lmap.source, folder=True)
         n, q = self.raw.shape[0], len(self.classifiers)
         rows = max(1, self.raw.chunks[0][0])  # an empty map has one chunk of 0 rows
-        try:
+        with atomic_dir(path, overwrite=overwrite) as tmp:
             group = zarr.open_group(str(tmp), mode="w", zarr_format=3)
             zraw = group.create_array(
                 "_raw", shape=(n, q + 1), chunks=(rows, q + 1), dtype="float32"
@@ -243,12 +237,6 @@ class LazyQuery:
                     },
                 }
             )
-            if path.exists():
-                shutil.rmtree(path)
-            os.replace(tmp, path)
-        except BaseException:
-            shutil.rmtree(tmp, ignore_errors=True)
-            raise
         log.info("wrote %s: %d queries x %d items", path, q, n)
         return path
 
@@ -280,12 +268,10 @@ def query_lazy(
     from .pipeline import warn_if_empty
 
     warn_if_empty(lmap)
-    querysets, classifiers = [], []
-    for text in texts:
-        qs = quash.expand(text, lmap)
-        X, y, _ = quash.training_set(qs)
-        querysets.append(qs)
-        classifiers.append(clone(quash.classifier).fit(X, y))
+    querysets = [quash.expand(text, lmap) for text in texts]
+    # one encoder call for the strings of every query set
+    sets = quash.training_sets(querysets)
+    classifiers = [clone(quash.classifier).fit(X, y) for X, y, _ in sets]
     chunk_bytes = int(getattr(quash, "chunk_mb", 256.0) * 2**20)
     held = ship(BlockScorer(classifiers, chunk_bytes))
     raw = scores_graph(lmap, classifiers, chunk_bytes, client, held=held)

@@ -31,12 +31,15 @@ from ..core import registry
 from ..core.config import DEFAULT_CLASSIFIER, DEFAULT_HEURISTIC, PluginSpec, QuashConfig
 from ..core.errors import ConfigError, DimensionMismatchError, EmptyMapWarning, QuashError
 from ..core.interfaces import Encoder, ExpansionContext, Heuristic
-from ..core.text import TextCache, load_templates
+from ..core.text import TextCache, encode_texts, load_templates
 from ..core.types import DEFAULT_NEGATIVES, LatentMap, QueryResult, QuerySet, check_query
-from .classify import classify_local
-from .training import training_set
+from .classify import classify_local, warn_unobserved
+from .training import CallCache, training_sets
 
 log = logging.getLogger(__name__)
+
+#: From this many queries in one call, the text side shows progress.
+PROGRESS_QUERIES = 20
 
 #: Encoder presets by embedding dimension, suggested on a dimension mismatch.
 PRESETS_BY_DIM = {
@@ -204,7 +207,7 @@ class Quash:
             p = Path(source).expanduser()
             try:
                 key = (str(p.resolve()), p.stat().st_mtime_ns, name, repr(sorted(opts.items())))
-            except OSError:
+            except (OSError, RuntimeError):  # missing, unreadable, a symbolic-link loop
                 key = None
         else:
             key = (id(source), name)
@@ -229,24 +232,27 @@ class Quash:
             )
 
     # ------------------------------------------------------------------ steps
-    def context(self, lmap: LatentMap | None = None) -> ExpansionContext:
+    def context(self, lmap: LatentMap | None = None, cache: Any = None) -> ExpansionContext:
         return ExpansionContext(
             encoder=self.encoder,
             label_names=list(lmap.label_names) if lmap is not None and lmap.label_names else None,
             map=lmap,
             seed=self.seed,
             negatives=tuple(self.negatives),
-            extra={"cache": self.cache},
+            extra={"cache": cache if cache is not None else self.cache},
         )
 
-    def expand(self, text: str, lmap: LatentMap | None = None) -> QuerySet:
-        """Expand ``text`` into a query set, adding the generic negatives."""
+    def expand(self, text: str, lmap: LatentMap | None = None, *, cache: Any = None) -> QuerySet:
+        """Expand ``text`` into a query set, adding the generic negatives.
+
+        ``cache`` replaces :attr:`cache` for the heuristic's own text embeddings.
+        """
         text = check_query(text)
         key = (text, id(lmap) if lmap is not None else 0)
         cached = self._querysets.get(key)
         if cached is not None and cached[0]() is lmap:
             return cached[1]
-        qs = self.heuristic.expand(text, self.context(lmap))
+        qs = self.heuristic.expand(text, self.context(lmap, cache))
         if not isinstance(qs, QuerySet):
             raise QuashError(
                 f"Heuristic {getattr(self.heuristic, 'name', '?')!r} returned "
@@ -269,15 +275,7 @@ class Quash:
         return qs
 
     def training_set(self, qs: QuerySet) -> tuple[np.ndarray, np.ndarray, list[str]]:
-        opts = self.prompt_templates or {}
-        return training_set(
-            self.encoder,
-            qs,
-            self.cache,
-            self._templates,
-            opts.get("mode", "mean"),
-            bool(opts.get("normalize", True)),
-        )
+        return self.training_sets([qs])[0]
 
     def fit(self, qs: QuerySet) -> Any:
         """Clone the classifier template and fit it on the query set's embeddings."""
@@ -293,7 +291,14 @@ class Quash:
     def query_many(
         self, source: Any, texts: Sequence[str], progress: Any = None, **read_options: Any
     ) -> list[QueryResult]:
-        """Answer several queries with one pass over the map's embeddings."""
+        """Answer several queries with one pass over the map's embeddings.
+
+        Each distinct query is expanded once; the strings of all query sets are embedded
+        in one encoder call (each distinct string once); one classifier is fitted per
+        query; one pass over the map scores them all. ``progress(n)`` is told of map rows
+        as they are classified; from :data:`PROGRESS_QUERIES` queries the text side shows
+        its own progress.
+        """
         if isinstance(texts, str):
             texts = [texts]
         texts = [check_query(t) for t in texts]
@@ -304,21 +309,10 @@ class Quash:
         t_read = time.perf_counter() - t0
         self.check_dimension(lmap)
         warn_if_empty(lmap)
-        pending: list[_Pending] = []
-        for text in texts:
-            timings: dict[str, float] = {"read": t_read / len(texts)}
-            t = time.perf_counter()
-            qs = self.expand(text, lmap)
-            timings["expand"] = time.perf_counter() - t
-            t = time.perf_counter()
-            X, y, _ = self.training_set(qs)
-            timings["encode"] = time.perf_counter() - t
-            t = time.perf_counter()
-            clf = clone(self.classifier).fit(X, y)
-            timings["fit"] = time.perf_counter() - t
-            pending.append(_Pending(qs, X, y, clf, timings))
+        pending = self._prepare(lmap, texts, t_read)
         t = time.perf_counter()
         scores, observed = self._classify(lmap, [p.clf for p in pending], progress)
+        warn_unobserved(lmap, observed)
         t_cls = (time.perf_counter() - t) / len(texts)
         for p, raw in zip(pending, scores):
             p.timings["classify"] = t_cls
@@ -353,6 +347,55 @@ class Quash:
                 )
             )
         return results
+
+    def _prepare(self, lmap: LatentMap, texts: list[str], t_read: float) -> list[_Pending]:
+        """The text side of every query: expand each (once), embed the strings of all
+        query sets in one encoder call, fit one classifier per query."""
+        from ..core.progress import progress
+
+        many = len(texts) >= PROGRESS_QUERIES
+        timings = [{"read": t_read / len(texts)} for _ in texts]
+        call_cache = CallCache(self.cache)
+        t = time.perf_counter()
+        if len(texts) > 1:  # one encoder call for every query, for heuristics that embed it
+            encode_texts(self.encoder, list(dict.fromkeys(texts)), call_cache)
+        t_queries = (time.perf_counter() - t) / len(texts)
+        querysets = []
+        with progress(len(texts) if many else 0, f"expanding {len(texts)} queries") as advance:
+            for text, tm in zip(texts, timings):
+                t = time.perf_counter()
+                querysets.append(self.expand(text, lmap, cache=call_cache))
+                tm["expand"] = time.perf_counter() - t
+                advance(1)
+        t = time.perf_counter()
+        with progress(len(texts) if many else 0, f"encoding {len(texts)} query sets") as advance:
+            sets = self.training_sets(querysets, progress=advance, cache=call_cache)
+        t_encode = (time.perf_counter() - t) / len(texts) + t_queries
+        pending = []
+        with progress(len(texts) if many else 0, f"fitting {len(texts)} classifiers") as advance:
+            for qs, (X, y, _), tm in zip(querysets, sets, timings):
+                tm["encode"] = t_encode
+                t = time.perf_counter()
+                clf = clone(self.classifier).fit(X, y)
+                tm["fit"] = time.perf_counter() - t
+                pending.append(_Pending(qs, X, y, clf, tm))
+                advance(1)
+        return pending
+
+    def training_sets(
+        self, querysets: Sequence[QuerySet], progress: Any = None, cache: Any = None
+    ) -> list[tuple[np.ndarray, np.ndarray, list[str]]]:
+        """:meth:`training_set` for many query sets, with one encoder call for all."""
+        opts = self.prompt_templates or {}
+        return training_sets(
+            self.encoder,
+            querysets,
+            cache if cache is not None else self.cache,
+            self._templates,
+            opts.get("mode", "mean"),
+            bool(opts.get("normalize", True)),
+            progress=progress,
+        )
 
     def query_many_lazy(self, source: Any, texts: Sequence[str], **read_options: Any) -> Any:
         """Like :meth:`query_many`, but masks and scores stay dask arrays until written.

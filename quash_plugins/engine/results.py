@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.atomic import atomic_write
+from ..core.atomic import atomic_write, is_store_dir, refuse_own_input
 from ..core.types import QueryResult
 
 #: The arrays of a results file, as :func:`write_results_npz` writes them.
@@ -29,9 +29,20 @@ def is_results_npz(path: str | Path) -> bool:
     return names == {f"{a}.npy" for a in RESULT_ARRAYS}
 
 
+def is_results_zarr(path: str | Path) -> bool:
+    """True when ``path`` is a results store written by ``LazyQuery.to_zarr``."""
+    p = Path(path)
+    return is_store_dir(p) and (p / "masks").is_dir() and (p / "scores").is_dir()
+
+
 def write_results_npz(path: str | Path, results: Sequence[QueryResult]) -> Path:
-    """Write ``queries (Q,) str``, ``masks (Q, N) bool``, ``scores (Q, N) float32`` atomically."""
+    """Write ``queries (Q,) str``, ``masks (Q, N) bool``, ``scores (Q, N) float32`` atomically.
+
+    ``path`` may not be the map the results came from (their ``map_source``), through
+    any link: that is refused with :class:`~quash_plugins.core.errors.UsageError`.
+    """
     path = Path(path)
+    refuse_own_input(path, [r.map_source.get("path") for r in results])
     queries = np.asarray([r.query for r in results], dtype=str)
     masks = np.stack([r.mask for r in results]).astype(bool)
     scores = np.stack([r.scores for r in results]).astype(np.float32)

@@ -11,6 +11,36 @@ import numpy as np
 from ..core.atomic import atomic_write
 from ..core.errors import QuashError
 
+#: The ``Software`` text of every PNG written here: how a previous plot is recognised.
+PNG_SOFTWARE = "quash-plugins"
+
+
+def is_plot_png(path: str | Path) -> bool:
+    """True when ``path`` is a PNG written by :func:`plot_precision_recall`.
+
+    Such a plot may be replaced without ``--force``; any other file may not.
+    """
+    import struct
+
+    try:
+        with open(path, "rb") as f:
+            if f.read(8) != b"\x89PNG\r\n\x1a\n":
+                return False
+            for _ in range(64):  # text chunks come before the image data
+                head = f.read(8)
+                if len(head) < 8:
+                    return False
+                length, kind = struct.unpack(">I4s", head)
+                if kind in (b"IDAT", b"IEND") or length > 2**20:
+                    return False
+                data = f.read(length)
+                f.read(4)  # CRC
+                if kind == b"tEXt" and data == b"Software\0" + PNG_SOFTWARE.encode():
+                    return True
+    except OSError:
+        return False
+    return False
+
 
 def plot_precision_recall(
     configs: Sequence[dict[str, Any]], path: str | Path, title: str = "precision vs recall"
@@ -51,6 +81,6 @@ def plot_precision_recall(
     fig.tight_layout()
     path = Path(path)
     with atomic_write(path, suffix=".png") as tmp:
-        fig.savefig(tmp, format="png")
+        fig.savefig(tmp, format="png", metadata={"Software": PNG_SOFTWARE})
     plt.close(fig)
     return path

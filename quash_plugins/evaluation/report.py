@@ -224,3 +224,30 @@ __all__ = [
     "evaluate",
     "report_markdown",
 ]
+
+
+def is_report_file(path: str | Path) -> bool:
+    """True when ``path`` is a report that ``quash eval``, ``bench`` or ``demo`` wrote.
+
+    A JSON report holds ``{"configs": [...]}`` (eval, demo) or one such entry per table
+    (bench); a Markdown report starts with ``# quash``. Such a file may be replaced by a
+    new report without ``--force``; anything else may not.
+    """
+    import json
+
+    p = Path(path)
+    try:
+        if p.suffix.lower() == ".json":
+            with open(p, encoding="utf-8") as f:
+                data = json.load(f)
+            if not isinstance(data, dict) or not data:
+                return False
+            if isinstance(data.get("configs"), list):
+                return True
+            return all(
+                isinstance(v, dict) and isinstance(v.get("configs"), list) for v in data.values()
+            )
+        with open(p, encoding="utf-8") as f:
+            return f.readline().startswith("# quash ")
+    except (OSError, UnicodeDecodeError, ValueError):
+        return False

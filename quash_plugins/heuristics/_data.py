@@ -44,7 +44,7 @@ def read_word_list(spec: str | list[str] | None, default: str, what: str) -> lis
 
 def read_mapping(spec: str | dict[str, Any] | None, default: str | None, what: str) -> dict:
     """A YAML mapping from ``spec`` (path, dict) or the shipped ``default`` file."""
-    import yaml
+    from ..core.config import load_yaml, load_yaml_text
 
     if isinstance(spec, dict):
         return dict(spec)
@@ -52,9 +52,7 @@ def read_mapping(spec: str | dict[str, Any] | None, default: str | None, what: s
         if default is None:
             raise ConfigError(f"No {what} given.")
         text = resources.files("quash_plugins.data").joinpath(default).read_text(encoding="utf-8")
-        return yaml.safe_load(text)
-    from ..core.config import load_yaml
-
+        return load_yaml_text(text, default)
     path = Path(str(spec)).expanduser()
     if not path.exists():
         raise ConfigError(f"{what.capitalize()} file not found: {path}")

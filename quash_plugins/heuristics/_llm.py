@@ -17,12 +17,15 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit, urlunsplit
 
-from ..core.errors import ConfigError, HeuristicError
+from ..core.errors import ConfigError, HeuristicError, QuashError
 from ..core.interfaces import ExpansionContext, Heuristic
+from ..core.redact import RedactingFilter, redact
 from ..core.types import QuerySet
 from ._parse import clean_lists, parse_reply
 
 log = logging.getLogger(__name__)
+# Whoever configures logging, nothing this module logs carries a key-like token.
+log.addFilter(RedactingFilter())
 
 #: Bumped whenever the prompt wording changes; part of every cache key.
 PROMPT_VERSION = "quash-llm-2"
@@ -60,17 +63,26 @@ def default_cache_dir() -> Path:
 
 
 def chat_endpoint(base_url: str) -> str:
-    """The chat-completions URL for ``base_url``, without credentials or query string."""
-    parts = urlsplit(base_url.strip())
-    if parts.scheme not in ("http", "https") or not parts.hostname:
+    """The chat-completions URL for ``base_url``, without credentials or query string.
+
+    Credentials written into the URL (``https://user:key@host``) are dropped: they are
+    never sent, logged or cached. Put the key in the variable named by ``api_key_env``.
+    """
+    try:
+        parts = urlsplit(str(base_url).strip())
+        ok = parts.scheme in ("http", "https") and bool(parts.hostname)
+        port = parts.port if ok else None
+    except ValueError:  # a malformed port or address
+        ok = False
+    if not ok:
         raise ConfigError(
-            f"Heuristic 'llm': base_url {base_url!r} is not an http(s) URL; e.g. "
+            f"Heuristic 'llm': base_url {redact(repr(base_url))} is not an http(s) URL; e.g. "
             "http://127.0.0.1:8000/v1 (vLLM), http://127.0.0.1:11434/v1 (Ollama), "
             "http://127.0.0.1:8080/v1 (llama.cpp)."
         )
     netloc = parts.hostname if ":" not in parts.hostname else f"[{parts.hostname}]"
-    if parts.port:
-        netloc += f":{parts.port}"
+    if port:
+        netloc += f":{port}"
     path = parts.path.rstrip("/")
     if not path.endswith("/chat/completions"):
         path += "/chat/completions"
@@ -177,7 +189,14 @@ class LLMHeuristic(Heuristic):
         if float(timeout) <= 0:
             raise ConfigError(f"Heuristic 'llm': 'timeout' must be positive; got {timeout!r}.")
         self.model = str(model)
-        self.base_url = base_url
+        self.endpoint = chat_endpoint(base_url)
+        if urlsplit(str(base_url).strip()).netloc.count("@"):
+            log.warning(
+                "llm: base_url %s carries credentials; they are never sent. Put the key in "
+                "the environment variable named by api_key_env.",
+                redact(base_url),
+            )
+        self.base_url = redact(base_url)
         self.api_key_env = api_key_env
         self.n_synonyms = int(n_synonyms)
         self.n_antonyms = int(n_antonyms)
@@ -190,7 +209,6 @@ class LLMHeuristic(Heuristic):
         self.cache = bool(cache)
         self.json_mode = bool(json_mode)
         self.send_seed = bool(send_seed)
-        self.endpoint = chat_endpoint(base_url)
 
     # ------------------------------------------------------------------ provenance
     def params(self) -> dict[str, Any]:
@@ -227,7 +245,10 @@ class LLMHeuristic(Heuristic):
 
     def _read_cache(self, query: str) -> dict[str, Any] | None:
         path = self.cache_path(query)
-        if not path.exists():
+        if not path.exists() and not path.is_symlink():
+            return None
+        if path.is_symlink() or not path.is_file():
+            log.warning("ignoring LLM cache entry %s: not a regular file", path)
             return None
         try:
             data = json.loads(path.read_text(encoding="utf-8"))
@@ -249,7 +270,10 @@ class LLMHeuristic(Heuristic):
             "temperature": self.temperature,
             "created": datetime.now(UTC).isoformat(timespec="seconds"),
         }
-        atomic_write_text(path, json.dumps(record, indent=1, ensure_ascii=False))
+        try:
+            atomic_write_text(path, json.dumps(record, indent=1, ensure_ascii=False))
+        except QuashError as exc:  # a link or folder planted at the cache path: never followed
+            log.warning("llm: query set for %r not cached: %s", query, exc)
         return path
 
     # ------------------------------------------------------------------ expansion
@@ -316,10 +340,15 @@ class LLMHeuristic(Heuristic):
         return headers
 
     def ask(self, query: str, seed: int | None = None) -> tuple[list[str], list[str]]:
-        """Call the server (with retries) and return cleaned ``(synonyms, antonyms)``."""
+        """Call the server (with retries) and return cleaned ``(synonyms, antonyms)``.
+
+        Whatever the server answers is passed through :func:`redact` (with the key itself)
+        before it reaches an error message or a log line.
+        """
         httpx = _import_httpx()
         body = self.request_body(query, seed)
         headers = self._headers()
+        key = headers.get("Authorization", "").removeprefix("Bearer ")
         last = "no attempt made"
         attempts = self.max_retries + 1
         with httpx.Client(timeout=httpx.Timeout(self.timeout)) as client:
@@ -343,11 +372,16 @@ class LLMHeuristic(Heuristic):
                     status = resp.status_code
                     if status == 200:
                         try:
-                            content = _content(resp)
+                            content = _content(resp, key)
                             syn, ant = parse_reply(content)
+                            # A reply that echoes a credential never reaches a query set,
+                            # a cache file or a log line.
+                            syn = [w for w in syn if redact(w, [key]) == w]
+                            ant = [w for w in ant if redact(w, [key]) == w]
                             return clean_lists(query, syn, ant, self.n_synonyms, self.n_antonyms)
                         except ValueError as exc:
-                            last = f"status 200 with an unusable reply ({exc})"
+                            reason = redact(exc, [key])
+                            last = f"status 200 with an unusable reply ({reason})"
                     elif status in RETRY_STATUSES:
                         last = f"status {status}"
                         wait = max(wait, _retry_after(resp))
@@ -359,7 +393,7 @@ class LLMHeuristic(Heuristic):
                         }.get(status, "")
                         raise HeuristicError(
                             f"Heuristic 'llm': {self.endpoint} answered status {status}: "
-                            f"{_snippet(resp.text)}.{hint}"
+                            f"{_snippet(resp.text, [key])}.{hint}"
                         )
                 log.warning("llm: %s %s", self.endpoint, last)
                 if attempt + 1 < attempts:
@@ -371,16 +405,16 @@ class LLMHeuristic(Heuristic):
         )
 
 
-def _content(resp: Any) -> str:
+def _content(resp: Any, key: str = "") -> str:
     """The assistant message of a chat-completions response; ValueError when malformed."""
     try:
         data = resp.json()
     except ValueError:
-        raise ValueError(f"body is not JSON: {_snippet(resp.text)}") from None
+        raise ValueError(f"body is not JSON: {_snippet(resp.text, [key])}") from None
     try:
         content = data["choices"][0]["message"]["content"]
     except (KeyError, IndexError, TypeError):
-        raise ValueError(f"no choices[0].message.content in {_snippet(resp.text)}") from None
+        raise ValueError(f"no choices[0].message.content in {_snippet(resp.text, [key])}") from None
     if not isinstance(content, str):
         raise ValueError("message content is not text")
     return content
@@ -394,6 +428,7 @@ def _retry_after(resp: Any) -> float:
         return 0.0
 
 
-def _snippet(text: str, n: int = 160) -> str:
-    text = " ".join(str(text).split())
+def _snippet(text: str, secrets: list[str] | tuple[str, ...] = (), n: int = 160) -> str:
+    """The start of a server reply, credentials redacted before it is shortened."""
+    text = " ".join(redact(text, secrets).split())
     return repr(text if len(text) <= n else text[:n] + "...")

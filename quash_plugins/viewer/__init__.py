@@ -18,6 +18,7 @@ from ._sinks import (
     DEFAULT_WEB_PORT,
     SinkRerunLogger,
     ViewerOptions,
+    is_rrd,
     open_viewer,
     web_viewer_url,
 )
@@ -30,6 +31,7 @@ __all__ = [
     "RerunLogger",
     "SinkRerunLogger",
     "ViewerOptions",
+    "is_rrd",
     "open_viewer",
     "colormap",
     "display_indices",

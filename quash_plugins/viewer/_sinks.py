@@ -60,6 +60,16 @@ class ViewerOptions:
         return bool(self.rrd or self.spawn or self.connect or self.serve_web)
 
 
+def is_rrd(path: str | Path) -> bool:
+    """True when ``path`` is a Rerun recording (its magic bytes): a previous ``--rrd``
+    output that may be replaced without ``--force``."""
+    try:
+        with open(path, "rb") as f:
+            return f.read(3) == b"RRF"
+    except OSError:
+        return False
+
+
 def web_viewer_url(web_port: int, grpc_uri: str, host: str = "127.0.0.1") -> str:
     """URL of the served web viewer, told to connect to ``grpc_uri``."""
     return f"http://{host}:{web_port}/?url={quote(grpc_uri, safe='')}"

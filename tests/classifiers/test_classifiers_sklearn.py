@@ -78,8 +78,8 @@ def test_svc_through_the_pipeline(tiny_world):
     "params,needle",
     [
         ({"estimator": "KNeighborsClassifier"}, "dotted path"),
-        ({"estimator": "sklearn.neighbors.NoSuchThing"}, "cannot import"),
-        ({"estimator": "nonexistent_pkg_xyz.Model"}, "cannot import"),
+        ({"estimator": "sklearn.neighbors.NoSuchThing"}, "defines no 'NoSuchThing'"),
+        ({"estimator": "nonexistent_pkg_xyz.Model"}, "no module 'nonexistent_pkg_xyz'"),
         ({"estimator": "sklearn.cluster.KMeans"}, "neither decision_function nor predict_proba"),
         ({"estimator": "sklearn.linear_model.LinearRegression"}, "neither"),
         ({"estimator": "numpy.ndarray"}, "not a scikit-learn estimator"),
@@ -91,3 +91,33 @@ def test_svc_through_the_pipeline(tiny_world):
 def test_bad_estimators_are_rejected_clearly(params, needle):
     with pytest.raises(ConfigError, match=needle):
         registry.create("classifiers", "sklearn", **params)
+
+
+def test_estimator_module_is_not_imported_before_its_name_is_checked(tmp_path, monkeypatch):
+    """A config names a module; its top-level code must not run for a wrong name."""
+    marker = tmp_path / "imported"
+    (tmp_path / "quash_probe_mod.py").write_text(
+        f"open({str(marker)!r}, 'w').close()\n"
+        "def Boom():\n    pass\n"
+        "class NotAnEstimator:\n    pass\n"
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
+    for path, needle in (
+        ("quash_probe_mod.Missing", "defines no 'Missing'"),
+        ("quash_probe_mod:Boom", "is a function, not a class"),
+        ("quash_probe_mod.Boom()", "dotted path"),
+        ("quash_probe_mod..Boom", "dotted path"),
+        ("quash_probe_mod:Boom:Boom", "more than one ':'"),
+        ("os.path.join; import this", "dotted path"),
+    ):
+        with pytest.raises(ConfigError, match=needle):
+            registry.create("classifiers", "sklearn", estimator=path)
+        assert not marker.exists(), path
+    with pytest.raises(ConfigError, match="not a scikit-learn estimator"):
+        registry.create("classifiers", "sklearn", estimator="quash_probe_mod:NotAnEstimator")
+    assert marker.exists()  # a plausible class name is imported, then checked
+
+
+def test_estimator_colon_form():
+    clf = registry.create("classifiers", "sklearn", estimator="sklearn.svm:SVC")
+    assert clf.estimator == "sklearn.svm:SVC"

@@ -3,7 +3,7 @@ from __future__ import annotations
 import pytest
 
 from quash_plugins import Quash, QuashConfig
-from quash_plugins.core.errors import ConfigError, PluginError
+from quash_plugins.core.errors import ConfigError, PluginError, QuashError
 
 
 def test_yaml_round_trip_and_relative_paths(tiny_world):
@@ -63,3 +63,28 @@ def test_unknown_plugin_in_config(tiny_world):
         Quash.from_config(
             {"encoder": {"name": "table", "file": str(tiny_world["table"])}, "heuristic": "llmm"}
         )
+
+
+def test_unsupported_devices_are_refused_everywhere(tiny_world, tmp_path, capsys):
+    from quash_plugins.cli.main import main
+    from quash_plugins.core import registry
+
+    p = tmp_path / "c.yaml"
+    p.write_text("name: x\ndevice: tpu\n")
+    with pytest.raises(ConfigError) as err:
+        QuashConfig.from_yaml(p)
+    assert f"{p}:2:" in str(err.value) and "'tpu'" in str(err.value) and "cuda:N" in str(err.value)
+    assert QuashConfig.from_dict({"device": "CUDA:1"}).device == "cuda:1"
+    rc = main(
+        ["query", str(tiny_world["map"]), "chair", "-c", str(tiny_world["config"])]
+        + ["--device", "tpu"]
+    )
+    assert rc == 2 and "--device: 'tpu'" in capsys.readouterr().err
+    for kind, name in (
+        ("encoders", "minilm"),
+        ("encoders", "open-clip"),
+        ("classifiers", "svm-rbf"),
+    ):
+        params = {"device": "tpu"} | ({"model": "ViT-B-32"} if name == "open-clip" else {})
+        with pytest.raises(QuashError, match="tpu"):
+            registry.create(kind, name, **params)

@@ -114,8 +114,10 @@ def test_bad_device_is_a_clear_error():
     from quash_plugins.core.errors import ConfigError
     from quash_plugins.encoders._sentence_transformers import MiniLMEncoder
 
-    with pytest.raises(ConfigError, match="not a torch device"):
-        MiniLMEncoder(device="toaster").encode_text(["x"])
+    # refused when the encoder is built, not when a model first loads (a cached query
+    # never loads one, so 'device: tpu' used to pass silently)
+    with pytest.raises(ConfigError, match="'toaster' is not a supported device"):
+        MiniLMEncoder(device="toaster")
 
 
 def test_auto_device_picks_cpu_without_accelerators(monkeypatch):

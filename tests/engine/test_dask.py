@@ -336,3 +336,30 @@ def test_cli_convert_to_zarr(tmp_path, world):
     back = read_map(tmp_path / "m.zarr")
     assert back.embeddings.dtype == np.float16 and back.normalize
     np.testing.assert_array_equal(np.asarray(back.embeddings[...]), emb)
+
+
+@pytest.mark.parametrize(
+    ("name", "params"),
+    [
+        ("svm-rbf", {"C": 10.0}),
+        ("nearest-sample", {"k": 2}),
+        ("sklearn", {"estimator": "sklearn.linear_model.LogisticRegression"}),
+    ],
+)
+def test_masks_equal_at_the_threshold_itself(client, world, name, params):
+    """The issue's case: scores within a hair of the threshold, many rows. The executors
+    share BlockScorer, chunk rows and the cast, so scores are equal bit for bit; with the
+    threshold set to a score the map really has, any difference would flip a mask."""
+    clf = registry.create("classifiers", name, **params)
+    reference = _reference(world, clf)[0]
+    observed = np.linalg.norm(world["emb"].astype(np.float32), axis=1) > 0
+    at = np.sort(reference.scores[observed])
+    for threshold in (float(at[len(at) // 2]), float(at[len(at) // 3])):
+        local = _quash(world, clf, threshold=threshold).query_many(
+            LatentMap(world["emb"], normalize=True), ["chair"]
+        )[0]
+        remote = _quash(world, clf, threshold=threshold, backend="dask", client=client)
+        dask_result = remote.query_many(read_map(world["path"]), ["chair"])[0]
+        assert (local.scores == threshold).any()  # rows sit exactly on the threshold
+        np.testing.assert_array_equal(dask_result.scores, local.scores)
+        np.testing.assert_array_equal(dask_result.mask, local.mask)

@@ -1,0 +1,257 @@
+"""Every output of the CLI and the Python writers follows the policy of ``core.atomic``.
+
+An output is never an input (through any link), never a link, device or foreign
+folder; an existing file is replaced only when it is a previous output of the same
+kind, or with ``--force``. Refusals come before any work. Each case reproduces an
+input that used to be replaced.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+
+import numpy as np
+import pytest
+
+from quash_plugins.cli.main import main
+from quash_plugins.core.errors import UsageError
+from quash_plugins.core.types import LatentMap
+
+
+def _sha(path) -> str:
+    return hashlib.sha256(open(path, "rb").read()).hexdigest()
+
+
+def _tree(path) -> dict[str, str]:
+    return {str(p.relative_to(path)): _sha(p) for p in sorted(path.rglob("*")) if p.is_file()}
+
+
+# ---------------------------------------------------------------------- convert
+def test_convert_destination_that_is_the_source_through_a_link_is_refused(tiny_world, capsys):
+    src = tiny_world["map"]
+    before = _sha(src)
+    hard = tiny_world["dir"] / "hard.npz"
+    os.link(src, hard)
+    assert main(["-q", "convert", str(src), str(hard), "--force"]) == 2
+    assert "is the input" in capsys.readouterr().err
+    assert _sha(src) == before
+
+
+def test_convert_existing_destination_needs_force(tiny_world, tmp_path, capsys):
+    mine = tmp_path / "mine.npz"
+    np.savez(mine, embeddings=np.eye(3, dtype=np.float32))
+    before = _sha(mine)
+    assert main(["-q", "convert", str(tiny_world["map"]), str(mine)]) == 2
+    err = capsys.readouterr().err
+    assert "already exists" in err and "--force" in err
+    assert _sha(mine) == before
+    assert main(["-q", "convert", str(tiny_world["map"]), str(mine), "--force"]) == 0
+    with np.load(mine) as z:
+        assert z["embeddings"].shape == (600, 16)
+
+
+def test_convert_never_replaces_a_folder_that_is_not_a_zarr_store(tiny_world, tmp_path, capsys):
+    pytest.importorskip("zarr")
+    folder = tmp_path / "photos.zarr"
+    folder.mkdir()
+    (folder / "holiday.jpg").write_bytes(b"precious")
+    for extra in ([], ["--force"]):
+        assert main(["-q", "convert", str(tiny_world["map"]), str(folder), *extra]) == 2
+        assert "neither a zarr store" in capsys.readouterr().err
+    assert (folder / "holiday.jpg").read_bytes() == b"precious"
+    # a zarr store written by convert is replaced with --force
+    store = tmp_path / "m.zarr"
+    assert main(["-q", "convert", str(tiny_world["map"]), str(store)]) == 0
+    assert main(["-q", "convert", str(tiny_world["map"]), str(store)]) == 2
+    assert main(["-q", "convert", str(tiny_world["map"]), str(store), "--force"]) == 0
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+# ---------------------------------------------------------------------- eval
+def _eval(world, *extra):
+    return main(["-q", "eval", str(world["map"]), "-c", str(world["config"]), *map(str, extra)])
+
+
+def test_eval_outputs_never_replace_the_map_or_the_config(tiny_world, capsys):
+    for flag, target in (("--json", "map"), ("--markdown", "config"), ("--plot", "map")):
+        before = _sha(tiny_world[target])
+        assert _eval(tiny_world, flag, tiny_world[target], "--force") == 2
+        assert "is the input" in capsys.readouterr().err
+        assert _sha(tiny_world[target]) == before
+
+
+def test_eval_outputs_need_force_unless_previous_reports(tiny_world, tmp_path, capsys):
+    js, md, png = tmp_path / "notes.json", tmp_path / "notes.md", tmp_path / "photo.png"
+    js.write_text('{"mine": 1}')
+    md.write_text("my notes\n")
+    png.write_bytes(b"\x89PNG\r\n\x1a\nnot a quash plot")
+    before = {p: _sha(p) for p in (js, md, png)}
+    for flag, path in (("--json", js), ("--markdown", md), ("--plot", png)):
+        assert _eval(tiny_world, flag, path) == 2
+        assert "already exists" in capsys.readouterr().err
+    assert {p: _sha(p) for p in (js, md, png)} == before
+    assert _eval(tiny_world, "--json", js, "--markdown", md, "--plot", png, "--force") == 0
+    assert "configs" in json.loads(js.read_text())
+    # now they are previous reports: a re-run replaces them without --force
+    assert _eval(tiny_world, "--json", js, "--markdown", md, "--plot", png) == 0
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+def test_eval_outputs_onto_a_folder_or_the_same_file_are_refused(tiny_world, tmp_path, capsys):
+    (tmp_path / "d.json").mkdir()
+    assert _eval(tiny_world, "--json", tmp_path / "d.json") == 2
+    assert "is a folder" in capsys.readouterr().err
+    same = tmp_path / "r.json"
+    assert _eval(tiny_world, "--json", same, "--markdown", same) == 2
+    assert "different files" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------------- bench, demo
+def test_bench_refuses_foreign_files_in_out_before_any_work(tiny_world, tmp_path, capsys):
+    out = tmp_path / "bench"
+    out.mkdir()
+    (out / "bench.md").write_text("my own notes\n")
+    assert main(["-q", "bench", str(tiny_world["map"]), "--out", str(out)]) == 2
+    assert "already exists" in capsys.readouterr().err
+    assert (out / "bench.md").read_text() == "my own notes\n"
+    afile = tmp_path / "afile"
+    afile.write_text("x")
+    assert main(["-q", "bench", str(tiny_world["map"]), "--out", str(afile)]) == 2
+    assert "not a folder" in capsys.readouterr().err
+
+
+def test_demo_refuses_foreign_files_in_out_before_any_work(tmp_path, capsys):
+    out = tmp_path / "d"
+    out.mkdir()
+    (out / "demo.json").write_text('{"mine": true}')
+    (out / "demo.rrd").write_text("not a recording")
+    assert main(["-q", "demo", "--tiny", "--out", str(out)]) == 2
+    assert "demo.json already exists" in capsys.readouterr().err
+    assert main(["-q", "demo", "--tiny", "--out", str(out), "--no-rrd"]) == 2
+    (out / "demo.json").unlink()
+    assert main(["-q", "demo", "--tiny", "--out", str(out)]) == 2
+    assert "--rrd" in capsys.readouterr().err
+    assert (out / "demo.rrd").read_text() == "not a recording"
+
+
+# ---------------------------------------------------------------------- make-scene
+def test_make_scene_refuses_a_users_map_and_yaml(tiny_world, tmp_path, capsys):
+    target = tmp_path / "scene.npz"
+    target.write_bytes(tiny_world["map"].read_bytes())
+    before = _sha(target)
+    assert main(["-q", "make-scene", str(target)]) == 2
+    assert "already exists" in capsys.readouterr().err
+    assert _sha(target) == before
+    target.unlink()
+    (tmp_path / "scene.queries.yaml").write_text("my: notes\n")
+    assert main(["-q", "make-scene", str(target)]) == 2
+    assert (tmp_path / "scene.queries.yaml").read_text() == "my: notes\n"
+
+
+def test_make_scene_outputs_are_recognised_as_previous_ones(tmp_path):
+    from quash_plugins.demo.scene import Scene, is_scene_file, scene_paths, write_scene
+
+    m = LatentMap(np.eye(3, dtype=np.float32), labels=np.arange(3), label_names=["a", "b", "c"])
+    paths = write_scene(Scene(m, {"a": ["x"]}, ["z"], ["kitchen"], 3), tmp_path / "s.npz")
+    assert paths == scene_paths(tmp_path / "s.npz")
+    assert all(is_scene_file(p) for p in paths.values())
+    np.savez(tmp_path / "other.npz", embeddings=np.eye(2))
+    assert not is_scene_file(tmp_path / "other.npz")
+
+
+# ---------------------------------------------------------------------- Python writers
+def test_write_results_npz_refuses_the_results_own_map(tiny_world, tmp_path):
+    from quash_plugins import Quash
+    from quash_plugins.engine.results import write_results_npz
+
+    map_path = tiny_world["map"]
+    before = _sha(map_path)
+    results = Quash.from_config(tiny_world["config"]).query_many(map_path, ["chair"])
+    link = tmp_path / "link.npz"
+    link.symlink_to(map_path)
+    for target in (map_path, link):
+        with pytest.raises(UsageError):
+            write_results_npz(target, results)
+    assert _sha(map_path) == before
+    assert write_results_npz(tmp_path / "r.npz", results).exists()
+
+
+def test_npz_and_zarr_writers_refuse_their_own_source(tiny_world, tmp_path):
+    pytest.importorskip("zarr")
+    from quash_plugins.adapters import read_map, write_npz_map, write_zarr_map
+
+    lmap = read_map(tiny_world["map"])
+    before = _sha(tiny_world["map"])
+    with pytest.raises(UsageError, match="is the input"):
+        write_npz_map(tiny_world["map"], lmap)
+    assert _sha(tiny_world["map"]) == before
+    store = write_zarr_map(lmap, tmp_path / "m.zarr")
+    zmap = read_map(store)
+    snapshot = _tree(store)
+    with pytest.raises(UsageError, match="is the input"):
+        write_zarr_map(zmap, store)
+    assert _tree(store) == snapshot
+    folder = tmp_path / "mine"
+    folder.mkdir()
+    (folder / "keep.txt").write_text("keep")
+    with pytest.raises(UsageError, match="neither a zarr store"):
+        write_zarr_map(lmap, folder)
+    assert (folder / "keep.txt").read_text() == "keep"
+
+
+def test_atomic_dir_puts_the_old_store_back_when_the_swap_fails(tmp_path, monkeypatch):
+    from quash_plugins.core import atomic
+
+    store = tmp_path / "s.zarr"
+    store.mkdir()
+    (store / "zarr.json").write_text("{}")
+    real = os.replace
+    calls = []
+
+    def flaky(a, b):
+        calls.append((a, b))
+        if len(calls) == 2:  # the old store is aside, the new one not yet in place
+            raise KeyboardInterrupt
+        return real(a, b)
+
+    monkeypatch.setattr(atomic.os, "replace", flaky)
+    with pytest.raises(KeyboardInterrupt), atomic.atomic_dir(store) as tmp:
+        tmp.mkdir()
+        (tmp / "zarr.json").write_text('{"new": 1}')
+    assert (store / "zarr.json").read_text() == "{}"
+    assert [p.name for p in tmp_path.iterdir()] == ["s.zarr"]
+
+
+# ---------------------------------------------------------------------- caches
+def test_links_and_pipes_planted_in_the_caches_are_never_followed(tmp_path, caplog):
+    from quash_plugins.engine.cache import TextEmbeddingCache, _safe_name, _shard_of
+    from quash_plugins.heuristics._llm import LLMHeuristic
+
+    victim = tmp_path / "victim.txt"
+    victim.write_text("keep")
+    cache = TextEmbeddingCache(tmp_path / "emb")
+    folder = cache.root / _safe_name("enc")
+    folder.mkdir(parents=True)
+    (folder / f"{_shard_of('chair')}.npz").symlink_to(victim)
+    os.mkfifo(folder / f"{_shard_of('sofa')}.npz")  # reading it would block forever
+    cache.store("enc", {"chair": np.ones(2, np.float32), "sofa": np.ones(2, np.float32)})
+    assert set(cache.lookup("enc", ["chair", "sofa"])) <= {"chair", "sofa"}
+    assert victim.read_text() == "keep"
+    llm = LLMHeuristic(model="m", offline=True, cache_dir=str(tmp_path / "llm"))
+    path = llm.cache_path("chair")
+    path.parent.mkdir(parents=True)
+    path.symlink_to(victim)
+    assert llm._read_cache("chair") is None
+    llm._write_cache("chair", ["seat"], ["lamp"])
+    assert victim.read_text() == "keep" and path.is_symlink()
+    assert "not a regular file" in caplog.text and "not cached" in caplog.text
+
+
+def test_an_empty_folder_may_be_replaced_by_a_store(tiny_world, tmp_path):
+    pytest.importorskip("zarr")
+    empty = tmp_path / "m.zarr"
+    empty.mkdir()  # nothing in it to lose
+    assert main(["-q", "convert", str(tiny_world["map"]), str(empty)]) == 0
+    assert (empty / "zarr.json").is_file()

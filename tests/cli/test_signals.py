@@ -1,0 +1,124 @@
+"""SIGTERM or SIGINT in the middle of a write leaves no hidden temporary file.
+
+A real ``quash convert`` runs in a subprocess on a map whose rows are read slowly; once
+its temporary output appears the test sends the signal and checks the exit status, that
+the destination was not created and that nothing hidden is left beside it.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+import pytest
+
+CHILD = textwrap.dedent(
+    """
+    import sys, time
+    import numpy as np
+    from quash_plugins.core import registry
+    from quash_plugins.core.interfaces import MapAdapter
+    from quash_plugins.core.types import LatentMap
+
+    class SlowRows:
+        shape, dtype, ndim = (10 * 65536, 8), np.dtype("float32"), 2
+
+        def __getitem__(self, key):
+            time.sleep(1.0)
+            return np.ones(self.shape, np.float32)[key]
+
+    class SlowAdapter(MapAdapter):
+        name = "slow"
+
+        def sniff(self, source):
+            return False
+
+        def read(self, source, **options):
+            n = SlowRows.shape[0]
+            rng = np.random.default_rng(0)
+            positions = rng.uniform(0, 1, (n, 3)) if n < 10000 else None  # the viewer's map
+            return LatentMap(SlowRows(), positions=positions, source={"path": str(source)})
+
+    registry.register("adapters", "slow", SlowAdapter)
+    from quash_plugins.cli.main import main
+
+    src, dst = sys.argv[1], sys.argv[2]
+    if dst.endswith(".rrd"):  # a query whose recording is being written
+        SlowRows.shape = (2000, 8)
+        args = ["query", src, "chair", "-c", sys.argv[3], "--adapter", "slow", "--rrd", dst]
+    else:
+        args = ["convert", src, dst, "--adapter", "slow"]
+    sys.exit(main(["-q", *args]))
+    """
+)
+
+CONFIG = "encoder: {name: table, table: {chair: [1, 0, 0, 0, 0, 0, 0, 0], other: [0, 1, 0, 0, 0, 0, 0, 0]}}\nnegatives: [other]\ninstances: false\ncache: false\n"
+
+
+def _hidden(folder):
+    return [p.name for p in folder.iterdir() if p.name.startswith(".")]
+
+
+@pytest.mark.parametrize(
+    ("sig", "code", "suffix"),
+    [
+        (signal.SIGTERM, 143, ".npz"),
+        (signal.SIGINT, 130, ".npz"),
+        (signal.SIGTERM, 143, ".zarr"),
+        (signal.SIGTERM, 143, ".rrd"),
+    ],
+)
+def test_signal_mid_write_leaves_no_temporary_file(tmp_path, sig, code, suffix):
+    if suffix == ".zarr":
+        pytest.importorskip("zarr")
+    if suffix == ".rrd":
+        pytest.importorskip("rerun")
+    src = tmp_path / "src.bin"
+    src.write_bytes(b"x")
+    out = tmp_path / "out"
+    out.mkdir()
+    dst = out / f"map{suffix}"
+    config = tmp_path / "c.yaml"
+    config.write_text(CONFIG)
+    proc = subprocess.Popen(
+        [sys.executable, "-c", CHILD, str(src), str(dst), str(config)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
+    try:
+        deadline = time.monotonic() + 60
+        while not _hidden(out):
+            assert proc.poll() is None, proc.communicate()
+            assert time.monotonic() < deadline, "the temporary output never appeared"
+            time.sleep(0.05)
+        time.sleep(0.3)  # well inside the write
+        proc.send_signal(sig)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == code, err.decode()
+    assert not dst.exists()
+    assert _hidden(out) == []
+
+
+def test_interrupt_right_after_the_temporary_file_is_created(tmp_path, monkeypatch):
+    """The window that left a 0-byte hidden file: Ctrl-C between creating the temporary
+    file and entering the block that removes it."""
+    from quash_plugins.core import atomic
+
+    real_open = os.open
+
+    def open_then_interrupt(*args, **kwargs):
+        real_open(*args, **kwargs)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(atomic.os, "open", open_then_interrupt)
+    with pytest.raises(KeyboardInterrupt), atomic.atomic_write(tmp_path / "r.npz"):
+        pass
+    assert list(tmp_path.iterdir()) == []

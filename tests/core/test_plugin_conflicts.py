@@ -1,0 +1,118 @@
+"""Real installed plugins that are broken, or that claim a built-in's name.
+
+A pip-installed distribution claims the heuristic ``none`` (the default config's) and
+ships an adapter that fails to import. Before: the default config failed ("claimed by
+several distributions") and the broken adapter was reported only at DEBUG level during
+a query. Now the built-in keeps its bare name with one warning, and the broken plugin
+is warned about once at the default level.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from quash_plugins import Quash
+from quash_plugins.core import registry
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
+
+PYPROJECT = """\
+[build-system]
+requires = ["setuptools>=64"]
+build-backend = "setuptools.build_meta"
+
+[project]
+name = "quash-shadow-plugin"
+version = "0.0.1"
+requires-python = ">=3.11"
+
+[project.entry-points."quash_plugins.heuristics"]
+none = "quash_shadow:Shadow"
+
+[project.entry-points."quash_plugins.adapters"]
+broken-adapter = "quash_shadow.missing:Nothing"
+
+[tool.setuptools]
+packages = ["quash_shadow"]
+"""
+
+MODULE = """\
+from quash_plugins.core.interfaces import Heuristic
+from quash_plugins.core.types import QuerySet
+
+
+class Shadow(Heuristic):
+    name = "none"
+
+    def expand(self, query, context=None):
+        return QuerySet(query, [query, "shadowed"], ["other"], {"heuristic": "shadow"})
+"""
+
+
+def _pip_install(project: Path, target: Path) -> None:
+    subprocess.run(
+        [sys.executable, "-m", "pip", "install", "--quiet", "--no-deps", "--no-build-isolation"]
+        + ["--no-index", "--target", str(target), str(project)],
+        check=True,
+        capture_output=True,
+        text=True,
+    )
+
+
+@pytest.fixture(scope="module")
+def installed(tmp_path_factory):
+    project = tmp_path_factory.mktemp("shadow")
+    (project / "pyproject.toml").write_text(PYPROJECT)
+    (project / "quash_shadow").mkdir()
+    (project / "quash_shadow" / "__init__.py").write_text(MODULE)
+    target = tmp_path_factory.mktemp("site")
+    _pip_install(project, target)
+    _pip_install(EXAMPLES / "quash-broken-plugin", target)
+    sys.path.insert(0, str(target))
+    registry.refresh()
+    yield target
+    sys.path.remove(str(target))
+    for name in [m for m in sys.modules if m.startswith(("quash_shadow", "quash_broken"))]:
+        del sys.modules[name]
+    registry.refresh()
+
+
+def test_builtin_keeps_its_bare_name_and_the_other_is_reachable_qualified(installed, tiny_world):
+    q = Quash.from_config(tiny_world["config"])  # heuristic: none
+    assert q.expand("chair").positives == ["chair"]
+    assert registry.info("heuristics", "none").dist == "quash-plugins"
+    shadow = registry.create("heuristics", "quash-shadow-plugin:none")
+    assert shadow.expand("chair").positives == ["chair", "shadowed"]
+
+
+def test_cli_default_level_warns_once_about_each(installed, tiny_world):
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(installed), *sys.path])}
+    cfg = tiny_world["dir"] / "default-heuristic.yaml"
+    cfg.write_text(
+        textwrap.dedent(
+            f"""\
+            encoder: {{name: table, file: {tiny_world["table"]}}}
+            classifier: contrast
+            """
+        )
+    )
+    proc = subprocess.run(
+        [sys.executable, "-m", "quash_plugins.cli.main", "query", str(tiny_world["map"])]
+        + ["chair", "sofa", "-c", str(cfg), "--adapter", "auto"],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=120,
+    )
+    assert proc.returncode == 0, proc.stderr
+    err = " ".join(proc.stderr.split())
+    assert err.count("Heuristic 'none' is also claimed by quash-shadow-plugin:none") == 1
+    assert "Write 'quash-shadow-plugin:none'" in err
+    assert err.count("Adapter plugin 'broken-adapter' from distribution") == 1
+    assert "WARNING" in proc.stderr and "fix or uninstall 'quash-shadow-plugin'" in err
