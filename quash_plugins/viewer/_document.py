@@ -18,8 +18,8 @@ _STAGES = (
     "instances",
     "total",
 )
-#: Stages that are one pass over the map shared by every query of a call.
-SHARED_STAGES = ("read", "classify", "reclassify")
+#: Stages done once for all the queries of a call (each query shows its equal share).
+SHARED_STAGES = ("read", "encode", "classify", "reclassify")
 #: Positives and negatives listed at the top of the document; the rest further down.
 HEAD_ITEMS = 24
 
@@ -71,7 +71,7 @@ def queryset_markdown(
         ]
         lines += [
             "",
-            "\\* one pass shared by every query of the call; this is the query's equal share.",
+            "\\* done once for all the queries of the call; this is the query's equal share.",
             "",
         ]
     for title, words in (("All positives", pos), ("All negatives", neg)):
