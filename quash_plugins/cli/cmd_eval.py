@@ -16,7 +16,7 @@ is the share that returns an empty mask (at most --empty-tolerance items)."""
 EPILOG = """\
 examples:
   quash make-scene scene.npz
-  quash eval scene.npz -c vlmaps.yaml -c quash-taxonomy.yaml --all-labels \\
+  quash eval scene.npz -c demo:vlmaps -c demo:quash-taxonomy --all-labels \\
       --absent piano,bathtub --json eval.json --markdown eval.md --plot eval.png
 The JSON holds {"configs": [{"name", "mean": {precision, recall, f1, iou},
 "per_query": {label: {...}}, "absence": {score, empty_tolerance, per_query}}]}.

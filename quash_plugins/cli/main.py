@@ -37,8 +37,10 @@ encoder, used to train a classifier, and every voxel, point or pixel is labelled
 EPILOG = """\
 examples:
   quash demo                                   # offline demo on a generated scene
-  quash query map.npz chair sofa -c cfg.yaml --out result.npz --rrd result.rrd
-  quash expand chair -c cfg.yaml --json
+  quash make-scene scene.npz                   # a labelled map to try things on
+  quash query scene.npz chair sofa -c demo:quash-taxonomy --out result.npz --rrd result.rrd
+  quash expand chair -c demo:quash-taxonomy --json
+  quash configs                                # shipped configs, for -c NAME
   quash plugins
 Run 'quash COMMAND --help' for the options of each command."""
 
