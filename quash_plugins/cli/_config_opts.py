@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 from ..core.config import QuashConfig
-from ..core.errors import UsageError
+from ..core.errors import ConfigError, UsageError
+from ..core.shipped import resolve_config_path
 
 
 def add_config_option(parser: argparse.ArgumentParser, multiple: bool = False) -> None:
@@ -18,7 +18,8 @@ def add_config_option(parser: argparse.ArgumentParser, multiple: bool = False) -
             metavar="CONFIG",
             dest="configs",
             default=None,
-            help="Method config (YAML); repeat to compare methods side by side.",
+            help="Method config: a YAML file or a shipped config's name (e.g. "
+            "demo:quash-taxonomy; 'quash configs' lists them). Repeat to compare methods.",
         )
     else:
         parser.add_argument(
@@ -26,7 +27,9 @@ def add_config_option(parser: argparse.ArgumentParser, multiple: bool = False) -
             "--config",
             metavar="CONFIG",
             default=None,
-            help="Method config (YAML). Default: minilm + none + nearest-sample.",
+            help="Method config: a YAML file or a shipped config's name (e.g. "
+            "demo:quash-taxonomy; 'quash configs' lists them). Default: "
+            f"{_default_summary()}.",
         )
 
 
@@ -41,11 +44,20 @@ def add_runtime_options(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def load_config(path: str | None) -> QuashConfig:
-    if path is None:
+def _default_summary() -> str:
+    """The default config in a few words, read from core.config (one source)."""
+    cfg = QuashConfig()
+    return f"{cfg.encoder.name} + {cfg.heuristic.name} + {cfg.classifier.name}"
+
+
+def load_config(ref: str | None) -> QuashConfig:
+    """The config of ``-c``: a YAML file or a shipped config's name; the default if None."""
+    if ref is None:
         return QuashConfig()
-    if not Path(path).exists():
-        raise UsageError(f"Config file not found: {path}")
+    try:
+        path = resolve_config_path(ref)
+    except ConfigError as exc:
+        raise UsageError(str(exc)) from None
     return QuashConfig.from_yaml(path)
 
 

@@ -1,32 +1,46 @@
-"""Console output of the subcommands: logging, JSON and rich tables."""
+"""Console output of the subcommands: logging, JSON and rich tables.
+
+Tables printed to the terminal are rich tables sized to its width (cells wrap, the
+table never breaks); Markdown is only what the commands write to files.
+"""
 
 from __future__ import annotations
 
 import json
 import logging
+import re
 import sys
+from collections.abc import Iterator
 from typing import Any
 
 log = logging.getLogger("quash_plugins.cli")
 
 
 def setup_logging(verbose: int, quiet: bool) -> None:
-    """Route ``quash_plugins`` logging to stderr through rich, credentials redacted."""
-    from rich.console import Console
-    from rich.logging import RichHandler
-
+    """Route ``quash_plugins`` logging to stderr, credentials redacted and control
+    characters escaped: through rich on a terminal, as plain one-line records
+    (``WARNING  message``) otherwise, so logs in files never wrap."""
     from ..core import progress as _progress
     from ..core.redact import RedactingFilter
 
     level = logging.WARNING if quiet else (logging.DEBUG if verbose else logging.INFO)
     _progress.QUIET = quiet
-    handler = RichHandler(
-        console=Console(stderr=True),
-        show_time=False,
-        show_path=verbose > 1,
-        markup=False,
-        rich_tracebacks=False,
-    )
+    handler: logging.Handler
+    if sys.stderr.isatty():
+        from rich.console import Console
+        from rich.logging import RichHandler
+
+        handler = RichHandler(
+            console=Console(stderr=True),
+            show_time=False,
+            show_path=verbose > 1,
+            markup=False,
+            rich_tracebacks=False,
+        )
+    else:
+        handler = logging.StreamHandler(sys.stderr)
+        fmt = "%(levelname)-8s %(message)s" + (" (%(name)s)" if verbose > 1 else "")
+        handler.setFormatter(logging.Formatter(fmt))
     handler.addFilter(RedactingFilter())
     handler.addFilter(_EscapeControls())
     root = logging.getLogger("quash_plugins")
@@ -70,6 +84,152 @@ def safe_text(value: Any, markup: bool = True) -> str:
 
 
 def console():
+    """A rich console on stdout, as wide as the terminal (``COLUMNS`` in a pipe)."""
     from rich.console import Console
 
     return Console(highlight=False)
+
+
+_CELL_MARKUP = re.compile(r"\*\*(.+?)\*\*|`([^`]+)`")
+
+
+def _cell(text: str) -> Any:
+    """A table cell of our Markdown (``**bold**`` and ```code```) as rich Text."""
+    from rich.text import Text
+
+    out = Text()
+    pos = 0
+    for m in _CELL_MARKUP.finditer(text):
+        out.append(text[pos : m.start()])
+        if m.group(1) is not None:
+            out.append(m.group(1), style="bold")
+        else:
+            out.append(m.group(2), style="cyan")
+        pos = m.end()
+    out.append(text[pos:])
+    return out
+
+
+def _split_row(line: str) -> list[str]:
+    return [c.strip() for c in line.strip().strip("|").split("|")]
+
+
+def _blocks(md: str) -> Iterator[tuple[str, list[str]]]:
+    """``("table", lines)`` for each pipe table, ``("text", [line])`` for other lines."""
+    lines = md.splitlines()
+    i = 0
+    while i < len(lines):
+        line = lines[i]
+        is_table = (
+            line.lstrip().startswith("|")
+            and i + 1 < len(lines)
+            and re.fullmatch(r"\s*\|?\s*:?-{3,}:?\s*(\|\s*:?-{3,}:?\s*)*\|?\s*", lines[i + 1])
+        )
+        if is_table:
+            j = i + 2
+            while j < len(lines) and lines[j].lstrip().startswith("|"):
+                j += 1
+            yield "table", lines[i:j]
+            i = j
+        else:
+            yield "text", [line]
+            i += 1
+
+
+def markdown_table(lines: list[str]) -> Any:
+    """A rich :class:`~rich.table.Table` for the lines of one Markdown pipe table.
+
+    Columns aligned ``---:`` in the Markdown are right-aligned; the table shrinks to the
+    console's width by folding the other columns' cells (the first column, which names
+    the row, stays whole) rather than breaking lines.
+    """
+    from rich import box
+    from rich.table import Table
+
+    header, align, *body = (_split_row(ln) for ln in lines)
+    table = Table(box=box.SIMPLE_HEAD, show_edge=False, pad_edge=False)
+    for i, name in enumerate(header):
+        spec = align[i] if i < len(align) else ""
+        justify = "right" if spec.endswith(":") and not spec.startswith(":") else "left"
+        table.add_column(_cell(name), justify=justify, overflow="fold", no_wrap=i == 0)
+    for row in body:
+        table.add_row(*[_cell(c) for c in row[: len(header)]])
+    return table
+
+
+def print_markdown(out: Any, md: str) -> None:
+    """Print our Markdown reports on ``out``: pipe tables as rich tables sized to the
+    terminal, ``#`` headings in bold, every other line as it is (never hard-wrapped).
+    Control characters are escaped and nothing is read as rich markup."""
+    from rich.text import Text
+
+    from ..core.types import escape_control
+
+    md = escape_control(md)  # names from maps and servers cannot drive the terminal
+    for kind, lines in _blocks(md):
+        if kind == "table":
+            out.print(markdown_table(lines))
+            continue
+        line = lines[0]
+        heading = re.match(r"#+\s+(.*)", line)
+        if heading:
+            out.print(Text(heading.group(1), style="bold"), soft_wrap=True)
+        else:
+            out.print(_cell(line), soft_wrap=True)
+
+
+#: Pipeline stages in order; those in SHARED are done once for all the queries of a call.
+STAGES = ("read", "expand", "encode", "fit", "classify", "postprocess", "refine", "reclassify")
+SHARED = ("read", "encode", "classify", "reclassify")
+
+
+def timings_table(results: list[Any], max_columns: int = 6) -> Any:
+    """Per-query stage times in ms, with the stages shared by the queries of one call
+    marked ``*`` (each query shows its equal share) and their whole cost in a note below.
+
+    Up to ``max_columns`` queries are columns (one row per stage, narrow enough for any
+    terminal); more queries are rows, one column per stage (headers fold, never cut).
+    """
+    from rich import box
+    from rich.table import Table
+    from rich.text import Text
+
+    from ..core.types import escape_control
+
+    stages = [s for s in (*STAGES, "instances") if any(s in r.timings for r in results)]
+    label = {s: f"{s}*" if s in SHARED else s for s in stages}
+    table = Table(
+        title="time per stage (ms)",
+        title_justify="left",
+        box=box.SIMPLE_HEAD,
+        collapse_padding=True,
+        pad_edge=False,
+    )
+
+    def ms(r: Any, s: str) -> str:
+        return f"{1000 * r.timings[s]:.1f}" if s in r.timings else "-"
+
+    if len(results) <= max_columns:
+        table.add_column("stage", no_wrap=True)
+        for r in results:
+            table.add_column(Text(escape_control(r.query)), justify="right", overflow="fold")
+        for s in stages:
+            table.add_row(label[s], *[ms(r, s) for r in results])
+    else:
+        table.add_column("query", no_wrap=True)
+        for s in stages:
+            table.add_column(label[s], justify="right", overflow="fold")
+        for r in results:
+            table.add_row(Text(escape_control(r.query)), *[ms(r, s) for s in stages])
+    shared = []
+    for s in stages:
+        if s in SHARED:
+            n = sum(1 for r in results if s in r.timings)
+            total = 1000 * sum(r.timings.get(s, 0.0) for r in results)
+            shared.append(f"{s} {total:.1f} ms for {n} quer{'y' if n == 1 else 'ies'}")
+    if not shared:
+        return table
+    from rich.console import Group
+
+    note = "* done once for all the queries, split equally: " + ", ".join(shared)
+    return Group(table, Text(note, style="dim"))

@@ -5,11 +5,12 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from ..viewer import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT, ViewerOptions
+from ..viewer import DEFAULT_BIND, DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT, ViewerOptions
 
 
 def add_viewer_arguments(parser: argparse.ArgumentParser) -> None:
-    """Add ``--rrd``, ``--spawn``, ``--connect``, ``--serve-web``, ``--web-port``, ``--grpc-port``."""
+    """Add ``--rrd``, ``--spawn``, ``--connect``, ``--serve-web``, ``--web-port``,
+    ``--grpc-port`` and ``--bind``."""
     g = parser.add_argument_group(
         "Rerun viewer", "Log the map and every query to Rerun (needs the [rerun] extra)."
     )
@@ -18,7 +19,11 @@ def add_viewer_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="FILE.rrd",
         help="Write a Rerun recording to this file (atomically; open it with `rerun FILE.rrd`).",
     )
-    g.add_argument("--spawn", action="store_true", help="Open the native Rerun viewer.")
+    g.add_argument(
+        "--spawn",
+        action="store_true",
+        help="Open the native Rerun viewer (without a display: says so and carries on).",
+    )
     g.add_argument(
         "--connect",
         metavar="URL",
@@ -27,7 +32,8 @@ def add_viewer_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--serve-web",
         action="store_true",
-        help="Serve the web viewer on 127.0.0.1, print its URL and keep serving until Ctrl-C.",
+        help=f"Serve the web viewer on {DEFAULT_BIND} (see --bind), print its URL and keep "
+        "serving until Ctrl-C or SIGTERM.",
     )
     g.add_argument(
         "--web-port",
@@ -42,6 +48,13 @@ def add_viewer_arguments(parser: argparse.ArgumentParser) -> None:
         default=DEFAULT_GRPC_PORT,
         metavar="PORT",
         help=f"gRPC port the web viewer reads the recording from (default: {DEFAULT_GRPC_PORT}).",
+    )
+    g.add_argument(
+        "--bind",
+        default=DEFAULT_BIND,
+        metavar="ADDR",
+        help=f"Address --serve-web listens on (default: {DEFAULT_BIND}, this machine only; "
+        "0.0.0.0 serves every network interface: only on a network you trust).",
     )
 
 
@@ -70,6 +83,7 @@ def viewer_options(args: argparse.Namespace) -> ViewerOptions:
         serve_web=bool(args.serve_web),
         web_port=args.web_port,
         grpc_port=args.grpc_port,
+        bind=args.bind,
     )
 
 

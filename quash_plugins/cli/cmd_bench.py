@@ -53,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.errors import UsageError
     from ..evaluation.ablations import TABLES, run_bench
     from ._backend_opts import backend_overrides
-    from ._output import console, safe_text
+    from ._output import console, print_markdown
 
     tables = tuple(t.strip() for t in args.tables.split(",") if t.strip())
     bad = [t for t in tables if t not in TABLES]
@@ -79,8 +79,7 @@ def run(args: argparse.Namespace) -> int:
         absent=tuple(split(args.absent)),
         on_table=lambda t: out.print(f"table {t}: done"),
     )
-    md = (Path(args.out) / "bench.md").read_text(encoding="utf-8")
-    out.print(safe_text(md, markup=False), markup=False)
+    print_markdown(out, (Path(args.out) / "bench.md").read_text(encoding="utf-8"))
     return 0
 
 

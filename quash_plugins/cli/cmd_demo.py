@@ -13,12 +13,15 @@ indoor scene embedded with the shipped MiniLM model, then runs the VLMaps, Conce
 and LERF rules and QuASH (taxonomy and adjectives heuristics) on ten queries and three
 absence queries. Prints the comparison, writes demo.md, demo.json, demo.png and demo.rrd
 into --out. Needs no network. The method configs are package data; --list-configs
-prints their paths. Files in --out are replaced only when they are previous demo
-outputs, or with --force."""
+prints their paths ('quash configs' lists every shipped config by name). Files in --out
+are replaced only when they are previous demo outputs, or with --force. --serve-web
+serves the recording to a browser on 127.0.0.1 until Ctrl-C or SIGTERM; the viewer opens
+on the best method's tab, the rooms seen from above."""
 EPILOG = """\
 examples:
   quash demo                      # writes ./quash-demo/{demo.rrd,demo.md,demo.json,demo.png}
-  quash demo --spawn              # and opens the Rerun viewer
+  quash demo --spawn              # and opens the Rerun viewer (a desktop)
+  quash demo --serve-web          # or serves it to a browser on 127.0.0.1
   quash demo --out /tmp/d --tiny  # a small scene, seconds"""
 
 
@@ -54,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
     from ..demo.runner import demo_config_paths, run_demo
     from ..evaluation.plot import plot_precision_recall
     from ._backend_opts import backend_overrides
-    from ._output import console, safe_text
+    from ._output import console, print_markdown
     from ._viewer_opts import open_viewer
 
     if args.list_configs:
@@ -80,9 +83,9 @@ def run(args: argparse.Namespace) -> int:
     atomic_write_text(outdir / "demo.json", json.dumps(report.to_json(), indent=2) + "\n")
     plot_precision_recall(report.configs, outdir / "demo.png", title=title)
     out.print(f"[bold]{title}[/] (scene {scene})")
-    out.print(safe_text(md, markup=False), markup=False)
+    print_markdown(out, md)
     if viewer is not None:
-        viewer.close()
+        viewer.close()  # with --serve-web this serves until Ctrl-C or SIGTERM
     written = ["demo.md", "demo.json", "demo.png"] + (
         ["demo.rrd"] if args.rrd and Path(args.rrd).parent == outdir else []
     )

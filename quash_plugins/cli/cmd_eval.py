@@ -16,7 +16,7 @@ is the share that returns an empty mask (at most --empty-tolerance items)."""
 EPILOG = """\
 examples:
   quash make-scene scene.npz
-  quash eval scene.npz -c vlmaps.yaml -c quash-taxonomy.yaml --all-labels \\
+  quash eval scene.npz -c demo:vlmaps -c demo:quash-taxonomy --all-labels \\
       --absent piano,bathtub --json eval.json --markdown eval.md --plot eval.png
 The JSON holds {"configs": [{"name", "mean": {precision, recall, f1, iou},
 "per_query": {label: {...}}, "absence": {score, empty_tolerance, per_query}}]}.
@@ -88,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
     from ..evaluation.report import evaluate
     from ._backend_opts import backend_overrides
     from ._config_opts import apply_runtime_options, load_config
-    from ._output import console, safe_text
+    from ._output import console, print_markdown, safe_text
     from ._viewer_opts import open_viewer
 
     if not args.configs:
@@ -120,21 +120,18 @@ def run(args: argparse.Namespace) -> int:
         plot_precision_recall(report.configs, args.plot, title=f"quash eval: {args.map}")
     viewer = open_viewer(args, app_id="quash-eval")
     if viewer is not None:
-        for step, c in enumerate(report.configs):
-            metrics = dict(c["mean"])
-            if c["absence"]["score"] is not None:
-                metrics["absence"] = c["absence"]["score"]
-            viewer.log_eval_scalars(c["name"], metrics, step)
-        viewer.close()
+        viewer.log_evaluation(report.configs, report.queries, md)
     out = console()
     out.print(
         safe_text(lmap.describe())
         + f": {len(report.queries)} queries, {len(report.absent)} absence queries"
     )
-    out.print(safe_text(md, markup=False), markup=False)
+    print_markdown(out, md)
     for f in (args.json, args.markdown, args.plot):
         if f:
             out.print(f"wrote {safe_text(f)}")
+    if viewer is not None:
+        viewer.close()  # with --serve-web this serves until Ctrl-C or SIGTERM
     return 0
 
 

@@ -73,7 +73,8 @@ def run(args: argparse.Namespace) -> int:
     if args.out and _out_format(args) == "zarr":
         return _query_to_zarr(args, quash)
     lmap = quash.read_map(args.map, adapter=args.adapter)
-    with progress(lmap.n, f"classifying {lmap.n} items") as advance:
+    passes = f" ({quash.passes} passes)" if quash.passes > 1 else ""
+    with progress(lmap.n * quash.passes, f"classifying {lmap.n} items{passes}") as advance:
         results = quash.query_many(lmap, args.queries, progress=advance)
     if args.out and _out_format(args) == "openlex3d":
         from ..engine.results import write_results_openlex3d
@@ -160,7 +161,7 @@ def _query_to_zarr(args, quash) -> int:
 
 
 def _report(args, cfg, lmap, results) -> None:
-    from ._output import console, print_json, safe_text
+    from ._output import console, print_json, safe_text, timings_table
 
     if args.json:
         print_json(
@@ -189,9 +190,6 @@ def _report(args, cfg, lmap, results) -> None:
         )
     out = console()
     out.print(table)
-    stages = ("read", "expand", "encode", "fit", "classify", "postprocess", "instances")
-    for r in results:
-        parts = [f"{s} {r.timings[s] * 1000:.1f} ms" for s in stages if s in r.timings]
-        out.print(f"[dim]{safe_text(r.query)}: " + ", ".join(parts) + "[/]")
+    out.print(timings_table(results))
     if args.out:
         out.print(f"wrote {safe_text(args.out)}")

@@ -6,7 +6,8 @@ Subcommands are discovered from the ``cmd_*`` modules of this package. Each defi
 Exit status: 0 on success, 2 for usage errors, 1 for other errors, 130 after Ctrl-C and
 143 after SIGTERM. Errors print one message and no traceback unless ``--debug`` is given.
 SIGTERM is turned into an exception, as Ctrl-C is, so that every temporary file of an
-unfinished output is removed before the process exits.
+unfinished output is removed before the process exits; SIGINT works also when a shell
+started the command in the background with SIGINT ignored.
 """
 
 from __future__ import annotations
@@ -36,8 +37,10 @@ encoder, used to train a classifier, and every voxel, point or pixel is labelled
 EPILOG = """\
 examples:
   quash demo                                   # offline demo on a generated scene
-  quash query map.npz chair sofa -c cfg.yaml --out result.npz --rrd result.rrd
-  quash expand chair -c cfg.yaml --json
+  quash make-scene scene.npz                   # a labelled map to try things on
+  quash query scene.npz chair sofa -c demo:quash-taxonomy --out result.npz --rrd result.rrd
+  quash expand chair -c demo:quash-taxonomy --json
+  quash configs                                # shipped configs, for -c NAME
   quash plugins
 Run 'quash COMMAND --help' for the options of each command."""
 
@@ -61,15 +64,25 @@ def _raise_terminated(signum, frame) -> None:
 
 @contextlib.contextmanager
 def _sigterm_as_exception() -> Iterator[None]:
-    """Turn SIGTERM into :class:`Terminated` while a command runs (main thread only)."""
+    """Turn SIGTERM into :class:`Terminated` while a command runs (main thread only).
+
+    SIGINT raises KeyboardInterrupt even where a shell started the command in the
+    background with SIGINT ignored (``quash demo --serve-web &`` in a script): a user
+    who sends it means it. Both handlers are restored after.
+    """
     if threading.current_thread() is not threading.main_thread():
         yield
         return
     previous = signal.signal(signal.SIGTERM, _raise_terminated)
+    previous_int = signal.getsignal(signal.SIGINT)
+    if previous_int in (signal.SIG_IGN, signal.SIG_DFL):
+        signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         yield
     finally:
         signal.signal(signal.SIGTERM, previous)
+        if previous_int is not None:
+            signal.signal(signal.SIGINT, previous_int)
 
 
 def _commands():

@@ -184,7 +184,11 @@ class QuashConfig:
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> QuashConfig:
-        """Load a YAML file; errors name the file and the line."""
+        """Load a YAML file, or a shipped config by name (``demo:quash-taxonomy``; see
+        :mod:`quash_plugins.core.shipped`); errors name the file and the line."""
+        from .shipped import resolve_config_path
+
+        path = resolve_config_path(path)
         data, lines = load_yaml(path)
         if data is None:
             data = {}

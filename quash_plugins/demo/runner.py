@@ -99,13 +99,15 @@ def run_demo(
 
 
 def _log_demo(viewer: Any, lmap: Any, quashes: list[Any], report: EvalReport) -> None:
-    """The map once, then each method's result per query, then the scalars per method."""
+    """The map once; each method's results on the ``query`` timeline (query ``i`` at step
+    ``i`` for every method, one viewer tab per method); per-query metrics; the comparison.
+
+    The viewer opens on the method with the best mean F1.
+    """
     viewer.log_map(lmap)
-    texts = [*report.queries, *report.absent]
-    for step, c in enumerate(report.configs):
+    for c in report.configs:
         for i, r in enumerate(report.results.get(c["name"], [])):
-            viewer.log_result(lmap, r, index=step * len(texts) + i)
-        metrics = dict(c["mean"])
-        if c["absence"]["score"] is not None:
-            metrics["absence"] = c["absence"]["score"]
-        viewer.log_eval_scalars(c["name"], metrics, step)
+            viewer.log_result(lmap, r, index=i)
+    viewer.log_evaluation(report.configs, report.queries, report.to_markdown())
+    if report.configs:
+        viewer.focus(report.best("f1")["name"])

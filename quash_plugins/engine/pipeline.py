@@ -288,16 +288,30 @@ class Quash:
         """Answer one query. ``source`` is a path, a live map object or a LatentMap."""
         return self.query_many(source, [text], **read_options)[0]
 
+    @property
+    def passes(self) -> int:
+        """Passes over the map per :meth:`query_many` call: 2 with ``refine``, else 1.
+
+        ``progress(n)`` of :meth:`query_many` is advanced by ``lmap.n`` items per pass.
+        """
+        return 1 if self.refine is None else 2
+
     def query_many(
         self, source: Any, texts: Sequence[str], progress: Any = None, **read_options: Any
     ) -> list[QueryResult]:
-        """Answer several queries with one pass over the map's embeddings.
+        """Answer several queries with one pass over the map's embeddings (two with
+        ``refine``), shared by all of them.
 
         Each distinct query is expanded once; the strings of all query sets are embedded
         in one encoder call (each distinct string once); one classifier is fitted per
         query; one pass over the map scores them all. ``progress(n)`` is told of map rows
-        as they are classified; from :data:`PROGRESS_QUERIES` queries the text side shows
-        its own progress.
+        as they are classified: it adds up to ``lmap.n * self.passes``. From
+        :data:`PROGRESS_QUERIES` queries the text side shows its own progress.
+
+        In each result's timings, ``read``, ``encode`` and ``classify`` are the query's
+        equal share of work done once for all the queries of the call, and
+        ``reclassify`` its share of the refinement's pass (shared by the queries it
+        refined); the other stages, ``refine`` (its re-fit) included, are its own.
         """
         if isinstance(texts, str):
             texts = [texts]
@@ -451,6 +465,8 @@ class Quash:
             p.timings["refine"] = time.perf_counter() - t
             todo.append((p, refined))
         if not todo:
+            if progress is not None:
+                progress(lmap.n)  # the second pass is not needed: count it as done
             return
         t = time.perf_counter()
         scores, _ = self._classify(lmap, [r for _, r in todo], progress)
@@ -458,7 +474,7 @@ class Quash:
         for (p, refined), raw in zip(todo, scores):
             p.clf = refined
             p.raw, p.mask, p.display = self._finish(refined, raw, observed)
-            p.timings["refine"] += share
+            p.timings["reclassify"] = share
 
     def _classify(self, lmap: LatentMap, classifiers: list[Any], progress: Any):
         chunk_bytes = int(self.chunk_mb * 2**20)

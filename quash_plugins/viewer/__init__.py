@@ -14,16 +14,20 @@ from __future__ import annotations
 from ._display import colormap, display_indices, pca_colors, slugify
 from ._rerun import INSTANCE_COLOR, MATCH_COLOR, RerunLogger
 from ._sinks import (
+    DEFAULT_BIND,
     DEFAULT_GRPC_PORT,
     DEFAULT_WEB_PORT,
     SinkRerunLogger,
     ViewerOptions,
+    display_available,
     is_rrd,
     open_viewer,
+    rerun_executable,
     web_viewer_url,
 )
 
 __all__ = [
+    "DEFAULT_BIND",
     "DEFAULT_GRPC_PORT",
     "DEFAULT_WEB_PORT",
     "INSTANCE_COLOR",
@@ -33,6 +37,8 @@ __all__ = [
     "ViewerOptions",
     "is_rrd",
     "open_viewer",
+    "display_available",
+    "rerun_executable",
     "colormap",
     "display_indices",
     "pca_colors",

@@ -2,93 +2,186 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 
-def build_blueprint(
-    *,
-    has_world: bool,
-    slugs: Sequence[str] = (),
-    frames: Sequence[str] = (),
-    has_eval: bool = False,
-) -> Any:
-    """A :class:`rerun.blueprint.Blueprint` for what the recording holds.
+@dataclass(frozen=True)
+class Layout:
+    """What the recording holds, as far as the blueprint cares.
 
-    Layout: on the left a 3D view of ``world`` (map, matches, instances) and a second
-    3D view of the score colormap (Rerun's view queries only accept a trailing ``/**``
-    wildcard, so the query slugs are listed explicitly); for pixel maps, one tab of 2D views per logged frame
-    (RGB with the mask over it, and the score heatmap); on the right the query-set
-    document of the current query and, for ``quash eval``, a time series of the metrics.
-    The time panel is set to the ``query`` timeline so a person scrubs through queries.
-
-    Parameters
+    Attributes
     ----------
     has_world
         The map has 3D positions (``world/...`` entities exist).
-    slugs
-        Entity names of the queries logged so far (``world/queries/<slug>``).
+    has_ceiling
+        ``world/ceiling`` exists (hidden by default so the rooms show from above).
+    eye
+        ``(position, look_target, eye_up)`` of the 3D views, or None for Rerun's default.
+    wide
+        The map's footprint is long and narrow (a row of rooms): the map view gets the
+        whole width, the scores and the document share the row below.
+    configs
+        ``(config slug, config name)`` for each config logged, in order.
     frames
         Entity-safe frame names logged under ``images/<frame>``.
-    has_eval
-        Evaluation scalars exist under ``eval/``.
+    metrics
+        Metric slugs logged under ``eval/<metric>/<config>``.
+    eval_steps
+        Steps of the ``query`` timeline that hold metrics (the last one plus one).
+    has_summary
+        A ``summary`` document exists.
+    focus
+        Slug of the config whose tab is open first (default: the first).
+    """
+
+    has_world: bool = False
+    has_ceiling: bool = False
+    eye: tuple | None = None
+    wide: bool = False
+    configs: tuple = ()
+    frames: tuple = ()
+    metrics: tuple = ()
+    eval_steps: int = 0
+    has_summary: bool = False
+    focus: str | None = None
+
+
+def _config_panel(rrb: Any, layout: Layout, c: str | None, name: str) -> Any:
+    """One config: its 3D views (matches; scores), its images, its query-set document.
+
+    View titles carry the config's name; the document's title carries the query.
+    """
+    eye = None
+    if layout.eye is not None:
+        position, target, up = layout.eye
+        eye = rrb.EyeControls3D(kind="Orbital", position=position, look_target=target, eye_up=up)
+    hidden = rrb.EntityBehavior(visible=False)
+    if c is None:  # only the map so far
+        return rrb.Spatial3DView(
+            name="map",
+            origin="world",
+            contents=["+ world/map", "+ world/ceiling"],
+            overrides={"world/ceiling": hidden} if layout.has_ceiling else None,
+            eye_controls=eye,
+        )
+    doc = rrb.TextDocumentView(name=f"{name}: query set", origin=f"queries/{c}")
+    views: list[Any] = []
+    if layout.has_world:
+        matches = rrb.Spatial3DView(
+            name=f"{name}: map and matches",
+            origin="world",
+            contents=[
+                "+ world/map",
+                "+ world/ceiling",
+                f"+ world/matches/{c}",
+                f"+ world/instances/{c}/**",
+            ],
+            overrides={"world/ceiling": hidden} if layout.has_ceiling else None,
+            eye_controls=eye,
+        )
+        scores = rrb.Spatial3DView(
+            name=f"{name}: scores (0.5 = threshold)",
+            origin="world",
+            contents=[f"+ world/scores/{c}/**", f"+ world/instances/{c}/**"],
+            overrides={f"world/scores/{c}/ceiling": hidden} if layout.has_ceiling else None,
+            eye_controls=eye,
+        )
+        if layout.wide:
+            below = rrb.Horizontal(scores, doc, column_shares=[1, 1])
+            views.append(rrb.Vertical(matches, below, row_shares=[3, 2], name=name))
+        else:
+            views.append(
+                rrb.Horizontal(matches, rrb.Vertical(scores, doc), column_shares=[3, 2], name=name)
+            )
+    if layout.frames:
+        tabs = [
+            rrb.Horizontal(
+                rrb.Spatial2DView(
+                    name=f"{name}: {frame} image and mask",
+                    origin=f"images/{frame}",
+                    contents=["+ $origin/rgb", f"+ $origin/{c}/mask", f"+ $origin/{c}/instances"],
+                ),
+                rrb.Spatial2DView(
+                    name=f"{name}: {frame} scores",
+                    origin=f"images/{frame}",
+                    contents=[f"+ $origin/{c}/scores", f"+ $origin/{c}/instances"],
+                ),
+                name=str(frame),
+            )
+            for frame in layout.frames
+        ]
+        images = rrb.Tabs(*tabs, name="images")
+        if layout.has_world:
+            views.append(images)
+        else:
+            views.append(rrb.Horizontal(images, doc, column_shares=[3, 2]))
+    if not views:
+        return rrb.Vertical(doc, name=name)
+    return rrb.Vertical(*views, name=name) if len(views) > 1 else views[0]
+
+
+def _eval_panel(rrb: Any, layout: Layout) -> Any:
+    """One plot per metric (x: the query timeline, one series per config) and the summary.
+
+    The x axis runs on past the last step, so the legend in the right corner sits over
+    empty plot, never over the data.
+    """
+    last = max(layout.eval_steps - 1, 0)
+    x_range = rrb.TimeRange(
+        start=rrb.TimeRangeBoundary.absolute(seq=0),
+        end=rrb.TimeRangeBoundary.absolute(seq=last + max(2, (last + 1) * 3 // 4)),
+    )
+    plots = [
+        rrb.TimeSeriesView(
+            name=f"{m} per query",
+            origin=f"eval/{m}",
+            plot_legend=rrb.PlotLegend(corner="RightTop", visible=True),
+            axis_x=rrb.TimeAxis(view_range=x_range, zoom_lock=False),
+            axis_y=rrb.ScalarAxis(range=(0.0, 1.05)),
+        )
+        for m in layout.metrics
+    ]
+    parts: list[Any] = []
+    if plots:
+        parts.append(rrb.Grid(*plots, grid_columns=2 if len(plots) > 1 else 1))
+    if layout.has_summary:
+        parts.append(rrb.TextDocumentView(name="Comparison", origin="summary"))
+    if len(parts) == 2:
+        return rrb.Horizontal(*parts, column_shares=[3, 2], name="evaluation")
+    return rrb.Vertical(*parts, name="evaluation")
+
+
+def build_blueprint(layout: Layout) -> Any:
+    """A :class:`rerun.blueprint.Blueprint` for what the recording holds.
+
+    One tab per config (the tab bar is the config selector; each tab's views are named
+    after the config): a 3D view of the map and the config's matches, seen from above
+    with the ceiling hidden; a 3D view of its score colours; the query-set document of
+    the current query (its title names the query, then the positives and negatives).
+    Pixel maps get one tab of 2D views per frame. Evaluation metrics, when logged, get
+    their own tab. The time panel is on the ``query`` timeline: scrubbing it steps
+    through the queries, and every config's tab shows the same query.
     """
     import rerun.blueprint as rrb
 
-    left: list[Any] = []
-    if has_world:
-        views = [
-            rrb.Spatial3DView(
-                name="Map and matches",
-                origin="world",
-                contents=["+ world/**", *[f"- world/queries/{q}/scores/**" for q in slugs]],
-            )
-        ]
-        if slugs:
-            views.append(
-                rrb.Spatial3DView(
-                    name="Scores",
-                    origin="world",
-                    contents=[
-                        *[f"+ world/queries/{q}/scores/**" for q in slugs],
-                        *[f"+ world/queries/{q}/instances/**" for q in slugs],
-                    ],
-                )
-            )
-        left.append(rrb.Horizontal(*views))
-    if frames:
-        tabs = []
-        for frame in frames:
-            tabs.append(
-                rrb.Horizontal(
-                    rrb.Spatial2DView(
-                        name=f"{frame}: image and mask",
-                        origin=f"images/{frame}",
-                        contents=["+ $origin/rgb", "+ $origin/mask", "+ $origin/instances"],
-                    ),
-                    rrb.Spatial2DView(
-                        name=f"{frame}: scores",
-                        origin=f"images/{frame}",
-                        contents=["+ $origin/scores", "+ $origin/instances"],
-                    ),
-                    name=str(frame),
-                )
-            )
-        left.append(rrb.Tabs(*tabs, name="Images"))
-    right: list[Any] = [rrb.TextDocumentView(name="Query set", origin="queries")]
-    if has_eval:
-        right.append(rrb.TimeSeriesView(name="Evaluation", origin="eval"))
-    if not left:
-        left.append(rrb.TextDocumentView(name="Summary", origin="queries"))
-        right = right[1:] or [rrb.TextDocumentView(name="Query set", origin="queries")]
-    main = rrb.Horizontal(
-        rrb.Vertical(*left),
-        rrb.Vertical(*right),
-        column_shares=[3, 1],
-    )
+    panels = [_config_panel(rrb, layout, c, name) for c, name in layout.configs]
+    names = [c for c, _ in layout.configs]
+    if layout.metrics or layout.has_summary:
+        panels.append(_eval_panel(rrb, layout))
+    if not panels and layout.has_world:
+        panels.append(_config_panel(rrb, layout, None, "map"))
+    if not panels:
+        panels.append(rrb.TextDocumentView(name="Query set", origin="queries"))
+    if len(panels) == 1:
+        root = panels[0]
+    else:
+        active = names.index(layout.focus) if layout.focus in names else 0
+        root = rrb.Tabs(*panels, active_tab=active)
     return rrb.Blueprint(
-        main,
-        rrb.TimePanel(timeline="query", expanded=True),
-        rrb.SelectionPanel(expanded=False),
+        root,
+        rrb.TimePanel(timeline="query", state="collapsed", play_state="Paused"),
+        rrb.BlueprintPanel(state="collapsed"),
+        rrb.SelectionPanel(state="collapsed"),
         collapse_panels=False,
     )

@@ -55,6 +55,68 @@ def thin(indices: np.ndarray, limit: int) -> np.ndarray:
     return indices if keep is None else indices[keep]
 
 
+#: Up axes a map can declare, as (axis index, sign).
+UP_AXES = {
+    "+x": (0, 1.0),
+    "-x": (0, -1.0),
+    "+y": (1, 1.0),
+    "-y": (1, -1.0),
+    "+z": (2, 1.0),
+    "-z": (2, -1.0),
+}
+
+
+def ceiling_items(
+    positions: np.ndarray,
+    voxel_size: float | None,
+    up: str = "+z",
+    min_share: float = 0.08,
+    min_height: float = 1.5,
+) -> np.ndarray | None:
+    """Boolean mask of the items that form a ceiling, or None when the map has none.
+
+    A ceiling is a horizontal layer at the very top of a map at least ``min_height``
+    metres high (within half a voxel, or 3 % of the height, of the highest item) that
+    holds at least ``min_share`` of the items and spans at least half of the map's
+    footprint on both horizontal axes. Indoor scans and the demo scene have one; seen
+    from above it hides every room, so the viewer logs it apart and hides it by default.
+
+    >>> grid = np.stack(np.meshgrid(np.arange(4), np.arange(4), np.arange(3), indexing="ij"), -1)
+    >>> room = grid.reshape(-1, 3).astype(np.float32)  # 1 m voxels, 2 m high
+    >>> ceiling_items(room, 1.0).reshape(4, 4, 3)[0, 0].tolist()
+    [False, False, True]
+    >>> ceiling_items(room * 0.1, 0.1) is None  # 0.2 m high: a block, not a room
+    True
+    """
+    if up not in UP_AXES or len(positions) < 10:
+        return None
+    axis, sign = UP_AXES[up]
+    height = sign * np.asarray(positions[:, axis], dtype=np.float64)
+    top, span = float(height.max()), float(np.ptp(height))
+    if span < min_height:
+        return None
+    tol = max(0.5 * float(voxel_size or 0.0), 0.03 * span)
+    layer = height >= top - tol
+    if layer.mean() < min_share or layer.all():
+        return None
+    flat = [a for a in range(3) if a != axis]
+    for a in flat:
+        full = float(np.ptp(positions[:, a]))
+        if full > 0 and float(np.ptp(positions[layer, a])) < 0.5 * full:
+            return None
+    return layer
+
+
+def score_classes(values: np.ndarray, n_classes: int) -> np.ndarray:
+    """``(M,)`` display scores in [0, 1] to class ids ``0 .. n_classes - 1`` (uint16).
+
+    >>> score_classes(np.array([0.0, 0.5, 1.0, np.nan]), 5).tolist()
+    [0, 2, 4, 0]
+    """
+    v = np.clip(np.nan_to_num(np.asarray(values, dtype=np.float32), nan=0.0), 0.0, 1.0)
+    return np.rint(v * (n_classes - 1)).astype(np.uint16)
+
+
 def slugify(text: str, fallback: str = "query") -> str:
     """Entity-path-safe name for a query: lowercase ASCII words joined by ``_``.
 

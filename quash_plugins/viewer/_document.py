@@ -6,7 +6,22 @@ from collections.abc import Sequence
 
 from ..core.types import LatentMap, QueryResult
 
-_STAGES = ("read", "expand", "encode", "fit", "classify", "postprocess", "instances", "total")
+_STAGES = (
+    "read",
+    "expand",
+    "encode",
+    "fit",
+    "classify",
+    "postprocess",
+    "refine",
+    "reclassify",
+    "instances",
+    "total",
+)
+#: Stages done once for all the queries of a call (each query shows its equal share).
+SHARED_STAGES = ("read", "encode", "classify", "reclassify")
+#: Positives and negatives listed at the top of the document; the rest further down.
+HEAD_ITEMS = 24
 
 
 def _md(text: object) -> str:
@@ -17,45 +32,63 @@ def _md(text: object) -> str:
     return out
 
 
+def _head(words: Sequence[str], limit: int = HEAD_ITEMS) -> str:
+    shown = ", ".join(_md(w) for w in words[:limit]) or "(none)"
+    more = len(words) - limit
+    return shown + (f" … and {more} more (listed below)" if more > 0 else "")
+
+
 def queryset_markdown(
     lmap: LatentMap, result: QueryResult, index: int, notes: Sequence[str] = ()
 ) -> str:
-    """Markdown for one result: query, positives, negatives, provenance, classifier,
-    timings and any display-thinning note."""
+    """Markdown for one result: the query and its config, what matched, the positives and
+    negatives (both at the top), classifier, timings, provenance and display notes."""
     import yaml
 
     qs = result.queryset
+    config = result.config_name or "-"
+    pos, neg = list(qs.positives), list(qs.negatives)
     lines = [
-        f"# {_md(qs.query)}",
+        f"# {_md(qs.query)} · {_md(config)}",
         "",
-        f"Query {index} · config **{_md(result.config_name or '-')}** · "
-        f"matched **{result.n_matched:,}** of {lmap.n:,} items ({100 * result.share:.2f} %) · "
-        f"{len(result.instances)} instances",
+        f"Matched **{result.n_matched:,}** of {lmap.n:,} items ({100 * result.share:.2f} %) · "
+        f"{len(result.instances)} instances · query {index}",
+        "",
+        f"**Positives ({len(pos)}):** {_head(pos)}",
+        "",
+        f"**Negatives ({len(neg)}):** {_head(neg)}",
         "",
         f"Classifier: `{result.classifier or '-'}` · threshold {result.threshold:g}",
         "",
-        f"## Positives ({len(qs.positives)})",
-        "",
-        *[f"- {_md(p)}" for p in qs.positives],
-        "",
-        f"## Negatives ({len(qs.negatives)})",
-        "",
-        *[f"- {_md(n)}" for n in qs.negatives],
-        "",
+    ]
+    if result.timings:
+        keys = [k for k in _STAGES if k in result.timings]
+        keys += sorted(k for k in result.timings if k not in _STAGES)
+        lines += ["## Timings", "", "| stage | ms |", "|---|---:|"]
+        lines += [
+            f"| {k}{' *' if k in SHARED_STAGES else ''} | {1000 * float(result.timings[k]):.1f} |"
+            for k in keys
+        ]
+        lines += [
+            "",
+            "\\* done once for all the queries of the call; this is the query's equal share.",
+            "",
+        ]
+    for title, words in (("All positives", pos), ("All negatives", neg)):
+        if len(words) > HEAD_ITEMS:
+            lines += [f"## {title} ({len(words)})", "", ", ".join(_md(w) for w in words), ""]
+    lines += [
         "## Provenance",
         "",
         "```yaml",
         yaml.safe_dump(qs.to_dict()["provenance"] or {}, sort_keys=False).rstrip(),
         "```",
         "",
+        "## Map",
+        "",
+        _md(lmap.describe()),
+        "",
     ]
-    if result.timings:
-        lines += ["## Timings", "", "| stage | ms |", "|---|---:|"]
-        keys = [k for k in _STAGES if k in result.timings]
-        keys += sorted(k for k in result.timings if k not in _STAGES)
-        lines += [f"| {k} | {1000 * float(result.timings[k]):.1f} |" for k in keys]
-        lines.append("")
-    lines += ["## Map", "", _md(lmap.describe()), ""]
     if notes:
         lines += ["## Display", ""]
         lines += [f"- {n}" for n in notes]

@@ -1,20 +1,38 @@
-"""Where a recording goes: an ``.rrd`` file, a spawned viewer, a running one, or served."""
+"""Where a recording goes: an ``.rrd`` file, a spawned viewer, a running one, or served.
+
+Everything served listens on 127.0.0.1 unless the caller names another address
+(``ViewerOptions.bind``). Rerun's own ``serve_web_viewer`` binds its HTTP server on
+every interface (0.0.0.0) with no way to choose, so the web viewer is served by the
+SDK's ``rerun`` executable, which takes ``--bind``; the gRPC server that holds the
+recording runs in this process (``GrpcServerSink(bind_ip=...)``).
+
+A viewer that cannot be reached is never waited for: with no display (Linux without
+``DISPLAY``/``WAYLAND_DISPLAY``), a viewer that exits at start, or a ``--connect``
+address where nothing listens, the logger says so in one line and carries on with the
+other sinks.
+"""
 
 from __future__ import annotations
 
 import contextlib
+import importlib.util
 import logging
 import os
 import shutil
+import signal
+import socket
+import subprocess
 import sys
 import tempfile
+import threading
 import time
 import weakref
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
-from urllib.parse import quote
+from urllib.parse import quote, urlsplit
 
+from ..core.atomic import atomic_write
 from ..core.errors import QuashError, UsageError
 from ._rerun import RerunLogger, import_rerun
 
@@ -22,11 +40,13 @@ log = logging.getLogger(__name__)
 
 DEFAULT_GRPC_PORT = 9876
 DEFAULT_WEB_PORT = 9090
-
-
-def _remove(path: str) -> None:
-    with contextlib.suppress(FileNotFoundError):
-        os.unlink(path)
+#: Address the servers listen on unless the user asks for another.
+DEFAULT_BIND = "127.0.0.1"
+#: Seconds to wait for a spawned viewer or the web viewer's HTTP server to listen.
+START_TIMEOUT_S = 30.0
+#: Seconds :meth:`SinkRerunLogger.close` waits for streaming sinks to take the recording.
+FLUSH_TIMEOUT_S = 120.0
+_WILDCARDS = ("0.0.0.0", "::", "")
 
 
 @dataclass
@@ -42,9 +62,13 @@ class ViewerOptions:
     connect
         Stream to a running viewer at this URL (``rerun+http://host:9876/proxy``).
     serve_web
-        Host a gRPC server and the web viewer on 127.0.0.1 and keep serving on close.
+        Host a gRPC server and the web viewer and keep serving on close, until SIGINT
+        (Ctrl-C) or SIGTERM.
     web_port, grpc_port
         Ports of the served web viewer and of its gRPC server.
+    bind
+        Address the served ports listen on: 127.0.0.1 unless you ask for another
+        (``0.0.0.0`` serves every interface).
     """
 
     rrd: str | Path | None = None
@@ -53,6 +77,7 @@ class ViewerOptions:
     serve_web: bool = False
     web_port: int = DEFAULT_WEB_PORT
     grpc_port: int = DEFAULT_GRPC_PORT
+    bind: str = DEFAULT_BIND
 
     @property
     def requested(self) -> bool:
@@ -75,15 +100,121 @@ def web_viewer_url(web_port: int, grpc_uri: str, host: str = "127.0.0.1") -> str
     return f"http://{host}:{web_port}/?url={quote(grpc_uri, safe='')}"
 
 
+def rerun_executable() -> str | None:
+    """The ``rerun`` executable of the installed SDK, else one on ``PATH``; None if none."""
+    name = "rerun.exe" if sys.platform == "win32" else "rerun"
+    spec = importlib.util.find_spec("rerun_cli")
+    candidates = []
+    if spec is not None and spec.origin:
+        candidates.append(Path(spec.origin).parent / name)
+    candidates.append(Path(sys.executable).with_name(name))
+    found = shutil.which("rerun")
+    if found:
+        candidates.append(Path(found))
+    for path in candidates:
+        if path.is_file() and os.access(path, os.X_OK):
+            return str(path)
+    return None
+
+
+def display_available(environ: Any = None) -> bool:
+    """False on Linux (and other X11/Wayland systems) when no display is set.
+
+    macOS and Windows always have one for a desktop session.
+    """
+    env = os.environ if environ is None else environ
+    if sys.platform in ("darwin", "win32"):
+        return True
+    return bool(env.get("DISPLAY") or env.get("WAYLAND_DISPLAY"))
+
+
+def _listening(host: str, port: int, timeout: float = 0.5) -> bool:
+    """True when something accepts TCP connections on ``host:port``."""
+    try:
+        with socket.create_connection((host, port), timeout=timeout):
+            return True
+    except OSError:
+        return False
+
+
+def _connect_host(bind: str) -> str:
+    """The address a client on this machine uses for a server bound to ``bind``."""
+    return "127.0.0.1" if bind in _WILDCARDS else bind
+
+
+def _url_host(bind: str) -> str:
+    """The host to print in URLs for a server bound to ``bind``."""
+    if bind in _WILDCARDS:
+        return socket.gethostname()
+    return f"[{bind}]" if ":" in bind else bind
+
+
+def _parent_death_signal() -> Any:
+    """Linux: a ``preexec_fn`` that has the child get SIGTERM when this process dies, even
+    by SIGKILL, so a served web viewer never outlives its command. None elsewhere.
+
+    ``prctl`` is looked up here, in the parent; the child only calls it (one system call
+    between fork and exec).
+    """
+    if not sys.platform.startswith("linux"):
+        return None
+    try:
+        import ctypes
+
+        prctl = ctypes.CDLL(None, use_errno=True).prctl
+    except (OSError, AttributeError):  # pragma: no cover - unusual libc
+        return None
+    sig = int(signal.SIGTERM)
+
+    def preexec() -> None:  # pragma: no cover - runs in the child
+        prctl(1, sig)  # PR_SET_PDEATHSIG
+
+    return preexec
+
+
+def _tail(stream: Any) -> str:
+    """The last non-empty line of a child's captured stderr, without ANSI colours."""
+    import re
+
+    try:
+        stream.seek(0)
+        text = stream.read().decode("utf-8", "replace")
+    except (OSError, ValueError):
+        return ""
+    lines = [re.sub(r"\x1b\[[0-9;]*m", "", ln).strip() for ln in text.splitlines()]
+    lines = [ln for ln in lines if ln]
+    if not lines:
+        return ""
+    last = lines[-1]
+    if len(last) > 100 and ": " in last:  # "Error: ... at /src/x.rs:788: Failed to open..."
+        last = last.rsplit(": ", 1)[1]
+    return last[:200]
+
+
+def _stop(proc: subprocess.Popen | None, timeout: float = 5.0) -> None:
+    if proc is None or proc.poll() is not None:
+        return
+    with contextlib.suppress(ProcessLookupError):
+        proc.terminate()
+    try:
+        proc.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        with contextlib.suppress(ProcessLookupError):
+            proc.kill()
+        proc.wait(timeout=timeout)
+
+
 class SinkRerunLogger(RerunLogger):
     """A :class:`RerunLogger` whose recording feeds the sinks of a :class:`ViewerOptions`.
 
     * ``rrd``: written to a temporary file beside the file and renamed over it in
       :meth:`close`, so the file is either the old one or the complete new recording.
-    * ``spawn``: starts the native viewer (the ``rerun`` executable) and streams to it.
-    * ``connect``: streams to a running viewer (``rerun+http://host:9876/proxy``).
-    * ``serve_web``: hosts a gRPC server and the web viewer on 127.0.0.1, prints the
-      URL, and keeps serving in :meth:`close` until Ctrl-C.
+    * ``spawn``: starts the native viewer (listening on 127.0.0.1) and streams to it;
+      without a display, or when the viewer does not start, says so and carries on.
+    * ``connect``: streams to a running viewer (``rerun+http://host:9876/proxy``); when
+      nothing listens there, says so and carries on.
+    * ``serve_web``: hosts a gRPC server and the web viewer on ``bind`` (127.0.0.1),
+      prints the URL, and keeps serving in :meth:`close` until SIGINT or SIGTERM.
     """
 
     def __init__(self, sinks: ViewerOptions, app_id: str = "quash", **options: Any) -> None:
@@ -92,91 +223,236 @@ class SinkRerunLogger(RerunLogger):
         self.serve_web = bool(sinks.serve_web)
         self.web_port = int(sinks.web_port or DEFAULT_WEB_PORT)
         self.grpc_port = int(sinks.grpc_port or DEFAULT_GRPC_PORT)
+        self.bind = str(sinks.bind or DEFAULT_BIND)
         self.url: str | None = None
-        self._tmp: str | None = None
+        self.streaming: list[str] = []  # streaming sinks, for messages
+        self._tmp: Path | None = None
+        self._file = contextlib.ExitStack()
+        self._web: subprocess.Popen | None = None
         self._closed = False
         recording = rr.RecordingStream(app_id)
         outputs: list[Any] = []
         if self.rrd_path is not None:
             if self.rrd_path.suffix != ".rrd":
                 raise UsageError(f"--rrd {self.rrd_path}: the file name must end in .rrd.")
-            self.rrd_path.parent.mkdir(parents=True, exist_ok=True)
-            fd, self._tmp = tempfile.mkstemp(
-                prefix=f".{self.rrd_path.name}.", suffix=".tmp", dir=self.rrd_path.parent
-            )
-            os.close(fd)
-            self._finalizer = weakref.finalize(self, _remove, self._tmp)
-            outputs.append(rr.FileSink(self._tmp))
+            self._tmp = self._file.enter_context(atomic_write(self.rrd_path, ".tmp"))
+            self._finalizer = weakref.finalize(self, _remove, str(self._tmp))
+            outputs.append(rr.FileSink(str(self._tmp)))
         try:
             if sinks.spawn:
-                outputs.append(self._spawn(rr))
-            if sinks.connect:
+                url = self._spawn()
+                if url is not None:
+                    outputs.append(rr.GrpcSink(url))
+                    self.streaming.append(f"the Rerun viewer at {url}")
+            if sinks.connect and self._reachable(sinks.connect):
                 outputs.append(rr.GrpcSink(sinks.connect))
+                self.streaming.append(f"the Rerun viewer at {sinks.connect}")
             server = None
             if self.serve_web:
-                server = rr.GrpcServerSink(bind_ip="127.0.0.1", port=self.grpc_port)
+                self._check_free(self.grpc_port, "--grpc-port")
+                self._check_free(self.web_port, "--web-port")
+                server = rr.GrpcServerSink(bind_ip=self.bind, port=self.grpc_port)
                 outputs.append(server)
             recording.set_sinks(*outputs)
             if server is not None:
-                rr.serve_web_viewer(
-                    web_port=self.web_port, open_browser=False, connect_to=server.uri
-                )
-                self.url = web_viewer_url(self.web_port, server.uri)
+                grpc_uri = f"rerun+http://{_url_host(self.bind)}:{self.grpc_port}/proxy"
+                self._serve_web_viewer(grpc_uri)
+                self.url = web_viewer_url(self.web_port, grpc_uri, _url_host(self.bind))
                 print(f"Rerun web viewer: {self.url}", file=sys.stderr, flush=True)
-        except QuashError:
+        except BaseException:
             self._discard()
             raise
-        except Exception as exc:
-            self._discard()
-            raise QuashError(
-                f"Could not start the Rerun output ({exc}). Check --connect, or choose free "
-                "ports with --grpc-port / --web-port."
-            ) from None
         super().__init__(recording, app_id, **options)
 
+    # ------------------------------------------------------------------ sinks
     @staticmethod
-    def _spawn(rr: Any) -> Any:
-        exe = shutil.which("rerun") or str(Path(sys.executable).with_name("rerun"))
-        if not Path(exe).exists():
-            raise QuashError(
-                'The native Rerun viewer (rerun) is not installed: pip install "quash-plugins[rerun]", '
-                "or use --rrd / --serve-web."
+    def _spawn() -> str | None:
+        """Start the native viewer on 127.0.0.1; its URL, or None (said in one line)."""
+        url = f"rerun+http://127.0.0.1:{DEFAULT_GRPC_PORT}/proxy"
+        if not display_available():
+            log.warning(
+                "--spawn: no display (DISPLAY and WAYLAND_DISPLAY are unset), so no viewer "
+                "is opened; carrying on (use --rrd FILE or --serve-web to see the result)."
             )
-        rr.spawn(port=DEFAULT_GRPC_PORT, connect=False, executable_path=exe)
-        return rr.GrpcSink(f"rerun+http://127.0.0.1:{DEFAULT_GRPC_PORT}/proxy")
+            return None
+        if _listening("127.0.0.1", DEFAULT_GRPC_PORT):
+            log.info("--spawn: a Rerun viewer already listens on 127.0.0.1:%d", DEFAULT_GRPC_PORT)
+            return url
+        exe = rerun_executable()
+        if exe is None:
+            log.warning(
+                '--spawn: the rerun executable is not installed (pip install "quash-plugins[rerun]"); '
+                "carrying on without a viewer."
+            )
+            return None
+        cmd = [exe, "--port", str(DEFAULT_GRPC_PORT), "--bind", "127.0.0.1"]
+        cmd += ["--memory-limit", "75%", "--expect-data-soon"]
+        with tempfile.TemporaryFile() as err:  # the child keeps its own descriptor
+            proc = subprocess.Popen(
+                cmd,
+                stdin=subprocess.DEVNULL,
+                stdout=subprocess.DEVNULL,
+                stderr=err,
+                env={**os.environ, "RERUN_APP_ONLY": "true"},
+                start_new_session=True,  # the viewer stays open after this command ends
+            )
+            deadline = time.monotonic() + START_TIMEOUT_S
+            while time.monotonic() < deadline:
+                if proc.poll() is not None:
+                    why = _tail(err) or f"exit code {proc.returncode}"
+                    log.warning("--spawn: the Rerun viewer did not start (%s); carrying on.", why)
+                    return None
+                if _listening("127.0.0.1", DEFAULT_GRPC_PORT):
+                    return url
+                time.sleep(0.2)
+        _stop(proc)
+        log.warning(
+            "--spawn: the Rerun viewer did not listen within %.0f s; carrying on.",
+            START_TIMEOUT_S,
+        )
+        return None
+
+    @staticmethod
+    def _reachable(url: str) -> bool:
+        """True when something listens at the host and port of a viewer URL."""
+        parts = urlsplit(url)
+        try:
+            port = parts.port
+        except ValueError:
+            port = None
+        if not parts.hostname or not parts.scheme.startswith("rerun"):
+            raise UsageError(
+                f"--connect {url}: expected a URL like rerun+http://127.0.0.1:9876/proxy."
+            )
+        port = port or DEFAULT_GRPC_PORT
+        if _listening(parts.hostname, port, timeout=2.0):
+            return True
+        log.warning(
+            "--connect: nothing listens at %s:%d, so nothing is streamed there; carrying on.",
+            parts.hostname,
+            port,
+        )
+        return False
+
+    def _check_free(self, port: int, option: str) -> None:
+        if _listening(_connect_host(self.bind), port):
+            raise QuashError(
+                f"Port {port} on {self.bind} is in use; choose a free one with {option} PORT."
+            )
+
+    def _serve_web_viewer(self, grpc_uri: str) -> None:
+        """Serve the web viewer's files over HTTP on ``bind:web_port`` (a ``rerun`` child)."""
+        exe = rerun_executable()
+        if exe is None:
+            raise QuashError(
+                '--serve-web needs the rerun executable of the SDK: pip install "quash-plugins[rerun]".'
+            )
+        cmd = [exe, "--serve-web", "--bind", self.bind, "--web-viewer-port", str(self.web_port)]
+        host = _connect_host(self.bind)
+        with tempfile.TemporaryFile() as err:  # the child keeps its own descriptor
+            self._web = subprocess.Popen(
+                [*cmd, grpc_uri],
+                stdin=subprocess.DEVNULL,
+                stdout=subprocess.DEVNULL,
+                stderr=err,
+                env={**os.environ, "RERUN_APP_ONLY": "true"},
+                preexec_fn=_parent_death_signal(),
+            )
+            self._web_finalizer = weakref.finalize(self, _stop, self._web)
+            deadline = time.monotonic() + START_TIMEOUT_S
+            while time.monotonic() < deadline:
+                if self._web.poll() is not None:
+                    why = _tail(err) or f"exit code {self._web.returncode}"
+                    raise QuashError(
+                        f"Could not serve the web viewer on {self.bind}:{self.web_port} ({why}). "
+                        "Choose a free port with --web-port."
+                    )
+                if _listening(host, self.web_port):
+                    return
+                time.sleep(0.2)
+        raise QuashError(
+            f"The web viewer did not listen on {self.bind}:{self.web_port} within "
+            f"{START_TIMEOUT_S:.0f} s."
+        )
 
     def _discard(self) -> None:
+        """Remove the temporary ``.rrd`` and stop the web viewer (start-up failed)."""
         if self._tmp is not None:
-            _remove(self._tmp)
+            _remove(str(self._tmp))
+            self._finalizer.detach()
+        _stop(self._web)
 
+    # ------------------------------------------------------------------ close
     def close(self) -> None:
-        """Finish the ``.rrd`` (atomic rename), then serve until Ctrl-C with ``--serve-web``."""
+        """Finish the ``.rrd`` (atomic rename); with ``serve_web``, serve until SIGINT
+        (Ctrl-C) or SIGTERM, then stop the servers. Never waits on a viewer that is gone.
+        """
         if self._closed:
             return
         self._closed = True
-        super().close()
         rec = self.recording
+        try:
+            self.flush(timeout_s=FLUSH_TIMEOUT_S)
+        except Exception as exc:  # a streaming sink that cannot take the data
+            where = ", ".join(self.streaming) or "a streaming sink"
+            log.warning("could not stream everything to %s (%s); carrying on.", where, exc)
         if self._tmp is not None:
-            # Leaving the recording's context flushes and finalises file sinks (footer
-            # written); streaming sinks stay up. The thread-local recording is restored.
-            with rec:
-                pass
-            os.replace(self._tmp, self.rrd_path)
+            _finalize_files(rec)
+            self._file.close()  # chmod to the umask, rename over the target
             self._finalizer.detach()
             print(f"wrote {self.rrd_path}", file=sys.stderr, flush=True)
         if self.serve_web:
-            print(
-                f"Serving the Rerun web viewer at {self.url}\nPress Ctrl-C to stop.",
-                file=sys.stderr,
-                flush=True,
-            )
-            try:
-                while True:
-                    time.sleep(0.5)
-            except KeyboardInterrupt:
-                print("stopped serving", file=sys.stderr, flush=True)
-        rec.flush()
+            self._serve_until_stopped()
+        with contextlib.suppress(Exception):
+            rec.flush(timeout_sec=5.0)
         rec.disconnect()
+
+    def _serve_until_stopped(self) -> None:
+        print(
+            f"Serving the Rerun web viewer at {self.url}\nPress Ctrl-C to stop.",
+            file=sys.stderr,
+            flush=True,
+        )
+        stop = threading.Event()
+        previous: dict[int, Any] = {}
+        if threading.current_thread() is threading.main_thread():
+            # Also when started in the background, where a shell ignores SIGINT.
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                previous[sig] = signal.signal(sig, lambda *_: stop.set())
+        try:
+            while not stop.wait(0.5):
+                if self._web is not None and self._web.poll() is not None:
+                    log.warning(
+                        "the web viewer server stopped (exit code %s).", self._web.returncode
+                    )
+                    break
+        except KeyboardInterrupt:
+            pass
+        finally:
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+            _stop(self._web)
+        print("stopped serving", file=sys.stderr, flush=True)
+
+
+def _remove(path: str) -> None:
+    with contextlib.suppress(FileNotFoundError):
+        os.unlink(path)
+
+
+def _finalize_files(rec: Any) -> None:
+    """Write the footer of the recording's file sinks now; streaming sinks stay up.
+
+    ``with rec: pass`` does the same but first flushes without a time limit, which
+    would wait forever on a viewer that went away.
+    """
+    try:
+        import rerun_bindings
+
+        rerun_bindings.finalize_deferred_sinks(recording=rec.to_native())
+    except (ImportError, AttributeError, TypeError):  # pragma: no cover - other SDKs
+        with rec:
+            pass
 
 
 def open_viewer(sinks: ViewerOptions, app_id: str = "quash", **options: Any) -> Any:

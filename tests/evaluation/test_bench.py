@@ -99,7 +99,8 @@ def test_quash_bench_cli_writes_the_tables_it_was_asked_for(scene, tmp_path, cap
     assert list(data) == ["antonyms"]  # classifiers need --taxonomy
     md = (out / "bench.md").read_text()
     assert "## Classifiers\n\n_skipped: needs --taxonomy_" in md
-    assert "table antonyms: done" in printed and "## Antonyms (baseline)" in printed
+    assert "table antonyms: done" in printed and "\nAntonyms (baseline)\n" in printed
+    assert "|---" not in printed  # rich tables on the console; the Markdown is in bench.md
     assert (out / "antonyms.png").read_bytes()[:4] == b"\x89PNG"
     assert not (out / "classifiers.png").exists()
     rows = data["antonyms"]["configs"]

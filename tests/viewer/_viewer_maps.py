@@ -109,3 +109,33 @@ def write_table_config(directory: Path) -> Path:
         encoding="utf-8",
     )
     return cfg
+
+
+def room_map(voxel=0.25, size=(5.0, 4.0), height=2.5, seed=2) -> LatentMap:
+    """One room as a scan sees it: floor, walls and ceiling voxels (surfaces only), with a
+    chair block and a sofa block standing on the floor. Label 2 is "floor" (structure)."""
+    rng = np.random.default_rng(seed)
+    nx, ny, nz = (int(round(s / voxel)) + 1 for s in (*size, height))
+    grid = np.stack(np.meshgrid(np.arange(nx), np.arange(ny), np.arange(nz), indexing="ij"), -1)
+    grid = grid.reshape(-1, 3)
+    x, y, z = grid.T
+    shell = (x == 0) | (x == nx - 1) | (y == 0) | (y == ny - 1) | (z == 0) | (z == nz - 1)
+    chair = (x >= 2) & (x <= 4) & (y >= 2) & (y <= 4) & (z >= 1) & (z <= 3)
+    sofa = (x >= nx - 8) & (x <= nx - 3) & (y >= ny - 5) & (y <= ny - 3) & (z >= 1) & (z <= 2)
+    keep = shell | chair | sofa
+    grid = grid[keep]
+    labels = np.full(len(grid), 2, dtype=np.int64)
+    labels[chair[keep]] = 0
+    labels[sofa[keep]] = 1
+    cols = np.repeat(rng.integers(90, 190, (len(grid), 1), dtype=np.uint8), 3, axis=1)
+    return LatentMap(
+        _labelled_embeddings(labels, rng),
+        kind="voxels",
+        positions=(grid * voxel).astype(np.float32),
+        colors=cols,
+        labels=labels,
+        label_names=["chair", "sofa", "floor"],
+        voxel_size=voxel,
+        grid_index=grid,
+        source={"adapter": "test", "path": "room.npz"},
+    )

@@ -7,7 +7,9 @@ the viewer's own RRD encoder), reads those bytes back with ``rerun.chunk.RrdRead
 and checks the entity paths and mask counts. It then takes a screenshot and checks
 that the highlighted matches are drawn.
 
-Set ``QUASH_UPDATE_SCREENSHOT=1`` to store the screenshot as docs/images/rerun-viewer.png.
+A second test opens ``quash demo --serve-web`` the same way and checks that the rooms and
+the matches are in view. Set ``QUASH_UPDATE_SCREENSHOT=1`` to run it on the full demo
+and store its screenshot as docs/images/rerun-demo.png.
 """
 
 from __future__ import annotations
@@ -121,21 +123,24 @@ class DevTools:
         return res.get("result", {}).get("value")
 
 
-def count_mask(path: Path, query: str) -> int | None:
-    """Matched items logged for ``query`` in an .rrd, or None when not there (yet)."""
+def count_matches(path: Path, config: str, app_id: str = "quash-query") -> dict[int, int]:
+    """Matched items logged per query step for ``config`` in an .rrd ({} while absent)."""
     from rerun.chunk import RrdReader
 
     reader = RrdReader(path)
-    if not any(r.application_id == "quash-query" for r in reader.recordings()):
-        return None
-    total = None
+    if not any(r.application_id == app_id for r in reader.recordings()):
+        return {}
+    counts: dict[int, int] = {}
     for chunk in reader.stream().to_chunks():
-        if chunk.entity_path.lstrip("/") != f"world/queries/{query}/mask":
+        if chunk.entity_path.lstrip("/") != f"world/matches/{config}":
             continue
         rb = chunk.to_record_batch()
-        if "Boxes3D:centers" in rb.schema.names:
-            total = sum(len(v) for v in rb.column("Boxes3D:centers").to_pylist() if v)
-    return total
+        if "Boxes3D:centers" in rb.schema.names and "query" in rb.schema.names:
+            for t, v in zip(
+                rb.column("query").to_pylist(), rb.column("Boxes3D:centers").to_pylist()
+            ):
+                counts[t] = len(v or [])
+    return counts
 
 
 def magenta_pixels(png: bytes) -> int:
@@ -149,7 +154,103 @@ def magenta_pixels(png: bytes) -> int:
     return int(((r > 120) & (g < 0.35 * r) & (b > 0.5 * r)).sum())
 
 
-async def drive(url: str, devtools_port: int, tmp: Path, expected: dict[str, int]) -> bytes:
+def logged_steps(path: Path) -> dict[str, set]:
+    """``{entity: query steps}`` of the matches, documents and summary in an .rrd."""
+    from rerun.chunk import RrdReader
+
+    out: dict[str, set] = {}
+    try:
+        chunks = list(RrdReader(path).stream().to_chunks())
+    except ValueError:  # no recording store yet (only the blueprint has arrived)
+        return out
+    for chunk in chunks:
+        entity = chunk.entity_path.lstrip("/")
+        if not entity.startswith(("world/matches/", "queries/", "summary")):
+            continue
+        rb = chunk.to_record_batch()
+        steps = rb.column("query").to_pylist() if "query" in rb.schema.names else [None]
+        out.setdefault(entity, set()).update(steps)
+    return out
+
+
+def rooms_and_matches(png: bytes) -> dict[str, float]:
+    """What the main 3D view (the left 58 % of the page, below the tab bar) shows.
+
+    ``coverage``: share of its pixels that are not the viewer's plain background;
+    ``colours``: distinct colours (16 levels per channel) covering 0.2 % of it or more,
+    i.e. the map's own colours, not one grey slab; ``magenta``: matched voxels.
+    """
+    import io
+
+    from PIL import Image
+
+    img = np.asarray(Image.open(io.BytesIO(png)).convert("RGB")).astype(int)
+    h, w, _ = img.shape
+    view = img[int(0.12 * h) : int(0.88 * h), : int(0.58 * w)]
+    pixels = view.reshape(-1, 3)
+    light = (pixels.min(axis=1) > 235) & (np.ptp(pixels, axis=1) < 10)  # background
+    levels = (pixels[~light] // 16).astype(np.int64)
+    keys, counts = np.unique(
+        levels[:, 0] * 256 + levels[:, 1] * 16 + levels[:, 2], return_counts=True
+    )
+    return {
+        "coverage": float((~light).mean()),
+        "colours": int((counts >= 0.002 * len(pixels)).sum()),
+        "magenta": magenta_pixels(png),
+    }
+
+
+def start_chromium(tmp_path: Path) -> tuple[subprocess.Popen, int]:
+    """Headless Chromium with a fresh profile; returns it and its DevTools port."""
+    profile = tmp_path / "chromium-profile"
+    browser = subprocess.Popen(
+        [
+            CHROMIUM,
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            "--no-first-run",
+            "--use-angle=swiftshader",
+            "--enable-unsafe-swiftshader",
+            f"--user-data-dir={profile}",
+            "--window-size=1600,1000",
+            "--remote-debugging-address=127.0.0.1",
+            "--remote-debugging-port=0",
+            "about:blank",
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    b_err = Lines(browser.stderr)
+    port = int(
+        b_err.wait_for(r"DevTools listening on ws://127\.0\.0\.1:(\d+)/", 60, browser).group(1)
+    )
+    return browser, port
+
+
+def start_cli(args: list[str], cwd: Path, **env: str) -> tuple[subprocess.Popen, Lines, Lines]:
+    full_env = {**os.environ, "PYTHONUNBUFFERED": "1", "COLUMNS": "200", **env}
+    cli = subprocess.Popen(
+        [sys.executable, "-c", "from quash_plugins.cli.main import main; raise SystemExit(main())"]
+        + args,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=full_env,
+        cwd=cwd,
+    )
+    return cli, Lines(cli.stderr), Lines(cli.stdout)
+
+
+async def drive(
+    url: str, devtools_port: int, tmp: Path, loaded, good_enough, wait_s: float = 300
+) -> bytes:
+    """Open ``url``; poll the viewer's recording until ``loaded(rrd_path)``; then take
+    screenshots until ``good_enough(png)`` (or 30 s) and return the last one."""
     from tornado.websocket import websocket_connect
 
     with urllib.request.urlopen(f"http://127.0.0.1:{devtools_port}/json/list", timeout=10) as r:
@@ -158,30 +259,37 @@ async def drive(url: str, devtools_port: int, tmp: Path, expected: dict[str, int
     cdp = DevTools(ws)
     await cdp.call("Page.enable")
     await cdp.call("Page.navigate", url=url)
-    deadline = time.monotonic() + 240
-    got: dict[str, int | None] = {}
+    deadline = time.monotonic() + wait_s
+    last = None
     while time.monotonic() < deadline:
         b64 = await cdp.evaluate(SAVE_RECORDING_JS)
         if b64:
             rrd = tmp / "from-browser.rrd"
             rrd.write_bytes(base64.b64decode(b64))
-            got = {q: count_mask(rrd, q) for q in expected}
-            if got == expected:
+            last = loaded(rrd)
+            if last is True:
                 break
         await asyncio.sleep(1.0)
     else:
         state = await cdp.evaluate("document.getElementById('center_text').innerText")
-        raise AssertionError(f"viewer never showed our recording; last {got}; page: {state!r}")
+        raise AssertionError(f"viewer never showed our recording; last {last}; page: {state!r}")
     # The data is in; give the renderer a moment, then look at the pixels.
     png = b""
     for _ in range(30):
         await asyncio.sleep(1.0)
         shot = await cdp.call("Page.captureScreenshot", format="png")
         png = base64.b64decode(shot["data"])
-        if magenta_pixels(png) > 50:
+        if good_enough(png):
             break
     ws.close()
     return png
+
+
+def stop(*procs: subprocess.Popen | None) -> None:
+    for proc in procs:
+        if proc is not None and proc.poll() is None:
+            proc.kill()
+            proc.wait(timeout=30)
 
 
 def test_serve_web_in_headless_chromium(tmp_path):
@@ -192,79 +300,85 @@ def test_serve_web_in_headless_chromium(tmp_path):
     lmap = voxel_map(shape=(12, 10, 4), colors="gray")  # only the matches are magenta
     map_path = write_npz_map(tmp_path / "map.npz", lmap)
     cfg = write_table_config(tmp_path)
-    expected = {"chair": int((lmap.labels == 0).sum()), "sofa": int((lmap.labels == 1).sum())}
+    # Query 0 is "chair", query 1 "sofa" (the config is named table-contrast).
+    expected = {0: int((lmap.labels == 0).sum()), 1: int((lmap.labels == 1).sum())}
     web, grpc = free_port(), free_port()
-    env = {**os.environ, "PYTHONUNBUFFERED": "1", "COLUMNS": "200"}
-    cli = subprocess.Popen(
-        [
-            sys.executable,
-            "-c",
-            "from quash_plugins.cli.main import main; raise SystemExit(main())",
-            "query",
-            str(map_path),
-            "chair",
-            "sofa",
-            "-c",
-            str(cfg),
-            "--serve-web",
-            "--web-port",
-            str(web),
-            "--grpc-port",
-            str(grpc),
-        ],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env=env,
-        cwd=tmp_path,
+    cli, cli_err, cli_out = start_cli(
+        ["query", str(map_path), "chair", "sofa", "-c", str(cfg), "--serve-web"]
+        + ["--web-port", str(web), "--grpc-port", str(grpc)],
+        tmp_path,
     )
-    cli_err, cli_out = Lines(cli.stderr), Lines(cli.stdout)
     browser = None
     try:
         url = cli_err.wait_for(r"Serving the Rerun web viewer at (\S+)", 120, cli).group(1)
         assert url.startswith(f"http://127.0.0.1:{web}/?url=")
-        profile = tmp_path / "chromium-profile"
-        browser = subprocess.Popen(
-            [
-                CHROMIUM,
-                "--headless",
-                "--no-sandbox",
-                "--disable-gpu",
-                "--disable-background-networking",
-                "--disable-component-update",
-                "--disable-sync",
-                "--no-first-run",
-                "--use-angle=swiftshader",
-                "--enable-unsafe-swiftshader",
-                f"--user-data-dir={profile}",
-                "--window-size=1600,900",
-                "--remote-debugging-address=127.0.0.1",
-                "--remote-debugging-port=0",
-                "about:blank",
-            ],
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.PIPE,
-            text=True,
+        browser, port = start_chromium(tmp_path)
+        png = asyncio.run(
+            drive(
+                url,
+                port,
+                tmp_path,
+                loaded=lambda rrd: count_matches(rrd, "table_contrast") == expected or None,
+                good_enough=lambda png: magenta_pixels(png) > 50,
+            )
         )
-        b_err = Lines(browser.stderr)
-        port = int(
-            b_err.wait_for(r"DevTools listening on ws://127\.0\.0\.1:(\d+)/", 60, browser).group(1)
-        )
-        png = asyncio.run(drive(url, port, tmp_path, expected))
         assert png.startswith(b"\x89PNG")
         assert magenta_pixels(png) > 50, "the matched voxels are not drawn"
-        if os.environ.get("QUASH_UPDATE_SCREENSHOT") == "1":
-            target = REPO / "docs" / "images" / "rerun-viewer.png"
-            target.parent.mkdir(parents=True, exist_ok=True)
-            target.write_bytes(png)
         # Ctrl-C stops serving; the command then finishes normally.
         cli.send_signal(signal.SIGINT)
         assert cli.wait(timeout=60) == 0, cli_err.text()
         assert "stopped serving" in cli_err.text()
         assert "chair" in cli_out.text()
     finally:
-        for proc in (browser, cli):
-            if proc is not None and proc.poll() is None:
-                proc.kill()
-                proc.wait(timeout=30)
+        stop(browser, cli)
+        shutil.rmtree(tmp_path / "chromium-profile", ignore_errors=True)
+
+
+def test_demo_in_headless_chromium_shows_the_rooms_and_the_matches(tmp_path):
+    """``quash demo --serve-web`` as a user opens it: the tab of the best method, the
+    rooms seen from above (ceiling hidden), the first query's matches in magenta.
+
+    The tiny scene by default; the full demo with ``QUASH_DEMO_FULL=1`` or when
+    refreshing the docs' screenshot (``QUASH_UPDATE_SCREENSHOT=1``:
+    docs/images/rerun-demo.png).
+    """
+    update = os.environ.get("QUASH_UPDATE_SCREENSHOT") == "1"
+    full = update or os.environ.get("QUASH_DEMO_FULL") == "1"
+    web, grpc = free_port(), free_port()
+    out = tmp_path / "demo"
+    args = ["demo", "--serve-web", "--web-port", str(web), "--grpc-port", str(grpc)]
+    args += ["--out", str(out)] + ([] if full else ["--tiny"])
+    cli, cli_err, cli_out = start_cli(args, tmp_path)
+    browser = None
+    try:
+        url = cli_err.wait_for(r"Serving the Rerun web viewer at (\S+)", 600, cli).group(1)
+        assert url.startswith(f"http://127.0.0.1:{web}/?url=")
+        want = logged_steps(out / "demo.rrd")
+        assert any(p.startswith("world/matches/") for p in want) and "summary" in want
+
+        def loaded(rrd: Path):
+            got = logged_steps(rrd)
+            missing = {p: t - got.get(p, set()) for p, t in want.items()}
+            return True if not any(missing.values()) else len(got)
+
+        def good(png: bytes) -> bool:
+            seen = rooms_and_matches(png)
+            return seen["magenta"] > 50 and seen["colours"] >= 8
+
+        browser, port = start_chromium(tmp_path)
+        png = asyncio.run(drive(url, port, tmp_path, loaded, good, wait_s=600))
+        if update:
+            target = REPO / "docs" / "images" / "rerun-demo.png"
+            target.parent.mkdir(parents=True, exist_ok=True)
+            target.write_bytes(png)
+        seen = rooms_and_matches(png)
+        assert seen["magenta"] > 50, f"the matches are not drawn: {seen}"
+        assert seen["coverage"] > 0.08, f"the map is not in view: {seen}"
+        assert seen["colours"] >= 8, f"no rooms to see (one grey slab?): {seen}"
+        cli.send_signal(signal.SIGINT)
+        assert cli.wait(timeout=60) == 0, cli_err.text()
+        assert "stopped serving" in cli_err.text()
+        assert "quash-taxonomy" in cli_out.text()
+    finally:
+        stop(browser, cli)
         shutil.rmtree(tmp_path / "chromium-profile", ignore_errors=True)

@@ -8,11 +8,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 import rerun as rr
-from _viewer_maps import make_quash, pixel_map, voxel_map, write_table_config
+from _viewer_maps import make_quash, pixel_map, room_map, voxel_map, write_table_config
 from rerun.chunk import RrdReader
 
 from quash_plugins.core.types import Instance, QueryResult
 from quash_plugins.viewer import MATCH_COLOR, RerunLogger
+from quash_plugins.viewer._display import score_classes
 
 
 @pytest.fixture(autouse=True)
@@ -82,6 +83,29 @@ def log_to_file(path: Path, lmap, results, **options) -> None:
     rec.disconnect()
 
 
+def blueprint_columns(reader: RrdReader, column: str) -> list:
+    """Every value of a blueprint component column (``"EyeControls3D:position"``...)."""
+    out = []
+    for store in reader.blueprints():
+        for chunk in reader.stream(store=store).to_chunks():
+            rb = chunk.to_record_batch()
+            if column in rb.schema.names:
+                out += [v for v in rb.column(column).to_pylist() if v is not None]
+    return out
+
+
+def blueprint_paths(reader: RrdReader) -> set[str]:
+    return {
+        chunk.entity_path
+        for store in reader.blueprints()
+        for chunk in reader.stream(store=store).to_chunks()
+    }
+
+
+def view_names(reader: RrdReader) -> set[str]:
+    return {v[0] for v in blueprint_columns(reader, "ViewBlueprint:display_name")}
+
+
 def test_voxel_map_layout_counts_and_blueprint(tmp_path):
     lmap = voxel_map()
     results = make_quash().query_many(lmap, ["chair", "sofa"])
@@ -90,40 +114,144 @@ def test_voxel_map_layout_counts_and_blueprint(tmp_path):
     out = tmp_path / "v.rrd"
     log_to_file(out, lmap, results)
     reader, by_path = read_rrd(out)
-    assert {
-        "world/map",
-        "world/queries/chair/mask",
-        "world/queries/sofa/scores",
-        "queries/chair/queryset",
-        "queries/sofa/queryset",
-    } <= set(by_path)
+    assert {"world/map", "world/matches/quash", "world/scores/quash", "queries/quash"} <= set(
+        by_path
+    )
+    assert "world/ceiling" not in by_path  # a 0.3 m block has no ceiling
     # The map: static boxes (voxel map under the box limit), its own colours.
     [(t, centers)] = rows(by_path["world/map"], "Boxes3D:centers")
     assert t is None and len(centers) == lmap.n
     [(_, colors)] = rows(by_path["world/map"], "Boxes3D:colors")
     rgba = np.array(colors, dtype=np.uint32)
     assert ((rgba >> 24) & 255).tolist() == lmap.colors[:, 0].tolist()
-    for i, r in enumerate(results):
-        slug = r.query
-        [(t, mask_centers)] = rows(by_path[f"world/queries/{slug}/mask"], "Boxes3D:centers")
-        assert t == i
+    # Matches: only the matched items, at the query's step, in magenta.
+    matches = rows(by_path["world/matches/quash"], "Boxes3D:centers")
+    assert [t for t, _ in matches] == [0, 1]
+    for (_, mask_centers), r in zip(matches, results):
         assert len(mask_centers) == r.n_matched
         np.testing.assert_allclose(np.array(mask_centers), lmap.positions[r.mask], atol=1e-6)
-        [(_, mc)] = rows(by_path[f"world/queries/{slug}/mask"], "Boxes3D:colors")
+    for _, mc in rows(by_path["world/matches/quash"], "Boxes3D:colors"):
         assert {(c >> 24) & 255 for c in mc} == {MATCH_COLOR[0]}
-        [(_, score_centers)] = rows(by_path[f"world/queries/{slug}/scores"], "Boxes3D:centers")
-        assert len(score_centers) == lmap.n
-        [(t, [text])] = rows(by_path[f"queries/{slug}/queryset"], "TextDocument:text")
-        assert t == i and text.startswith(f"# {slug}")
-        assert "## Positives" in text and "background" in text and "Contrast" in text
-    # The previous query is cleared when the next one is shown.
-    [(t, flag)] = rows(by_path["world/queries/chair"], "Clear:is_recursive")
-    assert t == 1 and flag == [True]
+    # Scores: the geometry once (static), then one class id per item and query.
+    [(t, score_centers)] = rows(by_path["world/scores/quash"], "Boxes3D:centers")
+    assert t is None and len(score_centers) == lmap.n
+    ids = rows(by_path["world/scores/quash"], "Boxes3D:class_ids")
+    assert [t for t, _ in ids] == [0, 1]
+    for (_, got), r in zip(ids, results):
+        assert got == score_classes(r.display_scores, 32).tolist()
+    [(_, [context])] = rows(by_path["world/scores"], "AnnotationContext:context")
+    assert [c["class_id"] for c in context] == list(range(32))
+    # The document: the query and its config in the title, positives and negatives first.
+    docs = rows(by_path["queries/quash"], "TextDocument:text")
+    assert [t for t, _ in docs] == [0, 1]
+    for (_, [text]), r in zip(docs, results):
+        head = text.split("## ")[0]
+        assert head.startswith(f"# {r.query} · quash")
+        assert "**Positives (1):** " in head and "**Negatives (3):** " in head
+        assert "background" in head and "Contrast" in text
+    # The blueprint names the config in its view titles.
     views = blueprint_views(reader)
-    assert ("3D", "world") in views and ("TextDocument", "queries") in views
+    assert ("3D", "world") in views and ("TextDocument", "queries/quash") in views
+    assert {"quash: map and matches", "quash: query set"} <= view_names(reader)
     contents = blueprint_contents(reader)
-    assert "- world/queries/sofa/scores/**" in contents  # map view hides the score layers
-    assert "+ world/queries/chair/scores/**" in contents  # the scores view shows them
+    assert {"+ world/map", "+ world/matches/quash", "+ world/scores/quash/**"} <= contents
+
+
+def test_per_query_data_is_compact(tmp_path):
+    """Static geometry is logged once; a query adds its matches and 2 bytes per item.
+
+    Before, every query re-logged the whole map (positions, sizes and colours of every
+    item, about 28 bytes each): a 13-query demo recording was 40 MB.
+    """
+    lmap = voxel_map(shape=(40, 25, 20))  # 20,000 voxels
+    quash = make_quash()
+    sizes = {}
+    for q in (1, 9):
+        results = quash.query_many(lmap, ["chair", "sofa", "chair", "sofa", "chair"][:q] * 2)
+        results = results[:q]
+        out = tmp_path / f"q{q}.rrd"
+        log_to_file(out, lmap, results)
+        sizes[q] = out.stat().st_size
+        _, by_path = read_rrd(out)
+        for path, chunks in by_path.items():
+            for t, pos in rows(chunks, "Boxes3D:centers"):
+                if t is not None:  # temporal geometry: matches and instances only
+                    assert path.startswith(("world/matches", "world/instances")), path
+                    assert len(pos) <= max(r.n_matched for r in results)
+    per_query = (sizes[9] - sizes[1]) / 8
+    assert per_query < 4 * lmap.n, f"{per_query:.0f} bytes per query for {lmap.n} items"
+
+
+def test_ceiling_is_logged_apart_hidden_and_the_eye_looks_down(tmp_path):
+    lmap = room_map()
+    results = make_quash().query_many(lmap, ["chair"])
+    out = tmp_path / "room.rrd"
+    log_to_file(out, lmap, results)
+    reader, by_path = read_rrd(out)
+    top = lmap.positions[:, 2].max()
+    [(_, ceiling)] = rows(by_path["world/ceiling"], "Boxes3D:centers")
+    [(_, rest)] = rows(by_path["world/map"], "Boxes3D:centers")
+    assert len(ceiling) + len(rest) == lmap.n
+    np.testing.assert_allclose([c[2] for c in ceiling], top)
+    assert max(c[2] for c in rest) < top
+    # Hidden in both 3D views (an EntityBehavior override), still one click away.
+    hidden = [p for p in blueprint_paths(reader) if "overrides" in p and "ceiling" in p]
+    assert any(p.endswith("overrides/world/ceiling/visualizers") for p in hidden)
+    assert blueprint_columns(reader, "EntityBehavior:visible") and all(
+        v == [False] for v in blueprint_columns(reader, "EntityBehavior:visible")
+    )
+    # The eye is above the room, looking down at its floor, z up.
+    [[position]] = blueprint_columns(reader, "EyeControls3D:position")[:1]
+    [[target]] = blueprint_columns(reader, "EyeControls3D:look_target")[:1]
+    [[eye_up]] = blueprint_columns(reader, "EyeControls3D:eye_up")[:1]
+    assert position[2] > top + 2.0 and target[2] == pytest.approx(0.0)
+    assert eye_up == [0.0, 0.0, 1.0]
+    footprint = lmap.positions[:, :2]
+    assert (footprint.min(0) <= np.array(target[:2])).all()
+    assert (np.array(target[:2]) <= footprint.max(0)).all()
+    [(_, coords)] = rows(by_path["world"], "ViewCoordinates:xyz")
+    assert coords is not None
+
+
+def test_configs_get_tabs_and_share_the_query_timeline(tmp_path):
+    lmap = voxel_map()
+    a = make_quash()
+    b = make_quash()
+    b.name = "other method"
+    rec = rr.RecordingStream("quash-test")
+    out = tmp_path / "tabs.rrd"
+    rec.save(out)
+    logger = RerunLogger(rec)
+    for quash in (a, b):
+        for i, r in enumerate(quash.query_many(lmap, ["chair", "sofa"])):
+            logger.log_result(lmap, r, index=i)
+    logger.focus("other method")
+    logger.close()
+    rec.disconnect()
+    reader, by_path = read_rrd(out)
+    for c in ("quash", "other_method"):
+        assert [t for t, _ in rows(by_path[f"world/matches/{c}"], "Boxes3D:centers")] == [0, 1]
+        [(t, [text]), _] = rows(by_path[f"queries/{c}"], "TextDocument:text")
+        assert t == 0 and text.startswith("# chair · ")
+    assert {"quash: map and matches", "other method: map and matches"} <= view_names(reader)
+    # The last blueprint: a Tabs container of one tab per config, focus() the active one.
+    containers = {}
+    for store in reader.blueprints():
+        for chunk in reader.stream(store=store).to_chunks():
+            rb = chunk.to_record_batch()
+            if "ContainerBlueprint:container_kind" in rb.schema.names:
+                names = [n for n in rb.schema.names if n.startswith("ContainerBlueprint:")]
+                row = {n: rb.column(n).to_pylist()[-1] for n in names}
+                containers[chunk.entity_path.lstrip("/")] = row
+    tabs = [
+        c
+        for c in containers.values()
+        if c["ContainerBlueprint:container_kind"] == [1]  # ContainerKind.Tabs
+        and len(c["ContainerBlueprint:contents"]) == 2
+    ]
+    assert len(tabs) == 1
+    [active] = tabs[0].get("ContainerBlueprint:active_tab") or [None]
+    assert containers[active]["ContainerBlueprint:display_name"] == ["other method"]
 
 
 def test_points_thinning_and_pca_colours(tmp_path):
@@ -140,9 +268,11 @@ def test_points_thinning_and_pca_colours(tmp_path):
     assert len(set(colors)) > 3  # PCA colouring, not one flat colour
     r = results[0]
     assert r.n_matched == int((lmap.labels == 0).sum())  # ... but the query used every item
-    [(_, mask_pos)] = rows(by_path["world/queries/chair/mask"], "Points3D:positions")
+    [(_, mask_pos)] = rows(by_path["world/matches/quash"], "Points3D:positions")
     assert len(mask_pos) == r.n_matched  # the mask fits under the limit: all drawn
-    [(_, [text])] = rows(by_path["queries/chair/queryset"], "TextDocument:text")
+    [(_, ids)] = rows(by_path["world/scores/quash"], "Points3D:class_ids")
+    assert len(ids) == 100
+    [(_, [text])] = rows(by_path["queries/quash"], "TextDocument:text")
     assert "100 of 320" in text and "display only" in text and "PCA" in text
 
 
@@ -156,12 +286,12 @@ def test_instances_are_labelled_boxes(tmp_path):
     out = tmp_path / "i.rrd"
     log_to_file(out, lmap, [r])
     _, by_path = read_rrd(out)
-    [(_, labels)] = rows(by_path["world/queries/chair/instances"], "Boxes3D:labels")
+    [(_, labels)] = rows(by_path["world/instances/quash"], "Boxes3D:labels")
     assert labels == [f"chair #7 ({len(idx)}, 0.90)"]
-    [(_, half)] = rows(by_path["world/queries/chair/instances"], "Boxes3D:half_sizes")
+    [(_, half)] = rows(by_path["world/instances/quash"], "Boxes3D:half_sizes")
     expected = (pts.max(0) - pts.min(0)) / 2 + 0.5 * lmap.voxel_size
     np.testing.assert_allclose(half[0], expected, atol=1e-6)
-    [(_, cent)] = rows(by_path["world/queries/chair/instances/centroids"], "Points3D:positions")
+    [(_, cent)] = rows(by_path["world/instances/quash/centroids"], "Points3D:positions")
     np.testing.assert_allclose(cent[0], pts.mean(0), atol=1e-6)
 
 
@@ -178,16 +308,17 @@ def test_pixel_map_images_masks_and_2d_blueprint(tmp_path):
         hw = (frame.height, frame.width)
         [(t, [rgb])] = rows(by_path[f"images/{name}/rgb"], "Image:buffer")
         assert t is None and len(rgb) == frame.size * 3
-        masks = rows(by_path[f"images/{name}/mask"], "SegmentationImage:buffer")
+        masks = rows(by_path[f"images/{name}/quash/mask"], "SegmentationImage:buffer")
         assert [t for t, _ in masks] == [0, 1]
         for (_, [buf]), r in zip(masks, results):
             got = np.array(buf, dtype=np.uint8).reshape(hw)
             want = r.mask[frame.offset : frame.offset + frame.size].reshape(hw)
             assert got.tolist() == want.astype(np.uint8).tolist()
             assert got.sum() > 0
-        assert len(rows(by_path[f"images/{name}/scores"], "Image:buffer")) == 2
+        assert len(rows(by_path[f"images/{name}/quash/scores"], "Image:buffer")) == 2
     views = blueprint_views(reader)
     assert ("2D", "images/frame_000") in views and ("2D", "images/frame_001") in views
+    assert ("TextDocument", "queries/quash") in views
 
 
 def test_eval_scalars(tmp_path):
@@ -212,7 +343,36 @@ def test_eval_scalars(tmp_path):
     assert rows(by_path["eval/f1/contrast"], "Scalars:scalars") == [(0, [pytest.approx(0.1)])]
     assert rows(by_path["eval/iou/svm_rbf"], "Scalars:scalars") == [(0, [0.5])]
     assert "eval/note/svm_rbf" not in by_path
-    assert ("TimeSeries", "eval") in blueprint_views(reader)
+    views = blueprint_views(reader)
+    assert ("TimeSeries", "eval/f1") in views and ("TimeSeries", "eval/iou") in views
+    # One colour per config, the same in every metric's plot.
+    [(_, f1_color)] = rows(by_path["eval/f1/svm_rbf"], "SeriesLines:colors")
+    [(_, iou_color)] = rows(by_path["eval/iou/svm_rbf"], "SeriesLines:colors")
+    [(_, other)] = rows(by_path["eval/f1/contrast"], "SeriesLines:colors")
+    assert f1_color == iou_color != other
+
+
+def test_eval_legend_sits_beside_the_data(tmp_path):
+    """The x axis runs past the last query so the legend (right corner) covers no data."""
+    rec = rr.RecordingStream("quash-eval-test")
+    out = tmp_path / "e.rrd"
+    rec.save(out)
+    logger = RerunLogger(rec)
+    report = [
+        {"name": n, "per_query": {q: {"f1": 0.5, "precision": 1.0} for q in "abcd"}}
+        for n in ("one", "two")
+    ]
+    logger.log_evaluation(report, list("abcd"), "| method | F1 |\n|---|---:|\n| one | 0.5 |")
+    logger.close()
+    rec.disconnect()
+    reader, by_path = read_rrd(out)
+    assert [t for t, _ in rows(by_path["eval/f1/one"], "Scalars:scalars")] == [0, 1, 2, 3]
+    [(_, [text])] = rows(by_path["summary"], "TextDocument:text")
+    assert text.startswith("| method | F1 |")
+    ranges = blueprint_columns(reader, "TimeAxis:view_range")
+    # Steps 0..3 hold data; the axis runs to 6, leaving the right third to the legend.
+    assert ranges == [[{"start": 0, "end": 6}]] * 2  # f1 and precision
+    assert ("TextDocument", "summary") in blueprint_views(reader)
 
 
 def test_never_touches_the_global_recording(tmp_path):
@@ -240,8 +400,8 @@ def test_cli_query_rrd(tmp_path, capsys):
     assert [p.name for p in out.parent.iterdir()] == ["out.rrd"]  # no temp file left
     reader, by_path = read_rrd(out)
     assert reader.recordings()[0].application_id == "quash-query"
-    for name, label in (("chair", 0), ("sofa", 1)):
-        [(_, centers)] = rows(by_path[f"world/queries/{name}/mask"], "Boxes3D:centers")
+    matches = rows(by_path["world/matches/table_contrast"], "Boxes3D:centers")
+    for (_, centers), label in zip(matches, (0, 1)):
         assert len(centers) == int((lmap.labels == label).sum())
     assert reader.blueprints()
 
@@ -299,16 +459,17 @@ def test_cli_query_rrd_per_image_feature_map(tmp_path):
         [(_, [rgb])] = rows(by_path[f"images/{name}/rgb"], "Image:buffer")
         want_rgb = np.asarray(Image.open(folder / f"{name}.png")).ravel().tolist()
         assert rgb == want_rgb
-        masks = rows(by_path[f"images/{name}/mask"], "SegmentationImage:buffer")
+        masks = rows(by_path[f"images/{name}/table_contrast/mask"], "SegmentationImage:buffer")
         labels = lmap.labels[frame.offset : frame.offset + frame.size]
         for (t, [buf]), label in zip(masks, (0, 1)):
             assert (np.array(buf) == 1).tolist() == (labels == label).tolist(), (t, label)
         # Instances come from quash_plugins.engine.instances (connected pixels per frame).
-        boxes = rows(by_path[f"images/{name}/instances"], "Boxes2D:labels")
+        boxes = rows(by_path[f"images/{name}/table_contrast/instances"], "Boxes2D:labels")
         assert [t for t, _ in boxes] == [0, 1] and all(labels for _, labels in boxes)
         # The chair block of frame i covers rows 1..2 and columns 1+i..3+i.
-        [(_, half), _] = rows(by_path[f"images/{name}/instances"], "Boxes2D:half_sizes")
-        [(_, centers), _] = rows(by_path[f"images/{name}/instances"], "Boxes2D:centers")
+        inst = by_path[f"images/{name}/table_contrast/instances"]
+        [(_, half), _] = rows(inst, "Boxes2D:half_sizes")
+        [(_, centers), _] = rows(inst, "Boxes2D:centers")
         assert half == [[1.5, 1.0]] and centers == [[2.5 + i, 2.0]]
     views = blueprint_views(reader)
     assert ("2D", "images/frame000000") in views

@@ -1,0 +1,78 @@
+"""``quash configs``: the method configs shipped with the package, by name."""
+
+from __future__ import annotations
+
+import argparse
+
+NAME = "configs"
+HELP = "List the shipped method configs (use one with -c NAME), or print one."
+ORDER = 40
+DESCRIPTION = """\
+The package ships method configs that any command takes by name (-c demo:quash-taxonomy).
+demo:* ones use the shipped MiniLM encoder and run offline, on the demo scene or on any
+map from 'quash make-scene'. The others use the encoder a real map was built with and
+say what they need (downloaded weights, an LLM server): a map must be queried with the
+text encoder that built it."""
+EPILOG = """\
+examples:
+  quash configs                                  # name, encoder, needs, description
+  quash configs demo:quash-taxonomy              # print one (its path, then the YAML)
+  quash query scene.npz chair -c demo:quash-taxonomy"""
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("name", nargs="?", help="Print this config (its file and YAML).")
+    p.add_argument("--json", action="store_true", help="Print the list as JSON.")
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..core.shipped import find_shipped, shipped_configs
+    from ._output import console, print_json
+
+    if args.name:
+        from ..core.errors import ConfigError, UsageError
+
+        try:
+            cfg = find_shipped(args.name)
+        except ConfigError as exc:
+            raise UsageError(str(exc)) from None
+        print(f"# {cfg.name}: {cfg.path}")
+        print(cfg.path.read_text(encoding="utf-8"), end="")
+        return 0
+    configs = shipped_configs()
+    if args.json:
+        print_json(
+            [
+                {
+                    "name": c.name,
+                    "encoder": c.encoder,
+                    "offline": c.offline,
+                    "needs": c.needs,
+                    "description": c.description,
+                    "path": str(c.path),
+                }
+                for c in configs
+            ]
+        )
+        return 0
+    from rich import box
+    from rich.table import Table
+    from rich.text import Text
+
+    table = Table(
+        title="Shipped method configs: use one with -c NAME",
+        title_justify="left",
+        box=box.SIMPLE_HEAD,
+    )
+    table.add_column("name", no_wrap=True, style="bold")
+    table.add_column("needs")
+    table.add_column("description", ratio=1)
+    for c in sorted(configs, key=lambda c: (not c.offline, c.name)):
+        needs = (
+            Text("nothing (offline, MiniLM)", style="green")
+            if c.offline
+            else Text(c.needs or "", style="yellow")
+        )
+        table.add_row(Text(c.name), needs, Text(c.description))
+    console().print(table)
+    return 0

@@ -1,0 +1,131 @@
+"""The method configs shipped with the package, by name: ``-c demo:quash-taxonomy``.
+
+They are the YAML files of ``quash_plugins/data/configs/``; ``<group>-<name>.yaml`` is
+named ``<group>:<name>`` (``demo-quash-taxonomy.yaml`` is ``demo:quash-taxonomy``).
+Only files that are method configs count (the demo's taxonomy file lives there too).
+
+Each file starts with comments: the first sentence describes it, and a line
+``# needs: ...`` says what it needs besides the package (downloaded weights, a server).
+A config without that line runs offline with what the package ships (``demo:*`` use the
+shipped MiniLM encoder).
+
+Examples
+--------
+>>> find_shipped("demo:vlmaps").path.name
+'demo-vlmaps.yaml'
+>>> find_shipped("demo:vlmaps").needs is None
+True
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+import yaml
+
+from .errors import ConfigError, closest
+
+#: A shipped config's name: ``group:name``.
+NAME_RE = re.compile(r"^[a-z0-9][a-z0-9_]*:[a-z0-9][a-z0-9_.-]*$")
+
+
+@dataclass(frozen=True)
+class ShippedConfig:
+    """One shipped method config."""
+
+    name: str
+    path: Path
+    description: str
+    needs: str | None
+    encoder: str
+
+    @property
+    def offline(self) -> bool:
+        """True when it runs with what the package ships (no downloads, no server)."""
+        return self.needs is None
+
+
+def config_dir() -> Path:
+    """The folder of the shipped configs (package data)."""
+    return Path(str(resources.files("quash_plugins.data").joinpath("configs")))
+
+
+def _comments(text: str) -> tuple[str, str | None]:
+    """(first sentence of the leading comment block, the ``needs:`` line or None)."""
+    lines, needs = [], None
+    for line in text.splitlines():
+        if not line.startswith("#"):
+            break
+        body = line.lstrip("#").strip()
+        if body.lower().startswith("needs:"):
+            needs = body.split(":", 1)[1].strip() or None
+        else:
+            lines.append(body)
+    prose = " ".join(x for x in lines if x)
+    m = re.search(r"(?<=[.!?])\s", prose)
+    return (prose[: m.start()] if m else prose), needs
+
+
+def _is_method_config(data: object) -> bool:
+    from .config import QuashConfig
+
+    if not isinstance(data, dict) or "encoder" not in data:
+        return False
+    fields = {f.name for f in dataclasses.fields(QuashConfig)}
+    return set(data) <= fields
+
+
+def shipped_configs() -> list[ShippedConfig]:
+    """Every shipped method config, sorted by name."""
+    out = []
+    for path in sorted(config_dir().glob("*.yaml")):
+        group, _, rest = path.stem.partition("-")
+        if not rest:
+            continue
+        text = path.read_text(encoding="utf-8")
+        data = yaml.safe_load(text)
+        if not _is_method_config(data):
+            continue
+        description, needs = _comments(text)
+        enc = data["encoder"]
+        encoder = str(enc.get("name") if isinstance(enc, dict) else enc)
+        if isinstance(enc, dict) and enc.get("preset"):
+            encoder += f" ({enc['preset']})"
+        out.append(ShippedConfig(f"{group}:{rest}", path, description, needs, encoder))
+    return sorted(out, key=lambda c: c.name)
+
+
+def find_shipped(name: str) -> ShippedConfig:
+    """The shipped config called ``name``; a :class:`ConfigError` naming the close ones."""
+    configs = {c.name: c for c in shipped_configs()}
+    if name in configs:
+        return configs[name]
+    guess = closest(name, configs)
+    hint = f" Did you mean {guess}?" if guess else ""
+    raise ConfigError(
+        f"No shipped config is named {name!r}.{hint} Shipped: {', '.join(configs)} "
+        "('quash configs' describes them)."
+    )
+
+
+def resolve_config_path(ref: str | Path) -> Path:
+    """The YAML file of a config reference: an existing file, else a shipped name.
+
+    Raises :class:`ConfigError` when ``ref`` is neither; the message names the shipped
+    configs so a first ``-c quash.yaml`` finds the ones that exist.
+    """
+    path = Path(ref).expanduser()
+    if path.exists():
+        return path
+    text = str(ref)
+    if NAME_RE.match(text):
+        return find_shipped(text).path
+    names = ", ".join(c.name for c in shipped_configs())
+    raise ConfigError(
+        f"Config file not found: {text}. A shipped config can be given by name instead "
+        f"(-c demo:quash-taxonomy); shipped: {names}."
+    )

@@ -1,0 +1,84 @@
+"""Shipped configs by name (``-c demo:quash-taxonomy``) and ``quash configs``."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import yaml
+
+from quash_plugins.cli.main import main
+from quash_plugins.core.config import QuashConfig
+from quash_plugins.core.errors import ConfigError
+from quash_plugins.core.shipped import find_shipped, resolve_config_path, shipped_configs
+
+#: Encoders whose model ships with the package (no download).
+SHIPPED_ENCODERS = {"minilm", "table"}
+
+
+def test_every_shipped_config_loads_and_says_what_it_needs():
+    configs = shipped_configs()
+    names = {c.name for c in configs}
+    assert {"demo:quash-taxonomy", "demo:vlmaps", "lseg:vlmaps"} <= names
+    assert "demo:taxonomy" not in names  # the demo's taxonomy file is not a method
+    for c in configs:
+        cfg = QuashConfig.from_yaml(c.name)
+        assert cfg.source and c.description.endswith("."), c
+        # A config runs offline exactly when its encoder ships with the package.
+        assert c.offline == (cfg.encoder.name in SHIPPED_ENCODERS), c
+        if not c.offline:
+            assert "weights" in c.needs, c
+
+
+@pytest.mark.slow
+def test_offline_configs_run_offline():
+    """Each ``demo:*`` config builds and expands a query with what the package ships."""
+    from quash_plugins import Quash
+
+    for c in shipped_configs():
+        if c.offline:
+            quash = Quash.from_config(c.name, cache=None)
+            qs = quash.expand("chair")
+            assert qs.positives[0] == "chair" and qs.negatives, c.name
+            X, y, _ = quash.training_set(qs)
+            assert X.shape[0] == len(y) > 1, c.name
+
+
+def test_names_resolve_and_mistakes_say_what_exists(tmp_path, monkeypatch):
+    assert resolve_config_path("demo:quash-taxonomy").name == "demo-quash-taxonomy.yaml"
+    with pytest.raises(ConfigError, match="Did you mean demo:quash-taxonomy"):
+        find_shipped("demo:quash-taxnomy")
+    with pytest.raises(ConfigError, match=r"Config file not found: quash\.yaml.*demo:vlmaps"):
+        resolve_config_path("quash.yaml")
+    # A file of that name wins over the shipped one.
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "demo:vlmaps").write_text("name: mine\n")
+    assert QuashConfig.from_yaml("demo:vlmaps").name == "mine"
+
+
+def test_cli_takes_a_shipped_name_and_refuses_a_missing_file(capsys):
+    assert main(["expand", "chair", "-c", "demo:quash-taxonomy", "--json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert data["provenance"]["heuristic"] == "taxonomy" and "seat" in data["positives"]
+    assert main(["expand", "chair", "-c", "quash.yaml"]) == 2
+    err = capsys.readouterr().err
+    assert "Config file not found: quash.yaml" in err and "demo:quash-taxonomy" in err
+
+
+def test_quash_configs_lists_and_prints(capsys):
+    assert main(["configs", "--json"]) == 0
+    listed = {c["name"]: c for c in json.loads(capsys.readouterr().out)}
+    assert listed["demo:quash-taxonomy"]["offline"] is True
+    assert listed["lseg:vlmaps"]["offline"] is False
+    assert "ViT-B-32" in listed["lseg:vlmaps"]["needs"]
+    assert main(["configs"]) == 0
+    table = capsys.readouterr().out
+    for name in listed:
+        assert name in table
+    assert "nothing (offline" in table and "weights" in table
+    assert main(["configs", "demo:vlmaps"]) == 0
+    text = capsys.readouterr().out
+    first, rest = text.split("\n", 1)
+    assert first.startswith("# demo:vlmaps: ") and first.endswith("demo-vlmaps.yaml")
+    assert yaml.safe_load(rest) == yaml.safe_load(find_shipped("demo:vlmaps").path.read_text())
+    assert main(["configs", "demo:nope"]) == 2

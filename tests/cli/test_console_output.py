@@ -1,0 +1,104 @@
+"""What the commands print: progress that adds up, shared costs said to be shared, tables
+sized to the terminal, log lines that never wrap."""
+
+from __future__ import annotations
+
+import re
+
+import pytest
+from rich.console import Console
+
+from quash_plugins.cli._output import print_markdown
+from quash_plugins.cli.main import main
+
+
+def refine_config(world, min_seed: int = 10):
+    cfg = world["dir"] / f"refine-{min_seed}.yaml"
+    cfg.write_text(
+        "name: refined\n"
+        f"encoder: {{name: table, file: {world['table'].name}}}\n"
+        "heuristic: none\n"
+        "classifier: {name: nearest-sample, k: 2}\n"
+        f"refine: {{classifier: svm-rbf, n_positives: 20, n_negatives: 50, min_seed: {min_seed}}}\n"
+        "cache: false\n"
+    )
+    return cfg
+
+
+@pytest.mark.parametrize("min_seed", [10, 10_000], ids=["refined", "refine-skipped"])
+def test_progress_adds_up_to_the_passes(tiny_world, min_seed):
+    """The refinement's second pass counts in the total (the bar read 200 % before)."""
+    from quash_plugins import Quash
+
+    quash = Quash.from_config(refine_config(tiny_world, min_seed))
+    assert quash.passes == 2
+    done = []
+    results = quash.query_many(tiny_world["map"], ["chair", "sofa"], progress=done.append)
+    assert sum(done) == 600 * quash.passes
+    refined = [r.queryset.provenance["refine"]["applied"] for r in results]
+    assert refined == [min_seed == 10] * 2
+    for r in results:
+        # The second pass is reported apart from the re-fit, as each query's share.
+        assert ("reclassify" in r.timings) == (min_seed == 10)
+        assert r.timings["classify"] == results[0].timings["classify"]
+
+
+def test_query_progress_never_passes_100_percent(tiny_world, capsys):
+    code = main(
+        ["query", str(tiny_world["map"]), "chair", "sofa", "-c", str(refine_config(tiny_world))]
+    )
+    out = capsys.readouterr()
+    assert code == 0, out.err
+    lines = re.findall(r"classifying 600 items \(2 passes\): (\d+)/(\d+) \((\d+)%", out.err)
+    assert lines, out.err
+    assert {int(total) for _, total, _ in lines} == {1200}
+    assert all(int(pct) <= 100 for *_, pct in lines) and lines[-1][2] == "100"
+    # Shared stages are marked, and their whole cost is given once.
+    assert "classify*" in out.out and "reclassify*" in out.out
+    assert re.search(r"done once for all the queries.*classify [\d.]+ ms for 2", out.out, re.S)
+
+
+WIDE = """# Report
+
+| query | vlmaps | conceptfusion | lerf | quash-taxonomy | quash-taxonomy-svm | quash-adjectives |
+|---|---:|---:|---:|---:|---:|---:|
+| refrigerator | 0.026 | 0.330 | 0.034 | **0.893** | 0.000 | 0.039 |
+| chair | 0.048 | 0.465 | 0.057 | 0.813 | 0.000 | 0.062 |
+
+Items matched by absence queries (0 = correct):
+"""
+
+
+def test_markdown_tables_print_as_tables_that_fit_the_terminal():
+    console = Console(width=72, record=True, highlight=False)
+    print_markdown(console, WIDE)
+    text = console.export_text()
+    lines = text.splitlines()
+    assert max(len(ln.rstrip()) for ln in lines) <= 72
+    assert not any("|" in ln for ln in lines), text  # no Markdown pipes on screen
+    assert "---" not in text
+    rows = [ln for ln in lines if ln.lstrip().startswith(("refrigerator", "chair"))]
+    assert len(rows) == 2  # each row on one line, the first column whole
+    assert "0.893" in rows[0] and "**" not in text
+    assert lines[0] == "Report" and "Items matched by absence queries (0 = correct):" in text
+
+
+def test_demo_prints_tables_not_markdown(tmp_path, capsys):
+    pytest.importorskip("sentence_transformers")
+    assert main(["demo", "--tiny", "--no-rrd", "--out", str(tmp_path / "d")]) == 0
+    out = capsys.readouterr().out
+    assert "|---" not in out and "| quash-taxonomy |" not in out
+    assert re.search(r"^\s*quash-taxonomy\s+0\.\d{3}", out, re.M), out
+    assert "|---" in (tmp_path / "d" / "demo.md").read_text()  # Markdown stays for files
+
+
+def test_log_lines_do_not_wrap_off_a_terminal(capsys):
+    import logging
+
+    from quash_plugins.cli._output import setup_logging
+
+    setup_logging(0, False)
+    message = "a long warning " * 12
+    logging.getLogger("quash_plugins.test").warning(message.strip())
+    err = capsys.readouterr().err
+    assert err == f"WARNING  {message.strip()}\n"

@@ -1,0 +1,252 @@
+"""The Rerun outputs as a user meets them, in real subprocesses with timeouts.
+
+- ``--spawn`` without a display says so in one line, writes what was asked and exits
+  (it used to hang for ever in ``RecordingStream.flush`` and leave a ``.tmp`` file);
+- a viewer that cannot start, or a ``--connect`` address where nothing listens, is one
+  line too;
+- ``--serve-web`` listens on 127.0.0.1 only (its HTTP port used to be on 0.0.0.0),
+  checked in the kernel's socket table;
+- ``quash demo --serve-web`` started in the background by a shell (which ignores SIGINT
+  for it) stops cleanly on SIGINT and on SIGTERM, leaving no temporary file and no
+  server behind. (SIGTERM while a recording is written: tests/cli/test_signals.py.)
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("rerun")
+
+from quash_plugins.viewer import display_available, rerun_executable  # noqa: E402
+
+CLI = [sys.executable, "-c", "from quash_plugins.cli.main import main; raise SystemExit(main())"]
+pytestmark = pytest.mark.skipif(
+    rerun_executable() is None, reason="the rerun executable of the SDK is not installed"
+)
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def headless_env(**extra: str) -> dict[str, str]:
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    return {**env, "PYTHONUNBUFFERED": "1", "COLUMNS": "120", **extra}
+
+
+def listening(ports: set[int]) -> set[tuple[str, int]]:
+    """(address, port) of every listening TCP socket on ``ports``, from /proc/net."""
+    found = set()
+    for name, width in (("tcp", 8), ("tcp6", 32)):
+        table = Path("/proc/net") / name
+        if not table.exists():
+            continue
+        for line in table.read_text().splitlines()[1:]:
+            fields = line.split()
+            local, state = fields[1], fields[3]
+            if state != "0A":  # TCP_LISTEN
+                continue
+            hex_ip, hex_port = local.split(":")
+            port = int(hex_port, 16)
+            if port not in ports:
+                continue
+            raw = bytes.fromhex(hex_ip)
+            # The kernel prints each 32-bit word in host (little-endian) order.
+            raw = b"".join(raw[i : i + 4][::-1] for i in range(0, len(raw), 4))
+            family = socket.AF_INET if width == 8 else socket.AF_INET6
+            found.add((socket.inet_ntop(family, raw), port))
+    return found
+
+
+class Lines:
+    """A pipe's lines, read in a thread so the child never blocks on a full pipe."""
+
+    def __init__(self, pipe) -> None:
+        self.lines: list[str] = []
+        self._t = threading.Thread(target=self._pump, args=(pipe,), daemon=True)
+        self._t.start()
+
+    def _pump(self, pipe) -> None:
+        for line in iter(pipe.readline, ""):
+            self.lines.append(line)
+
+    def wait_for(self, text: str, timeout: float, proc: subprocess.Popen) -> None:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if any(text in line for line in list(self.lines)):
+                return
+            if proc.poll() is not None:
+                break
+            time.sleep(0.2)
+        raise AssertionError(f"no line with {text!r}; got:\n{''.join(self.lines)}")
+
+    def text(self) -> str:
+        self._t.join(timeout=10)
+        return "".join(self.lines)
+
+
+@pytest.fixture(scope="module")
+def demo_cache(tmp_path_factory) -> str:
+    """One QuASH cache for this module's ``quash demo`` runs: the tiny scene is built once."""
+    return str(tmp_path_factory.mktemp("demo-cache"))
+
+
+@pytest.fixture
+def small_map(tmp_path):
+    from _viewer_maps import voxel_map, write_table_config
+
+    from quash_plugins.adapters._npz import write_npz_map
+
+    return write_npz_map(tmp_path / "map.npz", voxel_map()), write_table_config(tmp_path)
+
+
+def run_cli(args: list[str], cwd: Path, env: dict, timeout: float = 300):
+    return subprocess.run(
+        [*CLI, *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout
+    )
+
+
+def assert_no_tmp(folder: Path) -> None:
+    left = [p.name for p in folder.rglob("*") if p.name.endswith(".tmp")]
+    assert not left, f"temporary files left behind: {left}"
+
+
+@pytest.mark.slow
+def test_demo_spawn_without_a_display_says_so_and_finishes(tmp_path, demo_cache):
+    """The issue's command: ``quash demo --spawn`` on a machine with no display."""
+    out = tmp_path / "demo"
+    env = headless_env(QUASH_CACHE_DIR=demo_cache)
+    proc = run_cli(["demo", "--tiny", "--spawn", "--out", str(out)], tmp_path, env)
+    assert proc.returncode == 0, proc.stderr
+    spawn_lines = [ln for ln in proc.stderr.splitlines() if "--spawn" in ln]
+    assert len(spawn_lines) == 1, proc.stderr
+    assert "no display" in spawn_lines[0]
+    from rerun.chunk import RrdReader
+
+    assert RrdReader(out / "demo.rrd").recordings()  # a complete recording
+    assert (out / "demo.md").is_file()
+    assert_no_tmp(out)
+
+
+def test_spawn_when_the_viewer_cannot_start(tmp_path, small_map):
+    """A display is set but unusable: the viewer exits at start; one line, and on."""
+    map_path, cfg = small_map
+    env = headless_env(DISPLAY=":93517")  # no X server there
+    rrd = tmp_path / "out.rrd"
+    proc = run_cli(
+        ["query", str(map_path), "chair", "-c", str(cfg), "--spawn", "--rrd", str(rrd)],
+        tmp_path,
+        env,
+    )
+    assert proc.returncode == 0, proc.stderr
+    spawn_lines = [ln for ln in proc.stderr.splitlines() if "--spawn" in ln]
+    assert len(spawn_lines) == 1 and "did not start" in spawn_lines[0], proc.stderr
+    assert rrd.is_file() and "chair" in proc.stdout
+    assert_no_tmp(tmp_path)
+
+
+def test_connect_to_nothing_says_so_and_writes_the_file(tmp_path, small_map):
+    map_path, cfg = small_map
+    port = free_port()
+    rrd = tmp_path / "out.rrd"
+    url = f"rerun+http://127.0.0.1:{port}/proxy"
+    proc = run_cli(
+        ["query", str(map_path), "chair", "-c", str(cfg), "--connect", url, "--rrd", str(rrd)],
+        tmp_path,
+        headless_env(),
+        timeout=120,
+    )
+    assert proc.returncode == 0, proc.stderr
+    lines = [ln for ln in proc.stderr.splitlines() if "--connect" in ln]
+    assert len(lines) == 1 and f"127.0.0.1:{port}" in lines[0], proc.stderr
+    assert rrd.is_file()
+    assert_no_tmp(tmp_path)
+
+
+def test_display_detection():
+    if sys.platform.startswith("linux"):
+        assert not display_available({})
+        assert display_available({"WAYLAND_DISPLAY": "wayland-0"})
+        assert display_available({"DISPLAY": ":0"})
+
+
+@pytest.mark.skipif(not Path("/proc/net/tcp").exists(), reason="needs Linux /proc/net")
+def test_serve_web_listens_on_loopback_only_and_stops_on_sigterm(tmp_path, small_map):
+    map_path, cfg = small_map
+    web, grpc = free_port(), free_port()
+    cli = subprocess.Popen(
+        [*CLI, "query", str(map_path), "chair", "-c", str(cfg), "--serve-web"]
+        + ["--web-port", str(web), "--grpc-port", str(grpc)],
+        cwd=tmp_path,
+        env=headless_env(),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    err, out = Lines(cli.stderr), Lines(cli.stdout)
+    try:
+        err.wait_for("Serving the Rerun web viewer", 120, cli)
+        sockets = listening({web, grpc})
+        assert {port for _, port in sockets} == {web, grpc}, sockets
+        assert {addr for addr, _ in sockets} == {"127.0.0.1"}, sockets
+        cli.send_signal(signal.SIGTERM)
+        assert cli.wait(timeout=60) == 0, err.text()
+    finally:
+        if cli.poll() is None:
+            cli.kill()
+            cli.wait(timeout=30)
+    assert "stopped serving" in err.text()
+    assert "chair" in out.text()
+    deadline = time.monotonic() + 10
+    while listening({web, grpc}) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not listening({web, grpc}), "a server outlived the command"
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not Path("/proc/net/tcp").exists(), reason="needs Linux /proc/net")
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_demo_serve_web_in_the_background_stops_on(sig, tmp_path, demo_cache):
+    """``quash demo --serve-web &`` from a script: the shell makes the job ignore SIGINT."""
+    web, grpc = free_port(), free_port()
+    out = tmp_path / "demo"
+    cmd = " ".join(
+        [*(f"'{a}'" for a in CLI), "demo", "--tiny", "--serve-web", "--out", str(out)]
+        + ["--web-port", str(web), "--grpc-port", str(grpc)]
+    )
+    shell = subprocess.Popen(
+        ["bash", "-c", f"{cmd} & echo $!; wait $!"],
+        cwd=tmp_path,
+        env=headless_env(QUASH_CACHE_DIR=demo_cache),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    err, stdout = Lines(shell.stderr), Lines(shell.stdout)
+    try:
+        err.wait_for("Serving the Rerun web viewer", 300, shell)
+        pid = int(stdout.lines[0])  # the job, started with SIGINT ignored
+        os.kill(pid, sig)
+        assert shell.wait(timeout=60) == 0, err.text()
+    finally:
+        if shell.poll() is None:
+            shell.kill()
+            shell.wait(timeout=30)
+    assert "stopped serving" in err.text()
+    assert (out / "demo.rrd").is_file()
+    assert_no_tmp(out)
+    deadline = time.monotonic() + 10
+    while listening({web, grpc}) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not listening({web, grpc}), "a server outlived the command"
