@@ -340,10 +340,8 @@ def write_openlex3d_map(lmap: LatentMap, folder: str | Path, chunk_rows: int = 6
     only when it is a previous export.
     """
     import json
-    import os
-    import shutil
-    import uuid
 
+    from ..core.atomic import atomic_dir
     from ..core.errors import UsageError
 
     folder = Path(folder).expanduser()
@@ -352,16 +350,9 @@ def write_openlex3d_map(lmap: LatentMap, folder: str | Path, chunk_rows: int = 6
             f"{lmap.source.get('path', 'the map')} has no positions (a pixel map?); "
             "OpenLex3D's point_cloud.pcd needs one 3D point per item."
         )
-    replaceable = not folder.exists() or is_openlex3d_export(folder)
-    if not replaceable and (not folder.is_dir() or any(folder.iterdir())):
-        raise UsageError(
-            f"{folder} exists and is not a previous OpenLex3D export of quash (no "
-            f"{EXPORT_MARKER}); choose a new folder so nothing of yours is replaced."
-        )
-    folder.parent.mkdir(parents=True, exist_ok=True)
-    tmp = folder.parent / f".{folder.name}.tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}"
     n, d = lmap.n, lmap.dim
-    try:
+    kind = f"OpenLex3D export of quash (with {EXPORT_MARKER})"
+    with atomic_dir(folder, replaceable=is_openlex3d_export, kind=kind) as tmp:
         tmp.mkdir()
         out = np.lib.format.open_memmap(tmp / "embeddings.npy", "w+", np.float32, (n, d))
         for start in range(0, n, chunk_rows):
@@ -380,15 +371,5 @@ def write_openlex3d_map(lmap: LatentMap, folder: str | Path, chunk_rows: int = 6
             "source": {k: v for k, v in lmap.source.items() if isinstance(v, (str, int, float))},
         }
         (tmp / EXPORT_MARKER).write_text(json.dumps(meta, indent=2) + "\n", encoding="utf-8")
-        if folder.exists():
-            old = folder.parent / f".{folder.name}.old-{uuid.uuid4().hex[:8]}"
-            os.replace(folder, old)
-            os.replace(tmp, folder)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, folder)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     log.info("wrote OpenLex3D predictions %s: %d points x %d", folder, n, d)
     return folder

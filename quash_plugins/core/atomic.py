@@ -230,25 +230,33 @@ def is_store_dir(path: str | Path) -> bool:
 
 
 @contextlib.contextmanager
-def atomic_dir(path: str | Path, overwrite: bool = True) -> Iterator[Path]:
-    """Yield a temporary folder beside ``path``; move it into place on success.
+def atomic_dir(
+    path: str | Path,
+    overwrite: bool = True,
+    replaceable: Callable[[Path], bool] | None = None,
+    kind: str = "zarr store",
+) -> Iterator[Path]:
+    """Yield a temporary folder path beside ``path``; move it into place on success.
 
-    For zarr stores. An existing ``path`` is replaced only when ``overwrite`` is true
-    and it is itself a zarr store (never a file, a symbolic link or any other folder).
-    The old store is moved aside first and removed only once the new one is in place;
-    if anything fails in between, the old store is put back. On error or interrupt the
-    temporary folder is removed.
+    For folder outputs (zarr stores, OpenLex3D folders). The caller creates the
+    temporary folder (zarr does). An existing ``path`` is replaced only when
+    ``overwrite`` is true and it is empty or ``replaceable(path)`` holds (default: it is
+    a zarr store) — never a file, a symbolic link or any other folder. The old folder is
+    moved aside first and removed only once the new one is in place; if anything fails
+    in between, the old folder is put back. On error or interrupt the temporary folder
+    is removed.
     """
     path = Path(path).expanduser()
+    replaceable = replaceable or is_store_dir
     if path.is_symlink() or (path.exists() and not path.is_dir()):
         raise UsageError(f"Output {path} exists and is not a folder; refusing to replace it.")
     if path.exists():
         if not overwrite:
             raise UsageError(f"{path} exists. Remove it or pass overwrite=True.")
-        if not is_store_dir(path) and not _empty_dir(path):
+        if not replaceable(path) and not _empty_dir(path):
             raise UsageError(
-                f"Output {path} is a folder that is not a zarr store; refusing to replace it. "
-                "Choose another name."
+                f"Output {path} is a folder that is not a previous {kind}; refusing to "
+                "replace it. Choose another name."
             )
     try:
         path.parent.mkdir(parents=True, exist_ok=True)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.atomic import atomic_write, is_store_dir, refuse_own_input
+from ..core.atomic import atomic_dir, atomic_write, is_store_dir, refuse_own_input
 from ..core.types import QueryResult
 
 #: The arrays of a results file, as :func:`write_results_npz` writes them.
@@ -83,9 +83,6 @@ def write_results_openlex3d(
     - ``queries.json``: the queries in column order, their query sets and counts.
     """
     import json
-    import os
-    import shutil
-    import uuid
 
     folder = Path(folder).expanduser()
     n = len(results[0].mask) if results else 0
@@ -112,22 +109,10 @@ def write_results_openlex3d(
             for j, r in enumerate(results)
         ],
     }
-    folder.parent.mkdir(parents=True, exist_ok=True)
-    tmp = folder.parent / f".{folder.name}.tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}"
-    try:
+    with atomic_dir(folder, replaceable=is_openlex3d_results, kind="query-results folder") as tmp:
         tmp.mkdir()
         np.save(tmp / "query_scores.npy", scores)
         np.save(tmp / "query_scores_raw.npy", raw)
         np.save(tmp / "query_masks.npy", masks)
         (tmp / "queries.json").write_text(json.dumps(meta, indent=2) + "\n", encoding="utf-8")
-        if folder.exists():
-            old = folder.parent / f".{folder.name}.old-{uuid.uuid4().hex[:8]}"
-            os.replace(folder, old)
-            os.replace(tmp, folder)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, folder)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return folder
