@@ -171,12 +171,7 @@ def atomic_write(path: str | Path, suffix: str = "") -> Iterator[Path]:
     """
     path = Path(path)
     _refuse_non_regular(path)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise UsageError(
-            f"Cannot write {path}: {exc.strerror} ({path.parent}). Choose a writable folder."
-        ) from None
+    _make_parent(path)
     tmp_path = path.parent / f".{path.name}.{secrets.token_hex(4)}{suffix or '.tmp'}"
     # The temporary file is created inside the try block, so that an interrupt at any
     # moment (even between creating it and yielding it) removes it.
@@ -209,6 +204,16 @@ def _refuse_non_regular(path: Path) -> None:
     if not stat.S_ISREG(st.st_mode):
         kind = "symbolic link" if stat.S_ISLNK(st.st_mode) else "non-regular file"
         raise UsageError(f"Output {path} is a {kind}; refusing to replace it.")
+
+
+def _make_parent(path: Path) -> None:
+    """Create ``path``'s folder, or raise a :class:`UsageError` naming the output."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UsageError(
+            f"Cannot write {path}: {exc.strerror} ({path.parent}). Choose a writable folder."
+        ) from None
 
 
 def _empty_dir(path: Path) -> bool:
@@ -258,12 +263,7 @@ def atomic_dir(
                 f"Output {path} is a folder that is not a previous {kind}; refusing to "
                 "replace it. Choose another name."
             )
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise UsageError(
-            f"Cannot write {path}: {exc.strerror} ({path.parent}). Choose a writable folder."
-        ) from None
+    _make_parent(path)
     tag = f"{os.getpid()}-{secrets.token_hex(4)}"
     tmp = path.parent / f".{path.name}.tmp-{tag}"
     old = path.parent / f".{path.name}.old-{tag}"
