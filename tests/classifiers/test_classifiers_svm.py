@@ -122,17 +122,22 @@ def test_pipeline_query_many_uses_the_stack(tiny_world, monkeypatch):
     from quash_plugins.encoders import TableEncoder
 
     calls = []
-    original = _kernels.KernelStack.evaluate
+    original = _kernels.StackEpilogue.apply
     monkeypatch.setattr(
-        _kernels.KernelStack,
-        "evaluate",
-        lambda self, E, **kw: calls.append(len(self.parts)) or original(self, E, **kw),
+        _kernels.StackEpilogue,
+        "apply",
+        lambda self, G, *a: (
+            calls.append((len(self.stack.parts), G.shape[1])) or original(self, G, *a)
+        ),
     )
     quash = Quash(
         TableEncoder(file=str(tiny_world["table"])), classifier=RbfSvmClassifier(), instances=None
     )
     results = quash.query_many(tiny_world["map"], ["chair", "sofa", "table"])
-    assert calls and set(calls) == {3}  # one stacked evaluation per chunk, three queries
+    # one stacked GEMM per block for the three queries: every epilogue sees all three
+    # queries' support vectors side by side
+    n_sv = sum(len(quash.fit(r.queryset).support_vectors_) for r in results)
+    assert calls and set(calls) == {(3, n_sv)}
     for r in results:
         alone = quash.fit(r.queryset).svc_.decision_function(tiny_world["E"].astype(np.float64))
         np.testing.assert_allclose(r.scores, alone, atol=1e-4)
