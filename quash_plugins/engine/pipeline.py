@@ -88,6 +88,11 @@ class Quash:
         ``"numpy"`` (in-process chunks) or ``"dask"``.
     client
         A ``dask.distributed.Client`` for the dask backend.
+    device
+        Where the in-process classification pass runs: ``"cuda"`` (or ``"cuda:N"``) on
+        the GPU, with the map uploaded once and kept there; ``"auto"`` on a CUDA GPU
+        when one is visible, else the CPU; ``"cpu"`` (or ``"mps"``, which only the text
+        encoder uses) on the CPU. Anything else is refused when the pass runs.
     """
 
     def __init__(
@@ -484,6 +489,14 @@ class Quash:
             return classify_dask(lmap, classifiers, chunk_bytes=chunk_bytes, client=self.client)
         if self.backend not in ("numpy", "local", None):
             raise ConfigError(f"Unknown backend {self.backend!r}. Known: numpy, dask.")
+        from .device import pass_device
+
+        device = pass_device(self.device)
+        if device is not None:  # the map is uploaded once and kept while it lives
+            from .device import classify_on_device, device_map
+
+            dmap = device_map(lmap, device, chunk_bytes=min(chunk_bytes, 64 * 2**20))
+            return classify_on_device(dmap, classifiers, progress)
         return classify_local(lmap, classifiers, chunk_bytes, progress)
 
 
