@@ -41,6 +41,7 @@ _EXPORTS = {
     "rule_scores_torch": "._torch_svm",
     "reduce_margin": "._torch_svm",
     "launch": "._triton_svm",  # imports triton
+    "best_config": "._triton_svm",
 }
 
 __all__ = sorted(_EXPORTS)

@@ -168,6 +168,11 @@ def _tuned() -> Any:
     return _TUNED
 
 
+def best_config() -> Any:
+    """The autotuned launch configuration (None before the first tuned launch)."""
+    return getattr(_TUNED, "best_config", None)
+
+
 def launch(
     x: Any,
     dplan: Any,
