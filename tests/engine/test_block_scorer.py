@@ -344,3 +344,42 @@ def test_dask_threads_score_the_same_blocks_bit_for_bit(fitted):
     np.testing.assert_array_equal(obs, robs)
     for a, b in zip(local, remote):
         np.testing.assert_array_equal(a, b)
+
+
+def test_dask_query_many_does_one_gemm_per_block_for_every_query(monkeypatch):
+    """Issue 13, item 5: on Dask too, all SVM queries of a batch share one GEMM a block."""
+    pytest.importorskip("dask")
+    from quash_plugins import Quash
+    from quash_plugins.encoders import TableEncoder
+
+    rng = np.random.default_rng(9)
+    words = ["chair", "sofa", "table", "other", "background", "nothing"]
+    T = rng.normal(size=(len(words), D))
+    T /= np.linalg.norm(T, axis=1, keepdims=True)
+    E = (T[rng.integers(0, 3, 6000)] + 0.5 * rng.normal(size=(6000, D))).astype(np.float16)
+    q = Quash(
+        TableEncoder(table=dict(zip(words, T.tolist()))),
+        classifier=registry.create("classifiers", "svm-rbf"),
+        instances=None,
+        backend="dask",
+        chunk_mb=0.05,  # several chunks
+    )
+    widths = []
+    real = np.matmul
+
+    def counting(a, b, *args, **kw):
+        if getattr(b, "ndim", 0) == 2 and b.shape[0] == D and a.shape[1] == D and len(a) > 1:
+            widths.append(b.shape[1])  # a block of map rows (not the one-row zero probe)
+        return real(a, b, *args, **kw)
+
+    monkeypatch.setattr(np, "matmul", counting)
+    results = q.query_many(LatentMap(E, normalize=True), ["chair", "sofa", "table"])
+    monkeypatch.undo()
+    from quash_plugins.engine.classify import extra_bytes_per_row
+
+    fitted = [q.fit(r.queryset) for r in results]
+    n_sv = sum(len(c.support_vectors_) for c in fitted)
+    rows = LatentMap(E).chunk_rows(int(0.05 * 2**20), extra_bytes_per_row(fitted))
+    assert rows < 2048  # so every chunk is one block
+    assert len(widths) == -(-6000 // rows) > 1  # one GEMM per chunk, not one per query
+    assert set(widths) == {n_sv}  # every GEMM holds the three queries' support vectors
