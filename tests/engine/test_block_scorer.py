@@ -383,3 +383,18 @@ def test_dask_query_many_does_one_gemm_per_block_for_every_query(monkeypatch):
     assert rows < 2048  # so every chunk is one block
     assert len(widths) == -(-6000 // rows) > 1  # one GEMM per chunk, not one per query
     assert set(widths) == {n_sv}  # every GEMM holds the three queries' support vectors
+
+
+def test_the_conformance_kit_catches_an_expansion_that_disagrees():
+    """The engine trusts a plugin's expansion: the kit checks it against the plugin's
+    own decision_function."""
+    from quash_plugins.testing import check_classifier_expansions
+
+    check_classifier_expansions(TopCosine(), None)  # agrees
+
+    class Lying(TopCosine):
+        def cosine_expansion(self):
+            return CosineExpansion(self.v_, lambda c: c[:, 0] + 0.5, CosineMargin(1))
+
+    with pytest.raises(AssertionError, match="reduce of the cosines must give"):
+        check_classifier_expansions(Lying(), None)
