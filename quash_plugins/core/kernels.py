@@ -189,14 +189,18 @@ def resolve_backend(backend: str, device: str) -> tuple[str, str]:
 
     torch is imported only when it is asked for, or when ``auto`` sees an NVIDIA device
     node (``/dev/nvidiactl``) so that CPU-only runs never pay torch's import time.
+    ``cuda:N`` picks one GPU; ``mps`` means the CPU here (there is no Apple-GPU path).
     """
+    if device == "mps":
+        device = "cpu"
+    cuda_asked = device.split(":")[0] == "cuda"
     if backend == "numpy":
         if device not in ("auto", "cpu"):
             raise QuashError(f"Backend 'numpy' runs on the CPU only; got device {device!r}.")
         return "numpy", "cpu"
     want_torch = (
         backend == "torch"
-        or device == "cuda"
+        or cuda_asked
         or (backend == "auto" and ("torch" in sys.modules or os.path.exists("/dev/nvidiactl")))
     )
     if not want_torch:
@@ -210,11 +214,11 @@ def resolve_backend(backend: str, device: str) -> tuple[str, str]:
             'Classifier backend "torch" needs PyTorch: pip install "quash-plugins[clip]".'
         ) from exc
     cuda = torch.cuda.is_available()
-    if device == "cuda" and not cuda:
-        raise QuashError("Classifier device 'cuda' was asked for but no CUDA GPU is visible.")
+    if cuda_asked and not cuda:
+        raise QuashError(f"Classifier device {device!r} was asked for but no CUDA GPU is visible.")
     if backend == "auto" and device == "auto" and not cuda:
         return "numpy", "cpu"
-    return "torch", ("cuda" if (device == "cuda" or (device == "auto" and cuda)) else "cpu")
+    return "torch", (device if cuda_asked else "cuda" if (device == "auto" and cuda) else "cpu")
 
 
 class KernelStack:

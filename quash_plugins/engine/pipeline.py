@@ -28,7 +28,13 @@ import numpy as np
 from sklearn.base import clone
 
 from ..core import registry
-from ..core.config import DEFAULT_CLASSIFIER, DEFAULT_HEURISTIC, PluginSpec, QuashConfig
+from ..core.config import (
+    DEFAULT_CLASSIFIER,
+    DEFAULT_HEURISTIC,
+    PluginSpec,
+    QuashConfig,
+    check_device,
+)
 from ..core.errors import ConfigError, DimensionMismatchError, EmptyMapWarning, QuashError
 from ..core.interfaces import Encoder, ExpansionContext, Heuristic
 from ..core.text import TextCache, encode_texts, load_templates
@@ -92,7 +98,7 @@ class Quash:
         Where the in-process classification pass runs: ``"cuda"`` (or ``"cuda:N"``) on
         the GPU, with the map uploaded once and kept there; ``"auto"`` on a CUDA GPU
         when one is visible, else the CPU; ``"cpu"`` (or ``"mps"``, which only the text
-        encoder uses) on the CPU. Anything else is refused when the pass runs.
+        encoder uses) on the CPU. Anything else is refused.
     """
 
     def __init__(
@@ -175,7 +181,7 @@ class Quash:
         self.name = name
         self.backend = backend
         self.client = client
-        self.device = device
+        self.device = check_device(device, "Quash: 'device'")
         self._maps: dict[Any, LatentMap] = {}
         self._querysets: dict[tuple[str, int], tuple[Any, QuerySet]] = {}
 

@@ -265,3 +265,24 @@ def test_cuda_without_a_gpu_is_a_clear_error_and_auto_falls_back_to_numpy():
     with pytest.raises(QuashError, match="CUDA"):
         RbfSvmClassifier(backend="torch", device="cuda").fit(X, y)
     assert RbfSvmClassifier(backend="auto").fit(X, y).backend_ == "numpy"
+
+
+@pytest.mark.parametrize("device", ["mps", "cuda:1", "CUDA:0"])
+def test_every_config_device_builds_the_svms(device):
+    """The config passes its `device` to the SVMs: every device the config accepts must
+    build them (mps and cuda:N were refused by the SVMs' own, shorter list)."""
+    from quash_plugins import Quash
+
+    table = {"chair": [1, 0], "other": [0, 1], "background": [1, 1], "nothing": [1, -1]}
+    for name in ("svm-rbf", "svm-cosine"):
+        q = Quash.from_config(
+            {
+                "classifier": name,
+                "device": device,
+                "cache": False,
+                "encoder": {"name": "table", "table": table},
+            }  # fmt: skip
+        )
+        assert q.classifier.device == device.lower() and q.device == device.lower()
+    X, y = np.eye(4, dtype=np.float32), np.array([1, 0, 0, 0])
+    assert RbfSvmClassifier(device="mps").fit(X, y).device_ == "cpu"  # no Apple-GPU path

@@ -196,9 +196,9 @@ def test_unsupported_and_missing_devices_are_refused():
     enc = TableEncoder(table={"chair": [1, 0], "other": [0, 1], "background": [1, 1],
                               "nothing": [1, -1]})  # fmt: skip
     lmap = LatentMap(np.eye(2, dtype=np.float32))
-    with pytest.raises(ConfigError, match="'tpu' is not supported; use one of auto, cpu, cuda"):
-        Quash(enc, device="tpu", instances=None).query(lmap, "chair")
-    for bad in ("cuda:x", "cpu:0", "gpu"):
+    with pytest.raises(ConfigError, match="'tpu' is not a supported device; use one of auto"):
+        Quash(enc, device="tpu", instances=None)  # refused when built, before any query
+    for bad in ("cuda:x", "cpu:0", "gpu", "tpu"):
         with pytest.raises(ConfigError):
             pass_device(bad)
     assert pass_device("cpu") is None and pass_device("mps") is None

@@ -23,7 +23,6 @@ from importlib import import_module
 from typing import Any
 
 _EXPORTS = {
-    "DEVICES": "._select",
     "pass_device": "._select",
     "device_map": "._select",
     "release_device_maps": "._select",

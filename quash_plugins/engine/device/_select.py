@@ -6,12 +6,8 @@ import os
 import weakref
 from typing import Any
 
-from ...core.errors import ConfigError, QuashError
-
-#: ``device`` values: the pass runs on a CUDA GPU for ``cuda``/``cuda:N`` and for
-#: ``auto`` when one is visible; on the CPU for ``cpu``, and for ``mps`` (which applies to
-#: the text encoder: the pass has no Apple-GPU executor).
-DEVICES = ("auto", "cpu", "cuda", "cuda:N", "mps")
+from ...core.config import check_device
+from ...core.errors import QuashError
 
 
 def pass_device(device: str | None) -> str | None:
@@ -19,22 +15,17 @@ def pass_device(device: str | None) -> str | None:
 
     ``cuda`` (or ``cuda:N``) asks for a GPU: an error naming the fix when torch or a CUDA
     GPU is missing. ``auto`` takes the GPU when an NVIDIA device node exists and torch
-    sees a GPU; torch is not imported otherwise. Any other value is refused.
+    sees a GPU; torch is not imported otherwise. ``cpu`` and ``mps`` (which only the text
+    encoder uses: the pass has no Apple-GPU executor) keep the CPU pass. Any other value
+    is refused (:func:`~quash_plugins.core.config.check_device`).
 
     Examples
     --------
     >>> pass_device("cpu") is None
     True
     """
-    text = "auto" if device is None else str(device).strip().lower()
+    text = check_device(device, "device")
     kind, _, index = text.partition(":")
-    if (kind not in ("auto", "cpu", "cuda", "mps") or (index and kind != "cuda")) or (
-        index and not index.isdigit()
-    ):
-        raise ConfigError(
-            f"device {device!r} is not supported; use one of {', '.join(DEVICES)} "
-            "(the classification pass runs on a CUDA GPU or on the CPU)."
-        )
     if kind in ("cpu", "mps"):
         return None
     if kind == "auto" and not os.path.exists("/dev/nvidiactl"):
