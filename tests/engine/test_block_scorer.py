@@ -351,6 +351,10 @@ def test_dask_query_many_does_one_gemm_per_block_for_every_query(monkeypatch):
     pytest.importorskip("dask")
     from quash_plugins import Quash
     from quash_plugins.encoders import TableEncoder
+    from quash_plugins.engine import dask_executor
+
+    # in this process (the threads scheduler), even if another test left a client behind
+    monkeypatch.setattr(dask_executor, "current_client", lambda client=None: None)
 
     rng = np.random.default_rng(9)
     words = ["chair", "sofa", "table", "other", "background", "nothing"]
