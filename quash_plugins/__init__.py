@@ -26,6 +26,7 @@ _EXPORTS = {
     "MapAdapter": "core.interfaces",
     "ExpansionContext": "core.interfaces",
     "StackableClassifier": "core.interfaces",
+    "CosineClassifier": "core.interfaces",
     "LatentMap": "core.types",
     "QuerySet": "core.types",
     "QueryResult": "core.types",
@@ -41,6 +42,7 @@ _EXPORTS = {
 __all__ = [
     "DEFAULT_NEGATIVES",
     "Classifier",
+    "CosineClassifier",
     "Encoder",
     "ExpansionContext",
     "FrameInfo",
@@ -61,7 +63,15 @@ if TYPE_CHECKING:  # pragma: no cover
     from .core import registry
     from .core.config import QuashConfig
     from .core.errors import QuashError
-    from .core.interfaces import Classifier, Encoder, ExpansionContext, Heuristic, MapAdapter
+    from .core.interfaces import (
+        Classifier,
+        CosineClassifier,
+        Encoder,
+        ExpansionContext,
+        Heuristic,
+        MapAdapter,
+        StackableClassifier,
+    )
     from .core.types import DEFAULT_NEGATIVES, FrameInfo, Instance, LatentMap, QueryResult, QuerySet
     from .engine.pipeline import Quash
 

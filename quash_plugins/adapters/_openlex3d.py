@@ -30,7 +30,7 @@ import numpy as np
 from ..core.errors import MapFormatError, QuashError
 from ..core.interfaces import MapAdapter
 from ..core.types import LatentMap
-from ._rows import IndexedRows, colors_to_uint8, copy_on_read, scan_finite, should_scan
+from ._rows import IndexedRows, colors_to_uint8, scan_finite, should_scan
 
 log = logging.getLogger(__name__)
 
@@ -181,7 +181,7 @@ class OpenLex3DAdapter(MapAdapter):
         ):
             scan_finite(table, str(emb_label), "embeddings")
         dense = len(index) == table.shape[0] and np.array_equal(index, np.arange(len(index)))
-        embeddings = copy_on_read(table) if dense else IndexedRows(table, index)
+        embeddings = table if dense else IndexedRows(table, index)
         return LatentMap(
             embeddings=embeddings,
             kind="points",

@@ -101,33 +101,6 @@ class _RowArray:
         return out
 
 
-class CopiedRows(_RowArray):
-    """Rows of ``base`` (an ``(N, D)`` array or memmap), each read returned as a new array.
-
-    A float32 memmap or array sliced by the pipeline would hand out views, which the
-    pipeline's in-place row normalisation would then write to: a read-only memmap fails,
-    and a caller's own array (a live ``VLMap.grid_feat``) would be changed. Reads through
-    this wrapper copy just the rows asked for; ``base`` itself is never copied whole.
-    """
-
-    def __init__(self, base: Any) -> None:
-        self.base = base
-        self.shape = (int(base.shape[0]), int(base.shape[1]))
-        self.dtype = np.dtype(base.dtype)
-
-    def _rows(self, start: int, stop: int) -> np.ndarray:
-        return np.array(self.base[start:stop], copy=True)
-
-
-def copy_on_read(arr: Any) -> Any:
-    """``arr`` wrapped in :class:`CopiedRows` when slicing it yields writable-in-place
-    float32 views (a float32 ndarray or memmap); other array-likes are returned as they
-    are (other dtypes are converted, hence copied, block by block)."""
-    if isinstance(arr, np.ndarray) and arr.dtype == np.float32:
-        return CopiedRows(arr)
-    return arr
-
-
 class ConcatRows(_RowArray):
     """Rows of several pieces stacked in order, loaded on demand.
 
@@ -206,12 +179,7 @@ class ConcatRows(_RowArray):
             i += 1
         if not parts:
             return np.empty((0, self.shape[1]), dtype=self.dtype)
-        if len(parts) > 1:
-            return np.concatenate(parts, axis=0)
-        # A float32 view of a loaded piece would be normalised in place by the pipeline
-        # (a read-only memmap fails): hand out a copy of the rows asked for instead.
-        part = parts[0]
-        return part.copy() if part.dtype == np.float32 and part.base is not None else part
+        return parts[0] if len(parts) == 1 else np.concatenate(parts, axis=0)
 
     def _check(self, part: np.ndarray, i: int, a: int) -> None:
         if part.dtype.kind != "f" or np.isfinite(part).all():

@@ -48,7 +48,6 @@ import numpy as np
 from ..core.errors import MapFormatError, QuashError
 from ..core.interfaces import MapAdapter
 from ..core.types import LatentMap
-from ._rows import copy_on_read
 from ._vlmaps_common import (
     DEFAULT_CS,
     RowSubset,
@@ -177,7 +176,7 @@ class VLMaps2DAdapter(MapAdapter):
         flat = grid.reshape(gs * gs, d)  # a view of the memory map, not a copy
         observed = _observed_cells(grid, where, int(opts["block_rows"]))
         index = np.arange(gs * gs, dtype=np.int64) if opts["keep_empty"] else observed
-        embeddings: Any = copy_on_read(flat) if opts["keep_empty"] else RowSubset(flat, index)
+        embeddings: Any = flat if opts["keep_empty"] else RowSubset(flat, index)
         rows, cols = np.divmod(index, gs)
         cs = float(opts["cs"])
         if not np.isfinite(cs) or cs <= 0:

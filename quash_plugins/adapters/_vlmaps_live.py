@@ -12,10 +12,10 @@ disagrees is reported as a warning, since VLMaps' own ``get_pos`` would then use
 wrong grid. Positions are cell centres by default (``positions="upstream"`` for VLMaps'
 ``grid_id2base_pos_3d``), as for the ``vlmaps`` file adapter.
 
-``grid_feat`` is used as it is (never copied whole; a torch tensor is viewed through
-``.numpy()``), rows are L2-normalised chunk by chunk when read, each block a copy, so the
-object's own array is never changed; zero rows never match. Positions
-follow the same formulas as the ``vlmaps`` file adapter.
+``grid_feat`` is used as it is (no copy; a torch tensor is viewed through ``.numpy()``)
+and never written: rows are L2-normalised as they are read (the pipeline scales its
+products instead of the rows), and zero rows never match. Positions follow the same
+formulas as the ``vlmaps`` file adapter.
 """
 
 from __future__ import annotations
@@ -29,7 +29,6 @@ import numpy as np
 from ..core.errors import MapFormatError, QuashError
 from ..core.interfaces import MapAdapter
 from ..core.types import LatentMap
-from ._rows import copy_on_read
 from ._vlmaps_common import (
     DEFAULT_CS,
     POSE_TYPES,
@@ -251,7 +250,7 @@ class VLMapsLiveAdapter(MapAdapter):
             labels = check_labels(as_array(sem), n, where, "grid_semantic")
         names = fit_label_names(load_label_names(opts["label_names"]), labels)
         return LatentMap(
-            embeddings=copy_on_read(feat),  # blocks are normalised in place: not vlmap's
+            embeddings=feat,  # read as it is: the pipeline never writes into it
             kind="voxels",
             positions=positions,
             colors=colors,

@@ -5,6 +5,10 @@ threshold, instances) as the SVMs, so every method is evaluated the same way. Al
 on cosine similarities: map rows are normalised on the fly (zero rows have cosine 0 and
 are masked by the pipeline anyway), text rows at fit time.
 
+Every rule implements the ``CosineClassifier`` protocol (:meth:`_CosineRule.cosine_expansion`):
+its decision is a reduction of the cosines with its label vectors, so the engine computes
+those cosines for every query of a batch in the GEMM it runs for the SVMs anyway.
+
 See ``docs/classifiers.md`` for the exact rules and their sources.
 """
 
@@ -15,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from ..core.interfaces import Classifier
+from ..core.kernels import CosineExpansion, CosineMargin
 from ._params import (
     ClassifierParamError,
     check_choice,
@@ -71,9 +76,37 @@ class _CosineRule(Classifier):
 
     def margin(self, E: Any) -> np.ndarray:
         """``max_p cos(x, p) - max_n cos(x, n)`` ``(N,)`` float32."""
-        c = self.cosines(E)
+        return self._margin(self.cosines(E))
+
+    def _margin(self, c: np.ndarray) -> np.ndarray:
         k = len(self.positives_)
         return (c[:, :k].max(axis=1) - c[:, k:].max(axis=1)).astype(np.float32)
+
+    def decision_function(self, E: Any) -> np.ndarray:
+        """Decision values ``(N,)`` float32: :meth:`decision_from_cosines` of
+        :meth:`cosines`."""
+        return self.decision_from_cosines(self.cosines(E))
+
+    def decision_from_cosines(self, c: np.ndarray) -> np.ndarray:
+        """The decision values ``(r,)`` float32 from the cosines ``(r, p + n)`` that
+        :meth:`cosines` gives (each rule defines it)."""
+        raise NotImplementedError
+
+    def cosine_margin(self) -> CosineMargin | None:
+        """The rule's reduction as a :class:`CosineMargin`, or None when it is not one."""
+        return None
+
+    def cosine_expansion(self) -> CosineExpansion | None:
+        """The ``CosineClassifier`` protocol: label vectors and the reduction, once fitted.
+
+        None before ``fit``, and for a subclass that overrides ``decision_function`` (the
+        engine then calls that method as it is).
+        """
+        if not hasattr(self, "labels_"):
+            return None
+        if type(self).decision_function is not _CosineRule.decision_function:
+            return None
+        return CosineExpansion(self.labels_, self.decision_from_cosines, self.cosine_margin())
 
 
 class ContrastClassifier(_CosineRule):
@@ -88,8 +121,11 @@ class ContrastClassifier(_CosineRule):
 
     _who = "contrast"
 
-    def decision_function(self, E: Any) -> np.ndarray:
-        return self.margin(E)
+    def decision_from_cosines(self, c: np.ndarray) -> np.ndarray:
+        return self._margin(c)
+
+    def cosine_margin(self) -> CosineMargin | None:
+        return CosineMargin(len(self.positives_))
 
 
 class LabelArgmaxClassifier(_CosineRule):
@@ -149,10 +185,9 @@ class LabelArgmaxClassifier(_CosineRule):
                 f"{self._who}: parameter 'query_column' must be an integer >= 0; got {q!r}."
             )
 
-    def decision_function(self, E: Any) -> np.ndarray:
+    def decision_from_cosines(self, c: np.ndarray) -> np.ndarray:
         if self.ties == "none":
-            return self.margin(E)
-        c = self.cosines(E)
+            return self._margin(c)
         p = len(self.positives_)
         best = c[:, :p].max(axis=1)
         before = c[:, p : p + int(self.query_column)]
@@ -165,6 +200,9 @@ class LabelArgmaxClassifier(_CosineRule):
             d[d == 0] = np.finfo(np.float32).eps
             out = np.minimum(out, d)
         return out.astype(np.float32)
+
+    def cosine_margin(self) -> CosineMargin | None:
+        return CosineMargin(len(self.positives_)) if self.ties == "none" else None
 
     def display_scores(self, scores: np.ndarray, threshold: float = 0.0) -> np.ndarray:
         z = float(self.logit_scale) * (np.asarray(scores, np.float64) - threshold)
@@ -244,11 +282,15 @@ class CosineThresholdClassifier(_CosineRule):
             )
         return float(self.cut)
 
-    def decision_function(self, E: Any) -> np.ndarray:
-        c = self.cosines(E)[:, : len(self.positives_)].max(axis=1)
+    def decision_from_cosines(self, c: np.ndarray) -> np.ndarray:
+        c = c[:, : len(self.positives_)].max(axis=1)
         if self.mode == "absolute":
             return (c - self._check()).astype(np.float32)
         return c.astype(np.float32)
+
+    def cosine_margin(self) -> CosineMargin | None:
+        cut = self._check() if self.mode == "absolute" else 0.0
+        return CosineMargin(len(self.positives_), use_negatives=False, offset=cut)
 
     def postprocess_scores(self, scores: np.ndarray) -> np.ndarray:
         if self.mode == "absolute":
@@ -303,11 +345,19 @@ class LerfRelevancyClassifier(_CosineRule):
     def relevancy(self, E: Any) -> np.ndarray:
         """``(N,)`` relevancy in [0, 1]. Since softmax over two is a sigmoid of the
         difference, ``min_n`` picks the largest negative cosine."""
-        z = float(self.temperature) * self.margin(E).astype(np.float64)
+        return self._relevancy(self.cosines(E))
+
+    def _relevancy(self, c: np.ndarray) -> np.ndarray:
+        z = float(self.temperature) * self._margin(c).astype(np.float64)
         return (0.5 * (1.0 + np.tanh(0.5 * z))).astype(np.float32)
 
-    def decision_function(self, E: Any) -> np.ndarray:
-        return (self.relevancy(E) - np.float32(self.cut)).astype(np.float32)
+    def decision_from_cosines(self, c: np.ndarray) -> np.ndarray:
+        return (self._relevancy(c) - np.float32(self.cut)).astype(np.float32)
+
+    def cosine_margin(self) -> CosineMargin | None:
+        return CosineMargin(
+            len(self.positives_), temperature=float(self.temperature), offset=float(self.cut)
+        )
 
     def display_scores(self, scores: np.ndarray, threshold: float = 0.0) -> np.ndarray:
         s = np.asarray(scores, dtype=np.float32)
@@ -339,10 +389,12 @@ class NearestSampleClassifier(_CosineRule):
     def check_params(self) -> None:
         _check_k(self.k)
 
-    def decision_function(self, E: Any) -> np.ndarray:
-        c = self.cosines(E)
+    def decision_from_cosines(self, c: np.ndarray) -> np.ndarray:
         p = len(self.positives_)
         return (_top_mean(c[:, :p], self.k) - _top_mean(c[:, p:], self.k)).astype(np.float32)
+
+    def cosine_margin(self) -> CosineMargin | None:
+        return CosineMargin(len(self.positives_), k=int(self.k))
 
 
 def _check_k(k: Any) -> None:

@@ -15,6 +15,8 @@ from typing import Any
 import numpy as np
 from sklearn.svm import SVC
 
+from ..core.config import check_device
+from ..core.errors import ConfigError
 from ..core.interfaces import Classifier
 from ..core.kernels import (
     KernelExpansion,
@@ -37,7 +39,6 @@ from ._params import (
 log = logging.getLogger(__name__)
 
 BACKENDS = ("auto", "numpy", "torch")
-DEVICES = ("auto", "cpu", "cuda")
 
 
 def _check_gamma(who: str, gamma: Any) -> Any:
@@ -71,9 +72,12 @@ class _FastSvm(Classifier):
         _check_gamma(who, self.gamma)
         check_class_weight(who, self.class_weight)
         check_choice(who, "backend", self.backend, BACKENDS)
-        check_choice(who, "device", self.device, DEVICES)
-        if self.backend == "numpy" and self.device == "cuda":
-            raise ClassifierParamError(f"{who}: backend 'numpy' cannot run on device 'cuda'.")
+        try:  # the config's devices (its `device` key is passed on to the classifier)
+            device = check_device(self.device, f"{who}: parameter 'device'")
+        except ConfigError as exc:
+            raise ClassifierParamError(str(exc)) from None
+        if self.backend == "numpy" and device.startswith("cuda"):
+            raise ClassifierParamError(f"{who}: backend 'numpy' cannot run on device {device!r}.")
         check_positive(who, "working_set_mb", self.working_set_mb)
         if self.block_rows is not None:
             if isinstance(self.block_rows, bool) or not isinstance(self.block_rows, int):
@@ -83,7 +87,7 @@ class _FastSvm(Classifier):
             raise ClassifierParamError(f"{who}: 'unit_rows' must be true or false.")
 
     def _make_stack(self, part: KernelPart) -> None:
-        backend, device = resolve_backend(self.backend, self.device)
+        backend, device = resolve_backend(self.backend, check_device(self.device))
         self.backend_, self.device_ = backend, device
         self.stack_ = KernelStack(
             [part], backend, device, int(self.working_set_mb * 2**20), self.block_rows
@@ -138,7 +142,9 @@ class RbfSvmClassifier(_FastSvm):
     backend
         ``"auto"`` (torch on a visible CUDA GPU, else numpy), ``"numpy"`` or ``"torch"``.
     device
-        ``"auto"``, ``"cpu"`` or ``"cuda"`` (torch backend).
+        ``"auto"``, ``"cpu"``, ``"cuda"`` or ``"cuda:N"`` (torch back end), or ``"mps"``
+        (the CPU: there is no Apple-GPU path). For direct ``decision_function`` calls; a
+        query's pass runs where the pipeline's ``device`` says.
     working_set_mb
         Budget of one block's float32 rows plus its ``(rows, n_support)`` intermediate.
     block_rows

@@ -146,7 +146,12 @@ class QuashConfig:
     seed: int = field(default=0, metadata={"help": "Seed for random heuristics."})
     device: str = field(
         default="auto",
-        metadata={"help": "auto, cpu, cuda, cuda:N or mps; anything else is refused."},
+        metadata={
+            "help": "Where the text encoder and the classification pass run: auto (a CUDA "
+            "GPU when one is visible, else the CPU), cpu, cuda, cuda:N (the map is then "
+            "kept on that GPU), or mps (the encoder; the pass runs on the CPU). Anything "
+            "else is refused. backend: dask classifies on the workers' CPUs."
+        },
     )
     cache: bool = field(default=True, metadata={"help": "Cache text embeddings on disk."})
     chunk_mb: float = field(

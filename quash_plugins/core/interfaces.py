@@ -21,7 +21,7 @@ from sklearn.base import BaseEstimator
 from sklearn.utils import ClassifierTags
 
 from .errors import EncoderError
-from .kernels import KernelExpansion
+from .kernels import CosineExpansion, KernelExpansion
 from .types import DEFAULT_NEGATIVES, LatentMap, QuerySet
 
 
@@ -214,6 +214,24 @@ class StackableClassifier(Protocol):
     """
 
     def kernel_expansion(self) -> KernelExpansion | None: ...
+
+
+@runtime_checkable
+class CosineClassifier(Protocol):
+    """Optional protocol: a classifier whose decision is a function of cosine similarities.
+
+    ``decision(x) = reduce(c)`` with ``c[:, j] = cos(x, labels[j])``
+    (:class:`~quash_plugins.core.kernels.CosineExpansion`), as for the peers' rules
+    (``contrast``, ``label-argmax``, ``nearest-sample``, ``lerf-relevancy``,
+    ``cosine-threshold``). The engine puts every such query's label columns into the same
+    GEMM per block as the stacked SVMs, so a batch of queries reads the map once, and it
+    never normalises the map to get cosines. Return None until fitted, or when the
+    decision is not such a function (e.g. a subclass that overrides
+    ``decision_function``): the engine then calls ``decision_function`` on prepared
+    blocks.
+    """
+
+    def cosine_expansion(self) -> CosineExpansion | None: ...
 
 
 class MapAdapter(ABC):

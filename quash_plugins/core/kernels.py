@@ -15,14 +15,21 @@ matrix, so ``query_many`` reads the map once (:class:`KernelStack`).
 
 Blocks are sized by a working-set budget and, on the CPU, kept cache-sized so the
 passes after the GEMM hit cache. Float16 input is up-cast block by block.
+
+The engine's fused pass over a map (``quash_plugins.engine.classify.BlockScorer``) uses
+the same stack through :meth:`KernelStack.epilogue`, next to the cosine rules'
+:class:`CosineExpansion` columns, and the helpers here (:func:`half_to_float`,
+:func:`blas_single_thread`, :func:`cpu_threads`).
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import sys
-from collections.abc import Sequence
+import threading
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -81,6 +88,81 @@ class KernelExpansion:
     unit_rows: bool = False
 
 
+@dataclass(frozen=True)
+class CosineMargin:
+    """A cosine rule's reduction, declared so that any executor can run it (a GPU too).
+
+    With ``c`` the ``(rows, L)`` cosines of :class:`CosineExpansion` and ``p`` =
+    :attr:`positives`::
+
+        m = mean of the k largest of c[:, :p]  -  mean of the k largest of c[:, p:]
+        decision = link(m) - offset
+
+    The second term is left out when :attr:`use_negatives` is False (or there are no
+    negative columns). ``link`` is the identity, or with :attr:`temperature` ``T`` the
+    logistic ``0.5 * (1 + tanh(0.5 * T * m))`` (a two-way softmax), computed in float64.
+    ``k`` is capped by each side's number of columns.
+    """
+
+    positives: int
+    k: int = 1
+    use_negatives: bool = True
+    temperature: float | None = None
+    offset: float = 0.0
+
+    def apply(self, c: np.ndarray) -> np.ndarray:
+        """The reduction in numpy: ``(rows,)`` float32 (the reference for executors)."""
+        p = int(self.positives)
+
+        def top(m: np.ndarray) -> np.ndarray:
+            k = min(int(self.k), m.shape[1])
+            if k == 1:
+                return m.max(axis=1)
+            return np.partition(m, m.shape[1] - k, axis=1)[:, -k:].mean(axis=1)
+
+        m = top(c[:, :p])
+        if self.use_negatives and c.shape[1] > p:
+            m = m - top(c[:, p:])
+        if self.temperature is not None:
+            z = float(self.temperature) * m.astype(np.float64)
+            m = (0.5 * (1.0 + np.tanh(0.5 * z))).astype(np.float32)
+        return (m - np.float32(self.offset)).astype(np.float32)
+
+
+@dataclass(frozen=True)
+class CosineExpansion:
+    """A fitted classifier whose decision is a function of cosines with fixed vectors.
+
+    ``c[:, j] = x . labels[j] / |x|`` (``0`` for a zero row) for each map row ``x``;
+    ``decision = reduce(c)``. Returned by :meth:`CosineClassifier.cosine_expansion
+    <quash_plugins.core.interfaces.CosineClassifier>`: the engine puts the label columns
+    of every such query next to the stacked SVMs' columns, so one GEMM per block of the
+    map serves them all, and never normalises the map (it scales the GEMM's result by
+    ``1 / |x|``).
+
+    Attributes
+    ----------
+    labels
+        ``(L, D)`` float32 vectors (unit text embeddings, or with their norms kept when
+        the rule says so).
+    reduce
+        ``(rows, L)`` float32 cosines to ``(rows,)`` decision values, in numpy. It must
+        give what the classifier's ``decision_function`` gives on those rows.
+    margin
+        The same reduction as a :class:`CosineMargin`, when it is one: executors that do
+        not run Python on their data (the GPU pass) use it. ``None``: they copy the
+        cosines to the host and call :attr:`reduce`.
+    """
+
+    labels: np.ndarray
+    reduce: Callable[[np.ndarray], np.ndarray]
+    margin: CosineMargin | None = None
+
+    @property
+    def width(self) -> int:
+        return int(len(self.labels))
+
+
 def stack_expansions(
     expansions: Sequence[KernelExpansion | None], working_set_bytes: int = 256 * 2**20
 ) -> tuple[KernelStack | None, list[int]]:
@@ -107,14 +189,18 @@ def resolve_backend(backend: str, device: str) -> tuple[str, str]:
 
     torch is imported only when it is asked for, or when ``auto`` sees an NVIDIA device
     node (``/dev/nvidiactl``) so that CPU-only runs never pay torch's import time.
+    ``cuda:N`` picks one GPU; ``mps`` means the CPU here (there is no Apple-GPU path).
     """
+    if device == "mps":
+        device = "cpu"
+    cuda_asked = device.split(":")[0] == "cuda"
     if backend == "numpy":
         if device not in ("auto", "cpu"):
             raise QuashError(f"Backend 'numpy' runs on the CPU only; got device {device!r}.")
         return "numpy", "cpu"
     want_torch = (
         backend == "torch"
-        or device == "cuda"
+        or cuda_asked
         or (backend == "auto" and ("torch" in sys.modules or os.path.exists("/dev/nvidiactl")))
     )
     if not want_torch:
@@ -128,11 +214,11 @@ def resolve_backend(backend: str, device: str) -> tuple[str, str]:
             'Classifier backend "torch" needs PyTorch: pip install "quash-plugins[clip]".'
         ) from exc
     cuda = torch.cuda.is_available()
-    if device == "cuda" and not cuda:
-        raise QuashError("Classifier device 'cuda' was asked for but no CUDA GPU is visible.")
+    if cuda_asked and not cuda:
+        raise QuashError(f"Classifier device {device!r} was asked for but no CUDA GPU is visible.")
     if backend == "auto" and device == "auto" and not cuda:
         return "numpy", "cpu"
-    return "torch", ("cuda" if (device == "cuda" or (device == "auto" and cuda)) else "cpu")
+    return "torch", (device if cuda_asked else "cuda" if (device == "auto" and cuda) else "cpu")
 
 
 class KernelStack:
@@ -218,6 +304,16 @@ class KernelStack:
         state = dict(self.__dict__)
         state["_torch"] = None  # device tensors and the module are rebuilt on first use
         return state
+
+    @property
+    def columns(self) -> np.ndarray:
+        """``(D, width)`` float32 right-hand side of the stacked GEMM ``x @ columns``."""
+        return self._np["Vt"]
+
+    def epilogue(self, normalize: bool, unit: bool = False) -> StackEpilogue:
+        """The steps after the GEMM for rows that are (``normalize``) or are not
+        normalised when read, or known to be unit (``unit``); see :class:`StackEpilogue`."""
+        return StackEpilogue(self, normalize, unit)
 
     # ------------------------------------------------------------------ numpy
     def _numpy_block(self, x: np.ndarray, sq: np.ndarray | None, G: np.ndarray) -> np.ndarray:
@@ -308,7 +404,7 @@ class KernelStack:
         if self.backend == "torch":
             return self._evaluate_torch(E, sq, unit, out)
         rows = self.block_rows
-        workers = min(_cpu_threads(), -(-n // rows)) if isinstance(E, np.ndarray) else 1
+        workers = min(cpu_threads(), -(-n // rows)) if isinstance(E, np.ndarray) else 1
         # the working-set budget holds for all workers together
         rows = max(1, min(rows, self.budget_rows // max(1, workers)))
         starts = list(range(0, n, rows))
@@ -319,7 +415,7 @@ class KernelStack:
         # which on a busy machine costs more than the GEMM itself (numpy releases the GIL).
         from concurrent.futures import ThreadPoolExecutor
 
-        with _blas_single_thread(), ThreadPoolExecutor(workers) as pool:
+        with blas_single_thread(), ThreadPoolExecutor(workers) as pool:
             jobs = [
                 pool.submit(self._numpy_range, E, sq, unit, out, starts[k::workers], rows)
                 for k in range(workers)
@@ -348,7 +444,7 @@ class KernelStack:
             elif sq is not None:
                 s = np.asarray(sq[start:stop], dtype=np.float32)
             else:
-                s = _sq_norms(x)
+                s = sq_norms(x)
             out[start:stop] = self._numpy_block(x, s, G[: stop - start])
 
     def _evaluate_torch(self, E: Any, sq: Any, unit: bool, out: np.ndarray) -> np.ndarray:
@@ -373,7 +469,111 @@ class KernelStack:
         return out
 
 
-def _cpu_threads() -> int:
+#: ``exp(-g|s|^2)`` is folded into the dual coefficients while ``g|s|^2`` stays below this.
+FOLD_LIMIT = 60.0
+
+
+class StackEpilogue:
+    """What follows the GEMM ``G = x @ stack.columns`` on one block of raw map rows.
+
+    The rows are never normalised: ``x/|x| . v = (x . v) / |x|``, so a map read with
+    ``normalize`` has ``G`` scaled by ``1/|x|`` (``W`` columns, not ``D``), and ``|x|^2``
+    is then 1, which moves ``-g`` into the bias. Otherwise one pass subtracts
+    ``g |x|^2`` from the RBF columns. The RBF constant ``exp(-g|s|^2)`` is folded into
+    the dual coefficients (``exp(a + bias) = exp(a) exp(bias)``) when ``-bias`` is at most
+    :data:`FOLD_LIMIT`: the exponent left, ``g (|s|^2 - |x - s|^2)``, is then at most
+    ``-bias`` as well, so nothing overflows. What remains is one scaling pass, one ``exp``
+    and one small GEMM with the coefficients.
+
+    Parameters
+    ----------
+    stack
+        The fitted stack.
+    normalize
+        The map's rows are L2-normalised when read.
+    unit
+        The rows are known to be unit (``unit_rows``): ``|x|^2`` taken as 1.
+    """
+
+    def __init__(self, stack: KernelStack, normalize: bool, unit: bool = False) -> None:
+        self.stack = stack
+        self.normalize = bool(normalize)
+        self.unit = bool(unit)
+        t = stack._np
+        A = t["A"].astype(np.float64)
+        bias = t["bias"].astype(np.float64)
+        grbf = t["grbf"].astype(np.float64)
+        self.rbf_segments: list[tuple[int, int, float]] = []
+        col = 0  # rbf parts come first in the stack, in their own order
+        for p in stack.parts:
+            if p.kind == "rbf":
+                self.rbf_segments.append((col, col + p.width, float(p.gamma)))
+                col += p.width
+        self.n_rbf = n_rbf = col
+        self.cos_start = stack._cos_start if stack.has_cos else stack.width
+        self.scale_all = self.normalize  # G *= 1/|x| over every column
+        self.sq_pass = not (self.normalize or self.unit)  # G_rbf -= g |x|^2
+        self.cos_scale = stack.has_cos and not (self.normalize or self.unit)
+        rbf_bias = bias[:n_rbf] - (0.0 if self.sq_pass else grbf[:n_rbf])
+        self.fold = bool(n_rbf) and bool(np.all(-rbf_bias <= FOLD_LIMIT))
+        if self.fold:
+            A[:n_rbf] *= np.exp(rbf_bias)[:, None]
+            self.bias_rbf = None
+        else:
+            self.bias_rbf = rbf_bias.astype(np.float32)
+        self.A = A.astype(np.float32)
+        self.b = t["b"]
+        # an all-zero row keeps the scores the stack gives it (unobserved rows are masked)
+        self.zero_scores = stack._numpy_block(
+            np.zeros((1, stack.dim), np.float32),
+            None if self.unit else np.zeros(1, np.float32),
+            np.empty((1, stack.width), np.float32),
+        )[0]
+
+    @property
+    def needs_inv(self) -> bool:
+        """Whether :meth:`apply` reads ``1/|x|``."""
+        return self.scale_all or self.cos_scale
+
+    def apply(
+        self, G: np.ndarray, sq: np.ndarray, inv: np.ndarray | None, obs: np.ndarray
+    ) -> np.ndarray:
+        """Decision values ``(rows, Q)`` float32 from ``G`` ``(rows, width)`` (overwritten).
+
+        ``sq`` are the rows' squared norms, ``inv`` ``1/|x|`` (0 for zero rows; needed
+        when :attr:`needs_inv`), ``obs`` ``sq > 0``.
+        """
+        st = self.stack
+        if self.scale_all:
+            G *= inv[:, None]
+        if self.sq_pass:
+            if len(self.rbf_segments) == 1:
+                G[:, : self.n_rbf] -= (np.float32(self.rbf_segments[0][2]) * sq)[:, None]
+            else:
+                for a, b, g in self.rbf_segments:
+                    G[:, a:b] -= (np.float32(g) * sq)[:, None]
+        if self.bias_rbf is not None:
+            G[:, : self.n_rbf] += self.bias_rbf
+        if self.cos_scale:
+            G[:, self.cos_start :] *= inv[:, None]
+        for a, b, g, p in st.cos_segments:
+            seg = G[:, a:b]
+            np.subtract(1.0, seg, out=seg)
+            np.maximum(seg, 0.0, out=seg)
+            if p == 2:
+                np.square(seg, out=seg)
+            seg *= -g
+        if st.n_exp:
+            E = G[:, : st.n_exp]
+            np.exp(E, out=E)
+        R = G @ self.A
+        R += self.b
+        if self.normalize and not obs.all():
+            R[~obs] = self.zero_scores
+        return R
+
+
+def cpu_threads() -> int:
     """CPU cores this process may use (``QUASH_CLASSIFY_THREADS`` overrides)."""
     env = os.environ.get("QUASH_CLASSIFY_THREADS")
     if env and env.isdigit() and int(env) > 0:
@@ -385,26 +585,79 @@ def _cpu_threads() -> int:
 
 
 _CONTROLLER: Any = None
+_BLAS_LOCK = threading.Lock()
+_BLAS_USERS = 0
+_BLAS_LIMIT: Any = None
 
 
-def _blas_single_thread() -> Any:
-    """Context manager limiting BLAS to one thread (no-op when threadpoolctl is missing)."""
+def _blas_limit() -> Any:
+    """threadpoolctl's limit of BLAS to one thread (a no-op without threadpoolctl)."""
     global _CONTROLLER
     try:
         from threadpoolctl import ThreadpoolController
     except ImportError:  # pragma: no cover - shipped with scikit-learn
-        import contextlib
-
         return contextlib.nullcontext()
     if _CONTROLLER is None:
         _CONTROLLER = ThreadpoolController()
     return _CONTROLLER.limit(limits=1, user_api="blas")
 
 
-def _sq_norms(x: np.ndarray) -> np.ndarray:
+@contextlib.contextmanager
+def blas_single_thread() -> Iterator[None]:
+    """BLAS limited to one thread while at least one caller is inside, in this process.
+
+    Reference-counted: threadpoolctl's limit is process-wide, so concurrent passes (Dask
+    tasks on a threaded worker, several queries at once) must not each save and restore
+    it, or the last to leave could restore a limit another one had set, for good.
+    """
+    global _BLAS_USERS, _BLAS_LIMIT
+    with _BLAS_LOCK:
+        if _BLAS_USERS == 0:
+            _BLAS_LIMIT = _blas_limit()
+            _BLAS_LIMIT.__enter__()
+        _BLAS_USERS += 1
+    try:
+        yield
+    finally:
+        with _BLAS_LOCK:
+            _BLAS_USERS -= 1
+            if _BLAS_USERS == 0:
+                _BLAS_LIMIT.__exit__(None, None, None)
+                _BLAS_LIMIT = None
+
+
+def sq_norms(x: np.ndarray) -> np.ndarray:
     """Squared row norms ``(r,)``; ``np.vecdot`` (numpy >= 2) is about twice einsum's speed."""
     vecdot = getattr(np, "vecdot", None)
     return vecdot(x, x) if vecdot is not None else np.einsum("ij,ij->i", x, x)
+
+
+#: Rows converted per step of :func:`half_to_float` (its passes then stay in L1/L2).
+HALF_STEP_ROWS = 512
+_TWO_112 = np.float32(2.0**112)
+_CLEAR_28_30 = np.int32(-1879048193)  # 0x8FFFFFFF
+#: :func:`half_to_float` turns a float16 NaN or Inf into a finite value of magnitude
+#: ``>= 2**16``; finite float16 values are at most 65504, so a row holding a NaN or Inf
+#: has ``|x|^2 >= 2**32`` after the cast (a finite row may too: then check exactly).
+HALF_SQ_LIMIT = np.float32(2.0**32)
+
+
+def half_to_float(src: np.ndarray, out: np.ndarray, step: int = HALF_STEP_ROWS) -> np.ndarray:
+    """float16 ``src`` ``(r, D)`` (C-contiguous) into float32 ``out``, exact for every
+    finite value, subnormals included; about twice as fast as numpy's own cast.
+
+    The bits are moved into place with integer operations and the exponent rebiased by
+    one multiplication by ``2**112``. NaN and Inf come out as finite values of magnitude
+    ``>= 2**16`` (see :data:`HALF_SQ_LIMIT`).
+    """
+    h = src.view(np.int16)
+    u = out.view(np.int32)
+    for a in range(0, len(src), step):
+        hh, uu, oo = h[a : a + step], u[a : a + step], out[a : a + step]
+        np.left_shift(hh, np.int32(13), out=uu, dtype=np.int32, casting="unsafe")
+        np.bitwise_and(uu, _CLEAR_28_30, out=uu)
+        np.multiply(oo, _TWO_112, out=oo)
+    return out
 
 
 def _inv_norm(sq: np.ndarray | None, n: int) -> np.ndarray:

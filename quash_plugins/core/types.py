@@ -208,13 +208,19 @@ class LatentMap:
     def iter_chunks(self, rows: int) -> Iterator[tuple[int, int, np.ndarray]]:
         """Yield ``(start, stop, block)`` with ``block`` an ``(rows, D)`` float32 array.
 
-        Rows are L2-normalised when :attr:`normalize` is set (zero rows stay zero).
-        NaN or Inf raises :class:`MapFormatError` naming the first bad row.
+        Rows are L2-normalised when :attr:`normalize` is set (zero rows stay zero), into
+        a new array whenever the rows read share memory with the map (a float32 array or
+        memory map is sliced as a view): the map itself is never written. NaN or Inf
+        raises :class:`MapFormatError` naming the first bad row. (The pipeline's own pass,
+        ``quash_plugins.engine.classify``, reads the rows as stored and never normalises
+        them at all.)
         """
         for start in range(0, self.n, rows):
             stop = min(self.n, start + rows)
-            block = np.asarray(self.embeddings[start:stop], dtype=np.float32)
-            yield start, stop, prepare_block(block, start, self.normalize, self.source)
+            raw = self.embeddings[start:stop]
+            block = np.asarray(raw, dtype=np.float32)
+            owned = block is not raw and not np.may_share_memory(block, raw)
+            yield start, stop, prepare_block(block, start, self.normalize, self.source, owned)
 
     def label_index(self, name: str) -> int | None:
         """Index of a ground-truth label by name (case-insensitive), or None."""
@@ -232,9 +238,19 @@ class LatentMap:
 
 
 def prepare_block(
-    block: np.ndarray, start: int, normalize: bool, source: dict[str, Any] | None = None
+    block: np.ndarray,
+    start: int,
+    normalize: bool,
+    source: dict[str, Any] | None = None,
+    owned: bool = False,
 ) -> np.ndarray:
-    """Check a float32 block for NaN/Inf and L2-normalise its rows when asked."""
+    """Check a float32 block for NaN/Inf and L2-normalise its rows when asked.
+
+    ``block`` is normalised in place only when the caller says it ``owned`` it (a copy
+    it made) and it is writable; otherwise the normalised rows are a new array, so a
+    block that is a view of a map (a read-only memory map, a user's array) is never
+    written.
+    """
     if not np.isfinite(block).all():
         bad = int(np.argwhere(~np.isfinite(block))[0][0]) + start
         where = _describe_source(source or {})
@@ -244,7 +260,10 @@ def prepare_block(
         )
     if normalize:
         norms = np.linalg.norm(block, axis=1, keepdims=True)
-        np.divide(block, norms, out=block, where=norms > 0)
+        inplace = owned and block.flags.writeable
+        out = block if inplace else np.zeros(block.shape, dtype=np.float32)
+        np.divide(block, norms, out=out, where=norms > 0)
+        return out
     return block
 
 

@@ -1,9 +1,11 @@
 """The engine: one pipeline from a query to a labelled map.
 
 :class:`Quash` expands a query with a heuristic, encodes it, fits a classifier and runs
-one chunked pass over the map (:func:`classify_local`, or :func:`classify_dask` on a
-Dask cluster; both stack kernel classifiers into one GEMM per block). Refinement,
-instance grouping, the text-embedding cache and the result writers live here too.
+one fused pass over the map (:func:`classify_local`, or :func:`classify_dask` on a Dask
+cluster; both run :class:`BlockScorer`: one GEMM per block for every query, the map
+never written), or, with ``device: cuda`` (or ``auto`` on a GPU machine), the GPU pass of
+:mod:`quash_plugins.engine.device` on a map kept on the device. Refinement, instance
+grouping, the text-embedding cache and the result writers live here too.
 
 Rule: the engine imports :mod:`quash_plugins.core` only; plugins are reached through the
 registry, never imported. Dask and zarr are imported when a function needs them.

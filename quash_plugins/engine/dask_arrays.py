@@ -116,7 +116,7 @@ def _prepare(block: np.ndarray, normalize: bool, source: dict, block_info: Any =
     start = 0
     if block_info and 0 in block_info:
         start = int(block_info[0]["array-location"][0][0])
-    return prepare_block(np.array(block, dtype=np.float32), start, normalize, source)
+    return prepare_block(np.array(block, dtype=np.float32), start, normalize, source, owned=True)
 
 
 def prepared_blocks(lmap: LatentMap, chunk_rows: int) -> Any:

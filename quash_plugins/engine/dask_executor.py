@@ -10,7 +10,7 @@ import numpy as np
 
 from ..core.errors import QuashError
 from ..core.maps import map_read_error
-from ..core.types import LatentMap, prepare_block
+from ..core.types import LatentMap
 from .classify import BlockScorer, extra_bytes_per_row
 from .dask_arrays import as_dask
 from .dask_client import current_client, require_dask
@@ -31,13 +31,14 @@ def score_block(
 ) -> np.ndarray:
     """Scores of one row chunk: ``(rows, Q + 1)`` float32, the last column ``observed``.
 
-    The block is cast to float32, checked for NaN/Inf and L2-normalised when the map asks
-    for it, exactly as :meth:`LatentMap.iter_chunks` does for the in-memory path, then
-    scored by the same :class:`BlockScorer`.
+    The same fused pass as the in-memory path (:meth:`BlockScorer.run`) on the same
+    blocks: the chunk is read as stored (float16 is converted block by block), checked
+    for NaN/Inf from its norms, every stacked query and cosine rule shares one GEMM per
+    block, and the rows are never normalised in place. One thread per task (Dask runs
+    the tasks in parallel), with a single-threaded BLAS.
     """
     start = int(block_info[0]["array-location"][0][0]) if block_info else 0
-    x = prepare_block(np.array(block, dtype=np.float32), start, normalize, source)
-    return scorer.score(x)
+    return scorer.score(block, start, normalize, source, threads=1)
 
 
 def ship(scorer: BlockScorer) -> Any:

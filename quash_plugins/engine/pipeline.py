@@ -28,7 +28,13 @@ import numpy as np
 from sklearn.base import clone
 
 from ..core import registry
-from ..core.config import DEFAULT_CLASSIFIER, DEFAULT_HEURISTIC, PluginSpec, QuashConfig
+from ..core.config import (
+    DEFAULT_CLASSIFIER,
+    DEFAULT_HEURISTIC,
+    PluginSpec,
+    QuashConfig,
+    check_device,
+)
 from ..core.errors import ConfigError, DimensionMismatchError, EmptyMapWarning, QuashError
 from ..core.interfaces import Encoder, ExpansionContext, Heuristic
 from ..core.text import TextCache, encode_texts, load_templates
@@ -88,6 +94,11 @@ class Quash:
         ``"numpy"`` (in-process chunks) or ``"dask"``.
     client
         A ``dask.distributed.Client`` for the dask backend.
+    device
+        Where the in-process classification pass runs: ``"cuda"`` (or ``"cuda:N"``) on
+        the GPU, with the map uploaded once and kept there; ``"auto"`` on a CUDA GPU
+        when one is visible, else the CPU; ``"cpu"`` (or ``"mps"``, which only the text
+        encoder uses) on the CPU. Anything else is refused.
     """
 
     def __init__(
@@ -170,7 +181,7 @@ class Quash:
         self.name = name
         self.backend = backend
         self.client = client
-        self.device = device
+        self.device = check_device(device, "Quash: 'device'")
         self._maps: dict[Any, LatentMap] = {}
         self._querysets: dict[tuple[str, int], tuple[Any, QuerySet]] = {}
 
@@ -484,6 +495,14 @@ class Quash:
             return classify_dask(lmap, classifiers, chunk_bytes=chunk_bytes, client=self.client)
         if self.backend not in ("numpy", "local", None):
             raise ConfigError(f"Unknown backend {self.backend!r}. Known: numpy, dask.")
+        from .device import pass_device
+
+        device = pass_device(self.device)
+        if device is not None:  # the map is uploaded once and kept while it lives
+            from .device import classify_on_device, device_map
+
+            dmap = device_map(lmap, device, chunk_bytes=min(chunk_bytes, 64 * 2**20))
+            return classify_on_device(dmap, classifiers, progress)
         return classify_local(lmap, classifiers, chunk_bytes, progress)
 
 

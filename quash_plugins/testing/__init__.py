@@ -15,6 +15,10 @@ rule cannot pass by design is declared, with its reason, by a method
 ``expected_failed_checks(self) -> {check_name: reason}``; a declared check that passes
 fails the kit, so the list stays true.
 
+A classifier implementing ``StackableClassifier`` or ``CosineClassifier`` is scored by
+the engine from its expansion, so :func:`check_classifier_expansions` checks that the
+expansion gives what ``decision_function`` gives.
+
 Plugins that need parameters to be built (a file, a URL...) provide a classmethod
 ``conformance_params(tmp_path) -> dict`` returning working parameters; plugins that
 cannot run offline may set ``conformance_skip = "reason"``.
@@ -27,6 +31,7 @@ from ._checks import (
     PluginCheck,
     check_adapter,
     check_classifier,
+    check_classifier_expansions,
     check_encoder,
     check_heuristic,
     check_plugin,
@@ -39,6 +44,7 @@ __all__ = [
     "PluginCheck",
     "check_adapter",
     "check_classifier",
+    "check_classifier_expansions",
     "check_encoder",
     "check_heuristic",
     "check_plugin",

@@ -276,6 +276,53 @@ def check_classifier_chunk_invariant(clf: Any, tmp_path: Path) -> None:
     )
 
 
+def check_classifier_expansions(clf: Any, tmp_path: Path) -> None:
+    """A classifier that implements ``StackableClassifier`` or ``CosineClassifier`` is
+    scored by the engine from its expansion, not by ``decision_function``: the two must
+    agree (and a declared ``CosineMargin`` must be the same reduction)."""
+    from sklearn.base import clone
+
+    from ..core.kernels import KernelStack
+
+    X, y, E = _toy(np.random.default_rng(2))
+    E = E * np.random.default_rng(3).uniform(0.5, 2.0, (len(E), 1)).astype(np.float32)
+    E[:3] = 0.0  # zero rows: cosine 0 (the pipeline masks them anyway)
+    fitted = clone(clf).fit(X, y)
+    own = np.asarray(fitted.decision_function(E), dtype=np.float64)
+    observed = np.linalg.norm(E, axis=1) > 0
+    kernel = getattr(fitted, "kernel_expansion", None)
+    exp = kernel() if callable(kernel) else None
+    if exp is not None:
+        got = KernelStack([exp.part]).evaluate(E, unit=exp.unit_rows)[:, 0]
+        np.testing.assert_allclose(
+            got[observed],
+            own[observed],
+            atol=1e-4,
+            err_msg="kernel_expansion() must give what decision_function gives",
+        )
+    cosine = getattr(fitted, "cosine_expansion", None)
+    cexp = cosine() if callable(cosine) else None
+    if cexp is None:
+        return
+    n = np.linalg.norm(E, axis=1, keepdims=True)
+    U = np.divide(E, n, out=np.zeros_like(E), where=n > 0)
+    c = (U @ np.asarray(cexp.labels, np.float32).T).astype(np.float32)
+    got = np.asarray(cexp.reduce(c), dtype=np.float64)
+    np.testing.assert_allclose(
+        got[observed],
+        own[observed],
+        atol=1e-4,
+        err_msg="cosine_expansion().reduce of the cosines must give what decision_function gives",
+    )
+    if cexp.margin is not None:
+        np.testing.assert_allclose(
+            cexp.margin.apply(c),
+            got,
+            atol=1e-5,
+            err_msg="cosine_expansion().margin must be the same reduction as reduce",
+        )
+
+
 # ---------------------------------------------------------------- adapters
 def _digest(source: Any) -> str | None:
     if not isinstance(source, (str, Path)):
@@ -346,6 +393,7 @@ _CHECKS: dict[str, list[Callable[[Any, Path], None]]] = {
         check_classifier_params,
         check_classifier_fit_predict,
         check_classifier_chunk_invariant,
+        check_classifier_expansions,
         check_classifier_sklearn_estimator,
     ],
     "adapters": [check_adapter_roundtrip, check_adapter_sniff_rejects, check_adapter_bad_input],

@@ -136,7 +136,8 @@ def _read_rows(lmap: LatentMap, idx: np.ndarray) -> np.ndarray:
         block = np.asarray(emb[int(idx[0]) : int(idx[-1]) + 1], dtype=np.float32)
     else:
         block = np.asarray(emb[idx], dtype=np.float32)
-    return prepare_block(np.array(block, dtype=np.float32), 0, lmap.normalize, lmap.source)
+    x = np.array(block, dtype=np.float32)  # a copy: normalised in place
+    return prepare_block(x, 0, lmap.normalize, lmap.source, owned=True)
 
 
 def pca_colors(

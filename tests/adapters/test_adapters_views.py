@@ -1,6 +1,7 @@
-"""Float32 maps handed out as views: the pipeline normalises each block in place, so an
-adapter must never let that write reach a file's memory map (read-only: it would fail)
-or a caller's own array (a live VLMap's ``grid_feat``)."""
+"""Float32 maps handed out as views (a file's read-only memory map, a caller's own array
+such as a live VLMap's ``grid_feat``): queries on maps that ask for normalisation read
+them and never write into them (tests/adapters/test_read_only_maps.py checks every
+adapter's files)."""
 
 from __future__ import annotations
 

@@ -399,7 +399,7 @@ def test_live_vlmap_mobile_and_camera(tmp_path):
     )
     assert detect_adapter(live) == "vlmaps-live"
     lmap = read_map(live, positions="upstream")
-    assert lmap.embeddings.base is arrays["grid_feat"]  # not copied whole
+    assert lmap.embeddings is arrays["grid_feat"]  # not copied
     before = arrays["grid_feat"].copy()
     assert np.isfinite(read_all(lmap)).all()
     np.testing.assert_array_equal(arrays["grid_feat"], before)  # read, never normalised in place

@@ -122,17 +122,22 @@ def test_pipeline_query_many_uses_the_stack(tiny_world, monkeypatch):
     from quash_plugins.encoders import TableEncoder
 
     calls = []
-    original = _kernels.KernelStack.evaluate
+    original = _kernels.StackEpilogue.apply
     monkeypatch.setattr(
-        _kernels.KernelStack,
-        "evaluate",
-        lambda self, E, **kw: calls.append(len(self.parts)) or original(self, E, **kw),
+        _kernels.StackEpilogue,
+        "apply",
+        lambda self, G, *a: (
+            calls.append((len(self.stack.parts), G.shape[1])) or original(self, G, *a)
+        ),
     )
     quash = Quash(
         TableEncoder(file=str(tiny_world["table"])), classifier=RbfSvmClassifier(), instances=None
     )
     results = quash.query_many(tiny_world["map"], ["chair", "sofa", "table"])
-    assert calls and set(calls) == {3}  # one stacked evaluation per chunk, three queries
+    # one stacked GEMM per block for the three queries: every epilogue sees all three
+    # queries' support vectors side by side
+    n_sv = sum(len(quash.fit(r.queryset).support_vectors_) for r in results)
+    assert calls and set(calls) == {(3, n_sv)}
     for r in results:
         alone = quash.fit(r.queryset).svc_.decision_function(tiny_world["E"].astype(np.float64))
         np.testing.assert_allclose(r.scores, alone, atol=1e-4)
@@ -260,3 +265,24 @@ def test_cuda_without_a_gpu_is_a_clear_error_and_auto_falls_back_to_numpy():
     with pytest.raises(QuashError, match="CUDA"):
         RbfSvmClassifier(backend="torch", device="cuda").fit(X, y)
     assert RbfSvmClassifier(backend="auto").fit(X, y).backend_ == "numpy"
+
+
+@pytest.mark.parametrize("device", ["mps", "cuda:1", "CUDA:0"])
+def test_every_config_device_builds_the_svms(device):
+    """The config passes its `device` to the SVMs: every device the config accepts must
+    build them (mps and cuda:N were refused by the SVMs' own, shorter list)."""
+    from quash_plugins import Quash
+
+    table = {"chair": [1, 0], "other": [0, 1], "background": [1, 1], "nothing": [1, -1]}
+    for name in ("svm-rbf", "svm-cosine"):
+        q = Quash.from_config(
+            {
+                "classifier": name,
+                "device": device,
+                "cache": False,
+                "encoder": {"name": "table", "table": table},
+            }  # fmt: skip
+        )
+        assert q.classifier.device == device.lower() and q.device == device.lower()
+    X, y = np.eye(4, dtype=np.float32), np.array([1, 0, 0, 0])
+    assert RbfSvmClassifier(device="mps").fit(X, y).device_ == "cpu"  # no Apple-GPU path

@@ -1,0 +1,78 @@
+"""Where the classification pass runs (``device:``), and the maps kept on a device."""
+
+from __future__ import annotations
+
+import os
+import weakref
+from typing import Any
+
+from ...core.config import check_device
+from ...core.errors import QuashError
+
+
+def pass_device(device: str | None) -> str | None:
+    """The torch device of the classification pass, or None for the CPU block pass.
+
+    ``cuda`` (or ``cuda:N``) asks for a GPU: an error naming the fix when torch or a CUDA
+    GPU is missing. ``auto`` takes the GPU when an NVIDIA device node exists and torch
+    sees a GPU; torch is not imported otherwise. ``cpu`` and ``mps`` (which only the text
+    encoder uses: the pass has no Apple-GPU executor) keep the CPU pass. Any other value
+    is refused (:func:`~quash_plugins.core.config.check_device`).
+
+    Examples
+    --------
+    >>> pass_device("cpu") is None
+    True
+    """
+    text = check_device(device, "device")
+    kind, _, index = text.partition(":")
+    if kind in ("cpu", "mps"):
+        return None
+    if kind == "auto" and not os.path.exists("/dev/nvidiactl"):
+        return None
+    try:
+        import torch
+    except ImportError:
+        if kind == "auto":
+            return None
+        raise QuashError(
+            f'device {text!r} needs PyTorch with CUDA: pip install "quash-plugins[clip]", '
+            "or use device: cpu."
+        ) from None
+    if not torch.cuda.is_available():
+        if kind == "auto":
+            return None
+        raise QuashError(
+            f"device {text!r} was asked for but torch sees no CUDA GPU; use device: cpu "
+            "(or auto, which takes a GPU only when there is one)."
+        )
+    if index and int(index) >= torch.cuda.device_count():
+        raise QuashError(
+            f"device {text!r}: torch sees {torch.cuda.device_count()} CUDA GPU(s), numbered from 0."
+        )
+    return text if kind == "cuda" else "cuda"
+
+
+_MAPS: dict[tuple[int, str], tuple[Any, Any]] = {}
+
+
+def device_map(lmap: Any, device: str, chunk_bytes: int = 64 * 2**20) -> Any:
+    """The map's :class:`~quash_plugins.engine.device.DeviceMap` on ``device``: uploaded
+    on first use (as stored: float16 stays float16) and kept while the map object lives,
+    so later queries, ``query_many`` included, run on the device copy."""
+    key = (id(lmap), str(device))
+    hit = _MAPS.get(key)
+    if hit is not None and hit[0]() is lmap:
+        return hit[1]
+    for k in [k for k, (ref, _) in _MAPS.items() if ref() is None]:
+        del _MAPS[k]  # maps that are gone free their device memory
+    from ._device_map import DeviceMap
+
+    dmap = DeviceMap(lmap, device, chunk_bytes=chunk_bytes)
+    _MAPS[key] = (weakref.ref(lmap), dmap)
+    return dmap
+
+
+def release_device_maps() -> None:
+    """Forget every kept device map (their memory is freed once nothing else holds them)."""
+    _MAPS.clear()
