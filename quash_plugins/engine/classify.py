@@ -8,7 +8,7 @@ handled start to finish by one worker thread:
 
 1. **Read as stored, never written.** float32 rows are used in place (a map may be a
    read-only memory map, or the caller's own array); float16 rows are converted into a
-   reused float32 buffer (:func:`~quash_plugins.core.kernels.half_to_float`, exact and
+   reused float32 buffer (:func:`~quash_plugins.core.cpu.half_to_float`, exact and
    about twice numpy's cast; torch's cast, twice faster again, when torch is already
    imported, unless ``QUASH_HALF_CAST=numpy``); other dtypes are cast into the same
    buffer.
@@ -29,7 +29,7 @@ handled start to finish by one worker thread:
 Any other classifier (a wrapped scikit-learn estimator, a plugin) gets the block as
 float32, normalised into a buffer of its own when the map asks for it, one call at a
 time. Worker threads take blocks dynamically, each with a single-threaded BLAS
-(:func:`~quash_plugins.core.kernels.blas_single_thread`).
+(:func:`~quash_plugins.core.cpu.blas_single_thread`).
 """
 
 from __future__ import annotations
@@ -45,18 +45,9 @@ from typing import Any
 
 import numpy as np
 
+from ..core.cpu import HALF_SQ_LIMIT, blas_single_thread, cpu_threads, half_to_float, sq_norms
 from ..core.errors import MapFormatError, QuashError
-from ..core.kernels import (
-    HALF_SQ_LIMIT,
-    CosineExpansion,
-    KernelExpansion,
-    KernelStack,
-    StackEpilogue,
-    blas_single_thread,
-    cpu_threads,
-    half_to_float,
-    sq_norms,
-)
+from ..core.kernels import CosineExpansion, KernelExpansion, KernelStack, StackEpilogue
 from ..core.maps import map_read_error
 from ..core.types import LatentMap
 

@@ -12,10 +12,11 @@ import pytest
 from sklearn.metrics.pairwise import cosine_similarity
 
 from quash_plugins import registry
-from quash_plugins.core import kernels
+from quash_plugins.core import cpu
+from quash_plugins.core.cpu import half_to_float
 from quash_plugins.core.errors import MapFormatError
 from quash_plugins.core.interfaces import Classifier, CosineClassifier
-from quash_plugins.core.kernels import CosineExpansion, CosineMargin, half_to_float
+from quash_plugins.core.kernels import CosineExpansion, CosineMargin
 from quash_plugins.core.types import LatentMap
 from quash_plugins.engine import BlockScorer, classify_local
 from quash_plugins.engine.classify import half_cast
@@ -318,11 +319,11 @@ def test_blas_limit_is_reference_counted(monkeypatch):
         def __exit__(self, *exc):
             exited.append(1)
 
-    monkeypatch.setattr(kernels, "_blas_limit", Limit)
+    monkeypatch.setattr(cpu, "_blas_limit", Limit)
     barrier = threading.Barrier(3)
 
     def user():
-        with kernels.blas_single_thread():
+        with cpu.blas_single_thread():
             barrier.wait()  # all three inside at once
 
     threads = [threading.Thread(target=user) for _ in range(3)]
