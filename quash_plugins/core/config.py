@@ -135,6 +135,16 @@ class QuashConfig:
             "{} takes these defaults). null turns it off."
         },
     )
+    presence: dict[str, Any] | None = field(
+        default=None,
+        metadata={
+            "help": "Presence check after the last pass: keep the matched components whose "
+            "grown region the query set classifies as the query; none kept means the object "
+            "is absent (empty mask) ({dilate: 1, min_component: 8, margin: 0.005, "
+            "size_margin: 0.0, flat_margin: -0.02, k: 2, mode: filter, grow: -0.25}; {} "
+            "takes these defaults). Needs a voxel grid, positions or frames. null turns it off."
+        },
+    )
     adapter: PluginSpec = field(
         default_factory=lambda: PluginSpec("auto"),
         metadata={"help": "Map adapter and its options; 'auto' sniffs the file."},
@@ -234,7 +244,7 @@ def _convert(cls, key: str, value: Any, where: _Where, path) -> Any:
         if isinstance(value, str) or not isinstance(value, list):
             raise ConfigError(f"{where.at((key,))}'negatives' must be a list of strings.")
         return [str(v) for v in value]
-    if key in ("prompt_templates", "map_negatives", "instances", "refine"):
+    if key in ("prompt_templates", "map_negatives", "instances", "refine", "presence"):
         if value is None or value is False:
             return None
         if value is True:
