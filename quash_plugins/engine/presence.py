@@ -2,31 +2,37 @@
 
 After the last pass (the refined one when ``refine`` is on), the matched items are split
 into connected components (:class:`MapTopology`: 26-connected voxels, points within a
-linking radius, 8-connected pixels of one frame). Each component is grown by ``dilate``
-neighbours, and the **mean embedding of that grown region** is classified against the
-query set itself, both sides centred (the map's mean row is subtracted from the region
-mean, the query set's mean text row from the text rows):
+linking radius, 8-connected pixels of one frame). Each component's **mean embedding** is
+classified against the query set itself, both sides centred (the map's mean row is
+subtracted from the region mean, the query set's mean text row from the text rows): the
+query's positives (mean of the ``k`` best cosines) against each competitor, each other
+label with its sub-classes when the heuristic records ``negative_groups`` (the
+``taxonomy`` heuristic with ``n_antonyms: all``, ``label-list``), else each negative
+alone. A component's *margin* is how far the query wins; two regions are judged:
 
-- the query's positives (mean of the ``k`` best cosines) against each competitor: each
-  other label with its sub-classes when the heuristic records ``negative_groups`` (the
-  ``taxonomy`` heuristic with ``n_antonyms: all``, ``label-list``), else each negative
-  alone. The component needs a margin above ``margin + size_margin / sqrt(size)``;
-- and against the single best negative string, by more than ``flat_margin``;
-- and at least ``min_component`` items.
+- the **grown region**: the component and its neighbours ``dilate`` steps away;
+- the **core**: the component's own items, whose margin must also beat
+  ``size_margin / sqrt(size)`` (the mean of a few selected items is noisy and leans
+  towards the query).
 
-``mode: filter`` keeps the components that pass; ``mode: gate`` keeps the whole mask when
-any passes. When none passes the query is **absent**: an empty mask,
-``provenance["presence"]["present"]`` False. With ``grow`` (refined scores only), the kept
-components then grow through connected items whose refined score is above ``grow``
+The query is **present** when some component of at least ``min_component`` items has a
+grown-region margin above ``margin`` or a core margin above ``core_margin``. Then
+(``mode: filter``) every such component whose grown-region margin is above
+``keep_margin`` or core margin above ``core_keep_margin`` is kept; ``mode: gate`` keeps
+the whole mask. When the query is not present: an empty mask,
+``provenance["presence"]["present"]`` False. With ``grow`` (refined scores only), the
+kept components then grow through connected items whose refined score is above ``grow``
 (hysteresis: recovers an object's items just under the threshold, never a new object).
 
-Why a grown region and not the matched items alone: a matched set is *selected* for
-looking like the query, so its own mean leans towards the query (on the proxy scenes
-every absent label passed such a test). A speck that matched by noise is judged mostly
-by its unselected neighbours, a whole object by itself. Why centring: a modality offset
-adds the same vector to every map row, i.e. a per-string bias to every cosine;
-subtracting the map's mean removes it. Why ``size_margin``: the mean of a small region
-is noisier, so a speck needs a clearer win than a whole object.
+Why a grown region: a matched set is *selected* for looking like the query, so its own
+mean leans towards the query (on the proxy scenes every absent label passed such a test).
+A speck that matched by noise is judged mostly by its unselected neighbours, a whole
+object by itself. Why the core as well: a small object on a support (a book on a shelf,
+a cushion on a sofa) is swamped by its support once grown. Why centring: a modality
+offset adds the same vector to every map row, i.e. a per-string bias to every cosine;
+subtracting the map's mean removes it. Why one decision per query: an object that is
+there usually has one clear component, while an absent label's best look-alike wins
+narrowly; the defaults were chosen so (docs/benchmarks.md).
 
 A map with neither a voxel grid, nor positions, nor frames has no neighbourhood: the
 check is skipped (``provenance["presence"] = {"checked": False, "why": ...}``).
@@ -61,9 +67,12 @@ class PresenceOptions:
 
     dilate: int = 1
     min_component: int = 8
-    margin: float = 0.005
-    size_margin: float = 0.0
-    flat_margin: float | None = -0.02
+    margin: float = 0.05
+    keep_margin: float = -0.02
+    core_margin: float | None = 0.12
+    core_keep_margin: float = 0.03
+    size_margin: float = 0.3
+    flat_margin: float | None = None
     k: int = 2
     mode: str = "filter"
     grow: float | None = -0.25
@@ -85,14 +94,15 @@ class PresenceOptions:
                 int(opts.min_component),
                 int(opts.k),
             )
-            opts.margin, opts.size_margin = float(opts.margin), float(opts.size_margin)
-            if opts.flat_margin is not None:
-                opts.flat_margin = float(opts.flat_margin)
-            if opts.grow is not None:
-                opts.grow = float(opts.grow)
+            for key in ("margin", "keep_margin", "core_keep_margin", "size_margin"):
+                setattr(opts, key, float(getattr(opts, key)))
+            for key in ("core_margin", "flat_margin", "grow"):
+                if getattr(opts, key) is not None:
+                    setattr(opts, key, float(getattr(opts, key)))
         except (TypeError, ValueError) as exc:
             raise ConfigError(
-                f"presence: {exc}; numbers expected (null turns off flat_margin and grow)."
+                f"presence: {exc}; numbers expected (null turns off core_margin, flat_margin "
+                "and grow)."
             ) from None
         if not 0 <= opts.dilate <= MAX_DILATE or opts.min_component < 1 or opts.k < 1:
             raise ConfigError(
@@ -337,43 +347,54 @@ def presence_check(
         return keep, info
     live = np.any(X != 0, axis=1)
     centre = X[live].mean(axis=0)
-    pos = (y == 1) & live
-    P = _unit(X[pos] - centre)
+    P = _unit(X[(y == 1) & live] - centre)
     neg_rows = np.flatnonzero(y == 0)
     N = _unit(X[neg_rows] - centre)
     nlive = live[neg_rows]
-    regions = [topology.region(m, opts.dilate) for m in comps]
-    means = _unit(region_means(regions, rows_of) - mu)
-    sp = _top_mean(means @ P.T, opts.k)
-    CN = means @ N.T
     sizes_neg = _group_sizes(groups, len(N))
-    sc = np.full(len(means), -np.inf)
-    start = 0
-    for size in sizes_neg:
-        block = CN[:, start : start + size][:, nlive[start : start + size]]
-        start += size
-        if block.shape[1]:
-            sc = np.maximum(sc, _top_mean(block, opts.k if groups else 1))
-    margin = sp - sc
     sizes = np.array([len(m) for m in comps])
-    need = opts.margin + opts.size_margin / np.sqrt(sizes)
-    ok = (margin > need) & (sizes >= opts.min_component)
-    if opts.flat_margin is not None and nlive.any():
-        # and against the single best negative string: a component that wins only
-        # because a competing label's best name is averaged with a weaker one fails
-        flat = sp - CN[:, nlive].max(axis=1)
-        ok &= flat > opts.flat_margin
-    for members, good in zip(comps, ok):
+
+    def margins(dilate: int) -> tuple[np.ndarray, np.ndarray]:
+        regions = [topology.region(m, dilate) for m in comps]
+        means = _unit(region_means(regions, rows_of) - mu)
+        sp = _top_mean(means @ P.T, opts.k)
+        CN = means @ N.T
+        sc = np.full(len(means), -np.inf)
+        start = 0
+        for size in sizes_neg:
+            block = CN[:, start : start + size][:, nlive[start : start + size]]
+            start += size
+            if block.shape[1]:
+                sc = np.maximum(sc, _top_mean(block, opts.k if groups else 1))
+        flat = sp - CN[:, nlive].max(axis=1) if nlive.any() else np.full(len(means), np.inf)
+        return sp - sc, flat
+
+    grown, flat = margins(opts.dilate)
+    big = sizes >= opts.min_component
+    if opts.flat_margin is not None:
+        # and against the single best negative string
+        big &= flat > opts.flat_margin
+    strong, ok = grown > opts.margin, grown > opts.keep_margin
+    core_best = None
+    if opts.core_margin is not None:
+        core = (margins(0)[0] if opts.dilate else grown) - opts.size_margin / np.sqrt(sizes)
+        strong |= core > opts.core_margin
+        ok |= core > opts.core_keep_margin
+        core_best = round(float(core[big].max()), 4) if big.any() else None
+    present = bool(np.any(strong & big))
+    kept = (ok & big) if present else np.zeros(len(comps), bool)
+    for members, good in zip(comps, kept):
         if good:
             keep[members] = True
     info.update(
-        present=bool(ok.any()),
-        kept=int(ok.sum()),
-        best_margin=round(float((margin - need).max()), 4),
-        largest_kept=int(sizes[ok].max()) if ok.any() else 0,
+        present=present,
+        kept=int(kept.sum()),
+        best_margin=round(float(grown[big].max()), 4) if big.any() else None,
+        best_core_margin=core_best,
+        largest_kept=int(sizes[kept].max()) if kept.any() else 0,
     )
     if opts.mode == "gate":
-        keep = mask.copy() if ok.any() else np.zeros_like(mask)
+        keep = mask.copy() if present else np.zeros_like(mask)
     info["kept_items"] = int(keep.sum())
     return keep, info
 

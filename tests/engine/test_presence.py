@@ -89,18 +89,42 @@ def test_the_object_is_kept_and_specks_are_dropped(kind):
     assert np.array_equal(keep, mask)
 
 
-def test_the_size_floor_and_the_size_dependent_margin():
+def test_the_size_floor_and_the_margins():
     m = _object_map()
     mask = np.zeros(m.n, bool)
     mask[:27] = True
     assert not _check(m, mask, min_component=28)[0].any()
-    assert _check(m, mask, min_component=27)[0].all() or _check(m, mask)[0][:27].all()
-    # the margin the bed wins by, then a size margin just above and below it
-    _, info = _check(m, mask, margin=0.0)
+    keep, info = _check(m, mask, core_margin=None)
+    win = info["best_margin"]  # the grown region's margin
+    assert win > 0 and keep[:27].all()
+    # present when the grown region wins by more than `margin`, not when by less
+    assert not _check(m, mask, margin=win + 1e-3, core_margin=None)[0].any()
+    assert _check(m, mask, margin=win - 1e-3, core_margin=None)[0][:27].all()
+    # the core (the component's own items) must beat margin + size_margin / sqrt(size)
+    _, info = _check(m, mask, margin=9.0, size_margin=0.0)
+    core = info["best_core_margin"]
+    assert core is not None and core > 0
+    size_margin = 0.5 * core * np.sqrt(27)  # takes half of the core's win
+    just_above = core - size_margin / np.sqrt(27) - 1e-3
+    k, i = _check(m, mask, margin=9.0, size_margin=size_margin, core_margin=just_above)
+    assert k[:27].all() and i["best_core_margin"] == pytest.approx(core / 2, abs=1e-3)
+    k, _ = _check(m, mask, margin=9.0, size_margin=size_margin, core_margin=just_above + 2e-3)
+    assert not k.any()
+
+
+def test_one_decision_per_query_then_a_looser_keep_margin():
+    """A present query keeps its weaker components too (above keep_margin); an absent one
+    keeps nothing however many components come close."""
+    m = _object_map()
+    mask = np.zeros(m.n, bool)
+    mask[:27] = True
+    _, info = _check(m, mask, core_margin=None)
     win = info["best_margin"]
-    assert win > 0
-    assert not _check(m, mask, margin=0.0, size_margin=1.01 * win * np.sqrt(27))[0].any()
-    assert _check(m, mask, margin=0.0, size_margin=0.99 * win * np.sqrt(27))[0][:27].all()
+    # with the bed present, a keep margin below the bed's lets it stay; above, it goes
+    assert _check(m, mask, margin=win - 0.01, keep_margin=win - 0.005, core_margin=None)[0].any()
+    assert not _check(m, mask, margin=win - 0.01, keep_margin=win + 0.005, core_margin=None)[
+        0
+    ].any()
 
 
 def test_a_sofa_block_is_not_a_bed():
@@ -172,9 +196,12 @@ def test_growth_adds_connected_items_only_after_refinement():
     E = np.concatenate([_rows("bed", len(bed), rng, 0.6), _rows("sofa", len(sofa), rng, 0.6)])
     m = LatentMap(E.astype(np.float32), kind="voxels", grid_index=np.asarray(bed + sofa))
     common = dict(heuristic=TaxonomyHeuristic(taxonomy=TAX, n_antonyms="all"), instances=False)
+    # the grown region decides here (core_margin off: with this much noise the sofa's
+    # selected items alone look bed-like)
     unchecked = Quash(_encoder(), refine={}, **common).query(m, "bed")
-    plain = Quash(_encoder(), refine={}, presence={"grow": None}, **common).query(m, "bed")
-    grown = Quash(_encoder(), refine={}, presence={"grow": -1.0}, **common).query(m, "bed")
+    off = {"core_margin": None}
+    plain = Quash(_encoder(), refine={}, presence={**off, "grow": None}, **common).query(m, "bed")
+    grown = Quash(_encoder(), refine={}, presence={**off, "grow": -1.0}, **common).query(m, "bed")
     assert plain.queryset.provenance["refine"]["applied"]
     # the check drops the sofa's false matches and keeps the bed's component
     assert unchecked.mask[108:].any() and not plain.mask[108:].any()
@@ -186,7 +213,7 @@ def test_growth_adds_connected_items_only_after_refinement():
     assert (grown.scores[added] > 0).all()
     assert grown.queryset.provenance["presence"]["grown_items"] == int(grown.mask.sum())
     # without refinement nothing grows
-    first = Quash(_encoder(), presence={"grow": -1.0}, **common).query(m, "bed")
+    first = Quash(_encoder(), presence={**off, "grow": -1.0}, **common).query(m, "bed")
     assert "grown_items" not in first.queryset.provenance["presence"]
 
 
