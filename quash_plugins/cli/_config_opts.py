@@ -26,7 +26,9 @@ def add_config_option(parser: argparse.ArgumentParser, multiple: bool = False) -
             "--config",
             metavar="CONFIG",
             default=None,
-            help="Method config (YAML). Default: minilm + none + nearest-sample.",
+            help="Method config (YAML). Default: the label list of the map (its label names, "
+            "or MAP.taxonomy.yaml beside it), else the shipped vocabulary, with refinement and "
+            "the presence check (core.config.DEFAULT_CONFIG; docs/config.md).",
         )
 
 
@@ -43,7 +45,7 @@ def add_runtime_options(parser: argparse.ArgumentParser) -> None:
 
 def load_config(path: str | None) -> QuashConfig:
     if path is None:
-        return QuashConfig()
+        return QuashConfig.default()
     if not Path(path).exists():
         raise UsageError(f"Config file not found: {path}")
     return QuashConfig.from_yaml(path)

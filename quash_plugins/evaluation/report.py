@@ -261,6 +261,11 @@ def given(quash: Any, provenance: dict[str, Any] | None = None) -> str:
     from ..core.types import DEFAULT_NEGATIVES
 
     text = _given_by(quash.heuristic)
+    how = (provenance or {}).get("auto")  # the auto heuristic says which it used
+    if how == "vocabulary":
+        text = GIVEN["vocabulary"]
+    elif how == "label list":
+        text = "the label list"
     source = (provenance or {}).get("labels_from")
     if source and text.startswith("the label list"):
         parts = [Path(p.strip()).name if "/" in p else p.strip() for p in str(source).split("+")]
@@ -280,6 +285,8 @@ def _given_by(h: Any) -> str:
         return str(say())
     if name == "map-negatives" and getattr(h, "base", None) is not None:
         return _given_by(h.base) + " + map-mined negatives"
+    if name == "auto":
+        return "the label list, else the query + the shipped vocabulary"
     if name in ("taxonomy", "label-list"):
         file = getattr(h, "file", None)
         if file:

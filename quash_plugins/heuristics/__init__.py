@@ -10,6 +10,7 @@ from importlib import import_module
 from typing import Any
 
 _EXPORTS = {
+    "AutoHeuristic": "._auto",
     "NoneHeuristic": "._basic",
     "StaticHeuristic": "._basic",
     "LLMHeuristic": "._llm",
