@@ -36,8 +36,12 @@ DEMO_CONFIGS = (
     "demo-vlmaps",
     "demo-conceptfusion",
     "demo-lerf",
+    "demo-vlmaps-labels",
+    "demo-openscene-labels",
+    "demo-quash-labels",
     "demo-quash-taxonomy",
     "demo-quash-taxonomy-svm",
+    "demo-quash-vocabulary",
     "demo-quash-adjectives",
 )
 TINY = SceneOptions(rooms=2, voxel_size=0.25, room_size=4.0, extra_objects=0)
@@ -51,6 +55,18 @@ def cache_root() -> Path:
     import platformdirs
 
     return Path(platformdirs.user_cache_dir("quash-plugins")) / "demo"
+
+
+def shipped_config(name: str) -> Path:
+    """The shipped config ``demo-<name>.yaml`` (e.g. ``quash-labels``)."""
+    base = resources.files("quash_plugins.data").joinpath("configs")
+    path = Path(str(base.joinpath(f"demo-{name}.yaml")))
+    if not path.exists():
+        from ..core.errors import ConfigError
+
+        names = sorted(p.name[5:-5] for p in path.parent.glob("demo-*.yaml"))
+        raise ConfigError(f"No shipped config {name!r}; shipped: {', '.join(names)}.")
+    return path
 
 
 def demo_config_paths() -> list[Path]:
