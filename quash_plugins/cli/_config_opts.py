@@ -19,7 +19,7 @@ def add_config_option(parser: argparse.ArgumentParser, multiple: bool = False) -
             dest="configs",
             default=None,
             help="Method config: a YAML file or a shipped config's name (e.g. "
-            "demo:quash-taxonomy; 'quash configs' lists them). Repeat to compare methods.",
+            "demo:quash-labels; 'quash configs' lists them). Repeat to compare methods.",
         )
     else:
         parser.add_argument(
@@ -28,8 +28,10 @@ def add_config_option(parser: argparse.ArgumentParser, multiple: bool = False) -
             metavar="CONFIG",
             default=None,
             help="Method config: a YAML file or a shipped config's name (e.g. "
-            "demo:quash-taxonomy; 'quash configs' lists them). Default: "
-            f"{_default_summary()}.",
+            "demo:quash-labels; 'quash configs' lists them). Default: "
+            f"{_default_summary()}: the map's label list (its label names, or "
+            "MAP.taxonomy.yaml beside it), else the shipped vocabulary, with refinement and "
+            "the presence check (core.config.DEFAULT_CONFIG; docs/config.md).",
         )
 
 
@@ -46,14 +48,14 @@ def add_runtime_options(parser: argparse.ArgumentParser) -> None:
 
 def _default_summary() -> str:
     """The default config in a few words, read from core.config (one source)."""
-    cfg = QuashConfig()
+    cfg = QuashConfig.default()
     return f"{cfg.encoder.name} + {cfg.heuristic.name} + {cfg.classifier.name}"
 
 
 def load_config(ref: str | None) -> QuashConfig:
     """The config of ``-c``: a YAML file or a shipped config's name; the default if None."""
     if ref is None:
-        return QuashConfig()
+        return QuashConfig.default()
     try:
         path = resolve_config_path(ref)
     except ConfigError as exc:

@@ -5,11 +5,17 @@ from __future__ import annotations
 import argparse
 
 NAME = "bench"
-HELP = "Ablations as in the paper: prompt engineering, antonyms, synonym x antonym source, classifiers."
+HELP = (
+    "Ablations as in the paper (prompt engineering, antonyms, synonym x antonym source, "
+    "classifiers) and the fair protocol (every peer with the label list QuASH gets)."
+)
 ORDER = 34
 DESCRIPTION = """\
 Runs each ablation table with `quash eval`'s metrics and writes bench.md, bench.json and
-one precision-vs-recall plot per table into --out. The llm source reads only its cache
+one precision-vs-recall plot per table into --out. Every table says what each method
+was given (the label list, or the query alone); the fair table runs the shipped peers'
+rules and QuASH configs, the label-list ones on the same list (--taxonomy, else the map's
+label names with the taxonomy beside the map). The llm source reads only its cache
 (offline: true); an empty cache skips those rows with a note. Files in --out are
 replaced only when they are previous bench outputs, or with --force."""
 EPILOG = """\

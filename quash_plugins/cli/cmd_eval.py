@@ -3,23 +3,33 @@
 from __future__ import annotations
 
 import argparse
+from typing import Any
 
 NAME = "eval"
 HELP = "Score configs on a labelled map: precision, recall, F1, IoU and absence queries."
 ORDER = 30
 DESCRIPTION = """\
-Scores each config's mask for every query label against the map's ground truth
-(labels == label): precision, recall, F1 and IoU per query and their macro mean.
-Unlabelled items (label < 0) and --exclude labels count neither as TP nor FP. Query
-labels that no item carries, and every --absent query, are absence queries: their score
-is the share that returns an empty mask (at most --empty-tolerance items)."""
+Scores each config's mask for every query against the map's ground truth
+(labels == the query's label): precision, recall, F1 and IoU per query and their macro
+mean, and from the scores the average precision (AP) and OpenLex3D's inverse rank.
+Open-vocabulary queries name their ground-truth label: --queries "bunk bed=bed,somewhere
+to sleep=bed" or --queries-file FILE.yaml. Unlabelled items (label < 0) and --exclude
+labels count neither as TP nor FP. Queries whose label no item carries, and every
+--absent query, are absence queries: their score is the share that returns an empty
+mask (at most --empty-tolerance items). Each row says what the method was given (the
+label list, or the query alone) and how many present queries it returned empty."""
 EPILOG = """\
 examples:
   quash make-scene scene.npz
   quash eval scene.npz -c demo:vlmaps -c demo:quash-taxonomy --all-labels \\
       --absent piano,bathtub --json eval.json --markdown eval.md --plot eval.png
-The JSON holds {"configs": [{"name", "mean": {precision, recall, f1, iou},
-"per_query": {label: {...}}, "absence": {score, empty_tolerance, per_query}}]}.
+  quash eval scene.npz -c quash-labels.yaml --queries "bunk bed=bed,somewhere to sleep=bed" \\
+      --absent "an elephant"
+  quash eval scene.npz -c quash-labels.yaml --queries-file scene.open-queries.yaml
+A query file is {present: {text: label} or [labels], absent: [texts]}.
+The JSON holds {"configs": [{"name", "given", "mean": {precision, recall, f1, iou, ap,
+inv_rank}, "per_query": {query: {label, ...}}, "absence": {score, empty_tolerance,
+present_empty, per_query}}]}.
 Outputs never replace an input; an existing file is replaced only when it is a previous
 quash report, plot or recording, or with --force."""
 
@@ -37,7 +47,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("map", help="Labelled map (labels + label_names), e.g. from make-scene.")
     add_config_option(p, multiple=True)
     g = p.add_mutually_exclusive_group()
-    g.add_argument("--queries", metavar="A,B,...", help="Comma-separated labels to score.")
+    g.add_argument(
+        "--queries",
+        metavar="A,B,...",
+        help="Comma-separated queries to score: labels, or TEXT=LABEL for an "
+        "open-vocabulary query with its ground-truth label ('bunk bed=bed').",
+    )
+    g.add_argument(
+        "--queries-file",
+        metavar="FILE.yaml",
+        help="Queries from a YAML file {present: {text: label} or [labels], absent: "
+        "[texts]} (make-scene writes SCENE.queries.yaml and SCENE.open-queries.yaml).",
+    )
     g.add_argument(
         "--all-labels",
         action="store_true",
@@ -100,14 +121,20 @@ def run(args: argparse.Namespace) -> int:
         for c in args.configs
     ]
     lmap = quashes[0].read_map(args.map, adapter=args.adapter)
-    queries = _split(args.queries) or None
+    queries: Any = _split(args.queries) or None
+    absent = _split(args.absent)
+    if args.queries_file:
+        from ..evaluation.report import load_query_file
+
+        queries, more = load_query_file(args.queries_file)
+        absent = list(dict.fromkeys([*more, *absent]))
     with progress(len(quashes), f"evaluating {len(quashes)} config(s)") as advance:
         report = evaluate(
             lmap,
             quashes,
             queries=queries,
             exclude=_split(args.exclude),
-            absent=_split(args.absent),
+            absent=absent,
             empty_tolerance=args.empty_tolerance,
             on_query=lambda name, n: advance(1),
         )
@@ -142,7 +169,7 @@ def _check_outputs(args: argparse.Namespace) -> None:
     from ..evaluation.report import is_report_file
     from ._viewer_opts import check_rrd
 
-    inputs = (args.map, *args.configs)
+    inputs = (args.map, *args.configs, *([args.queries_file] if args.queries_file else []))
     for flag, path, known in (
         ("--json", args.json, is_report_file),
         ("--markdown", args.markdown, is_report_file),

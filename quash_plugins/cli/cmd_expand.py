@@ -65,10 +65,7 @@ def _summary(prov: dict) -> str:
         bits.append(f"label {prov['label']!r}")
     resolved = prov.get("resolved")
     if resolved:
-        bits.append(
-            f"query {resolved['from']!r} resolved to label {resolved['to']!r} "
-            f"(cosine {resolved['cosine']})"
-        )
+        bits.append(resolution_line(resolved))
     if name == "combine":
         syn, ant = prov.get("synonyms") or {}, prov.get("antonyms") or {}
         bits.append(f"synonyms by {syn.get('heuristic')}, antonyms by {ant.get('heuristic')}")
@@ -88,3 +85,24 @@ def _provenance_yaml(qs) -> str:
     data = qs.to_dict()["provenance"]
     text = yaml.safe_dump(data, sort_keys=False, allow_unicode=True, width=100)
     return "\n".join("  " + line for line in text.rstrip().splitlines())
+
+
+def resolution_line(r: dict) -> str:
+    """How the taxonomy resolved a query, in one phrase.
+
+    >>> resolution_line({"from": "bunk beds", "to": "bed", "how": "near-subclass", "via": "bunk bed"})
+    "query 'bunk beds' resolved to label 'bed' (near match of sub-class 'bunk bed')"
+    """
+    how = r.get("how", "embedding")
+    if r.get("to") is None:
+        return (
+            f"query {r['from']!r} matches no label (nearest name {r.get('via')!r}, cosine "
+            f"{r.get('cosine')}): kept as its own concept"
+        )
+    what = {
+        "subclass": f"sub-class {r.get('via')!r}",
+        "near-subclass": f"near match of sub-class {r.get('via')!r}",
+        "near-label": f"near match of label {r.get('via')!r}",
+        "embedding": f"nearest name {r.get('via')!r}, cosine {r.get('cosine')}",
+    }.get(how, how)
+    return f"query {r['from']!r} resolved to label {r['to']!r} ({what})"

@@ -44,6 +44,33 @@ DEFAULT_HEURISTIC = PluginSpec("none")
 #: (docs/benchmarks.md); the paper's SVM is ``svm-rbf``.
 DEFAULT_CLASSIFIER = PluginSpec("nearest-sample", {"k": 2})
 
+#: The settings of refinement and of the presence check in the chosen method
+#: (``demo:quash-labels``) and the default config, chosen by the quality benchmark on seeds
+#: that its reported tables do not use (docs/benchmarks.md).
+CHOSEN_REFINE: dict[str, Any] = {
+    "classifier": "svm-rbf",
+    "n_positives": 100,
+    "n_negatives": 1000,
+    "seeds": "top",
+}
+#: ``{}``: the presence check's own defaults (``engine.presence.PresenceOptions``).
+CHOSEN_PRESENCE: dict[str, Any] = {}
+
+#: The config a command runs when given no ``-c`` (``quash query MAP QUERY``), and
+#: :meth:`QuashConfig.default`: safe on any map. With a label list (the map's label
+#: names, or a taxonomy beside the map) it is the chosen method, ``demo:quash-labels``;
+#: without one the shipped vocabulary stands in for the list (the ``auto`` heuristic).
+#: The presence check returns an empty mask for an object that is not in the map. It
+#: needs a text encoder that can embed the vocabulary (any sentence or CLIP encoder).
+DEFAULT_CONFIG: dict[str, Any] = {
+    "name": "default",
+    "encoder": "minilm",
+    "heuristic": {"name": "auto"},
+    "classifier": DEFAULT_CLASSIFIER.to_dict(),
+    "refine": CHOSEN_REFINE,
+    "presence": CHOSEN_PRESENCE,
+}
+
 
 #: Devices a config may name: ``cuda:N`` picks one GPU. Anything else (``tpu``, ``xla``,
 #: a typo) is refused when the config is loaded, not silently ignored.
@@ -135,6 +162,16 @@ class QuashConfig:
             "{} takes these defaults). null turns it off."
         },
     )
+    presence: dict[str, Any] | None = field(
+        default=None,
+        metadata={
+            "help": "Presence check after the last pass: keep the matched components whose "
+            "grown region the query set classifies as the query; none kept means the object "
+            "is absent (empty mask) ({dilate: 1, min_component: 8, margin: 0.005, "
+            "size_margin: 0.0, flat_margin: -0.02, k: 2, mode: filter, grow: -0.25}; {} "
+            "takes these defaults). Needs a voxel grid, positions or frames. null turns it off."
+        },
+    )
     adapter: PluginSpec = field(
         default_factory=lambda: PluginSpec("auto"),
         metadata={"help": "Map adapter and its options; 'auto' sniffs the file."},
@@ -200,6 +237,13 @@ class QuashConfig:
         return cls.from_dict(data, path=path, lines=lines)
 
     @classmethod
+    def default(cls) -> QuashConfig:
+        """The config of a command given no ``-c`` (:data:`DEFAULT_CONFIG`)."""
+        import copy
+
+        return cls.from_dict(copy.deepcopy(DEFAULT_CONFIG))
+
+    @classmethod
     def load(cls, source: str | Path | dict[str, Any] | QuashConfig) -> QuashConfig:
         if isinstance(source, QuashConfig):
             return source
@@ -243,7 +287,7 @@ def _convert(cls, key: str, value: Any, where: _Where, path) -> Any:
         if isinstance(value, str) or not isinstance(value, list):
             raise ConfigError(f"{where.at((key,))}'negatives' must be a list of strings.")
         return [str(v) for v in value]
-    if key in ("prompt_templates", "map_negatives", "instances", "refine"):
+    if key in ("prompt_templates", "map_negatives", "instances", "refine", "presence"):
         if value is None or value is False:
             return None
         if value is True:

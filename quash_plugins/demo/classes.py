@@ -299,6 +299,46 @@ ABSENT_FREE_TEXT = ("a red sports car", "an elephant")
 
 SUPPORTS = ("table", "desk", "counter", "cabinet", "shelf", "sofa", "bed")
 
+#: Free-text descriptions of the labels: open-vocabulary queries whose ground truth is
+#: the label (``SCENE.open-queries.yaml``).
+FREE_TEXT_A: dict[str, str] = {
+    "chair": "something to sit on at a desk",
+    "table": "something to put a plate on",
+    "sofa": "where to lounge and watch a film",
+    "bed": "somewhere to sleep",
+    "cabinet": "where to store dishes",
+    "shelf": "where books are stored",
+    "desk": "where to do homework",
+    "plant": "something green that needs watering",
+    "lamp": "something that lights up the room",
+    "tv": "a screen to watch the news",
+    "picture": "art hanging on the wall",
+    "mirror": "where I can see my reflection",
+    "sink": "where to wash my hands",
+    "toilet": "where to pee",
+    "refrigerator": "where the milk is kept cold",
+    "stove": "where to cook a meal",
+    "curtain": "fabric that covers the window",
+    "cushion": "something soft to lean on",
+    "towel": "something to dry myself with",
+    "clock": "something that tells the time",
+    "book": "something to read",
+    "vase": "something to put flowers in",
+    "trash can": "where to throw rubbish away",
+    "radiator": "something that heats the room",
+    "counter": "where to chop vegetables",
+    "laptop": "something to type emails on",
+    "rug": "something soft on the floor",
+}
+#: Absent free text of the open-vocabulary query file (nothing in any scene is one).
+ABSENT_FREE_TEXT_OPEN = (
+    "a red sports car",
+    "an elephant",
+    "somewhere to park a boat",
+    "a grand piano",
+    "where to take a bubble bath",
+)
+
 
 def check_disjoint() -> None:
     """Raise ValueError when an appearance name is also a language or label name."""

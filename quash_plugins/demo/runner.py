@@ -36,8 +36,12 @@ DEMO_CONFIGS = (
     "demo-vlmaps",
     "demo-conceptfusion",
     "demo-lerf",
+    "demo-vlmaps-labels",
+    "demo-openscene-labels",
+    "demo-quash-labels",
     "demo-quash-taxonomy",
     "demo-quash-taxonomy-svm",
+    "demo-quash-vocabulary",
     "demo-quash-adjectives",
 )
 TINY = SceneOptions(rooms=2, voxel_size=0.25, room_size=4.0, extra_objects=0)

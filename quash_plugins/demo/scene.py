@@ -91,6 +91,62 @@ ROOM_TYPES: dict[str, tuple[str, ...]] = {
 }
 
 
+@dataclass(frozen=True)
+class ClassSet:
+    """A class table with its room types, placement rules and open-vocabulary queries."""
+
+    name: str
+    classes: tuple[SceneClass, ...]
+    absent: dict[str, tuple[str, ...]]
+    absent_free_text: tuple[str, ...]
+    supports: tuple[str, ...]
+    room_types: dict[str, tuple[str, ...]]
+    free_text: dict[str, str]
+    absent_free_text_open: tuple[str, ...]
+    wall_bottom: tuple[str, ...] = ("door", "radiator")
+    wall_top: tuple[str, ...] = ("curtain",)
+
+
+#: The class tables ``SceneOptions.classes`` may name.
+CLASS_TABLES = ("a", "b")
+
+
+def class_set(name: str) -> ClassSet:
+    """``"a"``: the project's table (:mod:`.classes`); ``"b"``: the second one
+    (:mod:`.classes_b`: other labels, other names, no shared word)."""
+    if name == "a":
+        from .classes import ABSENT_FREE_TEXT_OPEN, FREE_TEXT_A
+
+        return ClassSet(
+            "a",
+            CLASSES,
+            ABSENT,
+            ABSENT_FREE_TEXT,
+            SUPPORTS,
+            ROOM_TYPES,
+            FREE_TEXT_A,
+            ABSENT_FREE_TEXT_OPEN,
+        )
+    if name == "b":
+        from . import classes_b as b
+
+        return ClassSet(
+            "b",
+            b.CLASSES_B,
+            b.ABSENT_B,
+            b.ABSENT_FREE_TEXT_B,
+            b.SUPPORTS_B,
+            b.ROOM_TYPES_B,
+            b.FREE_TEXT_B,
+            b.ABSENT_FREE_TEXT_B,
+            b.WALL_BOTTOM_B,
+            b.WALL_TOP_B,
+        )
+    raise ConfigError(
+        f"scene option classes must be one of {', '.join(CLASS_TABLES)}; got {name!r}."
+    )
+
+
 @dataclass
 class SceneOptions:
     """Options of :func:`make_scene` (the CLI exposes each as ``--option``).
@@ -111,6 +167,11 @@ class SceneOptions:
     noise: float = 3.0
     modality_offset: float = 0.8
     size_scale: float = 1.0
+    # a modality gap that is not one constant vector (0: the project's scenes as before)
+    gap_class: float = 0.0
+    gap_instance: float = 0.0
+    distortion: float = 0.0
+    classes: str = "a"
 
     def validate(self) -> None:
         if self.rooms < 1:
@@ -125,6 +186,13 @@ class SceneOptions:
             raise ConfigError(
                 "scene options noise, modality_offset must be >= 0 and names_per_voxel >= 1."
             )
+        if min(self.gap_class, self.gap_instance, self.distortion) < 0:
+            raise ConfigError("scene options gap_class, gap_instance, distortion must be >= 0.")
+        if self.classes not in CLASS_TABLES:
+            raise ConfigError(
+                f"scene option classes must be one of {', '.join(CLASS_TABLES)}; "
+                f"got {self.classes!r}."
+            )
 
 
 @dataclass
@@ -136,20 +204,24 @@ class Scene:
     absent: list[str]
     room_types: list[str]
     n_objects: int
+    instance_ids: np.ndarray | None = None
+    open_present: dict[str, str] = dataclasses.field(default_factory=dict)
+    open_absent: list[str] = dataclasses.field(default_factory=list)
 
 
-def _class_index() -> dict[str, int]:
-    return {c.label: i for i, c in enumerate(CLASSES)}
+def _class_index(cs: ClassSet) -> dict[str, int]:
+    return {c.label: i for i, c in enumerate(cs.classes)}
 
 
-def _layout(opts: SceneOptions, rng: np.random.Generator):
+def _layout(opts: SceneOptions, rng: np.random.Generator, cs: ClassSet):
     """Fill a label volume and an instance volume; return them and the instance classes."""
     vs = opts.voxel_size
     n_room = int(round(opts.room_size / vs))
     nx, ny, nz = n_room * opts.rooms + 1, n_room + 1, int(round(opts.room_height / vs)) + 1
     label = np.full((nx, ny, nz), -1, np.int16)
     inst = np.full((nx, ny, nz), -1, np.int32)
-    idx = _class_index()
+    CLASSES, ROOM_TYPES, SUPPORTS = cs.classes, cs.room_types, cs.supports
+    idx = _class_index(cs)
     inst_class: list[int] = []
 
     def new_instance(cls: str) -> int:
@@ -234,12 +306,8 @@ def _layout(opts: SceneOptions, rng: np.random.Generator):
                     side = int(rng.integers(4))
                     sz = min(sz, nz - 3)
                     a = int(rng.integers(1, max(2, n_room - sx)))
-                    zb = (
-                        1
-                        if name in ("door", "radiator")
-                        else int(rng.integers(1, max(2, nz - 1 - sz)))
-                    )
-                    if name == "curtain":
+                    zb = 1 if name in cs.wall_bottom else int(rng.integers(1, max(2, nz - 1 - sz)))
+                    if name in cs.wall_top:
                         zb = max(1, nz - 1 - sz)
                     if any(
                         s == side and abs(a - b) < sx and abs(zb - z) < sz for s, b, z in wall_slots
@@ -315,7 +383,9 @@ def make_scene(encoder: Any, options: SceneOptions | None = None, cache: Any = N
     opts = options or SceneOptions()
     opts.validate()
     rng = np.random.default_rng(opts.seed)
-    label, inst, inst_class, room_types, n_objects = _layout(opts, rng)
+    cs = class_set(opts.classes)
+    CLASSES, ABSENT, ABSENT_FREE_TEXT = cs.classes, cs.absent, cs.absent_free_text
+    label, inst, inst_class, room_types, n_objects = _layout(opts, rng, cs)
     cells = np.argwhere(label >= 0)
     labels = label[cells[:, 0], cells[:, 1], cells[:, 2]].astype(np.int64)
     cell_inst = inst[cells[:, 0], cells[:, 1], cells[:, 2]].astype(np.int64)
@@ -350,6 +420,7 @@ def make_scene(encoder: Any, options: SceneOptions | None = None, cache: Any = N
     E = E / np.linalg.norm(
         E, axis=1, keepdims=True
     ) + opts.modality_offset * offset / np.linalg.norm(offset)
+    E = _gap(E, labels, cell_inst, len(CLASSES), len(inst_class), opts)
     E = (E / np.linalg.norm(E, axis=1, keepdims=True)).astype(np.float32)
     colors = np.asarray([c.color for c in CLASSES], np.int16)[labels]
     colors = np.clip(colors + rng.integers(-12, 13, colors.shape), 0, 255).astype(np.uint8)
@@ -378,20 +449,96 @@ def make_scene(encoder: Any, options: SceneOptions | None = None, cache: Any = N
         n_objects,
         len(labels),
     )
-    return Scene(lmap, taxonomy, absent, room_types, n_objects)
+    present = [c.label for i, c in enumerate(CLASSES) if np.any(labels == i)]
+    open_present, open_absent = open_queries(cs, present, opts.seed)
+    return Scene(
+        lmap,
+        taxonomy,
+        absent,
+        room_types,
+        n_objects,
+        cell_inst.astype(np.int32),
+        open_present,
+        open_absent,
+    )
+
+
+def open_queries(cs: ClassSet, present: list[str], seed: int) -> tuple[dict[str, str], list[str]]:
+    """Open-vocabulary queries of a scene: ``{text: label}`` and absent texts.
+
+    Per present label with sub-classes: one of its sub-classes (every other label's in a
+    near form: "a X" or a plural) and its free-text description ("somewhere to sleep" ->
+    bed); absent: one sub-class of each absent label and the table's absent free text.
+    The picks are a hash of the seed and the label, so a scene always has the same ones.
+    """
+    import hashlib
+
+    def pick(label: str, names: tuple[str, ...]) -> tuple[str, int]:
+        h = int(hashlib.sha256(f"open{seed}|{label}".encode()).hexdigest(), 16)
+        return names[h % len(names)], h
+
+    def near(name: str, h: int) -> str:
+        if (h >> 8) % 2 == 0:
+            return f"a {name}"
+        words = name.split()
+        last = words[-1]
+        words[-1] = last + ("es" if last.endswith(("s", "x", "ch", "sh")) else "s")
+        return " ".join(words)
+
+    language = {c.label: c.language for c in cs.classes}
+    out: dict[str, str] = {}
+    for i, label in enumerate(present):
+        subs = language.get(label) or ()
+        if subs:
+            sub, h = pick(label, subs)
+            out.setdefault(near(sub, h) if i % 2 else sub, label)
+    for label in present:
+        if label in cs.free_text:
+            out.setdefault(cs.free_text[label], label)
+    absent = [pick(label, names)[0] for label, names in cs.absent.items()]
+    absent += [t for t in cs.absent_free_text_open if t not in absent]
+    return out, [a for a in dict.fromkeys(absent) if a not in out]
+
+
+def _unit_rows(rng: np.random.Generator, n: int, d: int) -> np.ndarray:
+    v = rng.standard_normal((n, d)).astype(np.float32)
+    return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+def _gap(E, labels, cell_inst, n_classes, n_inst, opts: SceneOptions) -> np.ndarray:
+    """A modality gap that is not one constant vector.
+
+    Applied after the shared offset: a random linear distortion ``E (I + d G / sqrt(D))``
+    (``distortion``), one random direction per class of norm ``gap_class`` and one per
+    object instance of norm ``gap_instance``. Drawn from its own generator (seeded from
+    the scene's seed), so a scene with all three at 0 is byte for byte what it was.
+    """
+    if not (opts.gap_class or opts.gap_instance or opts.distortion):
+        return E
+    rng = np.random.default_rng([opts.seed, 12])
+    D = E.shape[1]
+    if opts.distortion:
+        G = rng.standard_normal((D, D)).astype(np.float32) / np.sqrt(D)
+        E = E + opts.distortion * (E @ G)
+    if opts.gap_class:
+        E = E + opts.gap_class * _unit_rows(rng, n_classes, D)[labels]
+    if opts.gap_instance:
+        E = E + opts.gap_instance * _unit_rows(rng, n_inst, D)[cell_inst]
+    return E
 
 
 _TAXONOMY_HEAD = "# language names only: disjoint from the appearance names that built the voxels\n"
 
 
 def scene_paths(out: str | Path) -> dict[str, Path]:
-    """The three files :func:`write_scene` writes for ``OUT.npz``."""
+    """The files :func:`write_scene` writes for ``OUT.npz``."""
     out = Path(out)
     stem = out.with_suffix("")
     return {
         "map": out,
         "taxonomy": Path(f"{stem}.taxonomy.yaml"),
         "queries": Path(f"{stem}.queries.yaml"),
+        "open_queries": Path(f"{stem}.open-queries.yaml"),
     }
 
 
@@ -411,6 +558,11 @@ def is_scene_file(path: str | Path) -> bool:
 
             data, _ = load_yaml(p)
             return isinstance(data, dict) and {"present", "absent", "room_types"} <= set(data)
+        if p.name.endswith(".open-queries.yaml"):
+            from ..core.config import load_yaml
+
+            data, _ = load_yaml(p)
+            return isinstance(data, dict) and {"present", "absent", "kind"} <= set(data)
         if p.name.endswith(".taxonomy.yaml"):
             with open(p, encoding="utf-8") as f:
                 return f.readline() == _TAXONOMY_HEAD
@@ -452,4 +604,11 @@ def write_scene(
     }
     with atomic_write(queries, suffix=".yaml") as tmp:
         Path(tmp).write_text(yaml.safe_dump(info, sort_keys=False), "utf-8")
-    return {"map": out, "taxonomy": tax, "queries": queries}
+    open_info = {
+        "kind": "open-vocabulary queries: sub-class names and free text, with their label",
+        "present": dict(scene.open_present),
+        "absent": list(scene.open_absent),
+    }
+    with atomic_write(paths["open_queries"], suffix=".yaml") as tmp:
+        Path(tmp).write_text(yaml.safe_dump(open_info, sort_keys=False), "utf-8")
+    return {**paths}

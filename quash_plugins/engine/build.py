@@ -61,6 +61,7 @@ def build_quash(
         prompt_templates=cfg.prompt_templates,
         map_negatives=cfg.map_negatives,
         refine=cfg.refine,
+        presence=cfg.presence,
         adapter=cfg.adapter,
         instances=cfg.instances,
         seed=cfg.seed,

@@ -251,7 +251,10 @@ def query_lazy(
 ) -> LazyQuery:
     """Fit one classifier per query and build the lazy one-pass graph over the map.
 
-    Nothing touches the embeddings until the result is computed or written.
+    Nothing touches the embeddings until the result is computed or written. The lazy
+    graph is the first pass only: a config's ``refine`` and ``presence`` steps need the
+    whole mask in memory and are not applied (a warning says so), so an absent object is
+    not reported empty here; use :meth:`Quash.query_many` for them.
 
     Examples
     --------
@@ -262,6 +265,16 @@ def query_lazy(
     if isinstance(texts, str):
         texts = [texts]
     texts = [check_query(t) for t in texts]
+    skipped = [k for k in ("refine", "presence") if getattr(quash, k, None) is not None]
+    if skipped:
+        import warnings
+
+        warnings.warn(
+            f"Lazy results (--out *.zarr) are the first pass only: the config's "
+            f"{' and '.join(skipped)} step{'s are' if len(skipped) > 1 else ' is'} not "
+            "applied, so absent objects may match. Write .npz (in memory) to apply them.",
+            stacklevel=2,
+        )
     client = current_client(client if client is not None else getattr(quash, "client", None))
     lmap = quash.read_map(source, **read_options)
     quash.check_dimension(lmap)

@@ -82,6 +82,10 @@ class Quash:
     refine
         Options for transductive refinement (``quash_plugins.engine.refine.RefineOptions``):
         re-fit on the map's own confident items and classify again. None turns it off.
+    presence
+        Options of the presence check (``quash_plugins.engine.presence.PresenceOptions``):
+        keep the matched components whose grown region the query set classifies as the
+        query; none kept means the object is absent (an empty mask). None turns it off.
     instances
         Options for instance grouping (True for defaults), or None/False to skip it.
     cache
@@ -112,6 +116,7 @@ class Quash:
         prompt_templates: dict[str, Any] | None = None,
         map_negatives: dict[str, Any] | None = None,
         refine: dict[str, Any] | None = None,
+        presence: dict[str, Any] | None = None,
         adapter: str | PluginSpec = "auto",
         instances: dict[str, Any] | bool | None = True,
         seed: int = 0,
@@ -163,6 +168,12 @@ class Quash:
 
             self.refine = RefineOptions.parse(dict(refine))
             self._refine_template = self.refine.build_classifier()
+        self.presence = None
+        if presence is not None:
+            from .presence import PresenceOptions, TopologyCache
+
+            self.presence = PresenceOptions.parse(dict(presence))
+            self._topology = TopologyCache()
         self.adapter = adapter if isinstance(adapter, PluginSpec) else PluginSpec(str(adapter))
         if instances is True:
             instances = {}
@@ -346,6 +357,8 @@ class Quash:
             p.timings["postprocess"] = time.perf_counter() - t
         if self.refine is not None:
             self._refine_pass(lmap, pending, observed, progress)
+        if self.presence is not None:
+            self._presence_pass(lmap, pending, observed)
         results = []
         for p in pending:
             instances = []
@@ -486,6 +499,65 @@ class Quash:
             p.clf = refined
             p.raw, p.mask, p.display = self._finish(refined, raw, observed)
             p.timings["reclassify"] = share
+
+    def _presence_pass(
+        self, lmap: LatentMap, pending: list[_Pending], observed: np.ndarray
+    ) -> None:
+        """The presence check (:mod:`quash_plugins.engine.presence`) on each final mask.
+
+        Dropped items are moved below the threshold and below every kept item (their
+        order otherwise kept); items added by growth sit just above the threshold, below
+        every match of the last pass.
+        """
+        from .presence import presence_check
+        from .refine import take_rows
+
+        def rows_of(index: np.ndarray) -> np.ndarray:
+            return take_rows(lmap, index)
+
+        topology, mu = self._topology.get(lmap, rows_of)
+        for p in pending:
+            if topology.kind is None:
+                p.queryset.provenance["presence"] = {"checked": False, "why": topology.why}
+                continue
+            t = time.perf_counter()
+            n_strings = len(p.queryset.positives) + len(p.queryset.negatives)
+            reps = max(1, len(p.y) // max(1, n_strings))  # prompt templates, mode "all"
+            groups = p.queryset.provenance.get("negative_groups")
+            if groups and reps > 1:
+                groups = [int(g) * reps for g in groups]
+            keep, info = presence_check(
+                p.mask, p.X, p.y, self.presence, topology, mu, rows_of, groups=groups
+            )
+            refined = (p.queryset.provenance.get("refine") or {}).get("applied", False)
+            if self.presence.grow is not None and refined and keep.any():
+                grown = topology.grow(keep, (p.raw > self.presence.grow) & observed)
+                keep = grown & observed
+                info["grown_items"] = int(keep.sum())
+            dropped = p.mask & ~keep
+            added = keep & ~p.mask
+            if dropped.any() or added.any():
+                raw = p.raw.copy()
+                if dropped.any():
+                    span = float(raw[observed].max() - raw[observed].min()) + 1.0
+                    raw[dropped] = np.minimum(raw[dropped] - span, self.threshold - 1e-3)
+                if added.any():
+                    # just above the threshold, below every match of the last pass
+                    lo, hi = float(raw[added].min()), float(raw[added].max())
+                    kept = keep & p.mask
+                    top = float(raw[kept].min()) if kept.any() else self.threshold + 1e-3
+                    room = min(1e-3, top - self.threshold)
+                    value = self.threshold + room * (
+                        0.05 + 0.9 * (raw[added] - lo) / max(hi - lo, 1e-12)
+                    )
+                    floor = np.nextafter(np.float32(self.threshold), np.float32(np.inf))
+                    raw[added] = np.maximum(value, floor)
+                p.raw = raw
+                p.mask = keep & observed
+                p.display = np.asarray(p.clf.display_scores(raw, self.threshold), np.float32)
+                p.display[~observed] = 0.0
+            p.queryset.provenance["presence"] = info
+            p.timings["presence"] = time.perf_counter() - t
 
     def _classify(self, lmap: LatentMap, classifiers: list[Any], progress: Any):
         chunk_bytes = int(self.chunk_mb * 2**20)

@@ -19,6 +19,9 @@ import numpy as np
 from ..core.errors import ConfigError, closest
 from ..core.types import LatentMap, prepare_block
 
+#: Where the map positives come from: the first pass's matches, or its best-scored items.
+SEEDS = ("matched", "top")
+
 
 @dataclass
 class RefineOptions:
@@ -30,6 +33,7 @@ class RefineOptions:
     negative_quantile: float = 0.5
     min_seed: int = 10
     seed: int = 0
+    seeds: str = "matched"
 
     @classmethod
     def parse(cls, options: dict[str, Any]) -> RefineOptions:
@@ -46,6 +50,8 @@ class RefineOptions:
             raise ConfigError("refine: n_positives, n_negatives and min_seed must be >= 1.")
         if not 0.0 < opts.negative_quantile <= 1.0:
             raise ConfigError("refine: negative_quantile must be in (0, 1].")
+        if opts.seeds not in SEEDS:
+            raise ConfigError(f"refine: seeds must be one of {SEEDS}; got {opts.seeds!r}.")
         return opts
 
     def build_classifier(self) -> Any:
@@ -92,15 +98,26 @@ def pseudo_labels(
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """Map samples ``(k, D)`` and labels ``(k,)`` from a first pass, or None to keep it.
 
-    Positives: the ``n_positives`` highest-scoring matched items. Negatives: a seeded
-    random sample of observed items scoring below the ``negative_quantile`` of the
-    observed scores (and not matched).
+    Positives: the ``n_positives`` highest-scoring matched items (``seeds: top``: the
+    ``n_positives`` highest-scoring observed items, matched or not, so that a class whose
+    text sits just off its map items still seeds). Negatives: a seeded random sample of
+    observed items scoring below the ``negative_quantile`` of the observed scores (and
+    not positives).
     """
-    matched = np.flatnonzero(mask)
-    if len(matched) < opts.min_seed:
-        return None
-    top = matched[np.argsort(-scores[matched], kind="stable")[: opts.n_positives]]
-    obs = np.flatnonzero(observed & ~mask)
+    if opts.seeds == "top":
+        obs_idx = np.flatnonzero(observed)
+        if len(obs_idx) < 2 * opts.min_seed:
+            return None
+        top = obs_idx[np.argsort(-scores[obs_idx], kind="stable")[: opts.n_positives]]
+        taken = np.zeros(len(mask), bool)
+        taken[top] = True
+    else:
+        matched = np.flatnonzero(mask)
+        if len(matched) < opts.min_seed:
+            return None
+        top = matched[np.argsort(-scores[matched], kind="stable")[: opts.n_positives]]
+        taken = mask
+    obs = np.flatnonzero(observed & ~taken)
     if len(obs) == 0:
         return None
     cut = np.quantile(scores[observed], opts.negative_quantile)

@@ -7,7 +7,11 @@ Tables (each one :func:`~quash_plugins.evaluation.report.evaluate` call):
    nothing, object, things and the zero vector (``<zero>``);
 3. synonym source x antonym source over taxonomy, adjectives, lexicon and llm (the llm
    only from its cache, ``offline: true``; skipped with a note when the cache is empty);
-4. classifiers on the taxonomy query sets.
+4. classifiers on the taxonomy query sets;
+5. ``fair``: the peers' rules and QuASH, each given what it is given in the fair protocol
+   (docs/benchmarks.md): VLMaps, ConceptFusion and LERF the query alone; VLMaps with its
+   category list and OpenScene's label argmax the same label list as QuASH (``--taxonomy``,
+   else the map's label names with the taxonomy beside the map); the shipped configs.
 """
 
 from __future__ import annotations
@@ -47,7 +51,28 @@ CLASSIFIERS: dict[str, Any] = {
     "svm-cosine": "svm-cosine",
     "lerf-relevancy": "lerf-relevancy",
 }
-TABLES = ("prompt", "antonyms", "sources", "classifiers")
+TABLES = ("prompt", "antonyms", "sources", "classifiers", "fair")
+#: The shipped configs of the fair table, peers first (quash_plugins/data/configs/demo-*).
+FAIR = (
+    "vlmaps",
+    "conceptfusion",
+    "lerf",
+    "vlmaps-labels",
+    "openscene-labels",
+    "quash-labels",
+    "quash-taxonomy",
+    "quash-taxonomy-svm",
+)
+
+
+def shipped(name: str) -> dict[str, Any]:
+    """The shipped config ``demo-<name>.yaml`` as a dict (package data, read as text)."""
+    from importlib import resources
+
+    from ..core.config import load_yaml_text
+
+    text = resources.files("quash_plugins.data").joinpath(f"configs/demo-{name}.yaml")
+    return dict(load_yaml_text(text.read_text(encoding="utf-8")))
 
 
 def _cfg(name: str, encoder: Any, heuristic: Any, classifier: Any, **extra: Any) -> dict:
@@ -124,6 +149,16 @@ def bench_configs(
             )
             for r in ("svm-rbf", "nearest-sample")
         ]
+    tables["fair"] = []
+    for name in FAIR:
+        cfg = {**shipped(name), "encoder": encoder}
+        h = cfg.get("heuristic")
+        if isinstance(h, dict) and h.get("name") in ("taxonomy", "label-list"):
+            h = {k: v for k, v in h.items() if k != "file"}
+            if taxonomy:  # the same label list for every label-list method
+                h["file"] = taxonomy
+            cfg["heuristic"] = h
+        tables["fair"].append(cfg)
     return tables
 
 
@@ -157,6 +192,7 @@ def run_bench(
         "antonyms": "Antonyms (baseline)",
         "sources": "Synonym source x antonym source",
         "classifiers": "Classifiers",
+        "fair": "The fair protocol: every method with what it is given",
     }
     for table in tables:
         cfgs = all_cfgs.get(table)
@@ -173,7 +209,8 @@ def run_bench(
             except QuashError as exc:
                 notes.append(f"- {cfg['name']}: skipped ({str(exc).splitlines()[0]})")
                 log.warning("bench %s: %s skipped: %s", table, cfg["name"], exc)
-        rows.sort(key=lambda c: -c["mean"]["f1"])
+        if table != "fair":  # the fair table keeps the peers first, as the docs list them
+            rows.sort(key=lambda c: -c["mean"]["f1"])
         results[table] = {"configs": rows, "notes": notes}
         md += [f"## {titles[table]}", "", report_markdown(rows, per_query=False)]
         md += [*notes, ""] if notes else []

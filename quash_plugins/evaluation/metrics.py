@@ -29,6 +29,8 @@ from typing import Any
 import numpy as np
 
 METRICS = ("precision", "recall", "f1", "iou")
+#: Threshold-free metrics from the scores (:mod:`quash_plugins.evaluation.ranking`).
+RANKING = ("ap", "inv_rank")
 
 
 def query_metrics(
@@ -73,10 +75,19 @@ def query_metrics(
 
 
 def macro_mean(per_query: dict[str, dict[str, Any]]) -> dict[str, float]:
-    """The unweighted mean of each metric over queries (0 for all when there are none)."""
+    """The unweighted mean of each metric over queries (0 for all when there are none).
+
+    The ranking metrics (:data:`RANKING`) are averaged over the queries that have them
+    (None: undefined, e.g. no neighbourhood for the inverse rank), when any has.
+    """
     if not per_query:
         return {k: 0.0 for k in METRICS}
-    return {k: float(np.mean([q[k] for q in per_query.values()])) for k in METRICS}
+    out = {k: float(np.mean([q[k] for q in per_query.values()])) for k in METRICS}
+    for k in RANKING:
+        vals = [q[k] for q in per_query.values() if q.get(k) is not None]
+        if vals:
+            out[k] = float(np.mean(vals))
+    return out
 
 
 def valid_items(

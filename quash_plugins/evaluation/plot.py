@@ -57,7 +57,7 @@ def plot_precision_recall(
     cmap = plt.get_cmap("tab10" if len(configs) <= 10 else "tab20")
     for i, c in enumerate(configs):
         color = cmap(i % cmap.N)
-        pq = list(c["per_query"].values())
+        pq = list((c.get("per_query") or {}).values())
         if pq:
             ax.scatter(
                 [q["recall"] for q in pq], [q["precision"] for q in pq], s=9, alpha=0.3, color=color

@@ -28,7 +28,7 @@ import numpy as np
 
 from ..core.errors import QuashError
 from ..core.types import LatentMap
-from .metrics import METRICS, absence_score, macro_mean, query_metrics, valid_items
+from .metrics import METRICS, RANKING, absence_score, macro_mean, query_metrics, valid_items
 
 log = logging.getLogger(__name__)
 
@@ -93,8 +93,10 @@ def evaluate(
     configs
         Config paths, dicts, :class:`QuashConfig` or ready :class:`Quash` objects.
     queries
-        Label names to score; None scores every label present in the map (minus
-        ``exclude``). A listed label that no item carries becomes an absence query.
+        What to score: label names, ``"text=label"`` items or a ``{text: label}``
+        mapping (open-vocabulary queries: the text is the query, the label its ground
+        truth; see :func:`parse_queries`). None scores every label present in the map
+        (minus ``exclude``). A query whose label no item carries becomes an absence query.
     exclude
         Label names whose items are ignored (neither TP nor FP) and never queried.
     absent
@@ -129,9 +131,10 @@ def evaluate(
     )
     if queries is None:
         queries = [n for i, n in enumerate(names) if counts[i] > 0 and n not in set(exclude)]
-    queries = list(dict.fromkeys(queries))
-    unknown_here = [q for q in queries if q not in names or counts[names.index(q)] == 0]
-    presence = [q for q in queries if q not in unknown_here]
+    gt_of = parse_queries(queries)
+    index = {n: i for i, n in enumerate(names)}
+    unknown_here = [q for q, g in gt_of.items() if g not in index or counts[index[g]] == 0]
+    presence = [q for q in gt_of if q not in unknown_here]
     absence = list(dict.fromkeys([*unknown_here, *absent]))
     absence = [a for a in absence if a not in presence]
     if unknown_here:
@@ -140,6 +143,10 @@ def evaluate(
         )
     if not presence and not absence:
         raise QuashError("No query to evaluate: the map has no label left after --exclude.")
+    from ..engine.presence import MapTopology
+    from .ranking import average_precision, inverse_rank, label_segments
+
+    segments = label_segments(labels, MapTopology(lmap)) if presence else None
     used: dict[str, int] = {}
     out, all_results = [], {}
     for quash, config in zip(quashes, configs):
@@ -153,18 +160,144 @@ def evaluate(
         results = quash.query_many(lmap, texts)
         per_query = {}
         for q, r in zip(presence, results[: len(presence)]):
-            truth = labels == names.index(q)
-            per_query[q] = query_metrics(r.mask, truth, valid)
+            truth = labels == index[gt_of[q]]
+            per_query[q] = {"label": gt_of[q], **query_metrics(r.mask, truth, valid)}
+            # ranking metrics: the order the scores put the items in
+            per_query[q]["ap"] = average_precision(r.scores, truth, valid)
+            per_query[q]["inv_rank"] = (
+                inverse_rank(r.scores, segments, truth, valid) if segments is not None else None
+            )
         masks = {q: r.mask for q, r in zip(texts, results)}
         ab = absence_score({q: masks[q] for q in absence}, valid, empty_tolerance)
+        ab["present_empty"] = sum(1 for m in per_query.values() if m["n_pred"] == 0)
         out.append(
-            {"name": name, "mean": macro_mean(per_query), "per_query": per_query, "absence": ab}
+            {
+                "name": name,
+                "given": given(quash, results[0].queryset.provenance if results else None),
+                "mean": macro_mean(per_query),
+                "per_query": per_query,
+                "absence": ab,
+            }
         )
         if keep_results:
             all_results[name] = results
         if on_query is not None:
             on_query(name, len(texts))
     return EvalReport(out, presence, absence, all_results)
+
+
+def parse_queries(queries: Any) -> dict[str, str]:
+    """``{query text: ground-truth label}`` from labels, ``"text=label"`` items or a mapping.
+
+    >>> parse_queries(["chair", "bunk bed=bed", "somewhere to sleep = bed"])
+    {'chair': 'chair', 'bunk bed': 'bed', 'somewhere to sleep': 'bed'}
+    """
+    if isinstance(queries, dict):
+        items = [(str(k), str(v)) for k, v in queries.items()]
+    else:
+        items = []
+        for q in queries:
+            text, sep, label = str(q).partition("=")
+            items.append((text, label if sep else text))
+    out: dict[str, str] = {}
+    for text, label in items:
+        text, label = " ".join(text.split()), " ".join(label.split())
+        if not text or not label:
+            raise QuashError(
+                f"Query {text or label!r}: write an open-vocabulary query as TEXT=LABEL "
+                "(e.g. 'bunk bed=bed'), with neither side empty."
+            )
+        out[text] = label
+    return out
+
+
+def load_query_file(path: str | Path) -> tuple[dict[str, str], list[str]]:
+    """Presence queries ``{text: label}`` and absence queries from a YAML file.
+
+    The file is ``{present: ..., absent: [...]}``; ``present`` is a list of labels and
+    ``"text=label"`` items or a ``{text: label}`` mapping (``quash make-scene`` writes such
+    files: ``SCENE.queries.yaml``, ``SCENE.open-queries.yaml``). A plain ``{text: label}``
+    mapping without those keys is all presence queries.
+    """
+    from ..core.config import load_yaml
+
+    data, _ = load_yaml(path)
+    if isinstance(data, dict) and ("present" in data or "absent" in data):
+        present, absent = data.get("present") or [], data.get("absent") or []
+    elif isinstance(data, (dict, list)):
+        present, absent = data, []
+    else:
+        raise QuashError(
+            f"{path}: a query file is a mapping {{present: {{text: label}} or [labels], "
+            "absent: [texts]}; see docs/evaluation.md."
+        )
+    if not isinstance(present, (dict, list)) or not isinstance(absent, list):
+        raise QuashError(
+            f"{path}: 'present' must be a list or a {{text: label}} mapping and 'absent' a "
+            "list of texts."
+        )
+    return parse_queries(present), [" ".join(str(a).split()) for a in absent]
+
+
+#: What each heuristic gives a method besides the query (the "given" column of a table).
+GIVEN = {
+    "none": "the query alone",
+    "static": "the query + fixed lists",
+    "templates": "the query alone",
+    "vocabulary": "the query + the shipped vocabulary",
+    "adjectives": "the query + the shipped adjectives",
+    "lexicon": "the query + the shipped lexicon",
+    "llm": "the query + an LLM",
+}
+
+
+def given(quash: Any, provenance: dict[str, Any] | None = None) -> str:
+    """What a configured method is given besides the map: the label list or the query alone.
+
+    A heuristic may say it itself with an ``information()`` method; the built-ins are
+    described here, and a query set's ``provenance["labels_from"]`` (where the label list
+    came from) refines it. Fixed negatives beyond the generic three count as given too.
+    """
+    from ..core.types import DEFAULT_NEGATIVES
+
+    text = _given_by(quash.heuristic)
+    how = (provenance or {}).get("auto")  # the auto heuristic says which it used
+    if how == "vocabulary":
+        text = GIVEN["vocabulary"]
+    elif how == "label list":
+        text = "the label list"
+    source = (provenance or {}).get("labels_from")
+    if source and text.startswith("the label list"):
+        parts = [Path(p.strip()).name if "/" in p else p.strip() for p in str(source).split("+")]
+        text = f"the label list ({' + '.join(parts)})"
+    extra = [n for n in getattr(quash, "negatives", ()) if n not in DEFAULT_NEGATIVES]
+    if len(extra) > 4:
+        text += f" + {len(extra)} fixed negatives"
+    elif extra:
+        text += " + negatives " + ", ".join(extra)
+    return text
+
+
+def _given_by(h: Any) -> str:
+    name = getattr(h, "name", "?")
+    say = getattr(h, "information", None)
+    if callable(say):
+        return str(say())
+    if name == "map-negatives" and getattr(h, "base", None) is not None:
+        return _given_by(h.base) + " + map-mined negatives"
+    if name == "auto":
+        return "the label list, else the query + the shipped vocabulary"
+    if name in ("taxonomy", "label-list"):
+        file = getattr(h, "file", None)
+        if file:
+            return f"the label list ({Path(file).name})"
+        if getattr(h, "taxonomy", None):
+            return "the label list (in memory)"
+        return "the label list (the map's label names)"
+    if name == "combine":
+        parts = [_given_by(getattr(h, k)) for k in ("_syn", "_ant") if getattr(h, k, None)]
+        return " / ".join(dict.fromkeys(parts)) or "the query alone"
+    return GIVEN.get(name, f"the query + heuristic {name}")
 
 
 def _fmt(v: Any) -> str:
@@ -177,8 +310,9 @@ def report_markdown(
     """Configs side by side: a summary table, then F1 per query (one column per config)."""
     lines = [f"### {title}", ""] if title else []
     lines += [
-        "| method | F1 | precision | recall | IoU | absence |",
-        "|---|---:|---:|---:|---:|---:|",
+        "| method | given | F1 | precision | recall | IoU | AP | inv. rank | absence "
+        "| present -> empty |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     best = max((c["mean"]["f1"] for c in configs), default=0.0)
     for c in configs:
@@ -186,10 +320,14 @@ def report_markdown(
         if c["mean"]["f1"] == best and len(configs) > 1:
             f1 = f"**{f1}**"
         ab = c.get("absence", {}) or {}
+        n_present = len(c.get("per_query") or {})
+        empty = ab.get("present_empty")
         lines.append(
-            f"| {c['name']} | {f1} | {_fmt(c['mean']['precision'])} | "
+            f"| {c['name']} | {c.get('given', '')} | {f1} | {_fmt(c['mean']['precision'])} | "
             f"{_fmt(c['mean']['recall'])} | {_fmt(c['mean']['iou'])} | "
-            f"{_fmt(ab.get('score'))} |"
+            f"{_fmt(c['mean'].get('ap'))} | {_fmt(c['mean'].get('inv_rank'))} | "
+            f"{_fmt(ab.get('score'))} | "
+            f"{'' if empty is None else f'{empty}/{n_present}' if n_present else empty} |"
         )
     if per_query and configs and configs[0]["per_query"]:
         lines += [
@@ -220,8 +358,12 @@ def report_markdown(
 __all__ = [
     "DEFAULT_EXCLUDE",
     "METRICS",
+    "RANKING",
     "EvalReport",
     "evaluate",
+    "given",
+    "load_query_file",
+    "parse_queries",
     "report_markdown",
 ]
 

@@ -10,10 +10,14 @@ from importlib import import_module
 from typing import Any
 
 _EXPORTS = {
+    "AutoHeuristic": "._auto",
     "NoneHeuristic": "._basic",
     "StaticHeuristic": "._basic",
     "LLMHeuristic": "._llm",
     "TaxonomyHeuristic": "._taxonomy",
+    "LabelListHeuristic": "._taxonomy",
+    "normalise_name": "._taxonomy",
+    "taxonomy_beside": "._taxonomy",
     "LexiconHeuristic": "._lexicon",
     "AdjectivesHeuristic": "._adjectives",
     "TemplatesHeuristic": "._templates",

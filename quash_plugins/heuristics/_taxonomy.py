@@ -34,6 +34,37 @@ def load_taxonomy(spec: str | dict | None) -> dict[str, list[str]]:
     return out
 
 
+_BESIDE: dict[tuple[str, int], dict[str, list[str]]] = {}
+
+
+def taxonomy_beside(lmap: Any) -> tuple[str, dict[str, list[str]]] | None:
+    """``(path, taxonomy)`` of ``MAP.taxonomy.yaml`` next to the map's file, if there is one.
+
+    ``quash make-scene OUT.npz`` writes ``OUT.taxonomy.yaml``; a map read from ``OUT.npz``
+    finds it here, so a config without ``file`` gets the scene's sub-classes too. A file
+    that is not a taxonomy is ignored (with a log line).
+    """
+    from pathlib import Path
+
+    path = (getattr(lmap, "source", None) or {}).get("path") if lmap is not None else None
+    if not path:
+        return None
+    p = Path(str(path))
+    cand = p.with_name(p.name[: -len(p.suffix)] + ".taxonomy.yaml") if p.suffix else None
+    if cand is None or not cand.is_file():
+        return None
+    try:
+        key = (str(cand.resolve()), cand.stat().st_mtime_ns)
+        if key not in _BESIDE:
+            if len(_BESIDE) > 16:
+                _BESIDE.clear()
+            _BESIDE[key] = load_taxonomy(str(cand))
+    except (OSError, ConfigError) as exc:
+        log.info("ignoring %s beside the map: %s", cand, exc)
+        return None
+    return str(cand), _BESIDE[key]
+
+
 class TaxonomyHeuristic(Heuristic):
     """Synonyms from the query label's sub-classes, antonyms from the other labels'.
 
@@ -41,20 +72,26 @@ class TaxonomyHeuristic(Heuristic):
     ----------
     file
         YAML ``{label: [sub-class, ...]}`` (e.g. Matterport3D's 40 labels with their
-        1,659 fine classes). Without it, the map's label names are the taxonomy (labels
-        without sub-classes).
+        1,659 fine classes). Without it, the label list is the map's label names, with
+        sub-classes from ``MAP.taxonomy.yaml`` when that file sits next to the map's file
+        (``quash make-scene`` writes it; :func:`taxonomy_beside`).
     taxonomy
         The same mapping given in memory.
     n_synonyms
         Up to this many sub-classes of the query's label, sampled (the paper: 20).
     n_antonyms
-        Up to this many sub-classes of the other labels, sampled (the paper: 100).
+        Up to this many sub-classes of the other labels, sampled (the paper: 100), or
+        ``"all"``: every other label with all its sub-classes, recorded label by label in
+        ``provenance["negative_groups"]`` (the presence check scores each label as one
+        competitor).
     include_other_labels
         Also count the other labels' own names as antonym candidates.
     resolve
-        Resolve a query that is not a label to the nearest label by cosine similarity
-        of the encoder's text embeddings (reported in provenance and the log). When
-        False, such a query is an error.
+        Resolve a query that is not a label: a listed sub-class or a near match of a
+        label or sub-class resolves to its label, anything else to the label of the
+        nearest label or sub-class by cosine similarity of the encoder's text embeddings
+        (:meth:`resolve_query`; reported in provenance, ``quash expand`` and the log). When
+        False, a query that is neither a label nor a (near) sub-class is an error.
     min_similarity
         A query whose nearest label has a lower cosine is not forced onto that label: it
         stays its own positive and every label's sub-classes are antonym candidates, so
@@ -68,7 +105,7 @@ class TaxonomyHeuristic(Heuristic):
         file: str | None = None,
         taxonomy: dict[str, Any] | None = None,
         n_synonyms: int = 20,
-        n_antonyms: int = 100,
+        n_antonyms: int | str = 100,
         include_other_labels: bool = True,
         resolve: bool = True,
         min_similarity: float = 0.5,
@@ -78,11 +115,16 @@ class TaxonomyHeuristic(Heuristic):
         self.file = file
         self.taxonomy = taxonomy
         self.n_synonyms = int(n_synonyms)
-        self.n_antonyms = int(n_antonyms)
+        if isinstance(n_antonyms, str) and n_antonyms != "all":
+            raise ConfigError(
+                f"Heuristic 'taxonomy': n_antonyms must be a number or 'all'; got {n_antonyms!r}."
+            )
+        # None: "all", every other label with all its sub-classes, recorded label by label
+        self.n_antonyms = None if n_antonyms == "all" else int(n_antonyms)
         self.include_other_labels = bool(include_other_labels)
         self.resolve = bool(resolve)
         self.min_similarity = float(min_similarity)
-        if self.n_synonyms < 0 or self.n_antonyms < 0:
+        if self.n_synonyms < 0 or (self.n_antonyms is not None and self.n_antonyms < 0):
             raise ConfigError("Heuristic 'taxonomy': n_synonyms and n_antonyms must be >= 0.")
         spec = file if file is not None else taxonomy
         self._tax = load_taxonomy(spec) if spec is not None else None
@@ -90,63 +132,126 @@ class TaxonomyHeuristic(Heuristic):
     def _labels(self, context: ExpansionContext) -> dict[str, list[str]]:
         if self._tax is not None:
             return self._tax
-        if context.label_names:
-            return {str(n): [] for n in context.label_names}
+        beside = taxonomy_beside(context.map)
+        if context.label_names or beside:
+            out = {k: list(v) for k, v in (beside[1] if beside else {}).items()}
+            for name in context.label_names or []:
+                key = " ".join(str(name).split())
+                if key and key.lower() not in {k.lower() for k in out}:
+                    out[key] = []
+            return out
         raise HeuristicError(
-            "Heuristic 'taxonomy' has no taxonomy: give 'file' ({label: [sub-class, ...]}) "
-            "or query a map that has label_names."
+            f"Heuristic {self.name!r} has no taxonomy (no label list): give 'file' "
+            "({label: [sub-class, ...]}) or query a map that has label_names (or a "
+            "MAP.taxonomy.yaml beside its file)."
         )
+
+    def _labels_source(self, context: ExpansionContext | None) -> str:
+        """Where the label list came from, for the provenance."""
+        if self._tax is not None:
+            return self.file or "the taxonomy given in memory"
+        beside = taxonomy_beside(context.map if context is not None else None)
+        names = "the map's label names" if context is not None and context.label_names else ""
+        if beside:
+            return f"{names} + {beside[0]}" if names else beside[0]
+        return names or "none"
 
     def resolve_label(
         self, query: str, context: ExpansionContext
     ) -> tuple[str | None, float | None]:
         """The taxonomy label for ``query`` and, when resolved by embedding, its cosine.
 
-        The label is None when the nearest label is below ``min_similarity``.
+        The label is None when nothing is within ``min_similarity``. See
+        :meth:`resolve_query` for the whole record.
+        """
+        r = self.resolve_query(query, context)
+        return r["to"], r.get("cosine")
+
+    def resolve_query(self, query: str, context: ExpansionContext) -> dict[str, Any]:
+        """Resolve ``query`` to a label; the first rule that applies wins.
+
+        1. ``label``: the query is a label (case-insensitive).
+        2. ``subclass``: the query is a listed sub-class ("bunk bed" -> bed): the first
+           label that lists it, in file order.
+        3. ``near-label`` / ``near-subclass``: equal after :func:`normalise_name` (case,
+           hyphens, a leading article, a plural last word): "Bunk-beds" -> "bunk bed".
+        4. ``embedding``: the nearest of all labels *and* sub-classes by the encoder's
+           cosine, when at least ``min_similarity`` ("somewhere to sleep" -> bed).
+        5. ``none``: the query stays its own concept (label None).
+
+        Returns ``{"from", "to", "how", "via", "cosine"}``; ``via`` is the name matched.
         """
         tax = self._labels(context)
-        low = {k.lower(): k for k in tax}
-        if query.lower() in low:
-            return low[query.lower()], None
+        q = " ".join(query.split())
+        low = q.lower()
+        for label in tax:
+            if label.lower() == low:
+                return {"from": query, "to": label, "how": "label", "via": label}
+        for label, subs in tax.items():
+            for sub in subs:
+                if sub.lower() == low:
+                    return {"from": query, "to": label, "how": "subclass", "via": sub}
+        nq = normalise_name(q)
+        for label in tax:
+            if normalise_name(label) == nq:
+                return {"from": query, "to": label, "how": "near-label", "via": label}
+        for label, subs in tax.items():
+            for sub in subs:
+                if normalise_name(sub) == nq:
+                    return {"from": query, "to": label, "how": "near-subclass", "via": sub}
         where = self.file or "the taxonomy"
         if not self.resolve or context.encoder is None:
             guess = closest(query, tax)
             hint = f" Did you mean {guess!r}?" if guess else ""
             why = "resolve is off" if not self.resolve else "no encoder to resolve it"
             raise HeuristicError(
-                f"Query {query!r} is not a label of {where} ({why}).{hint} "
+                f"Query {query!r} is not a label or sub-class of {where} ({why}).{hint} "
                 f"Labels: {', '.join(list(tax)[:30])}{' ...' if len(tax) > 30 else ''}."
             )
         from ..core.text import encode_texts
 
-        labels = list(tax)
+        names, owner = [], []
+        for label, subs in tax.items():
+            for name in (label, *subs):
+                names.append(name)
+                owner.append(label)
         cache = context.extra.get("cache")
-        E = encode_texts(context.encoder, labels, cache)
-        q = encode_texts(context.encoder, [query], cache)[0]
-        sims = E @ q
+        E = encode_texts(context.encoder, names, cache)
+        v = encode_texts(context.encoder, [q], cache)[0]
+        sims = E @ v
         best = int(np.argmax(sims))
+        cos = round(float(sims[best]), 4)
         if float(sims[best]) < self.min_similarity:
             log.info(
-                "taxonomy: query %r is not a label; nearest %r (cosine %.3f) is below "
-                "min_similarity %.2f, so it is kept as its own concept",
+                "taxonomy: query %r matches no label; nearest name %r (label %r, cosine "
+                "%.3f) is below min_similarity %.2f, so it is kept as its own concept",
                 query,
-                labels[best],
-                float(sims[best]),
+                names[best],
+                owner[best],
+                cos,
                 self.min_similarity,
             )
-            return None, float(sims[best])
+            return {"from": query, "to": None, "how": "none", "via": names[best], "cosine": cos}
         log.info(
-            "taxonomy: query %r is not a label; resolved to %r (cosine %.3f)",
+            "taxonomy: query %r resolved to label %r through %r (cosine %.3f)",
             query,
-            labels[best],
-            float(sims[best]),
+            owner[best],
+            names[best],
+            cos,
         )
-        return labels[best], float(sims[best])
+        return {
+            "from": query,
+            "to": owner[best],
+            "how": "embedding",
+            "via": names[best],
+            "cosine": cos,
+        }
 
     def expand(self, query: str, context: ExpansionContext | None = None) -> QuerySet:
         ctx = context or ExpansionContext()
         tax = self._labels(ctx)
-        label, sim = self.resolve_label(query, ctx)
+        res = self.resolve_query(query, ctx)
+        label = res["to"]
         rng = ctx.rng(f"taxonomy|{label if label is not None else query}")
         own = tax[label] if label is not None else []
         syn = _sample(own, self.n_synonyms, rng)
@@ -154,16 +259,24 @@ class TaxonomyHeuristic(Heuristic):
         if label is not None:
             mine.add(label.lower())
         pool: list[str] = []
+        sizes: list[int] = []
+        seen: set[str] = set()
         for other, subs in tax.items():
             if other == label:
                 continue
             cands = ([other] if self.include_other_labels else []) + subs
-            pool.extend(c for c in cands if c.lower() not in mine)
-        pool = list(dict.fromkeys(pool))
-        ant = _sample(pool, self.n_antonyms, rng)
-        extra: dict[str, Any] = {"label": label}
-        if sim is not None:
-            extra["resolved"] = {"from": query, "to": label, "cosine": round(sim, 4)}
+            group = [c for c in dict.fromkeys(cands) if c.lower() not in mine and c not in seen]
+            seen.update(group)
+            pool.extend(group)
+            sizes.append(len(group))
+        ant = pool if self.n_antonyms is None else _sample(pool, self.n_antonyms, rng)
+        extra: dict[str, Any] = {"label": label, "labels_from": self._labels_source(ctx)}
+        if self.n_antonyms is None:
+            # every other label's names, label by label: the presence check scores each
+            # label as one competitor
+            extra["negative_groups"] = [n for n in sizes if n]
+        if res["how"] != "label":
+            extra["resolved"] = res
         positives = [query, label, *syn] if label is not None else [query]
         return QuerySet(query, positives, ant, self.provenance(context, **extra))
 
@@ -172,11 +285,38 @@ class TaxonomyHeuristic(Heuristic):
             "file": self.file,
             "labels": len(self._tax) if self._tax is not None else None,
             "n_synonyms": self.n_synonyms,
-            "n_antonyms": self.n_antonyms,
+            "n_antonyms": "all" if self.n_antonyms is None else self.n_antonyms,
             "include_other_labels": self.include_other_labels,
             "resolve": self.resolve,
             "min_similarity": self.min_similarity,
         }
+
+
+_ARTICLES = ("a ", "an ", "the ", "some ")
+
+
+def normalise_name(text: str) -> str:
+    """Lower case, hyphens and underscores as spaces, no leading article, singular last word.
+
+    >>> normalise_name("A Bunk-Beds"), normalise_name("benches"), normalise_name("glass")
+    ('bunk bed', 'bench', 'glass')
+    """
+    t = " ".join(text.lower().replace("-", " ").replace("_", " ").split())
+    for a in _ARTICLES:
+        if t.startswith(a):
+            t = t[len(a) :]
+            break
+    words = t.split()
+    if words:
+        w = words[-1]
+        if len(w) > 4 and w.endswith("ies"):
+            w = w[:-3] + "y"
+        elif len(w) > 4 and w.endswith(("ches", "shes", "sses", "xes", "zes")):
+            w = w[:-2]
+        elif len(w) > 3 and w.endswith("s") and not w.endswith(("ss", "us", "is")):
+            w = w[:-1]
+        words[-1] = w
+    return " ".join(words)
 
 
 def _sample(items: list[str], n: int, rng: np.random.Generator) -> list[str]:
@@ -184,3 +324,60 @@ def _sample(items: list[str], n: int, rng: np.random.Generator) -> list[str]:
         return list(items)
     idx = rng.choice(len(items), size=n, replace=False)
     return [items[i] for i in sorted(idx.tolist())]
+
+
+class LabelListHeuristic(TaxonomyHeuristic):
+    """The fair peer's query set: the resolved label against every other label.
+
+    What VLMaps with its category list and OpenScene's label argmax are given
+    (``classifier: label-argmax``): positives ``[label]`` (the query itself when it
+    resolves to no label), negatives every other label of the taxonomy (no sub-classes,
+    no sampling). The query resolves exactly as the ``taxonomy`` heuristic resolves it
+    (label, sub-class, near match, embedding), so a peer and QuASH given the same label
+    list see the same resolution. Without ``file``, the map's label names are the list.
+
+    Examples
+    --------
+    >>> h = LabelListHeuristic(taxonomy={"bed": ["bunk bed"], "sofa": ["futon"], "chair": []})
+    >>> qs = h.expand("bunk beds")
+    >>> qs.positives, qs.negatives
+    (['bed'], ['sofa', 'chair'])
+    """
+
+    name = "label-list"
+
+    def __init__(
+        self,
+        file: str | None = None,
+        taxonomy: dict[str, Any] | None = None,
+        resolve: bool = True,
+        min_similarity: float = 0.5,
+    ) -> None:
+        super().__init__(
+            file=file,
+            taxonomy=taxonomy,
+            n_synonyms=0,
+            n_antonyms=0,
+            resolve=resolve,
+            min_similarity=min_similarity,
+        )
+
+    def expand(self, query: str, context: ExpansionContext | None = None) -> QuerySet:
+        ctx = context or ExpansionContext()
+        tax = self._labels(ctx)
+        res = self.resolve_query(query, ctx)
+        label = res["to"]
+        positives = [label] if label is not None else [query]
+        negatives = [other for other in tax if other != label]
+        extra: dict[str, Any] = {"label": label, "labels_from": self._labels_source(ctx)}
+        if res["how"] != "label":
+            extra["resolved"] = res
+        return QuerySet(query, positives, negatives, self.provenance(context, **extra))
+
+    def params(self) -> dict[str, Any]:
+        return {
+            "file": self.file,
+            "labels": len(self._tax) if self._tax is not None else None,
+            "resolve": self.resolve,
+            "min_similarity": self.min_similarity,
+        }

@@ -77,6 +77,18 @@ class VocabularyHeuristic(Heuristic):
     names
         The vocabulary given in memory.
 
+    negatives
+        ``"band"`` (the near and far negatives above) or ``"all"``: the vocabulary stands
+        in for a label list, and every name whose cosine to the query and to every
+        positive is below ``exclude`` is a negative (each its own competitor in the
+        presence check). The query is looked up in its normalised form
+        (``normalise_name``: "fridge freezers" -> "fridge freezer").
+    exclude
+        With ``negatives: all``: names at least this close to a positive are left out.
+    head_positives
+        Also add up to this many names sharing the query's head noun as positives
+        ("desk chair", "armchair" for "swivel chairs"; 0: none).
+
     Names ending with the query's head word (``"armchair"`` for ``"chair"``) are never
     negatives.
     """
@@ -92,7 +104,19 @@ class VocabularyHeuristic(Heuristic):
         n_far: int = 10,
         vocabulary: str | None = None,
         names: Sequence[str] | None = None,
+        negatives: str = "band",
+        exclude: float = 0.5,
+        head_positives: int = 0,
     ) -> None:
+        if negatives not in ("band", "all"):
+            raise ConfigError(
+                f"Heuristic 'vocabulary': negatives must be 'band' or 'all'; got {negatives!r}."
+            )
+        if int(head_positives) < 0:
+            raise ConfigError("Heuristic 'vocabulary': 'head_positives' must be >= 0.")
+        self.negatives = negatives
+        self.exclude = float(exclude)
+        self.head_positives = int(head_positives)
         if vocabulary is not None and names is not None:
             raise ConfigError("Heuristic 'vocabulary' takes 'vocabulary' or 'names', not both.")
         band = [float(x) for x in negative_band]
@@ -125,25 +149,51 @@ class VocabularyHeuristic(Heuristic):
                 "Quash, or pass ExpansionContext(encoder=...))."
             )
         from ..core.text import encode_texts
+        from ._taxonomy import normalise_name
 
         cache = context.extra.get("cache")
         V = vocabulary_embeddings(context.encoder, self._names, cache)
-        q = encode_texts(context.encoder, [query], cache)[0]
+        lookup = normalise_name(query) or query if self.negatives == "all" else query
+        q = encode_texts(context.encoder, [lookup], cache)[0]
         sims = V @ q
         order = np.argsort(-sims, kind="stable")
-        qlow, head = query.lower(), head_word(query)
+        qlow, head = query.lower(), head_word(lookup)
         pos: list[str] = []
         for i in order:
             if len(pos) >= self.n_positives or sims[i] < self.min_similarity:
                 break
             if self._names[i].lower() != qlow:
                 pos.append(self._names[i])
+        if self.head_positives and head:
+            same = [
+                self._names[i]
+                for i in order
+                if head_word(self._names[i]) == head
+                and self._names[i].lower() != qlow
+                and self._names[i] not in pos
+            ]
+            pos += same[: self.head_positives]
+        if lookup.lower() != qlow and lookup not in pos:
+            pos.insert(0, lookup)
         taken = {qlow, *(p.lower() for p in pos)}
 
         def allowed(i: int) -> bool:
             n = self._names[i].lower()
             return n not in taken and not (head and n.endswith(head))
 
+        if self.negatives == "all":
+            P = encode_texts(context.encoder, [query, *pos], cache)
+            close = (V @ P.T).max(axis=1) >= self.exclude
+            neg = [self._names[i] for i in range(len(self._names)) if not close[i] and allowed(i)]
+            prov = self.provenance(
+                context,
+                vocabulary_size=len(self._names),
+                similarity={
+                    self._names[i]: round(float(sims[i]), 3) for i in order[: self.n_positives]
+                },
+                negatives_all=len(neg),
+            )
+            return QuerySet(query, [query, *pos], neg, prov)
         low, high = self.negative_band
         near = [i for i in order if low <= sims[i] < high and allowed(i)][: self.n_near]
         far_pool = [i for i in order if sims[i] < low and allowed(i)]
@@ -175,5 +225,8 @@ class VocabularyHeuristic(Heuristic):
             "negative_band": self.negative_band,
             "n_near": self.n_near,
             "n_far": self.n_far,
+            "negatives": self.negatives,
+            "exclude": self.exclude,
+            "head_positives": self.head_positives,
             "vocabulary": self.vocabulary if self.names is None else f"{len(self.names)} names",
         }

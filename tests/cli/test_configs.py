@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 import yaml
 
@@ -34,11 +35,18 @@ def test_every_shipped_config_loads_and_says_what_it_needs():
 def test_offline_configs_run_offline():
     """Each ``demo:*`` config builds and expands a query with what the package ships."""
     from quash_plugins import Quash
+    from quash_plugins.core.types import LatentMap
 
+    # The label-list configs take their list from the map: give them one with label names.
+    labelled = LatentMap(
+        embeddings=np.eye(3, 8, dtype=np.float32),
+        labels=np.arange(3),
+        label_names=["chair", "sofa", "table"],
+    )
     for c in shipped_configs():
         if c.offline:
             quash = Quash.from_config(c.name, cache=None)
-            qs = quash.expand("chair")
+            qs = quash.expand("chair", labelled)
             assert qs.positives[0] == "chair" and qs.negatives, c.name
             X, y, _ = quash.training_set(qs)
             assert X.shape[0] == len(y) > 1, c.name

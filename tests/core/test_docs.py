@@ -91,10 +91,10 @@ def _stand_ins(folder: Path) -> None:
     for name, classifier in (("quash", "nearest-sample"), ("vlmaps", "contrast")):
         cfg = {"name": name, "encoder": enc, "heuristic": "none", "classifier": classifier}
         (folder / f"{name}.yaml").write_text(yaml.safe_dump(cfg), encoding="utf-8")
-    # Shipped configs named in the guides (-c demo:quash-taxonomy): a file of that name in
+    # Shipped configs named in the guides (-c demo:quash-labels): a file of that name in
     # the current folder wins over the shipped one, so these stand in for them here.
     # tests/cli/test_doc_commands.py runs the quickstart with the real ones.
-    for name in ("demo:quash-taxonomy", "demo:vlmaps"):
+    for name in ("demo:quash-taxonomy", "demo:quash-labels", "demo:vlmaps"):
         cfg = {"name": name.split(":")[1], "encoder": enc, "classifier": "nearest-sample"}
         (folder / name).write_text(yaml.safe_dump(cfg), encoding="utf-8")
     labels = rng.integers(0, 3, size=400)

@@ -93,3 +93,104 @@ def test_shipped_demo_taxonomy_matches_generator():
     expected = {c.label: list(c.language) for c in CLASSES}
     expected.update({k: list(v) for k, v in ABSENT.items()})
     assert tax == expected
+
+
+# ---------------------------------------------------------------------- harder scenes
+def test_default_scene_is_what_it_was_before_the_gap_options(encoder):
+    """The digest is the scene of these options from the generator before the gap and
+    class-table options existed (main at 6867cad): the defaults change nothing, so the
+    demo's cached scenes and every earlier table stay valid."""
+    import hashlib
+
+    s = make_scene(encoder, OPTS)
+    digest = hashlib.sha256(
+        s.map.embeddings.tobytes()
+        + s.map.labels.tobytes()
+        + s.map.grid_index.astype(np.int64).tobytes()
+    ).hexdigest()
+    assert digest == "3f7bb83509d9b33dc709968954c8e3a4d2a6902b5b18702c80ca9441231a5d9a"
+
+
+def test_gap_options_change_the_embeddings_not_the_layout(encoder):
+    hard = SceneOptions(**{**OPTS.__dict__, "gap_class": 0.5, "gap_instance": 0.3})
+    a, b = make_scene(encoder, OPTS), make_scene(encoder, hard)
+    assert np.array_equal(a.map.labels, b.map.labels)
+    assert np.array_equal(a.map.grid_index, b.map.grid_index)
+    assert np.allclose(np.linalg.norm(b.map.embeddings, axis=1), 1, atol=1e-5)
+    # a per-class direction: items of one class move together, so the class means move
+    # while the spread around them does not grow much
+    wall = a.map.labels == a.map.label_names.index("wall")
+    shift = b.map.embeddings[wall].mean(0) - a.map.embeddings[wall].mean(0)
+    assert np.linalg.norm(shift) > 0.1
+    with pytest.raises(Exception, match="gap_class"):
+        make_scene(encoder, SceneOptions(**{**OPTS.__dict__, "gap_class": -1.0}))
+    with pytest.raises(Exception, match="classes must be one of a, b"):
+        make_scene(encoder, SceneOptions(**{**OPTS.__dict__, "classes": "c"}))
+
+
+def test_class_table_b_has_other_names_and_no_shared_word():
+    from quash_plugins.demo.classes_b import ABSENT_B, CLASSES_B, FREE_TEXT_B, check_b
+    from quash_plugins.heuristics._vocabulary import load_vocabulary
+
+    assert check_b({n.lower() for n in load_vocabulary(None)}) == []
+    a_labels = {c.label for c in CLASSES}
+    b_labels = {c.label for c in CLASSES_B}
+    assert len(b_labels - a_labels) >= 12 and len(CLASSES_B) == 34
+    assert not set(ABSENT_B) & b_labels
+    assert set(FREE_TEXT_B) <= b_labels
+    appearance_a = {n for c in CLASSES for n in c.appearance}
+    assert not appearance_a & {n for c in CLASSES_B for n in c.appearance}
+
+
+def test_table_b_scene_and_its_open_queries(tmp_path):
+    from quash_plugins.demo.classes_b import ABSENT_B, CLASSES_B
+
+    enc = TableEncoder(table=table_for({n for c in CLASSES_B for n in c.appearance}))
+    opts = SceneOptions(**{**OPTS.__dict__, "classes": "b"})
+    s = make_scene(enc, opts)
+    assert s.map.label_names == [c.label for c in CLASSES_B]
+    assert set(ABSENT_B) <= set(s.taxonomy)
+    present = {s.map.label_names[i] for i in np.unique(s.map.labels)}
+    language = {c.label: set(c.language) for c in CLASSES_B}
+    # every open query's label is present; sub-class queries are (near forms of) a
+    # sub-class of that label
+    assert s.open_present and set(s.open_present.values()) <= present
+    for text, label in s.open_present.items():
+        base = text[2:] if text.startswith("a ") else text
+        assert (
+            base in language[label]
+            or base.rstrip("s") in language[label]
+            or base[:-2] in language[label]
+            or " " in text  # a free-text description
+        ), (text, label)
+    assert not set(s.open_absent) & set(s.open_present)
+    assert any(a in {n for v in ABSENT_B.values() for n in v} for a in s.open_absent)
+    paths = write_scene(s, tmp_path / "b.npz", opts)
+    data = yaml.safe_load(paths["open_queries"].read_text())
+    assert data["present"] == s.open_present and data["absent"] == s.open_absent
+
+
+@pytest.mark.slow
+def test_table_b_classes_are_recognisable_with_minilm():
+    """The noiseless mean of each class's appearance names is nearest its own label
+    (top-2 mean over label and sub-classes): a table-B scene's ground truth is one the
+    encoder can see, so a hard scene is hard, not wrong."""
+    pytest.importorskip("sentence_transformers")
+    from quash_plugins.demo.classes_b import ABSENT_B, CLASSES_B
+    from quash_plugins.encoders._sentence_transformers import MiniLMEncoder
+
+    enc = MiniLMEncoder(device="cpu")
+    groups = {c.label: [c.label, *c.language] for c in CLASSES_B}
+    groups.update({k: [k, *v] for k, v in ABSENT_B.items()})
+    wrong = []
+    for c in CLASSES_B:
+        m = enc.encode_text(list(c.appearance)).mean(0)
+        m /= np.linalg.norm(m)
+        score = {}
+        for label, names in groups.items():
+            sims = np.sort(enc.encode_text(names) @ m)[::-1]
+            score[label] = sims[:2].mean()
+        best = max(score, key=score.get)
+        if best != c.label:
+            wrong.append((c.label, best))
+    assert not wrong

@@ -86,6 +86,27 @@ def test_pseudo_labels_pick_confident_matches_and_clear_non_matches():
     assert pseudo_labels(lmap, scores, mask & (scores > 3.5), observed, opts, "x") is None
 
 
+def test_top_seeds_use_the_best_scored_items_even_below_the_threshold():
+    """seeds: top takes the n_positives best-scored observed items, matched or not: a class
+    whose text sits just off its map items still seeds the second pass."""
+    rng = np.random.default_rng(5)
+    lmap = LatentMap(rng.normal(size=(400, 4)).astype(np.float32))
+    scores = rng.normal(size=400)
+    observed = np.ones(400, bool)
+    observed[:10] = False
+    scores[:10] = 99.0  # unobserved rows never seed, whatever their score
+    mask = (scores > 3.0) & observed  # almost nothing matched: below min_seed
+    opts = RefineOptions.parse({"seeds": "top", "n_positives": 20, "n_negatives": 50})
+    assert pseudo_labels(lmap, scores, mask, observed, RefineOptions.parse({}), "q") is None
+    rows, y = pseudo_labels(lmap, scores, mask, observed, opts, "q")
+    best = np.argsort(-np.where(observed, scores, -np.inf))[:20]
+    expected = np.asarray(lmap.embeddings)[np.sort(best)]
+    assert int(y.sum()) == 20 and len(y) == 70
+    assert np.allclose(rows[y == 1], expected)
+    with pytest.raises(ConfigError, match="seeds must be one of"):
+        RefineOptions.parse({"seeds": "all"})
+
+
 def test_take_rows_matches_fancy_indexing_and_normalises():
     enc, lmap, _ = _world()
     idx = np.array([900, 60, 77, 77, 2999])

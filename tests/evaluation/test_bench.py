@@ -151,6 +151,34 @@ def test_run_bench_with_a_taxonomy_queries_and_absence(scene, tmp_path):
     assert on_disk == json.loads(json.dumps(results))
 
 
+def test_fair_table_gives_the_label_list_to_the_peers_and_says_so(scene, tmp_path):
+    from quash_plugins.evaluation.ablations import FAIR
+
+    tax = str(scene / "scene.taxonomy.yaml")
+    cfgs = bench_configs(tax, ENCODER)["fair"]
+    assert _names(cfgs)[: len(FAIR)] == [c["name"] for c in cfgs]
+    lists = [c for c in cfgs if c["heuristic"] != "none" and c["heuristic"]["name"] != "none"]
+    # every label-list method (the peers' argmax and QuASH) gets the same file
+    assert {c["name"] for c in lists} >= {"vlmaps-labels", "openscene-labels", "quash-labels"}
+    assert all(c["heuristic"]["file"] == tax for c in lists)
+    results = run_bench(
+        scene / "scene.npz",
+        tax,
+        tmp_path / "f",
+        tables=("fair",),
+        encoder=ENCODER,
+        overrides={"cache": False},
+        absent=("piano",),
+    )
+    rows = {r["name"]: r for r in results["fair"]["configs"]}
+    assert list(rows) == [c["name"] for c in cfgs]  # peers first, not sorted by F1
+    assert rows["vlmaps"]["given"] == "the query alone"
+    assert rows["vlmaps-labels"]["given"] == rows["quash-labels"]["given"]
+    assert rows["quash-labels"]["given"] == "the label list (scene.taxonomy.yaml)"
+    md = (tmp_path / "f" / "bench.md").read_text()
+    assert "| quash-labels | the label list (scene.taxonomy.yaml) |" in md
+
+
 @pytest.mark.parametrize(
     "args,message",
     [

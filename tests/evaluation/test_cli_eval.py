@@ -100,11 +100,15 @@ def test_eval_json_markdown_and_plot(world, tmp_path):
     names = [c["name"] for c in data["configs"]]
     assert names == ["vlmaps", "quash-taxonomy"]
     for c in data["configs"]:
-        assert set(c) == {"name", "mean", "per_query", "absence"}
-        assert set(c["mean"]) == {"precision", "recall", "f1", "iou"}
+        assert set(c) == {"name", "given", "mean", "per_query", "absence"}
+        assert set(c["mean"]) == {"precision", "recall", "f1", "iou", "ap", "inv_rank"}
         assert set(c["absence"]["per_query"]) == {"piano", "an elephant"}
         f1 = [q["f1"] for q in c["per_query"].values()]
         assert c["mean"]["f1"] == pytest.approx(float(np.mean(f1)))
+    assert [c["given"] for c in data["configs"]] == [
+        "the query alone",
+        "the label list (scene.taxonomy.yaml)",
+    ]
     md = (tmp_path / "r.md").read_text()
     assert "| vlmaps |" in md and "| quash-taxonomy |" in md
     assert (tmp_path / "r.png").read_bytes()[:4] == b"\x89PNG"

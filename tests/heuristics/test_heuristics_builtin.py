@@ -171,6 +171,9 @@ def test_taxonomy_resolves_non_label_through_encoder(caplog):
         "wall": [0, 0, 0, 1],
         "seat": [0.9, 0.2, 0.1, 0.0],
     }
+    # resolution compares the query with every label *and* sub-class: each sub-class
+    # sits on its label's vector here
+    table.update({sub: table[label] for label, subs in TAX.items() for sub in subs or []})
     enc = TableEncoder(table=table)
     h = registry.create("heuristics", "taxonomy", taxonomy=TAX)
     caplog.set_level("INFO")
@@ -183,7 +186,7 @@ def test_taxonomy_resolves_non_label_through_encoder(caplog):
     assert set(qs.positives[2:]) <= set(TAX["chair"])
     assert qs.provenance["resolved"]["to"] == "chair"
     assert qs.provenance["resolved"]["from"] == "seat"
-    assert "resolved to 'chair'" in caplog.text
+    assert "resolved to label 'chair'" in caplog.text
     with pytest.raises(HeuristicError, match="not a label"):
         h.expand("seat", ctx())  # no encoder
     with pytest.raises(HeuristicError, match="resolve is off"):
@@ -200,6 +203,7 @@ def test_taxonomy_keeps_far_queries_as_their_own_concept():
         "wall": [0, 0, 0, 1],
         "elephant": [0.3, 0.1, 0.0, -0.95],
     }
+    table.update({sub: table[label] for label, subs in TAX.items() for sub in subs or []})
     enc = TableEncoder(table=table)
     e = np.asarray(table["elephant"]) / np.linalg.norm(table["elephant"])
     best = max(np.dot(e, table[k]) for k in ("chair", "table", "lamp", "wall"))

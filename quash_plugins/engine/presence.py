@@ -1,0 +1,426 @@
+"""The presence check: a query whose object is not in the map comes back empty.
+
+After the last pass (the refined one when ``refine`` is on), the matched items are split
+into connected components (:class:`MapTopology`: 26-connected voxels, points within a
+linking radius, 8-connected pixels of one frame). Each component's **mean embedding** is
+classified against the query set itself, both sides centred (the map's mean row is
+subtracted from the region mean, the query set's mean text row from the text rows): the
+query's positives (mean of the ``k`` best cosines) against each competitor, each other
+label with its sub-classes when the heuristic records ``negative_groups`` (the
+``taxonomy`` heuristic with ``n_antonyms: all``, ``label-list``), else each negative
+alone. A component's *margin* is how far the query wins; two regions are judged:
+
+- the **grown region**: the component and its neighbours ``dilate`` steps away;
+- the **core**: the component's own items, whose margin must also beat
+  ``size_margin / sqrt(size)`` (the mean of a few selected items is noisy and leans
+  towards the query).
+
+The query is **present** when some component of at least ``min_component`` items has a
+grown-region margin above ``margin`` or a core margin above ``core_margin``. Then
+(``mode: filter``) every such component whose grown-region margin is above
+``keep_margin`` or core margin above ``core_keep_margin`` is kept; ``mode: gate`` keeps
+the whole mask. When the query is not present: an empty mask,
+``provenance["presence"]["present"]`` False. With ``grow`` (refined scores only), the
+kept components then grow through connected items whose refined score is above ``grow``
+(hysteresis: recovers an object's items just under the threshold, never a new object).
+
+Why a grown region: a matched set is *selected* for looking like the query, so its own
+mean leans towards the query (on the proxy scenes every absent label passed such a test).
+A speck that matched by noise is judged mostly by its unselected neighbours, a whole
+object by itself. Why the core as well: a small object on a support (a book on a shelf,
+a cushion on a sofa) is swamped by its support once grown. Why centring: a modality
+offset adds the same vector to every map row, i.e. a per-string bias to every cosine;
+subtracting the map's mean removes it. Why one decision per query: an object that is
+there usually has one clear component, while an absent label's best look-alike wins
+narrowly; the defaults were chosen so (docs/benchmarks.md).
+
+A map with neither a voxel grid, nor positions, nor frames has no neighbourhood: the
+check is skipped (``provenance["presence"] = {"checked": False, "why": ...}``).
+
+Examples
+--------
+>>> PresenceOptions.parse({"min_component": 4}).min_component
+4
+"""
+
+from __future__ import annotations
+
+import itertools
+import weakref
+from dataclasses import dataclass, fields
+from typing import Any
+
+import numpy as np
+
+from ..core.errors import ConfigError, closest
+from ..core.types import LatentMap
+
+MODES = ("filter", "gate")
+#: Largest ``dilate`` (neighbourhood steps); a grown region beyond a few steps is no
+#: longer the component's surroundings.
+MAX_DILATE = 3
+
+
+@dataclass
+class PresenceOptions:
+    """Options of the ``presence`` config section (see the module docstring)."""
+
+    dilate: int = 1
+    min_component: int = 8
+    margin: float = 0.05
+    keep_margin: float = -0.02
+    core_margin: float | None = 0.12
+    core_keep_margin: float = 0.03
+    size_margin: float = 0.3
+    flat_margin: float | None = None
+    k: int = 2
+    mode: str = "filter"
+    grow: float | None = -0.25
+
+    @classmethod
+    def parse(cls, options: dict[str, Any]) -> PresenceOptions:
+        known = [f.name for f in fields(cls)]
+        for key in options:
+            if key not in known:
+                guess = closest(str(key), known)
+                hint = f" Did you mean {guess!r}?" if guess else ""
+                raise ConfigError(
+                    f"presence: unknown option {key!r}. Options: {', '.join(known)}.{hint}"
+                )
+        try:
+            opts = cls(**options)
+            opts.dilate, opts.min_component, opts.k = (
+                int(opts.dilate),
+                int(opts.min_component),
+                int(opts.k),
+            )
+            for key in ("margin", "keep_margin", "core_keep_margin", "size_margin"):
+                setattr(opts, key, float(getattr(opts, key)))
+            for key in ("core_margin", "flat_margin", "grow"):
+                if getattr(opts, key) is not None:
+                    setattr(opts, key, float(getattr(opts, key)))
+        except (TypeError, ValueError) as exc:
+            raise ConfigError(
+                f"presence: {exc}; numbers expected (null turns off core_margin, flat_margin "
+                "and grow)."
+            ) from None
+        if not 0 <= opts.dilate <= MAX_DILATE or opts.min_component < 1 or opts.k < 1:
+            raise ConfigError(
+                f"presence: dilate must be in [0, {MAX_DILATE}] (got {opts.dilate}), "
+                f"min_component >= 1 "
+                f"(got {opts.min_component}) and k >= 1 (got {opts.k})."
+            )
+        if opts.size_margin < 0:
+            raise ConfigError(f"presence: size_margin must be >= 0; got {opts.size_margin}.")
+        if opts.mode not in MODES:
+            raise ConfigError(f"presence: mode must be one of {MODES}; got {opts.mode!r}.")
+        return opts
+
+
+# ---------------------------------------------------------------------- topology
+_OFFSETS26 = np.array(
+    [d for d in itertools.product((-1, 0, 1), repeat=3)], dtype=np.int64
+)  # includes (0, 0, 0)
+
+
+def grid_cells(lmap: LatentMap) -> np.ndarray | None:
+    """Integer voxel coordinates ``(N, 3)`` of every item, or None without a grid."""
+    if lmap.grid_index is not None:
+        return np.asarray(lmap.grid_index, dtype=np.int64)
+    if lmap.kind == "voxels" and lmap.voxel_size and lmap.positions is not None:
+        return np.floor(lmap.positions / float(lmap.voxel_size) + 0.5).astype(np.int64)
+    return None
+
+
+class MapTopology:
+    """Neighbourhoods of a map's items: connected components and grown regions.
+
+    ``kind`` is ``"voxels"`` (26-connected cells of ``grid_index``, or of positions on a
+    voxel map with ``voxel_size``), ``"points"`` (positions linked within ``radius``:
+    1.5 voxel sizes when known, else twice the 90th percentile of nearest-neighbour
+    distances), ``"pixels"`` (8-connected pixels of one frame) or None (no neighbourhood).
+    """
+
+    def __init__(self, lmap: LatentMap) -> None:
+        self.n = lmap.n
+        self.kind: str | None = None
+        self.why = ""
+        cells = grid_cells(lmap)
+        if lmap.kind == "pixels" and lmap.frames:
+            self.kind = "pixels"
+            self.frames = list(lmap.frames)
+            self.frame_of = np.repeat(np.arange(len(self.frames)), [f.size for f in self.frames])
+        elif cells is not None:
+            self.kind = "voxels"
+            pad = MAX_DILATE + 1
+            lo = cells.min(axis=0) - pad if len(cells) else np.zeros(3, np.int64)
+            self.span = (cells.max(axis=0) - lo + pad + 1) if len(cells) else np.ones(3, np.int64)
+            self.key = self._key(cells - lo)
+            self.lo = lo
+            self.order = np.argsort(self.key, kind="stable")
+            self.skey = self.key[self.order]
+        elif lmap.positions is not None:
+            from scipy.spatial import cKDTree
+
+            from .instances import _default_radius
+
+            self.kind = "points"
+            self.pts = np.asarray(lmap.positions, dtype=np.float64)
+            self.radius = float(_default_radius(lmap, self.pts)) if len(self.pts) else 1.0
+            self.tree = cKDTree(self.pts) if len(self.pts) else None
+        else:
+            self.why = "the map has no voxel grid, positions or frames"
+
+    def _key(self, c: np.ndarray) -> np.ndarray:
+        s = self.span
+        return (c[:, 0] * s[1] + c[:, 1]) * s[2] + c[:, 2]
+
+    # -------------------------------------------------------------- components
+    def labels(self, idx: np.ndarray) -> np.ndarray:
+        """A component label for each item of ``idx`` (sorted item indices)."""
+        if len(idx) == 0:
+            return np.zeros(0, np.int64)
+        if self.kind == "voxels":
+            from .instances import _voxel_labels
+
+            cells = self._cells_of(idx)
+            return np.asarray(_voxel_labels(cells, 26), np.int64)
+        if self.kind == "points":
+            from .instances import _radius_labels
+
+            return np.asarray(_radius_labels(self.pts[idx], self.radius, 65536), np.int64)
+        if self.kind == "pixels":
+            from scipy import ndimage
+
+            out = np.zeros(len(idx), np.int64)
+            nxt = 0
+            fr = self.frame_of[idx]
+            for f in np.unique(fr):
+                frame = self.frames[int(f)]
+                sel = np.flatnonzero(fr == f)
+                local = idx[sel] - frame.offset
+                img = np.zeros(frame.size, bool)
+                img[local] = True
+                lab, n = ndimage.label(
+                    img.reshape(frame.height, frame.width), structure=np.ones((3, 3), bool)
+                )
+                out[sel] = lab.reshape(-1)[local] - 1 + nxt
+                nxt += n
+            return out
+        return np.zeros(len(idx), np.int64)
+
+    def _cells_of(self, idx: np.ndarray) -> np.ndarray:
+        k = self.key[idx]
+        s = self.span
+        z = k % s[2]
+        y = (k // s[2]) % s[1]
+        x = k // (s[1] * s[2])
+        return np.column_stack([x, y, z])
+
+    def components(self, mask: np.ndarray) -> list[np.ndarray]:
+        """The item indices of each connected component of ``mask``."""
+        idx = np.flatnonzero(mask)
+        if len(idx) == 0:
+            return []
+        lab = self.labels(idx)
+        order = np.argsort(lab, kind="stable")
+        lab_s = lab[order]
+        starts = np.flatnonzero(np.r_[True, lab_s[1:] != lab_s[:-1]])
+        return [idx[order[a:b]] for a, b in zip(starts, np.r_[starts[1:], len(idx)])]
+
+    def region(self, members: np.ndarray, dilate: int) -> np.ndarray:
+        """``members`` and every item within ``dilate`` neighbourhood steps of them."""
+        if dilate <= 0 or len(members) == 0:
+            return members
+        if self.kind == "voxels":
+            keys = self.key[members]
+            s = self.span
+            step = (_OFFSETS26[:, 0] * s[1] + _OFFSETS26[:, 1]) * s[2] + _OFFSETS26[:, 2]
+            for _ in range(dilate):
+                keys = np.unique((keys[:, None] + step[None, :]).reshape(-1))
+            lo = np.searchsorted(self.skey, keys, "left")
+            hi = np.searchsorted(self.skey, keys, "right")
+            hit = hi > lo
+            lo, hi = lo[hit], hi[hit]
+            if not len(lo):
+                return members
+            counts = hi - lo
+            pos = np.repeat(lo - np.r_[0, np.cumsum(counts)[:-1]], counts) + np.arange(
+                int(counts.sum())
+            )
+            return np.unique(self.order[pos])
+        if self.kind == "points":
+            near = self.tree.query_ball_point(self.pts[members], r=self.radius * dilate)
+            return np.unique(np.fromiter(itertools.chain.from_iterable(near), np.int64))
+        if self.kind == "pixels":
+            from scipy import ndimage
+
+            frame = self.frames[int(self.frame_of[members[0]])]
+            img = np.zeros(frame.size, bool)
+            img[members - frame.offset] = True
+            img = ndimage.binary_dilation(
+                img.reshape(frame.height, frame.width),
+                structure=np.ones((3, 3), bool),
+                iterations=dilate,
+            )
+            return np.flatnonzero(img.reshape(-1)) + frame.offset
+        return members
+
+    def grow(self, keep: np.ndarray, candidates: np.ndarray) -> np.ndarray:
+        """Hysteresis: ``keep`` plus each component of ``candidates`` that touches it."""
+        if not keep.any():
+            return keep
+        out = keep.copy()
+        for members in self.components(candidates | keep):
+            if keep[members].any():
+                out[members] = True
+        return out
+
+
+# ---------------------------------------------------------------------- the check
+def _unit(a: np.ndarray) -> np.ndarray:
+    n = np.linalg.norm(a, axis=-1, keepdims=True)
+    return a / np.where(n > 0, n, 1.0)
+
+
+def _top_mean(c: np.ndarray, k: int) -> np.ndarray:
+    k = min(int(k), c.shape[1])
+    if k <= 1:
+        return c.max(axis=1)
+    return np.partition(c, c.shape[1] - k, axis=1)[:, -k:].mean(axis=1)
+
+
+def map_mean(lmap: LatentMap, rows_of: Any, block: int = 65536) -> np.ndarray:
+    """The mean of the map's unit rows (zero rows, i.e. unobserved items, left out)."""
+    acc = np.zeros(lmap.dim, np.float64)
+    count = 0
+    for start in range(0, lmap.n, block):
+        rows = _unit(rows_of(np.arange(start, min(lmap.n, start + block))))
+        live = np.any(rows != 0, axis=1)
+        acc += rows[live].sum(axis=0)
+        count += int(live.sum())
+    return (acc / max(count, 1)).astype(np.float32)
+
+
+def region_means(regions: list[np.ndarray], rows_of: Any, block: int = 65536) -> np.ndarray:
+    """The mean unit row of each region, reading at most ``block`` rows at a time."""
+    if not regions:
+        return np.zeros((0, 0), np.float32)
+    owner = np.repeat(np.arange(len(regions)), [len(r) for r in regions])
+    items = np.concatenate(regions)
+    order = np.argsort(items, kind="stable")
+    items, owner = items[order], owner[order]
+    sums: np.ndarray | None = None
+    for start in range(0, len(items), block):
+        part, who = items[start : start + block], owner[start : start + block]
+        uniq, inv = np.unique(part, return_inverse=True)
+        rows = _unit(np.asarray(rows_of(uniq), np.float64))[inv]
+        if sums is None:
+            sums = np.zeros((len(regions), rows.shape[1]), np.float64)
+        np.add.at(sums, who, rows)
+    sizes = np.array([max(len(r), 1) for r in regions], np.float64)
+    return (sums / sizes[:, None]).astype(np.float32)
+
+
+def presence_check(
+    mask: np.ndarray,
+    X: np.ndarray,
+    y: np.ndarray,
+    opts: PresenceOptions,
+    topology: MapTopology,
+    mu: np.ndarray,
+    rows_of: Any,
+    groups: list[int] | None = None,
+) -> tuple[np.ndarray, dict[str, Any]]:
+    """The kept items of ``mask`` and a provenance record.
+
+    ``X, y``: the query set's text rows (positives first, then negatives, as
+    :func:`~quash_plugins.engine.training.training_set` builds them). ``groups``: sizes of
+    consecutive negative groups (``provenance["negative_groups"]``); the negatives after
+    them (the generic ones) form one more group. ``rows_of(index)`` returns the map's rows.
+    """
+    comps = topology.components(mask)
+    keep = np.zeros(len(mask), bool)
+    info: dict[str, Any] = {"checked": True, "components": len(comps), "kept": 0}
+    if not comps:
+        info.update(present=False, kept_items=0)
+        return keep, info
+    live = np.any(X != 0, axis=1)
+    centre = X[live].mean(axis=0)
+    P = _unit(X[(y == 1) & live] - centre)
+    neg_rows = np.flatnonzero(y == 0)
+    N = _unit(X[neg_rows] - centre)
+    nlive = live[neg_rows]
+    sizes_neg = _group_sizes(groups, len(N))
+    sizes = np.array([len(m) for m in comps])
+
+    def margins(dilate: int) -> tuple[np.ndarray, np.ndarray]:
+        regions = [topology.region(m, dilate) for m in comps]
+        means = _unit(region_means(regions, rows_of) - mu)
+        sp = _top_mean(means @ P.T, opts.k)
+        CN = means @ N.T
+        sc = np.full(len(means), -np.inf)
+        start = 0
+        for size in sizes_neg:
+            block = CN[:, start : start + size][:, nlive[start : start + size]]
+            start += size
+            if block.shape[1]:
+                sc = np.maximum(sc, _top_mean(block, opts.k if groups else 1))
+        flat = sp - CN[:, nlive].max(axis=1) if nlive.any() else np.full(len(means), np.inf)
+        return sp - sc, flat
+
+    grown, flat = margins(opts.dilate)
+    big = sizes >= opts.min_component
+    if opts.flat_margin is not None:
+        # and against the single best negative string
+        big &= flat > opts.flat_margin
+    strong, ok = grown > opts.margin, grown > opts.keep_margin
+    core_best = None
+    if opts.core_margin is not None:
+        core = (margins(0)[0] if opts.dilate else grown) - opts.size_margin / np.sqrt(sizes)
+        strong |= core > opts.core_margin
+        ok |= core > opts.core_keep_margin
+        core_best = round(float(core[big].max()), 4) if big.any() else None
+    present = bool(np.any(strong & big))
+    kept = (ok & big) if present else np.zeros(len(comps), bool)
+    for members, good in zip(comps, kept):
+        if good:
+            keep[members] = True
+    info.update(
+        present=present,
+        kept=int(kept.sum()),
+        best_margin=round(float(grown[big].max()), 4) if big.any() else None,
+        best_core_margin=core_best,
+        largest_kept=int(sizes[kept].max()) if kept.any() else 0,
+    )
+    if opts.mode == "gate":
+        keep = mask.copy() if present else np.zeros_like(mask)
+    info["kept_items"] = int(keep.sum())
+    return keep, info
+
+
+def _group_sizes(groups: list[int] | None, n_neg: int) -> list[int]:
+    """Consecutive group sizes covering all ``n_neg`` negative rows; without usable groups
+    every negative is its own group."""
+    if groups:
+        groups = [int(g) for g in groups]
+        if all(g > 0 for g in groups) and sum(groups) <= n_neg:
+            rest = n_neg - sum(groups)
+            return [*groups, rest] if rest else groups
+    return [1] * n_neg
+
+
+class TopologyCache:
+    """One :class:`MapTopology` and map mean per live map (weakly referenced)."""
+
+    def __init__(self) -> None:
+        self._state: tuple[Any, MapTopology, np.ndarray | None] | None = None
+
+    def get(self, lmap: LatentMap, rows_of: Any) -> tuple[MapTopology, np.ndarray | None]:
+        s = self._state
+        if s is not None and s[0]() is lmap:
+            return s[1], s[2]
+        topo = MapTopology(lmap)
+        mu = map_mean(lmap, rows_of) if topo.kind is not None else None
+        self._state = (weakref.ref(lmap), topo, mu)
+        return topo, mu

@@ -1,0 +1,227 @@
+"""The presence check: an object that is there is kept, specks and absent objects go.
+
+The maps are built so the answer is known: a 27-item "bed" block and lone "sofa" specks
+whose embeddings sit near their own word (hashed 32-d text vectors).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from _eval_table import table_for, vec
+
+from quash_plugins import LatentMap, Quash
+from quash_plugins.core.config import QuashConfig
+from quash_plugins.core.errors import ConfigError
+from quash_plugins.core.interfaces import ExpansionContext
+from quash_plugins.core.types import FrameInfo
+from quash_plugins.encoders import TableEncoder
+from quash_plugins.engine.presence import MapTopology, PresenceOptions, map_mean, presence_check
+from quash_plugins.engine.training import training_set
+from quash_plugins.heuristics import TaxonomyHeuristic
+
+TAX = {"bed": ["bunk bed", "cot"], "sofa": ["futon", "settee"], "chair": ["armchair"]}
+
+
+def _encoder():
+    names = {n for k, v in TAX.items() for n in (k, *v)} | {"other", "background", "nothing"}
+    return TableEncoder(table=table_for(names))
+
+
+def _rows(name, n, rng, noise=0.3):
+    E = np.asarray(vec(name)) + noise * rng.standard_normal((n, 32))
+    return E / np.linalg.norm(E, axis=1, keepdims=True)
+
+
+def _object_map(kind="voxels", n_specks=30, seed=0):
+    """27 bed items in a 3x3x3 block at the origin, lone sofa specks 2 cells apart."""
+    rng = np.random.default_rng(seed)
+    block = [(x, y, z) for x in range(3) for y in range(3) for z in range(3)]
+    specks = [(10 + 2 * (i % 10), 10 + 2 * (i // 10), 0) for i in range(n_specks)]
+    grid = np.asarray(block + specks)
+    E = np.concatenate([_rows("bed", 27, rng), _rows("sofa", n_specks, rng)]).astype(np.float32)
+    labels = np.r_[np.zeros(27, int), np.ones(n_specks, int)]
+    common = dict(labels=labels, label_names=["bed", "sofa"])
+    if kind == "voxels":
+        return LatentMap(E, kind="voxels", grid_index=grid, voxel_size=0.1, **common)
+    return LatentMap(
+        E, kind="points", positions=(grid * 0.1).astype(np.float32), voxel_size=0.1, **common
+    )
+
+
+def _check(m, mask, query="bed", **opts):
+    enc = _encoder()
+    qs = (
+        TaxonomyHeuristic(taxonomy=TAX, n_antonyms="all")
+        .expand(query, ExpansionContext(encoder=enc))
+        .with_negatives(["other"])
+    )
+    X, y, _ = training_set(enc, qs)
+    E = np.asarray(m.embeddings)
+    topo = MapTopology(m)
+    return presence_check(
+        mask,
+        X,
+        y,
+        PresenceOptions(**opts),
+        topo,
+        map_mean(m, lambda i: E[i]),
+        lambda i: E[i],
+        groups=qs.provenance["negative_groups"],
+    )
+
+
+@pytest.mark.parametrize("kind", ["voxels", "points"])
+def test_the_object_is_kept_and_specks_are_dropped(kind):
+    m = _object_map(kind)
+    mask = np.zeros(m.n, bool)
+    mask[:27] = True  # the bed
+    mask[27:33] = True  # six sofa specks that matched by noise
+    keep, info = _check(m, mask)
+    assert keep[:27].all() and not keep[27:].any()
+    assert info["present"] and info["components"] == 7 and info["kept"] == 1
+    assert info["largest_kept"] == 27 and info["kept_items"] == 27
+    # only specks matched: the bed query is absent
+    keep, info = _check(m, np.r_[np.zeros(27, bool), mask[27:]])
+    assert not keep.any() and info["present"] is False
+    # gate mode keeps the whole mask when any component passes
+    keep, _ = _check(m, mask, mode="gate")
+    assert np.array_equal(keep, mask)
+
+
+def test_the_size_floor_and_the_margins():
+    m = _object_map()
+    mask = np.zeros(m.n, bool)
+    mask[:27] = True
+    assert not _check(m, mask, min_component=28)[0].any()
+    keep, info = _check(m, mask, core_margin=None)
+    win = info["best_margin"]  # the grown region's margin
+    assert win > 0 and keep[:27].all()
+    # present when the grown region wins by more than `margin`, not when by less
+    assert not _check(m, mask, margin=win + 1e-3, core_margin=None)[0].any()
+    assert _check(m, mask, margin=win - 1e-3, core_margin=None)[0][:27].all()
+    # the core (the component's own items) must beat margin + size_margin / sqrt(size)
+    _, info = _check(m, mask, margin=9.0, size_margin=0.0)
+    core = info["best_core_margin"]
+    assert core is not None and core > 0
+    size_margin = 0.5 * core * np.sqrt(27)  # takes half of the core's win
+    just_above = core - size_margin / np.sqrt(27) - 1e-3
+    k, i = _check(m, mask, margin=9.0, size_margin=size_margin, core_margin=just_above)
+    assert k[:27].all() and i["best_core_margin"] == pytest.approx(core / 2, abs=1e-3)
+    k, _ = _check(m, mask, margin=9.0, size_margin=size_margin, core_margin=just_above + 2e-3)
+    assert not k.any()
+
+
+def test_one_decision_per_query_then_a_looser_keep_margin():
+    """A present query keeps its weaker components too (above keep_margin); an absent one
+    keeps nothing however many components come close."""
+    m = _object_map()
+    mask = np.zeros(m.n, bool)
+    mask[:27] = True
+    _, info = _check(m, mask, core_margin=None)
+    win = info["best_margin"]
+    # with the bed present, a keep margin below the bed's lets it stay; above, it goes
+    assert _check(m, mask, margin=win - 0.01, keep_margin=win - 0.005, core_margin=None)[0].any()
+    assert not _check(m, mask, margin=win - 0.01, keep_margin=win + 0.005, core_margin=None)[
+        0
+    ].any()
+
+
+def test_a_sofa_block_is_not_a_bed():
+    """The mean of the grown region decides: a whole sofa matched for 'bed' goes."""
+    rng = np.random.default_rng(1)
+    grid = np.asarray([(x, y, z) for x in range(3) for y in range(3) for z in range(3)])
+    m = LatentMap(_rows("sofa", 27, rng).astype(np.float32), kind="voxels", grid_index=grid)
+    keep, info = _check(m, np.ones(27, bool))
+    assert not keep.any() and info["best_margin"] < 0
+
+
+def test_pixel_maps_are_checked_per_frame():
+    rng = np.random.default_rng(2)
+    # frame a: a 4x4 bed patch in an 8x8 image of sofa; frame b: all sofa
+    E = np.concatenate([_rows("sofa", 64, rng), _rows("sofa", 64, rng)]).astype(np.float32)
+    patch = np.zeros((8, 8), bool)
+    patch[2:6, 2:6] = True
+    E[:64][patch.reshape(-1)] = _rows("bed", 16, rng)
+    m = LatentMap(E, kind="pixels", frames=[FrameInfo("a", 8, 8, 0), FrameInfo("b", 8, 8, 64)])
+    mask = np.zeros(128, bool)
+    mask[:64] = patch.reshape(-1)
+    mask[64 + 9] = mask[64 + 30] = True  # two noise pixels in frame b
+    keep, info = _check(m, mask)
+    assert info["components"] == 3 and keep[:64].sum() == 16 and not keep[64:].any()
+
+
+def test_options_are_validated_with_the_key_and_the_fix():
+    with pytest.raises(ConfigError, match="min_compnent.*Did you mean 'min_component'"):
+        PresenceOptions.parse({"min_compnent": 3})
+    with pytest.raises(ConfigError, match="mode"):
+        PresenceOptions.parse({"mode": "maybe"})
+    with pytest.raises(ConfigError, match="dilate must be in"):
+        PresenceOptions.parse({"dilate": 9})
+    with pytest.raises(ConfigError, match="numbers expected"):
+        PresenceOptions.parse({"margin": "big"})
+    assert PresenceOptions.parse({"grow": None}).grow is None
+    with pytest.raises(ConfigError, match="presence"):
+        Quash(_encoder(), presence={"bogus": 1})
+    cfg = QuashConfig.from_dict({"presence": True})
+    assert cfg.presence == {}
+    assert QuashConfig.from_dict({"presence": None}).presence is None
+
+
+def test_the_pipeline_returns_empty_for_an_absent_label():
+    m = _object_map()
+    q = Quash(
+        _encoder(),
+        TaxonomyHeuristic(taxonomy=TAX, n_antonyms="all"),
+        presence={},
+        instances=False,
+    )
+    bed, chair, sofa = q.query_many(m, ["bed", "chair", "sofa"])
+    assert bed.mask[:27].sum() > 15 and not bed.mask[27:].any()
+    assert bed.queryset.provenance["presence"]["present"] is True
+    assert not chair.mask.any() and chair.queryset.provenance["presence"]["present"] is False
+    # the sofa specks are single items: below the size floor, so the sofa is reported absent
+    assert not sofa.mask.any()
+    # dropped items rank below every kept one, and below the threshold
+    assert bed.scores[~bed.mask].max() < bed.scores[bed.mask].min()
+    assert (chair.scores <= q.threshold).all()
+    assert "presence" in bed.timings
+
+
+def test_growth_adds_connected_items_only_after_refinement():
+    """Hysteresis growth: kept components grow through refined scores above `grow`."""
+    rng = np.random.default_rng(3)
+    bed = [(x, y, z) for x in range(6) for y in range(6) for z in range(3)]
+    sofa = [(x + 20, y, z) for x in range(10) for y in range(10) for z in range(3)]
+    E = np.concatenate([_rows("bed", len(bed), rng, 0.6), _rows("sofa", len(sofa), rng, 0.6)])
+    m = LatentMap(E.astype(np.float32), kind="voxels", grid_index=np.asarray(bed + sofa))
+    common = dict(heuristic=TaxonomyHeuristic(taxonomy=TAX, n_antonyms="all"), instances=False)
+    # the grown region decides here (core_margin off: with this much noise the sofa's
+    # selected items alone look bed-like)
+    unchecked = Quash(_encoder(), refine={}, **common).query(m, "bed")
+    off = {"core_margin": None}
+    plain = Quash(_encoder(), refine={}, presence={**off, "grow": None}, **common).query(m, "bed")
+    grown = Quash(_encoder(), refine={}, presence={**off, "grow": -1.0}, **common).query(m, "bed")
+    assert plain.queryset.provenance["refine"]["applied"]
+    # the check drops the sofa's false matches and keeps the bed's component
+    assert unchecked.mask[108:].any() and not plain.mask[108:].any()
+    assert plain.mask[:108].sum() > 50
+    # growth adds bed items connected to what was kept, never a sofa item
+    added = grown.mask & ~plain.mask
+    assert (grown.mask >= plain.mask).all() and added.any() and not grown.mask[108:].any()
+    assert grown.scores[added].max() < grown.scores[plain.mask].min()
+    assert (grown.scores[added] > 0).all()
+    assert grown.queryset.provenance["presence"]["grown_items"] == int(grown.mask.sum())
+    # without refinement nothing grows
+    first = Quash(_encoder(), presence={**off, "grow": -1.0}, **common).query(m, "bed")
+    assert "grown_items" not in first.queryset.provenance["presence"]
+
+
+def test_a_map_without_neighbourhoods_skips_the_check_and_says_so():
+    m = LatentMap(_rows("bed", 5, np.random.default_rng(4)).astype(np.float32))
+    r = Quash(_encoder(), TaxonomyHeuristic(taxonomy=TAX), presence={}, instances=False).query(
+        m, "bed"
+    )
+    assert r.queryset.provenance["presence"]["checked"] is False
+    assert "no voxel grid, positions or frames" in r.queryset.provenance["presence"]["why"]
+    assert r.mask.all()

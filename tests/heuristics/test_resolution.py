@@ -1,0 +1,134 @@
+"""Sub-category queries resolve to their label; the label list as negatives; the fair
+peer's query set; a taxonomy found beside the map."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from _eval_table import table_for, vec
+
+from quash_plugins import LatentMap
+from quash_plugins.core.errors import HeuristicError
+from quash_plugins.core.interfaces import ExpansionContext
+from quash_plugins.encoders import TableEncoder
+from quash_plugins.heuristics import LabelListHeuristic, TaxonomyHeuristic, normalise_name
+
+TAX = {"bed": ["bunk bed", "cot"], "sofa": ["futon", "settee"], "chair": ["armchair"]}
+
+
+def _encoder(extra=None):
+    names = {n for k, v in TAX.items() for n in (k, *v)} | {"other", "background", "nothing"}
+    return TableEncoder(table={**table_for(names), **(extra or {})})
+
+
+@pytest.mark.parametrize(
+    ("query", "label", "how", "via"),
+    [
+        ("bed", "bed", "label", "bed"),
+        ("Bed", "bed", "label", "bed"),
+        ("Bunk bed", "bed", "subclass", "bunk bed"),
+        ("Bunk-beds", "bed", "near-subclass", "bunk bed"),
+        ("a futon", "sofa", "near-subclass", "futon"),
+        ("the settees", "sofa", "near-subclass", "settee"),
+        ("beds", "bed", "near-label", "bed"),
+    ],
+)
+def test_subclass_queries_resolve_to_their_label(query, label, how, via):
+    h = TaxonomyHeuristic(taxonomy=TAX, n_antonyms="all")
+    # no encoder needed: these resolve by name
+    res = h.resolve_query(query, ExpansionContext())
+    assert (res["to"], res["how"], res["via"]) == (label, how, via)
+    qs = h.expand(query, ExpansionContext())
+    assert qs.positives[0] == query and label in qs.positives
+    assert label not in qs.negatives and via not in qs.negatives
+    assert ("resolved" in qs.provenance) == (how != "label")
+
+
+def test_embedding_resolution_through_a_subclass_and_an_unresolved_query():
+    # "somewhere to sleep" sits on "cot"'s vector: resolved to bed *through a sub-class*
+    enc = _encoder({"somewhere to sleep": vec("cot"), "an elephant": vec("zzz")})
+    h = TaxonomyHeuristic(taxonomy=TAX, min_similarity=0.5)
+    ctx = ExpansionContext(encoder=enc)
+    r = h.resolve_query("somewhere to sleep", ctx)
+    assert (r["to"], r["how"], r["via"]) == ("bed", "embedding", "cot")
+    assert r["cosine"] == pytest.approx(1.0, abs=1e-3)
+    r = h.resolve_query("an elephant", ctx)
+    assert r["to"] is None and r["how"] == "none"
+    qs = h.expand("an elephant", ctx)
+    assert qs.positives == ["an elephant"] and qs.provenance["label"] is None
+    # without an encoder an unknown query is an error naming the fix
+    with pytest.raises(HeuristicError, match="not a label or sub-class"):
+        h.resolve_query("an elephant", ExpansionContext())
+
+
+def test_all_antonyms_cover_every_other_label_in_groups():
+    qs = TaxonomyHeuristic(taxonomy=TAX, n_antonyms="all").expand("bed", ExpansionContext())
+    assert qs.negatives == ["sofa", "futon", "settee", "chair", "armchair"]
+    assert qs.provenance["negative_groups"] == [3, 2]
+    # the sampled form records no groups, and "all" is the only word accepted
+    qs = TaxonomyHeuristic(taxonomy=TAX, n_antonyms=2).expand("bed", ExpansionContext())
+    assert len(qs.negatives) == 2 and "negative_groups" not in qs.provenance
+    with pytest.raises(Exception, match="'all'"):
+        TaxonomyHeuristic(taxonomy=TAX, n_antonyms="every")
+
+
+def test_normalise_name():
+    assert normalise_name("The Bunk-Beds") == "bunk bed"
+    assert normalise_name("benches") == "bench" and normalise_name("glass") == "glass"
+    assert normalise_name("an Armchair") == "armchair" and normalise_name("cactus") == "cactus"
+    assert normalise_name("bodies") == "body" and normalise_name("glasses") == "glass"
+
+
+def test_label_list_heuristic_is_the_fair_peer_query_set():
+    h = LabelListHeuristic(taxonomy=TAX)
+    qs = h.expand("bunk beds", ExpansionContext())
+    assert qs.positives == ["bed"] and qs.negatives == ["sofa", "chair"]
+    assert qs.provenance["resolved"]["how"] == "near-subclass"
+    # it resolves exactly as the taxonomy heuristic does
+    enc = _encoder({"somewhere to sleep": vec("cot")})
+    ctx = ExpansionContext(encoder=enc)
+    assert h.expand("somewhere to sleep", ctx).positives == ["bed"]
+    assert TaxonomyHeuristic(taxonomy=TAX).resolve_query("somewhere to sleep", ctx)["to"] == "bed"
+
+
+def test_without_a_file_the_label_list_is_the_maps_names_and_the_taxonomy_beside_it(tmp_path):
+    m = LatentMap(np.eye(3, dtype=np.float32), label_names=["bed", "sofa", "lamp"])
+    h = TaxonomyHeuristic(n_antonyms="all")
+    qs = h.expand("bed", ExpansionContext(label_names=m.label_names, map=m))
+    assert qs.negatives == ["sofa", "lamp"]
+    assert qs.provenance["labels_from"] == "the map's label names"
+    # a MAP.taxonomy.yaml next to the map's file adds the sub-classes (make-scene writes it)
+    (tmp_path / "scene.taxonomy.yaml").write_text(
+        "bed: [bunk bed]\nsofa: [futon]\npiano: [grand piano]\n"
+    )
+    m.source["path"] = str(tmp_path / "scene.npz")
+    ctx = ExpansionContext(label_names=m.label_names, map=m)
+    qs = h.expand("bunk bed", ctx)
+    assert qs.positives == ["bunk bed", "bed"]
+    assert qs.negatives == ["sofa", "futon", "piano", "grand piano", "lamp"]
+    assert qs.provenance["labels_from"].endswith("scene.taxonomy.yaml")
+    assert LabelListHeuristic().expand("futon", ctx).negatives == ["bed", "piano", "lamp"]
+    # a file there that is not a taxonomy is ignored
+    (tmp_path / "scene.taxonomy.yaml").write_text("- not a mapping\n")
+    assert h.expand("bed", ctx).negatives == ["sofa", "lamp"]
+    with pytest.raises(HeuristicError, match="no taxonomy"):
+        h.expand("bed", ExpansionContext())
+
+
+def test_quash_expand_shows_the_resolution(tmp_path, capsys):
+    from quash_plugins.cli.main import main
+
+    names = {n for k, v in TAX.items() for n in (k, *v)} | {"other", "background", "nothing"}
+    np.savez(
+        tmp_path / "text.npz",
+        texts=np.asarray(sorted(names | {"Bunk-beds"})),
+        embeddings=np.asarray([vec(n) for n in sorted(names | {"Bunk-beds"})], np.float32),
+    )
+    (tmp_path / "tax.yaml").write_text("bed: [bunk bed, cot]\nsofa: [futon]\n")
+    (tmp_path / "c.yaml").write_text(
+        "encoder: {name: table, file: text.npz}\n"
+        "heuristic: {name: taxonomy, file: tax.yaml, n_antonyms: all}\ncache: false\n"
+    )
+    assert main(["expand", "Bunk-beds", "-c", str(tmp_path / "c.yaml")]) == 0
+    out = " ".join(capsys.readouterr().out.split())
+    assert "query 'Bunk-beds' resolved to label 'bed' (near match of sub-class 'bunk bed')" in out
