@@ -136,7 +136,7 @@ def _blocks(md: str) -> Iterator[tuple[str, list[str]]]:
             i += 1
 
 
-def markdown_table(lines: list[str]) -> Any:
+def markdown_table(lines: list[str], width: int | None = None) -> Any:
     """A rich :class:`~rich.table.Table` for the lines of one Markdown pipe table.
 
     Columns aligned ``---:`` in the Markdown are right-aligned; the table shrinks to the
@@ -147,14 +147,56 @@ def markdown_table(lines: list[str]) -> Any:
     from rich.table import Table
 
     header, align, *body = (_split_row(ln) for ln in lines)
-    table = Table(box=box.SIMPLE_HEAD, show_edge=False, pad_edge=False)
+    widths = [
+        max((len(_cell(r[i]).plain) for r in body if i < len(r)), default=0)
+        for i in range(len(header))
+    ]
+    # One space between columns instead of two when the cells (and the headers' longest
+    # words) would not fit otherwise.
+    need = sum(
+        max(w, *(len(word) for word in _cell(h).plain.split() or [""]))
+        for w, h in zip(widths, header)
+    )
+    tight = width is not None and need + 2 * (len(header) - 1) > width
+    table = Table(
+        box=box.SIMPLE_HEAD,
+        show_edge=False,
+        pad_edge=False,
+        padding=(0, 0, 0, 1) if tight else (0, 1),
+    )
     for i, name in enumerate(header):
         spec = align[i] if i < len(align) else ""
         justify = "right" if spec.endswith(":") and not spec.startswith(":") else "left"
-        table.add_column(_cell(name), justify=justify, overflow="fold", no_wrap=i == 0)
+        # A number is never folded: a right-aligned column is at least as wide as its
+        # widest cell (its header folds instead).
+        widest = widths[i]
+        table.add_column(
+            _cell(name),
+            justify=justify,
+            overflow="fold",
+            no_wrap=i == 0,
+            min_width=widest if justify == "right" else None,
+        )
     for row in body:
         table.add_row(*[_cell(c) for c in row[: len(header)]])
     return table
+
+
+def _split_given(lines: list[str]) -> list[list[str]]:
+    """A table with a ``given`` column (what each method was given: long text) as two
+    tables on the terminal: the numbers, then ``method | given``, so that neither folds."""
+    header = _split_row(lines[0])
+    if "given" not in header[1:]:
+        return [lines]
+    k = header.index("given")
+    rows = [_split_row(ln) for ln in lines]
+
+    def join(cells: list[str]) -> str:
+        return "| " + " | ".join(cells) + " |"
+
+    numbers = [join(r[:k] + r[k + 1 :]) for r in rows]
+    given = [join([r[0], r[k]]) for r in rows]
+    return [numbers, given]
 
 
 def print_markdown(out: Any, md: str) -> None:
@@ -168,7 +210,10 @@ def print_markdown(out: Any, md: str) -> None:
     md = escape_control(md)  # names from maps and servers cannot drive the terminal
     for kind, lines in _blocks(md):
         if kind == "table":
-            out.print(markdown_table(lines))
+            for n, part in enumerate(_split_given(lines)):
+                if n:
+                    out.print()
+                out.print(markdown_table(part, out.width))
             continue
         line = lines[0]
         heading = re.match(r"#+\s+(.*)", line)

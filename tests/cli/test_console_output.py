@@ -102,3 +102,29 @@ def test_log_lines_do_not_wrap_off_a_terminal(capsys):
     logging.getLogger("quash_plugins.test").warning(message.strip())
     err = capsys.readouterr().err
     assert err == f"WARNING  {message.strip()}\n"
+
+
+def test_a_given_column_prints_as_its_own_table_and_numbers_never_fold():
+    from rich.console import Console
+
+    from quash_plugins.cli._output import print_markdown
+
+    long = "the label list (the map's label names + scene-v1-full-seed0-minilm.taxonomy.yaml)"
+    md = (
+        "| method | given | F1 | precision | recall | IoU | AP | inv. rank | absence "
+        "| present -> empty |\n|---|---|---:|---:|---:|---:|---:|---:|---:|---:|\n"
+        "| vlmaps | the query alone | 0.032 | 0.016 | 0.994 | 0.016 | 0.562 | 0.917 | 0.000 "
+        "| 0/10 |\n"
+        f"| quash-labels | {long} | 0.748 | 0.754 | 0.747 | 0.706 | 0.759 | 0.803 | 1.000 "
+        "| 2/10 |\n"
+    )
+    console = Console(width=80, record=True)
+    print_markdown(console, md)
+    lines = console.export_text().splitlines()
+    assert all(len(line) <= 80 for line in lines)
+    numbers = [ln for ln in lines if ln.startswith("quash-labels") and "0.748" in ln]
+    assert len(numbers) == 1 and numbers[0].split()[1:] == [
+        "0.748", "0.754", "0.747", "0.706", "0.759", "0.803", "1.000", "2/10"
+    ]  # fmt: skip
+    given = [ln for ln in lines if ln.startswith("quash-labels") and "the label list" in ln]
+    assert len(given) == 1 and "0.748" not in given[0]
