@@ -158,8 +158,8 @@ class QuashConfig:
         metadata={
             "help": "Transductive refinement: re-fit on the map's most confident matches "
             "and a sample of clear non-matches, then classify again ({classifier: svm-rbf, "
-            "n_positives: 100, n_negatives: 1000, negative_quantile: 0.5, min_seed: 10}; "
-            "{} takes these defaults). null turns it off."
+            "n_positives: 100, n_negatives: 1000, negative_quantile: 0.5, min_seed: 10, "
+            "seed: 0, seeds: matched|top}; {} takes these defaults). null turns it off."
         },
     )
     presence: dict[str, Any] | None = field(
@@ -167,9 +167,10 @@ class QuashConfig:
         metadata={
             "help": "Presence check after the last pass: keep the matched components whose "
             "grown region the query set classifies as the query; none kept means the object "
-            "is absent (empty mask) ({dilate: 1, min_component: 8, margin: 0.005, "
-            "size_margin: 0.0, flat_margin: -0.02, k: 2, mode: filter, grow: -0.25}; {} "
-            "takes these defaults). Needs a voxel grid, positions or frames. null turns it off."
+            "is absent (empty mask) ({dilate: 1, min_component: 8, margin: 0.05, "
+            "keep_margin: -0.02, core_margin: 0.12, core_keep_margin: 0.03, size_margin: 0.3, "
+            "flat_margin: null, k: 2, mode: filter|gate, grow: -0.25}; {} takes these "
+            "defaults). Needs a voxel grid, positions or frames. null turns it off."
         },
     )
     adapter: PluginSpec = field(

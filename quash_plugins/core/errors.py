@@ -53,6 +53,19 @@ def closest(name: str, known: Iterable[str]) -> str | None:
     return matches[0] if matches else None
 
 
+def check_options(section: str, options: Iterable[object], known: Iterable[str]) -> None:
+    """Refuse an option of a config ``section`` that is not in ``known``, naming the
+    options and the closest one (``presence: unknown option 'margn'. ...``)."""
+    known = list(known)
+    for key in options:
+        if key not in known:
+            guess = closest(str(key), known)
+            hint = f" Did you mean {guess!r}?" if guess else ""
+            raise ConfigError(
+                f"{section}: unknown option {key!r}. Options: {', '.join(known)}.{hint}"
+            )
+
+
 def unknown_name_message(what: str, name: str, known: Iterable[str]) -> str:
     """Format "<what> 'x' is not registered. Known: a, b. Did you mean 'a'?"."""
     known = sorted(set(known))

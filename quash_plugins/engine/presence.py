@@ -52,7 +52,7 @@ from typing import Any
 
 import numpy as np
 
-from ..core.errors import ConfigError, closest
+from ..core.errors import ConfigError, check_options
 from ..core.types import LatentMap
 
 MODES = ("filter", "gate")
@@ -79,14 +79,7 @@ class PresenceOptions:
 
     @classmethod
     def parse(cls, options: dict[str, Any]) -> PresenceOptions:
-        known = [f.name for f in fields(cls)]
-        for key in options:
-            if key not in known:
-                guess = closest(str(key), known)
-                hint = f" Did you mean {guess!r}?" if guess else ""
-                raise ConfigError(
-                    f"presence: unknown option {key!r}. Options: {', '.join(known)}.{hint}"
-                )
+        check_options("presence", options, [f.name for f in fields(cls)])
         try:
             opts = cls(**options)
             opts.dilate, opts.min_component, opts.k = (

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from ..core.errors import ConfigError, closest
+from ..core.errors import ConfigError, check_options
 from ..core.types import LatentMap, prepare_block
 
 #: Where the map positives come from: the first pass's matches, or its best-scored items.
@@ -37,14 +37,7 @@ class RefineOptions:
 
     @classmethod
     def parse(cls, options: dict[str, Any]) -> RefineOptions:
-        known = [f.name for f in fields(cls)]
-        for key in options:
-            if key not in known:
-                guess = closest(str(key), known)
-                hint = f" Did you mean {guess!r}?" if guess else ""
-                raise ConfigError(
-                    f"refine: unknown option {key!r}. Options: {', '.join(known)}.{hint}"
-                )
+        check_options("refine", options, [f.name for f in fields(cls)])
         opts = cls(**options)
         if opts.n_positives < 1 or opts.n_negatives < 1 or opts.min_seed < 1:
             raise ConfigError("refine: n_positives, n_negatives and min_seed must be >= 1.")

@@ -6,6 +6,8 @@ whose embeddings sit near their own word (hashed 32-d text vectors).
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from _eval_table import table_for, vec
@@ -225,3 +227,21 @@ def test_a_map_without_neighbourhoods_skips_the_check_and_says_so():
     assert r.queryset.provenance["presence"]["checked"] is False
     assert "no voxel grid, positions or frames" in r.queryset.provenance["presence"]["why"]
     assert r.mask.all()
+
+
+@pytest.mark.parametrize("section", ["presence", "refine"])
+def test_the_config_help_states_the_real_defaults(section):
+    """The help of the ``presence``/``refine`` keys (docs/config.md is generated from it)
+    names every option with the default its dataclass really has."""
+    import dataclasses
+
+    from quash_plugins.core.config import QuashConfig
+    from quash_plugins.engine.presence import PresenceOptions
+    from quash_plugins.engine.refine import RefineOptions
+
+    options = {"presence": PresenceOptions, "refine": RefineOptions}[section]
+    field = {f.name: f for f in dataclasses.fields(QuashConfig)}[section]
+    help_text = field.metadata["help"]
+    for f in dataclasses.fields(options):
+        default = "null" if f.default is None else f.default
+        assert re.search(rf"\b{f.name}: {re.escape(str(default))}\b", help_text), (f.name, default)
