@@ -62,9 +62,14 @@ def test_templates_without_vlmaps_fall_back_with_a_warning(monkeypatch, caplog, 
     monkeypatch.setattr(
         importlib.util, "find_spec", lambda name, *a: None if name == "vlmaps" else real(name, *a)
     )
-    with caplog.at_level("WARNING"):
+    import quash_plugins.core.text as text_mod
+
+    monkeypatch.setattr(text_mod, "_WARNED_NO_VLMAPS", False)
+    with caplog.at_level("INFO"):
         assert load_templates("vlmaps") == load_templates("default")
-    assert "not VLMaps' exactly" in caplog.text
+        load_templates("vlmaps")  # a second config: said again at INFO, not warned
+    said = [r for r in caplog.records if "not VLMaps' exactly" in r.getMessage()]
+    assert [r.levelname for r in said] == ["WARNING", "INFO"]
     bad = tmp_path / "clip_utils.py"
     bad.write_text("templates = ['a {}']\n")
     with pytest.raises(ConfigError, match=r"clip_utils\.py.*multiple_templates"):
