@@ -146,8 +146,10 @@ def test_eval_scores_open_vocabulary_queries_against_their_label():
     assert rep2.queries == ["bunk bed"] and rep2.absent == ["armchair"]
 
 
-def test_cli_eval_takes_text_label_queries_and_a_query_file(tmp_path, capsys):
+def test_cli_eval_takes_text_label_queries_and_a_query_file(tmp_path, capsys, monkeypatch):
     from quash_plugins.adapters import write_npz_map
+
+    monkeypatch.setenv("COLUMNS", "200")  # headers whole on one line
     from quash_plugins.cli.main import main
 
     names = {n for k, v in TAX.items() for n in (k, *v)} | {"other", "background", "nothing"}
