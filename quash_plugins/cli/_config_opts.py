@@ -19,7 +19,9 @@ def add_config_option(parser: argparse.ArgumentParser, multiple: bool = False) -
             dest="configs",
             default=None,
             help="Method config: a YAML file or a shipped config's name (e.g. "
-            "demo:quash-labels; 'quash configs' lists them). Repeat to compare methods.",
+            "demo:quash-labels; 'quash configs' lists them). Repeat to compare methods. "
+            "Default: the fair comparison, the default config beside the peers given the "
+            f"same label list ({', '.join(FAIR_PEERS)}, with the default config's encoder).",
         )
     else:
         parser.add_argument(
@@ -44,6 +46,22 @@ def add_runtime_options(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="Override the config's device (auto, cpu, cuda, cuda:N, mps).",
     )
+
+
+#: The peers a command comparing methods runs beside the default config when given no
+#: ``-c``: VLMaps' rule over its category list and OpenScene's label argmax, each given the
+#: same label list as the default config.
+FAIR_PEERS = ("demo:vlmaps-labels", "demo:openscene-labels")
+
+
+def fair_default_configs() -> list[QuashConfig]:
+    """The configs of ``quash eval`` given no ``-c``: the fair peers, then the default
+    config; the peers take the default config's encoder (a map has one text encoder)."""
+    import dataclasses
+
+    default = QuashConfig.default()
+    peers = [load_config(name) for name in FAIR_PEERS]
+    return [dataclasses.replace(p, encoder=default.encoder) for p in peers] + [default]
 
 
 def _default_summary() -> str:

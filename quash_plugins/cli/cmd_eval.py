@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import logging
 from typing import Any
 
 NAME = "eval"
 HELP = "Score configs on a labelled map: precision, recall, F1, IoU and absence queries."
 ORDER = 30
+log = logging.getLogger(__name__)
 DESCRIPTION = """\
 Scores each config's mask for every query against the map's ground truth
 (labels == the query's label): precision, recall, F1 and IoU per query and their macro
@@ -17,11 +19,14 @@ to sleep=bed" or --queries-file FILE.yaml. Unlabelled items (label < 0) and --ex
 labels count neither as TP nor FP. Queries whose label no item carries, and every
 --absent query, are absence queries: their score is the share that returns an empty
 mask (at most --empty-tolerance items). Each row says what the method was given (the
-label list, or the query alone) and how many present queries it returned empty."""
+label list, or the query alone) and how many present queries it returned empty. With no
+-c it runs the fair comparison: the default config beside VLMaps' rule over its category
+list and OpenScene's label argmax, all given the same label list."""
 EPILOG = """\
 examples:
   quash make-scene scene.npz
-  quash eval scene.npz -c demo:vlmaps -c demo:quash-taxonomy --all-labels \\
+  quash eval scene.npz                    # the default config and the fair peers
+  quash eval scene.npz -c demo:vlmaps -c demo:quash-labels --all-labels \\
       --absent piano,bathtub --json eval.json --markdown eval.md --plot eval.png
   quash eval scene.npz -c quash-labels.yaml --queries "bunk bed=bed,somewhere to sleep=bed" \\
       --absent "an elephant"
@@ -102,24 +107,28 @@ def run(args: argparse.Namespace) -> int:
     import json
 
     from ..core.atomic import atomic_write_text
-    from ..core.errors import UsageError
     from ..core.progress import progress
     from ..engine.pipeline import Quash
     from ..evaluation.plot import plot_precision_recall
     from ..evaluation.report import evaluate
     from ._backend_opts import backend_overrides
-    from ._config_opts import apply_runtime_options, load_config
+    from ._config_opts import (
+        FAIR_PEERS,
+        apply_runtime_options,
+        fair_default_configs,
+        load_config,
+    )
     from ._output import console, print_markdown, safe_text
     from ._viewer_opts import open_viewer
 
-    if not args.configs:
-        raise UsageError("quash eval needs at least one -c CONFIG (repeat to compare).")
     _check_outputs(args)
     overrides = backend_overrides(args)
-    quashes = [
-        Quash.from_config(apply_runtime_options(load_config(c), args), **overrides)
-        for c in args.configs
-    ]
+    if args.configs:
+        configs = [load_config(c) for c in args.configs]
+    else:
+        configs = fair_default_configs()
+        log.info("no -c: the default config and the fair peers (%s)", ", ".join(FAIR_PEERS))
+    quashes = [Quash.from_config(apply_runtime_options(cfg, args), **overrides) for cfg in configs]
     lmap = quashes[0].read_map(args.map, adapter=args.adapter)
     queries: Any = _split(args.queries) or None
     absent = _split(args.absent)
@@ -169,7 +178,7 @@ def _check_outputs(args: argparse.Namespace) -> None:
     from ..evaluation.report import is_report_file
     from ._viewer_opts import check_rrd
 
-    inputs = (args.map, *args.configs, *([args.queries_file] if args.queries_file else []))
+    inputs = (args.map, *(args.configs or ()), *([args.queries_file] if args.queries_file else []))
     for flag, path, known in (
         ("--json", args.json, is_report_file),
         ("--markdown", args.markdown, is_report_file),

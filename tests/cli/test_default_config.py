@@ -96,3 +96,24 @@ def test_quash_query_without_c_is_safe_on_make_scene_maps(seed, tmp_path, capsys
     # the taxonomy make-scene writes is read beside the map
     tax = yaml.safe_load((tmp_path / "scene.taxonomy.yaml").read_text())
     assert "piano" in tax
+
+
+@pytest.mark.slow
+def test_quash_eval_without_c_runs_the_fair_comparison(tmp_path):
+    """`quash eval MAP` with no -c: the fair peers given the map's label list and the
+    default config, each row saying what it was given."""
+    pytest.importorskip("sentence_transformers")
+    from quash_plugins.cli.main import main
+
+    scene = tmp_path / "scene.npz"
+    args = ["make-scene", str(scene), "--rooms", "2", "--voxel-size", "0.25", "--no-cache"]
+    assert main(args) == 0
+    out = tmp_path / "eval.json"
+    assert main(["eval", str(scene), "--queries", "chair,bed", "--json", str(out)]) == 0
+    rows = {c["name"]: c for c in json.loads(out.read_text())["configs"]}
+    assert list(rows) == ["vlmaps-labels", "openscene-labels", "default"]
+    givens = {c["given"] for c in rows.values()}
+    assert len(givens) == 1 and next(iter(givens)).startswith("the label list")
+    default = rows["default"]
+    assert "chair" in default["per_query"]  # a query with no item is an absence query
+    assert {*default["per_query"], *default["absence"]["per_query"]} == {"chair", "bed"}
