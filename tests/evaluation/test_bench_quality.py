@@ -1,0 +1,84 @@
+"""benchmarks/bench_quality.py: the fair protocol's configs and the targets' verdict.
+
+The full benchmark takes most of an hour (docs/benchmarks.md); here its pieces: every
+label-list method is given the same taxonomy file, the open-none scenario gives no one a
+label list, and the verdict compares QuASH with the best *fair* peer of each scenario.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(scope="module")
+def bq():
+    spec = importlib.util.spec_from_file_location(
+        "bench_quality", ROOT / "benchmarks" / "bench_quality.py"
+    )
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_label_list_methods_get_the_same_list_and_open_none_gets_none(bq, tmp_path):
+    tax = tmp_path / "scene.taxonomy.yaml"
+    closed = {c["name"]: c for c in bq.configs("closed", tax)}
+    assert {"vlmaps-labels", "openscene-labels", "quash-labels"} <= set(closed)
+    assert list(closed)[:3] == ["vlmaps", "conceptfusion", "lerf"]  # the peers come first
+    files = {
+        name: c["heuristic"].get("file")
+        for name, c in closed.items()
+        if isinstance(c.get("heuristic"), dict)
+        and c["heuristic"]["name"] in ("taxonomy", "label-list", "auto")
+    }
+    # a method given a label list either names the scene's taxonomy or takes the map's
+    # label names with that same file beside the map: never another list
+    assert all(f in (None, str(tax)) for f in files.values()), files
+    none = {c["name"]: c for c in bq.configs("open-none", tax)}
+    assert set(none) == {"vlmaps", "conceptfusion", "lerf", "quash-vocabulary"}
+    for c in none.values():
+        h = c.get("heuristic")
+        name = h["name"] if isinstance(h, dict) else h
+        assert name not in ("taxonomy", "label-list", "auto"), c["name"]
+
+
+def _rec(seed, scenario, f1s, recall=0.8, absence=1.0):
+    return {
+        "generator": "g",
+        "seed": seed,
+        "scenario": scenario,
+        "configs": [
+            {
+                "name": name,
+                "given": "x",
+                "mean": {"f1": f1, "precision": f1, "recall": recall, "ap": 0.5, "inv_rank": 1.0},
+                "per_query": {"a": {}, "b": {}},
+                "absence": {"score": absence, "present_empty": 0, "per_query": {"z": {}}},
+            }
+            for name, f1 in f1s.items()
+        ],
+    }
+
+
+def test_the_verdict_takes_the_best_fair_peer_and_every_target(bq):
+    # the query-alone rules do not count as fair peers of the closed scenario
+    f1 = {"conceptfusion": 0.9, "vlmaps-labels": 0.5, "openscene-labels": 0.6, "quash-labels": 0.72}
+    recs = [_rec(0, "closed", f1), _rec(1, "closed", f1)]
+    rows = bq.verdict(bq.summarise(recs))[2:]
+    assert len(rows) == 1
+    cells = [c.strip() for c in rows[0].strip("|").split("|")]
+    assert cells[4] == "openscene-labels (0.600)" and cells[5] == "1.20x"
+    assert cells[-1] == "yes"
+    # recall under the floor, or one absent object matched, fails the target
+    low = bq.verdict(bq.summarise([_rec(0, "closed", f1, recall=0.6)]))[2]
+    leaky = bq.verdict(bq.summarise([_rec(0, "closed", f1, absence=0.5)]))[2]
+    assert low.rstrip(" |").endswith("NO") and leaky.rstrip(" |").endswith("NO")
+    # with no label list, the peers are the query-alone rules and the target is 2x
+    none = {"conceptfusion": 0.3, "lerf": 0.2, "quash-vocabulary": 0.5}
+    row = bq.verdict(bq.summarise([_rec(0, "open-none", none)]))[2]
+    assert "conceptfusion (0.300)" in row and "1.67x" in row and row.rstrip(" |").endswith("NO")
