@@ -155,8 +155,15 @@ def test_eval_scores_match_an_independent_query(world, tmp_path):
     assert data["per_query"]["wall"]["f1"] == pytest.approx(ref["f1"])
 
 
-def test_eval_needs_a_config(world):
-    assert main(["eval", str(world / "scene.npz")]) == 2
+def test_eval_without_a_config_is_the_default_and_says_when_the_map_is_not_its_encoders(
+    world, capsys
+):
+    """No -c runs the fair comparison with the default config's encoder (MiniLM; see
+    tests/cli/test_default_config.py); a map built by another encoder is refused clearly."""
+    pytest.importorskip("sentence_transformers")
+    assert main(["eval", str(world / "scene.npz")]) == 1
+    err = capsys.readouterr().err
+    assert "scene.npz" in err and "text encoder that built the map" in err
 
 
 def _eval_json(world, tmp_path, *args):
