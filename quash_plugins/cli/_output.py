@@ -169,13 +169,12 @@ def markdown_table(lines: list[str], width: int | None = None) -> Any:
         justify = "right" if spec.endswith(":") and not spec.startswith(":") else "left"
         # A number is never folded: a right-aligned column is at least as wide as its
         # widest cell (its header folds instead).
-        widest = widths[i]
         table.add_column(
             _cell(name),
             justify=justify,
             overflow="fold",
             no_wrap=i == 0,
-            min_width=widest if justify == "right" else None,
+            min_width=widths[i] if justify == "right" else None,
         )
     for row in body:
         table.add_row(*[_cell(c) for c in row[: len(header)]])
