@@ -24,7 +24,16 @@ import yaml
 from .errors import ConfigError, closest
 from .types import DEFAULT_NEGATIVES
 
-_PATH_KEYS = ("file", "path", "checkpoint", "vocabulary", "taxonomy", "cache_dir", "labels_file")
+_PATH_KEYS = (
+    "file",
+    "path",
+    "checkpoint",
+    "vocabulary",
+    "taxonomy",
+    "cache_dir",
+    "labels_file",
+    "points",  # the openscene adapter's point cloud
+)
 
 
 @dataclass

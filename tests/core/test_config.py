@@ -88,3 +88,13 @@ def test_unsupported_devices_are_refused_everywhere(tiny_world, tmp_path, capsys
         params = {"device": "tpu"} | ({"model": "ViT-B-32"} if name == "open-clip" else {})
         with pytest.raises(QuashError, match="tpu"):
             registry.create(kind, name, **params)
+
+
+def test_an_adapters_points_file_is_resolved_against_the_config_folder(tmp_path):
+    """The openscene adapter's ``points`` travels with its config like every path option."""
+    folder = tmp_path / "cfg"
+    folder.mkdir()
+    p = folder / "c.yaml"
+    p.write_text("name: x\nadapter: {name: openscene, points: scene_vh_clean_2.pth}\n")
+    cfg = QuashConfig.from_yaml(p)
+    assert cfg.adapter.params["points"] == str((folder / "scene_vh_clean_2.pth").resolve())
