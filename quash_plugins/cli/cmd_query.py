@@ -173,13 +173,21 @@ def _report(args, cfg, lmap, results) -> None:
             }
         )
         return
+    from rich import box
     from rich.table import Table
 
-    table = Table(title=safe_text(f"{lmap.describe()} | config {cfg.name}"))
-    for col in ("query", "matched", "share", "instances", "positives", "negatives", "time"):
-        table.add_column(col, justify="right" if col not in ("query",) else "left")
+    table = Table(
+        title=safe_text(f"{lmap.describe()} | config {cfg.name}"),
+        box=box.SIMPLE_HEAD,
+        show_edge=False,
+        pad_edge=False,
+    )
+    checked = any(r.presence != "off" for r in results)
+    cols = ("query", "matched", "share", "instances", "positives", "negatives", "time")
+    for col in (*cols, *(("presence",) if checked else ())):
+        table.add_column(col, justify="left" if col in ("query", "presence") else "right")
     for r in results:
-        table.add_row(
+        cells = [
             safe_text(r.query),
             f"{r.n_matched}",
             f"{100 * r.share:.2f}%",
@@ -187,9 +195,19 @@ def _report(args, cfg, lmap, results) -> None:
             f"{len(r.queryset.positives)}",
             f"{len(r.queryset.negatives)}",
             f"{r.timings.get('total', 0.0) * 1000:.0f} ms",
-        )
+        ]
+        if checked:
+            cells.append(r.presence.split(" (", 1)[0].split(":", 1)[0])
+        table.add_row(*cells)
     out = console()
     out.print(table)
+    for r in results:  # an empty mask says why (docs/evaluation.md#the-presence-check)
+        if r.presence.startswith("absent: ") and r.presence != "absent: nothing matched":
+            reason = r.presence.removeprefix("absent: ")
+            out.print(
+                safe_text(f"{r.query!r} came back empty: {reason}; presence: null in the config ")
+                + "keeps every match"
+            )
     out.print(timings_table(results))
     if args.out:
         out.print(f"wrote {safe_text(args.out)}")

@@ -462,11 +462,33 @@ class QueryResult:
     def share(self) -> float:
         return self.n_matched / max(1, len(self.mask))
 
+    @property
+    def presence(self) -> str:
+        """The presence check's decision in words: ``present``, ``absent: ...`` (why the
+        mask is empty), ``not checked: ...`` or ``off`` (the config has no check)."""
+        info = self.queryset.provenance.get("presence")
+        if not isinstance(info, dict):
+            return "off"
+        if not info.get("checked", True):
+            return f"not checked: {info.get('why', 'no neighbourhood')}"
+        if info.get("present"):
+            return f"present ({info.get('kept', 0)} of {info.get('components', 0)} components kept)"
+        best = [
+            f"{what} {info[key]:+.3f}"
+            for key, what in (("best_margin", "grown region"), ("best_core_margin", "own items"))
+            if isinstance(info.get(key), (int, float))
+        ]
+        if not info.get("components"):
+            return "absent: nothing matched"
+        why = f"best margins: {', '.join(best)}" if best else "no component large enough"
+        return f"absent: no component won clearly against the other labels ({why})"
+
     def summary(self) -> dict[str, Any]:
         return {
             "query": self.query,
             "matched": self.n_matched,
             "share": self.share,
             "instances": len(self.instances),
+            "presence": self.presence,
             "timings": dict(self.timings),
         }

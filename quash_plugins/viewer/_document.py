@@ -54,6 +54,8 @@ def queryset_markdown(
         f"Matched **{result.n_matched:,}** of {lmap.n:,} items ({100 * result.share:.2f} %) · "
         f"{len(result.instances)} instances · query {index}",
         "",
+        f"Presence check: {_md(result.presence)}",
+        "",
         f"**Positives ({len(pos)}):** {_head(pos)}",
         "",
         f"**Negatives ({len(neg)}):** {_head(neg)}",

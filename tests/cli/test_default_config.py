@@ -9,6 +9,7 @@ the map, and an object that is not there comes back empty.
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -91,8 +92,14 @@ def test_quash_query_without_c_is_safe_on_make_scene_maps(seed, tmp_path, capsys
         res = {r["query"]: r for r in json.loads(capsys.readouterr().out)["results"]}
         assert res["chair"]["share"] < max(0.1, 5 * chair_share), (label_list, res["chair"])
         assert res["piano"]["matched"] == 0 and res["an elephant"]["matched"] == 0, label_list
+        # the presence check says why a mask is empty
+        assert res["piano"]["presence"].startswith("absent"), res["piano"]
         if label_list:  # with the label list, chairs are found
             assert res["chair"]["matched"] > 0
+            assert res["chair"]["presence"].startswith("present"), res["chair"]
+    assert main(["query", str(out), "chair", "piano"]) == 0
+    printed = capsys.readouterr().out
+    assert re.search(r"^piano\s.*\sabsent\s*$", printed, re.M), printed
     # the taxonomy make-scene writes is read beside the map
     tax = yaml.safe_load((tmp_path / "scene.taxonomy.yaml").read_text())
     assert "piano" in tax

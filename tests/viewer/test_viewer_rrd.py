@@ -149,6 +149,7 @@ def test_voxel_map_layout_counts_and_blueprint(tmp_path):
         assert head.startswith(f"# {r.query} · quash")
         assert "**Positives (1):** " in head and "**Negatives (3):** " in head
         assert "background" in head and "Contrast" in text
+        assert f"Presence check: {r.presence}" in head  # "off": this config has none
     # The blueprint names the config in its view titles.
     views = blueprint_views(reader)
     assert ("3D", "world") in views and ("TextDocument", "queries/quash") in views
