@@ -419,9 +419,34 @@ def read_blocks(lmap: LatentMap, rows: int) -> Iterator[tuple[int, int, np.ndarr
                 lmap.source.get("path", "the map"),
                 exc,
                 lmap.source.get("adapter"),
-                f"rows {start}-{stop - 1} of the embeddings",
+                f"rows {start}-{stop - 1} of the embeddings{_chunk_keys(E, start, stop)}",
             ) from exc
         yield start, stop, chunk
+
+
+def _chunk_keys(E: Any, start: int, stop: int, most: int = 4) -> str:
+    """`` (zarr chunk embeddings/c/2/0)``: the chunks of a zarr array that fail to read
+    in rows ``start:stop``, each tried alone (the files to check or copy again); ``""``
+    for anything else. Only called after a read failed."""
+    chunks, meta = getattr(E, "chunks", None), getattr(E, "metadata", None)
+    encode = getattr(meta, "encode_chunk_key", None)
+    if encode is None or not chunks or len(chunks) != 2 or len(getattr(E, "shape", ())) != 2:
+        return ""
+    name = str(getattr(E, "path", "") or "").strip("/")
+    bad: list[str] = []
+    try:
+        for r in range(start // chunks[0], (stop - 1) // chunks[0] + 1):
+            for c in range(-(-E.shape[1] // chunks[1])):
+                try:
+                    E[r * chunks[0] : (r + 1) * chunks[0], c * chunks[1] : (c + 1) * chunks[1]]
+                except Exception:  # noqa: BLE001 - this chunk is one that fails
+                    bad.append(f"{name}/{encode((r, c))}" if name else encode((r, c)))
+    except Exception:  # noqa: BLE001 - naming the chunk must never hide the real error
+        return ""
+    if not bad:
+        return ""
+    more = " ..." if len(bad) > most else ""
+    return f" (zarr chunk{'s' if len(bad) > 1 else ''} {', '.join(bad[:most])}{more})"
 
 
 #: Share of unobserved (all-zero) items above which a query warns about the map.
