@@ -15,28 +15,30 @@ True
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from .core.optional import lazy_exports
 
 __version__ = "0.1.0"
 
 _EXPORTS = {
-    "Encoder": "core.interfaces",
-    "Heuristic": "core.interfaces",
-    "Classifier": "core.interfaces",
-    "MapAdapter": "core.interfaces",
-    "ExpansionContext": "core.interfaces",
-    "StackableClassifier": "core.interfaces",
-    "CosineClassifier": "core.interfaces",
-    "LatentMap": "core.types",
-    "QuerySet": "core.types",
-    "QueryResult": "core.types",
-    "Instance": "core.types",
-    "FrameInfo": "core.types",
-    "DEFAULT_NEGATIVES": "core.types",
-    "Quash": "engine.pipeline",
-    "QuashConfig": "core.config",
-    "QuashError": "core.errors",
-    "registry": "core.registry",
+    "Encoder": ".core.interfaces",
+    "Heuristic": ".core.interfaces",
+    "Classifier": ".core.interfaces",
+    "MapAdapter": ".core.interfaces",
+    "ExpansionContext": ".core.interfaces",
+    "StackableClassifier": ".core.interfaces",
+    "CosineClassifier": ".core.interfaces",
+    "LatentMap": ".core.types",
+    "QuerySet": ".core.types",
+    "QueryResult": ".core.types",
+    "Instance": ".core.types",
+    "FrameInfo": ".core.types",
+    "DEFAULT_NEGATIVES": ".core.types",
+    "Quash": ".engine.pipeline",
+    "QuashConfig": ".core.config",
+    "QuashError": ".core.errors",
+    "registry": ".core.registry",
 }
 
 __all__ = [
@@ -76,14 +78,4 @@ if TYPE_CHECKING:  # pragma: no cover
     from .engine.pipeline import Quash
 
 
-def __getattr__(name: str) -> Any:
-    import importlib
-
-    if name not in _EXPORTS:
-        raise AttributeError(f"module 'quash_plugins' has no attribute {name!r}")
-    module = importlib.import_module(f".{_EXPORTS[name]}", __name__)
-    return module if module.__name__.endswith(f".{name}") else getattr(module, name)
-
-
-def __dir__() -> list[str]:
-    return sorted([*globals(), *_EXPORTS])
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

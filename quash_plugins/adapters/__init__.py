@@ -14,9 +14,8 @@ Examples
 
 from __future__ import annotations
 
-from typing import Any
-
 from ..core.maps import detect_adapter, read_map
+from ..core.optional import lazy_exports
 
 __all__ = [
     "read_map",
@@ -46,10 +45,4 @@ _LAZY = {
 }
 
 
-def __getattr__(name: str) -> Any:
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    from importlib import import_module
-
-    return getattr(import_module(module, __name__), name)
+__getattr__, __dir__ = lazy_exports(__name__, _LAZY)

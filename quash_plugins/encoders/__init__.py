@@ -13,8 +13,7 @@ first use, never at import time; the classes below are exported lazily.
 
 from __future__ import annotations
 
-from typing import Any
-
+from ..core.optional import lazy_exports
 from ._table import TableEncoder
 
 _LAZY = {
@@ -27,10 +26,4 @@ _LAZY = {
 __all__ = ["TableEncoder", *_LAZY]
 
 
-def __getattr__(name: str) -> Any:
-    if name in _LAZY:
-        import importlib
-
-        module = importlib.import_module(_LAZY[name], __name__)
-        return getattr(module, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__, __dir__ = lazy_exports(__name__, _LAZY)

@@ -24,8 +24,7 @@ See ``docs/architecture.md`` and ``docs/scale.md``.
 
 from __future__ import annotations
 
-from importlib import import_module
-from typing import Any
+from ..core.optional import lazy_exports
 
 _EXPORTS = {
     "Quash": ".pipeline",
@@ -57,12 +56,4 @@ _EXPORTS = {
 __all__ = sorted(_EXPORTS)
 
 
-def __getattr__(name: str) -> Any:
-    module = _EXPORTS.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    return getattr(import_module(module, __name__), name)
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

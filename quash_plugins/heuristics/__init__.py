@@ -6,8 +6,7 @@ imported on first use; importing this package imports none of them.
 
 from __future__ import annotations
 
-from importlib import import_module
-from typing import Any
+from ..core.optional import lazy_exports
 
 _EXPORTS = {
     "AutoHeuristic": "._auto",
@@ -30,14 +29,4 @@ _EXPORTS = {
 __all__ = sorted(_EXPORTS)
 
 
-def __getattr__(name: str) -> Any:
-    module = _EXPORTS.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(import_module(module, __name__), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

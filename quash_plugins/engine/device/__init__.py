@@ -19,8 +19,7 @@ which is how the tests check it without a GPU.
 
 from __future__ import annotations
 
-from importlib import import_module
-from typing import Any
+from ...core.optional import lazy_exports
 
 _EXPORTS = {
     "pass_device": "._select",
@@ -46,12 +45,4 @@ _EXPORTS = {
 __all__ = sorted(_EXPORTS)
 
 
-def __getattr__(name: str) -> Any:
-    module = _EXPORTS.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    return getattr(import_module(module, __name__), name)
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
