@@ -220,6 +220,27 @@ def resolve_backend(backend: str, device: str) -> tuple[str, str]:
     return "torch", (device if cuda_asked else "cuda" if (device == "auto" and cuda) else "cpu")
 
 
+def kernel_values_(G: np.ndarray, cos_segments: Any, n_exp: int) -> np.ndarray:
+    """Turn the exponents of a block's kernel columns into kernel values, in place.
+
+    ``G`` holds, per column, ``-gamma |x - s|^2`` (RBF parts, the first ``n_exp``
+    columns) or the cosine (cosine parts); each cosine segment ``(a, b, gamma, p)``
+    becomes ``-gamma max(0, 1 - cos)^p``, then the first ``n_exp`` columns are
+    exponentiated. Shared by :class:`KernelStack` and the fused block epilogue.
+    """
+    for a, b, g, p in cos_segments:
+        seg = G[:, a:b]
+        np.subtract(1.0, seg, out=seg)
+        np.maximum(seg, 0.0, out=seg)
+        if p == 2:
+            np.square(seg, out=seg)
+        seg *= -g
+    if n_exp:
+        head = G[:, :n_exp]
+        np.exp(head, out=head)
+    return G
+
+
 class KernelStack:
     """Several fitted kernel decision functions evaluated with one GEMM per block.
 
@@ -329,15 +350,7 @@ class KernelStack:
         if self.has_cos:
             inv = _inv_norm(sq, len(x))
             G[:, self._cos_start :] *= inv[:, None]
-        for a, b, g, p in self.cos_segments:
-            seg = G[:, a:b]
-            np.subtract(1.0, seg, out=seg)
-            np.maximum(seg, 0.0, out=seg)
-            if p == 2:
-                np.square(seg, out=seg)
-            seg *= -g
-        if self.n_exp:
-            np.exp(G[:, : self.n_exp], out=G[:, : self.n_exp])
+        kernel_values_(G, self.cos_segments, self.n_exp)
         out = G @ t["A"]
         out += t["b"]
         return out
@@ -555,16 +568,7 @@ class StackEpilogue:
             G[:, : self.n_rbf] += self.bias_rbf
         if self.cos_scale:
             G[:, self.cos_start :] *= inv[:, None]
-        for a, b, g, p in st.cos_segments:
-            seg = G[:, a:b]
-            np.subtract(1.0, seg, out=seg)
-            np.maximum(seg, 0.0, out=seg)
-            if p == 2:
-                np.square(seg, out=seg)
-            seg *= -g
-        if st.n_exp:
-            E = G[:, : st.n_exp]
-            np.exp(E, out=E)
+        kernel_values_(G, st.cos_segments, st.n_exp)
         R = G @ self.A
         R += self.b
         if self.normalize and not obs.all():
