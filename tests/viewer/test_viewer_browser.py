@@ -18,13 +18,10 @@ import asyncio
 import base64
 import json
 import os
-import re
 import shutil
 import signal
-import socket
 import subprocess
 import sys
-import threading
 import time
 import urllib.request
 from pathlib import Path
@@ -34,6 +31,8 @@ import pytest
 
 pytest.importorskip("rerun")
 pytest.importorskip("tornado")
+
+from _procs import Lines, free_port  # noqa: E402
 
 CHROMIUM = "/usr/bin/chromium"
 REPO = Path(__file__).resolve().parents[2]
@@ -60,41 +59,6 @@ SAVE_RECORDING_JS = """
   return btoa(s);
 })()
 """
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-class Lines:
-    """Collect a pipe's lines in a thread so the child never blocks on a full pipe."""
-
-    def __init__(self, pipe) -> None:
-        self.lines: list[str] = []
-        self._t = threading.Thread(target=self._pump, args=(pipe,), daemon=True)
-        self._t.start()
-
-    def _pump(self, pipe) -> None:
-        for line in iter(pipe.readline, ""):
-            self.lines.append(line)
-
-    def wait_for(self, pattern: str, timeout: float, proc: subprocess.Popen) -> re.Match:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            for line in list(self.lines):
-                m = re.search(pattern, line)
-                if m:
-                    return m
-            if proc.poll() is not None:
-                break
-            time.sleep(0.1)
-        raise AssertionError(f"no line matching {pattern!r}; got:\n{''.join(self.lines)}")
-
-    def text(self) -> str:
-        self._t.join(timeout=5)
-        return "".join(self.lines)
 
 
 class DevTools:

@@ -18,7 +18,6 @@ import signal
 import socket
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 
@@ -26,18 +25,14 @@ import pytest
 
 pytest.importorskip("rerun")
 
+from _procs import Lines, free_port  # noqa: E402
+
 from quash_plugins.viewer import display_available, rerun_executable  # noqa: E402
 
 CLI = [sys.executable, "-c", "from quash_plugins.cli.main import main; raise SystemExit(main())"]
 pytestmark = pytest.mark.skipif(
     rerun_executable() is None, reason="the rerun executable of the SDK is not installed"
 )
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def headless_env(**extra: str) -> dict[str, str]:
@@ -67,33 +62,6 @@ def listening(ports: set[int]) -> set[tuple[str, int]]:
             family = socket.AF_INET if width == 8 else socket.AF_INET6
             found.add((socket.inet_ntop(family, raw), port))
     return found
-
-
-class Lines:
-    """A pipe's lines, read in a thread so the child never blocks on a full pipe."""
-
-    def __init__(self, pipe) -> None:
-        self.lines: list[str] = []
-        self._t = threading.Thread(target=self._pump, args=(pipe,), daemon=True)
-        self._t.start()
-
-    def _pump(self, pipe) -> None:
-        for line in iter(pipe.readline, ""):
-            self.lines.append(line)
-
-    def wait_for(self, text: str, timeout: float, proc: subprocess.Popen) -> None:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if any(text in line for line in list(self.lines)):
-                return
-            if proc.poll() is not None:
-                break
-            time.sleep(0.2)
-        raise AssertionError(f"no line with {text!r}; got:\n{''.join(self.lines)}")
-
-    def text(self) -> str:
-        self._t.join(timeout=10)
-        return "".join(self.lines)
 
 
 @pytest.fixture(scope="module")
