@@ -42,6 +42,21 @@ def _labelled_embeddings(labels: np.ndarray, rng: np.random.Generator) -> np.nda
     return emb
 
 
+def _voxels(grid, labels, voxel, colors, rng, name: str) -> LatentMap:
+    """A labelled voxel map of chair (0), sofa (1) and floor (2) cells."""
+    return LatentMap(
+        _labelled_embeddings(labels, rng),
+        kind="voxels",
+        positions=(grid * voxel).astype(np.float32),
+        colors=colors,
+        labels=labels,
+        label_names=["chair", "sofa", "floor"],
+        voxel_size=voxel,
+        grid_index=grid,
+        source={"adapter": "test", "path": name},
+    )
+
+
 def voxel_map(shape=(6, 5, 3), voxel=0.1, colors=True, seed=0) -> LatentMap:
     """A voxel map: a chair block, a sofa block and floor.
 
@@ -58,17 +73,7 @@ def voxel_map(shape=(6, 5, 3), voxel=0.1, colors=True, seed=0) -> LatentMap:
         cols = rng.integers(0, 255, (len(grid), 3), dtype=np.uint8)
     else:
         cols = None
-    return LatentMap(
-        _labelled_embeddings(labels, rng),
-        kind="voxels",
-        positions=(grid * voxel).astype(np.float32),
-        colors=cols,
-        labels=labels,
-        label_names=["chair", "sofa", "floor"],
-        voxel_size=voxel,
-        grid_index=grid,
-        source={"adapter": "test", "path": "voxels.npz"},
-    )
+    return _voxels(grid, labels, voxel, cols, rng, "voxels.npz")
 
 
 def pixel_map(n_frames=2, h=6, w=8, seed=1) -> LatentMap:
@@ -128,14 +133,4 @@ def room_map(voxel=0.25, size=(5.0, 4.0), height=2.5, seed=2) -> LatentMap:
     labels[chair[keep]] = 0
     labels[sofa[keep]] = 1
     cols = np.repeat(rng.integers(90, 190, (len(grid), 1), dtype=np.uint8), 3, axis=1)
-    return LatentMap(
-        _labelled_embeddings(labels, rng),
-        kind="voxels",
-        positions=(grid * voxel).astype(np.float32),
-        colors=cols,
-        labels=labels,
-        label_names=["chair", "sofa", "floor"],
-        voxel_size=voxel,
-        grid_index=grid,
-        source={"adapter": "test", "path": "room.npz"},
-    )
+    return _voxels(grid, labels, voxel, cols, rng, "room.npz")
