@@ -287,27 +287,29 @@ def test_triton_kernel_under_the_interpreter_matches_sklearn(tmp_path):
     assert single < 1e-3  # mode 1: V in float16 only (the issue's bound)
 
 
-def test_the_gpu_benchmark_runs_as_a_dry_run_on_the_cpu():
-    """benchmarks/bench_gpu.py end to end at toy sizes (Triton interpreted): every row of
-    its table is produced and its accuracy lines hold."""
-    pytest.importorskip("triton")
-    env = {**os.environ, "TRITON_INTERPRET": "1", "PYTHONPATH": str(ROOT)}
-    args = "--device cpu --rows 3000 --dim 64 --sv 16 --stack 3 --reps 2 --host-rows 1500"
+def _run_benchmark(script: str, args: str, **env: str) -> subprocess.CompletedProcess:
+    """Run ``benchmarks/<script> <args>`` with the project on the path; it must succeed."""
     res = subprocess.run(
-        [
-            sys.executable,
-            str(ROOT / "benchmarks" / "bench_gpu.py"),
-            *args.split(),
-            "--check-rows",
-            "3000",
-            "--no-autotune",
-        ],  # fmt: skip
-        env=env,
+        [sys.executable, str(ROOT / "benchmarks" / script), *args.split()],
+        env={**os.environ, "PYTHONPATH": str(ROOT), **env},
         capture_output=True,
         text=True,
         timeout=600,
     )
     assert res.returncode == 0, res.stderr[-3000:]
+    return res
+
+
+def test_the_gpu_benchmark_runs_as_a_dry_run_on_the_cpu():
+    """benchmarks/bench_gpu.py end to end at toy sizes (Triton interpreted): every row of
+    its table is produced and its accuracy lines hold."""
+    pytest.importorskip("triton")
+    res = _run_benchmark(
+        "bench_gpu.py",
+        "--device cpu --rows 3000 --dim 64 --sv 16 --stack 3 --reps 2 --host-rows 1500 "
+        "--check-rows 3000 --no-autotune",
+        TRITON_INTERPRET="1",
+    )
     table = [ln for ln in res.stdout.splitlines() if ln.startswith("| ")]
     assert len(table) == 1 + 12 and not any("skipped" in ln for ln in table), res.stdout
     accuracy = [ln for ln in res.stdout.splitlines() if ln.startswith("max |diff|")][0]
@@ -317,23 +319,6 @@ def test_the_gpu_benchmark_runs_as_a_dry_run_on_the_cpu():
 
 
 def test_the_classify_stage_benchmark_runs():
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    res = subprocess.run(
-        [
-            sys.executable,
-            str(ROOT / "benchmarks" / "bench_classify_stage.py"),
-            "--rows",
-            "3000",
-            "--dim",
-            "32",
-            "--reps",
-            "1",
-        ],  # fmt: skip
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
-    assert res.returncode == 0, res.stderr[-3000:]
+    res = _run_benchmark("bench_classify_stage.py", "--rows 3000 --dim 32 --reps 1")
     rows = [ln for ln in res.stdout.splitlines() if ln.startswith("| float")]
     assert len(rows) == 4 and all(ln.count("x |") == 3 for ln in rows), res.stdout
