@@ -16,6 +16,7 @@ import textwrap
 from pathlib import Path
 
 import pytest
+from _pip import pip_install
 
 from quash_plugins import Quash
 from quash_plugins.core import registry
@@ -55,16 +56,6 @@ class Shadow(Heuristic):
 """
 
 
-def _pip_install(project: Path, target: Path) -> None:
-    subprocess.run(
-        [sys.executable, "-m", "pip", "install", "--quiet", "--no-deps", "--no-build-isolation"]
-        + ["--no-index", "--target", str(target), str(project)],
-        check=True,
-        capture_output=True,
-        text=True,
-    )
-
-
 @pytest.fixture(scope="module")
 def installed(tmp_path_factory):
     project = tmp_path_factory.mktemp("shadow")
@@ -72,8 +63,8 @@ def installed(tmp_path_factory):
     (project / "quash_shadow").mkdir()
     (project / "quash_shadow" / "__init__.py").write_text(MODULE)
     target = tmp_path_factory.mktemp("site")
-    _pip_install(project, target)
-    _pip_install(EXAMPLES / "quash-broken-plugin", target)
+    pip_install(project, target)
+    pip_install(EXAMPLES / "quash-broken-plugin", target)
     sys.path.insert(0, str(target))
     registry.refresh()
     yield target

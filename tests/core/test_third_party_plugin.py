@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _pip import pip_install
 
 from quash_plugins import Quash
 from quash_plugins.core import registry
@@ -18,33 +19,12 @@ from quash_plugins.core.errors import PluginError
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
 
-def _pip_install(project: Path, target: Path) -> None:
-    subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "pip",
-            "install",
-            "--quiet",
-            "--no-deps",
-            "--no-build-isolation",
-            "--no-index",
-            "--target",
-            str(target),
-            str(project),
-        ],
-        check=True,
-        capture_output=True,
-        text=True,
-    )
-
-
 @pytest.fixture(scope="module")
 def installed(tmp_path_factory):
     """pip-install the example plugin and the broken plugin into a private target dir."""
     target = tmp_path_factory.mktemp("site")
-    _pip_install(EXAMPLES / "quash-char-ngram", target)
-    _pip_install(EXAMPLES / "quash-broken-plugin", target)
+    pip_install(EXAMPLES / "quash-char-ngram", target)
+    pip_install(EXAMPLES / "quash-broken-plugin", target)
     sys.path.insert(0, str(target))
     registry.refresh()
     yield target
