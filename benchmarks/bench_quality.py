@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import time
 from pathlib import Path
 
@@ -135,13 +136,24 @@ def run_one(out: Path, generator: str, seed: int, scenario: str, encoder, cache)
     return rec
 
 
+#: A scene's own file in a method's ``given`` text (``hard-seed3.taxonomy.yaml``): the
+#: summary spans seeds, so it names the file generically.
+_SCENE_FILE = re.compile(r"[\w.-]*-seed\d+((?:\.\w+)+)")
+
+
+def given_text(given: str) -> str:
+    """``given`` with the seed's own file names written ``SCENE.<suffix>``."""
+    return _SCENE_FILE.sub(lambda m: "SCENE" + m.group(1), given)
+
+
 def summarise(recs: list[dict]) -> dict:
     """``{(generator, scenario): {method: {metric: [per seed]}}}``."""
     agg: dict = {}
     for rec in recs:
         key = (rec["generator"], rec["scenario"])
         for c in rec["configs"]:
-            m = agg.setdefault(key, {}).setdefault(c["name"], {"given": c.get("given", "")})
+            given = given_text(c.get("given", ""))
+            m = agg.setdefault(key, {}).setdefault(c["name"], {"given": given})
             pq = c["per_query"]
             vals = {
                 **{k: c["mean"].get(k) for k in ("f1", "precision", "recall", "ap", "inv_rank")},

@@ -47,7 +47,7 @@ def test_label_list_methods_get_the_same_list_and_open_none_gets_none(bq, tmp_pa
         assert name not in ("taxonomy", "label-list", "auto"), c["name"]
 
 
-def _rec(seed, scenario, f1s, recall=0.8, absence=1.0):
+def _rec(seed, scenario, f1s, recall=0.8, absence=1.0, given="x"):
     return {
         "generator": "g",
         "seed": seed,
@@ -55,7 +55,7 @@ def _rec(seed, scenario, f1s, recall=0.8, absence=1.0):
         "configs": [
             {
                 "name": name,
-                "given": "x",
+                "given": given,
                 "mean": {"f1": f1, "precision": f1, "recall": recall, "ap": 0.5, "inv_rank": 1.0},
                 "per_query": {"a": {}, "b": {}},
                 "absence": {"score": absence, "present_empty": 0, "per_query": {"z": {}}},
@@ -82,3 +82,17 @@ def test_the_verdict_takes_the_best_fair_peer_and_every_target(bq):
     none = {"conceptfusion": 0.3, "lerf": 0.2, "quash-vocabulary": 0.5}
     row = bq.verdict(bq.summarise([_rec(0, "open-none", none)]))[2]
     assert "conceptfusion (0.300)" in row and "1.67x" in row and row.rstrip(" |").endswith("NO")
+
+
+def test_the_summary_names_the_scene_file_not_one_seeds(bq):
+    # each seed's run names its own taxonomy file; a table over seeds names neither
+    f1 = {"vlmaps-labels": 0.5, "quash-labels": 0.7}
+    recs = [
+        _rec(s, "closed", f1, given=f"the map's label names + hard-seed{s}.taxonomy.yaml")
+        for s in (3, 14)
+    ]
+    methods = bq.summarise(recs)[("g", "closed")]
+    assert methods["quash-labels"]["given"] == "the map's label names + SCENE.taxonomy.yaml"
+    table = "\n".join(bq.table(methods))
+    assert "seed3" not in table and "seed14" not in table
+    assert bq.given_text("the query alone") == "the query alone"
