@@ -191,10 +191,15 @@ class Classifier(BaseEstimator):
 
     def display_scores(self, scores: np.ndarray, threshold: float = 0.0) -> np.ndarray:
         """Scores mapped to [0, 1] for display, 0.5 at ``threshold``. Logistic by default."""
-        s = np.asarray(scores, dtype=np.float32) - np.float32(threshold)
+        s = np.subtract(scores, np.float32(threshold), dtype=np.float32)
         spread = float(np.std(s)) if s.size else 1.0
         scale = spread if spread > 1e-6 else 1.0
-        return (0.5 * (1.0 + np.tanh(s / (2.0 * scale)))).astype(np.float32)
+        # in place, one buffer: 0.5 * (1 + tanh(s / (2 scale))) in float32
+        np.divide(s, np.float32(2.0 * scale), out=s)
+        np.tanh(s, out=s)
+        s += np.float32(1.0)
+        s *= np.float32(0.5)
+        return s
 
     def describe(self) -> str:
         """Short description for tables and the Rerun document."""

@@ -449,16 +449,29 @@ class Quash:
         self, clf: Any, raw: Any, observed: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Map-level postprocess, unobserved floor, mask and display scores of one query."""
+        from ..core.interfaces import Classifier
+
         raw = np.asarray(raw, dtype=np.float32)
-        if observed.any():
-            raw[observed] = np.asarray(clf.postprocess_scores(raw[observed]), np.float32)
+        every = bool(observed.all())  # the common case: no gather, scatter or floor
+        if type(clf).postprocess_scores is not Classifier.postprocess_scores:
+            if every:
+                raw = np.array(clf.postprocess_scores(raw), dtype=np.float32)
+            elif observed.any():
+                raw[observed] = np.asarray(clf.postprocess_scores(raw[observed]), np.float32)
+        if every:
+            floor = min(float(raw.min()), self.threshold) - 1.0 if raw.size else 0.0
+        elif observed.any():
             floor = min(float(raw[observed].min()), self.threshold) - 1.0
         else:
             floor = self.threshold - 1.0
-        raw[~observed] = floor
-        mask = (raw > self.threshold) & observed
+        if not every:
+            raw[~observed] = floor
+        mask = raw > self.threshold
+        if not every:
+            mask &= observed
         display = np.asarray(clf.display_scores(raw, self.threshold), dtype=np.float32)
-        display[~observed] = 0.0
+        if not every:
+            display[~observed] = 0.0
         return raw, mask, display
 
     def _refine_pass(

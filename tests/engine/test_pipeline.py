@@ -193,3 +193,77 @@ def test_query_sets_are_not_reused_across_maps_with_recycled_ids():
     # simulate the allocator handing the freed id to the new map
     quash._querysets[("chair", id(second))] = quash._querysets.pop(key)
     assert quash.expand("chair", second).negatives == ["sofa"]
+
+
+def _finish_reference(post, display, raw, observed, threshold):
+    """What ``Quash._finish`` must return, spelled out on float64 copies."""
+    raw = raw.astype(np.float64)
+    out = raw.copy()
+    if observed.any():
+        out[observed] = post(raw[observed])
+        floor = min(out[observed].min(), threshold) - 1.0
+    else:
+        floor = threshold - 1.0
+    out[~observed] = floor
+    mask = (out > threshold) & observed
+    disp = display(out, threshold)
+    disp[~observed] = 0.0
+    return out, mask, disp
+
+
+def _logistic(scores, threshold):
+    s = scores - threshold
+    scale = s.std() if s.std() > 1e-6 else 1.0
+    return 0.5 * (1.0 + np.tanh(s / (2.0 * scale)))
+
+
+@pytest.mark.parametrize("every", [True, False])
+@pytest.mark.parametrize("post", ["identity", "minmax"])
+def test_finish_matches_its_definition_with_and_without_unobserved_items(every, post):
+    from quash_plugins.core.interfaces import Classifier
+
+    class Clf(Classifier):
+        def fit(self, X, y):
+            return self
+
+        def decision_function(self, X):
+            return X[:, 0]
+
+    class MinMax(Clf):
+        def postprocess_scores(self, scores):
+            s = np.asarray(scores, np.float32)
+            return (s - s.min()) / max(float(s.max() - s.min()), 1e-12) - 0.5
+
+    rng = np.random.default_rng(3)
+    raw = rng.normal(0.2, 1.5, size=5001).astype(np.float32)
+    observed = np.ones(raw.size, bool) if every else rng.random(raw.size) > 0.1
+    clf = MinMax() if post == "minmax" else Clf()
+    ref_post = (
+        (lambda s: (s - s.min()) / (s.max() - s.min()) - 0.5) if post == "minmax" else (lambda s: s)
+    )
+    quash = Quash.__new__(Quash)
+    quash.threshold = 0.1
+    given = raw.copy()
+    got_raw, got_mask, got_disp = quash._finish(clf, given, observed)
+    want_raw, want_mask, want_disp = _finish_reference(
+        ref_post, _logistic, raw, observed, quash.threshold
+    )
+    assert got_raw.dtype == np.float32 and got_disp.dtype == np.float32
+    np.testing.assert_allclose(got_raw, want_raw, atol=1e-5)
+    np.testing.assert_array_equal(got_mask, want_mask)
+    np.testing.assert_allclose(got_disp, want_disp, atol=1e-5)
+    # 0.5 sits at the threshold and unobserved items show 0
+    at = np.abs(want_raw - quash.threshold) < 1e-3
+    assert np.allclose(got_disp[at & observed], 0.5, atol=1e-2)
+    assert (got_disp[~observed] == 0).all()
+
+
+def test_default_display_scores_leave_their_input_alone():
+    from quash_plugins.core.interfaces import Classifier
+
+    s = np.linspace(-2, 3, 101).astype(np.float32)
+    before = s.copy()
+    d = Classifier.display_scores(None, s, 0.5)
+    np.testing.assert_array_equal(s, before)
+    np.testing.assert_allclose(d, _logistic(before.astype(np.float64), 0.5), atol=1e-6)
+    assert d.dtype == np.float32 and d[np.argmin(np.abs(s - 0.5))] == pytest.approx(0.5, abs=0.01)
