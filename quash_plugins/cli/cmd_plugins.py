@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from typing import Any
 
 NAME = "plugins"
 HELP = "List encoders, heuristics, classifiers and adapters, with their distribution."
@@ -18,6 +19,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
+def config_name(info: Any, infos: list[Any]) -> str:
+    """The name a config uses for ``info``: its bare name, or ``dist:name`` when another
+    distribution claims the name too (a built-in keeps the bare name)."""
+    from ..core.registry import BUILTIN_DIST
+
+    others = [o for o in infos if o.kind == info.kind and o.name == info.name and o is not info]
+    if not others or (info.dist == BUILTIN_DIST and all(o.dist != BUILTIN_DIST for o in others)):
+        return info.name
+    return info.qualified
+
+
 def run(args: argparse.Namespace) -> int:
     from ..core import registry
     from ._output import console, print_json, safe_text
@@ -30,13 +42,21 @@ def run(args: argparse.Namespace) -> int:
 
     table = Table(title="quash plugins")
     for col in ("kind", "name", "distribution", "version", "status"):
-        table.add_column(col)
-    for i in infos:
-        status = (
-            "[green]ok[/]"
-            if i.status == "ok"
-            else f"[red]{safe_text(i.status)}[/]: {safe_text(i.error or '')}"
-        )
-        table.add_row(*(safe_text(x) for x in (i.kind, i.name, i.dist, i.version)), status)
+        # Names are what a config spells: never cut them short with an ellipsis.
+        table.add_column(col, no_wrap=col == "name", overflow="fold")
+    broken = [i for i in infos if i.status != "ok"]
+    kinds = list(registry.KINDS)
+    for i in sorted(infos, key=lambda i: (kinds.index(i.kind), i.name, i.dist != "quash-plugins")):
+        status = "[green]ok[/]" if i.status == "ok" else f"[red]{safe_text(i.status)}[/]"
+        name = config_name(i, infos)
+        table.add_row(*(safe_text(x) for x in (i.kind, name, i.dist, i.version)), status)
     console().print(table)
+    # The errors in full, after the table: in a table cell they would be cut to a few
+    # words per line.
+    for i in broken:
+        console().print(
+            f"[red]{safe_text(i.kind)} {safe_text(i.name)}[/] ({safe_text(i.dist)}): "
+            f"{safe_text(i.error or i.status)}",
+            highlight=False,
+        )
     return 0

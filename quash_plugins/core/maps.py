@@ -182,6 +182,12 @@ def read_map(source: Any, adapter: str = "auto", **options: Any) -> LatentMap:
     try:
         lmap = reader.read(source)
     except QuashError as exc:
+        other = _other_reader(source, name) if adapter not in (None, "auto") else None
+        if other is not None:
+            raise type(exc)(
+                f"{exc} It looks like a {other!r} map, not a {name!r} one: choose the "
+                f"adapter {other!r} (--adapter {other}, or --adapter auto to detect it)."
+            ) from exc
         claim = _claim_for(source, name)
         if claim is None:
             raise
@@ -198,6 +204,16 @@ def read_map(source: Any, adapter: str = "auto", **options: Any) -> LatentMap:
         lmap.source.setdefault("path", str(source))
     log.info("read %s", lmap.describe())
     return lmap
+
+
+def _other_reader(source: Any, name: str) -> str | None:
+    """The adapter other than ``name`` whose ``sniff`` accepts ``source``, or None. Only
+    asked when reading with an adapter the user chose has already failed."""
+    try:
+        other = detect_adapter(source)
+    except QuashError:
+        return None
+    return other if other != name else None
 
 
 def _claim_for(source: Any, name: str) -> str | None:

@@ -27,6 +27,7 @@ from __future__ import annotations
 import contextlib
 import inspect
 import logging
+import sys
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -249,6 +250,54 @@ def _validate(info: PluginInfo, obj: Any) -> None:
                 f"({info.target}) breaks the {info.kind[:-1]} interface: it lacks "
                 f"{', '.join(missing)}."
             )
+        # A subclass of Encoder & co. inherits the abstract methods, so hasattr passes;
+        # it still cannot be built until it implements them.
+        abstract = sorted(getattr(obj, "__abstractmethods__", ()) or ())
+        if abstract:
+            raise PluginError(
+                f"{_TITLE[info.kind]} plugin {info.name!r} from distribution {info.dist!r} "
+                f"({info.target}) breaks the {info.kind[:-1]} interface: it does not "
+                f"implement {', '.join(abstract)} (abstract in its base class)."
+            )
+
+
+def _missing_module(exc: BaseException) -> str | None:
+    """The module an ImportError could not find, or None."""
+    name = getattr(exc, "name", None)
+    return str(name) if isinstance(exc, ImportError) and name else None
+
+
+def _install_hint(module: str, dist: str) -> str:
+    top = module.split(".")[0]
+    return (
+        f"it needs the Python module {top!r}, which is not installed. Install the package "
+        f"that provides it in this environment, and list it in the dependencies of {dist!r}."
+    )
+
+
+def _import_hint(info: PluginInfo, exc: BaseException) -> str:
+    """What to do about ``exc``, raised while importing ``info.target``: an entry point
+    that names a module or object that does not exist, or a missing dependency."""
+    module, _, attr = info.target.partition(":")
+    where = (
+        f"check the entry point {info.name!r} in group {GROUP_PREFIX + info.kind!r} of "
+        f"{info.dist!r} (its pyproject.toml)"
+    )
+    missing = _missing_module(exc)
+    if missing is not None:
+        if module == missing or module.startswith(missing + "."):
+            return f"The module {module!r} it names does not exist: {where}."
+        hint = _install_hint(missing, info.dist)
+        return hint[0].upper() + hint[1:]
+    if isinstance(exc, AttributeError) and attr:
+        mod = sys.modules.get(module)
+        first = attr.split(".")[0]
+        if mod is not None and not hasattr(mod, first):
+            names = [n for n in dir(mod) if not n.startswith("_")]
+            guess = closest(first, names)
+            hint = f" Did you mean {module}:{guess}?" if guess else ""
+            return f"Module {module!r} has no {first!r}: {where}.{hint}"
+    return ""
 
 
 def _load_info(info: PluginInfo) -> Any:
@@ -262,14 +311,15 @@ def _load_info(info: PluginInfo) -> Any:
             obj = info._loader() if info._loader else None
         except Exception as exc:  # noqa: BLE001 - any import failure is reported, not raised raw
             info.status = "error"
+            hint = _import_hint(info, exc)
             info.error = (
                 f"{_TITLE[info.kind]} plugin {info.name!r} from distribution "
                 f"{info.dist!r} {info.version} failed to import ({info.target}): "
-                f"{type(exc).__name__}: {exc}"
+                f"{type(exc).__name__}: {str(exc).rstrip('.')}. {hint}".rstrip()
             )
             _warn_once(
                 ("broken", info.kind, info.qualified),
-                f"{info.error}. It is skipped; fix or uninstall {info.dist!r}.",
+                f"{info.error} It is skipped; fix or uninstall {info.dist!r}.",
             )
             raise PluginError(info.error) from exc
         try:
@@ -354,6 +404,14 @@ def create(kind: str, name: str, /, **params: Any) -> Any:
             check()
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"{_TITLE[kind]} {entry.name!r}: {exc}") from exc
+    except ImportError as exc:  # a plugin that imports its dependencies when built
+        missing = _missing_module(exc)
+        if missing is None:
+            raise
+        raise PluginError(
+            f"{_TITLE[kind]} {entry.name!r} from distribution {entry.dist!r} cannot be "
+            f"built: {_install_hint(missing, entry.dist)} ({type(exc).__name__}: {exc})"
+        ) from exc
     if getattr(instance, "name", None) in (None, "encoder", "heuristic", "adapter"):
         with contextlib.suppress(AttributeError):
             instance.name = entry.name

@@ -10,7 +10,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from .errors import ConfigError
+from .errors import ConfigError, EncoderError
 from .interfaces import Encoder, check_text_embeddings
 
 log = logging.getLogger(__name__)
@@ -49,7 +49,18 @@ def encode_texts(
     missing = list(dict.fromkeys(t for t in texts if t not in found))
     if missing:
         log.debug("encoding %d new strings with %s", len(missing), encoder.name)
-        emb = check_text_embeddings(encoder.encode_text(missing), missing, dim, encoder.name)
+        try:
+            raw = encoder.encode_text(missing)
+        except ImportError as exc:  # a plugin importing its model library on first use
+            if not getattr(exc, "name", None):
+                raise
+            raise EncoderError(
+                f"Encoder {encoder.name!r} ({type(encoder).__module__}) needs the Python "
+                f"module {exc.name.split('.')[0]!r}, which is not installed "
+                f"({type(exc).__name__}: {exc}). Install the package that provides it in "
+                "this environment."
+            ) from exc
+        emb = check_text_embeddings(raw, missing, dim, encoder.name)
         new = dict(zip(missing, emb))
         found.update(new)
         if cache is not None and fp is not None:

@@ -264,3 +264,18 @@ def test_query_out_zarr_streams_same_results(tiny_world, tmp_path, capsys):
         np.testing.assert_array_equal(np.asarray(store["masks"]), z["masks"])
         np.testing.assert_allclose(np.asarray(store["scores"]), z["scores"], atol=1e-5)
         assert [r["matched"] for r in json.loads(out)["results"]] == z["masks"].sum(1).tolist()
+
+
+def test_reader_that_hangs_up_is_not_an_error():
+    """``quash plugins --json | head -1``: the reader closes the pipe early. Before, the
+    command printed "unexpected error: BrokenPipeError" on stderr."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "quash_plugins.cli.main", "plugins", "--json"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
+    proc.stdout.close()  # hang up before it writes anything
+    err = proc.stderr.read().decode()
+    proc.stderr.close()
+    assert proc.wait(timeout=120) == 141
+    assert "BrokenPipe" not in err and "unexpected error" not in err, err

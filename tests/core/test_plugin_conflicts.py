@@ -107,3 +107,18 @@ def test_cli_default_level_warns_once_about_each(installed, tiny_world):
     assert "Write 'quash-shadow-plugin:none'" in err
     assert err.count("Adapter plugin 'broken-adapter' from distribution") == 1
     assert "WARNING" in proc.stderr and "fix or uninstall 'quash-shadow-plugin'" in err
+
+
+def test_cli_table_names_the_shadowed_plugin_as_a_config_spells_it(installed):
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(installed), *sys.path])}
+    proc = subprocess.run(
+        [sys.executable, "-m", "quash_plugins.cli.main", "plugins", "--kind", "heuristics"],
+        capture_output=True,
+        text=True,
+        env={**env, "COLUMNS": "120"},
+        timeout=120,
+    )
+    rows = [line.split("│") for line in proc.stdout.splitlines() if "│" in line]
+    names = {(r[2].strip(), r[3].strip()) for r in rows}
+    assert ("none", "quash-plugins") in names
+    assert ("quash-shadow-plugin:none", "quash-shadow-plugin") in names

@@ -77,3 +77,14 @@ def test_loading_is_cached():
     a = registry.load("classifiers", "contrast")
     b = registry.load("classifiers", "contrast")
     assert a is b
+
+
+def test_register_rejects_a_subclass_that_leaves_a_method_abstract():
+    from quash_plugins import Encoder
+
+    class HalfEncoder(Encoder):
+        dim = 4
+
+    with pytest.raises(PluginError, match="does not implement encode_text"):
+        registry.register("encoders", "half", HalfEncoder)
+    assert "half" not in registry.available("encoders")

@@ -14,7 +14,7 @@ from _pip import pip_install
 
 from quash_plugins import Quash
 from quash_plugins.core import registry
-from quash_plugins.core.errors import PluginError
+from quash_plugins.core.errors import EncoderError, PluginError
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
@@ -94,3 +94,56 @@ def test_cli_lists_plugin_and_broken_status(installed):
     broken = rows[("encoders", "broken-encoder")]
     assert broken["status"] == "error" and "quash-broken-plugin" in broken["error"]
     assert rows[("classifiers", "svm-rbf")]["status"] == "ok"
+
+
+def test_entry_point_typos_name_the_entry_point_and_the_fix(installed):
+    with pytest.raises(PluginError) as err:
+        registry.load("encoders", "typo-module")
+    msg = str(err.value)
+    assert "The module 'quash_broken_plugn' it names does not exist" in msg
+    assert "entry point 'typo-module' in group 'quash_plugins.encoders'" in msg
+    assert "'quash-broken-plugin' (its pyproject.toml)" in msg
+    with pytest.raises(PluginError) as err:
+        registry.load("classifiers", "typo-object")
+    msg = str(err.value)
+    assert "Module 'quash_broken_plugin' has no 'NotAClasifier'" in msg
+    assert "Did you mean quash_broken_plugin:NotAClassifier?" in msg
+
+
+def test_subclass_missing_an_abstract_method_is_reported_when_loaded(installed):
+    with pytest.raises(PluginError) as err:
+        registry.load("encoders", "half-encoder")
+    msg = str(err.value)
+    assert "breaks the encoder interface: it does not implement encode_text" in msg
+    assert registry.info("encoders", "half-encoder").status == "error"
+
+
+def test_missing_library_when_built_or_used_names_the_module(installed, tmp_path):
+    with pytest.raises(PluginError) as err:
+        registry.create("encoders", "needs-a-library")
+    msg = str(err.value)
+    assert "from distribution 'quash-broken-plugin' cannot be built" in msg
+    assert "needs the Python module 'a_dependency_that_is_not_installed'" in msg
+    np.savez(tmp_path / "m.npz", embeddings=np.eye(8, dtype=np.float32))
+    q = Quash.from_config(
+        {"encoder": "lazy-library", "heuristic": "none", "classifier": "contrast", "cache": False}
+    )
+    with pytest.raises(EncoderError, match="'lazy-library' .*needs the Python module 'a_depend"):
+        q.query(tmp_path / "m.npz", "chair")
+
+
+def test_cli_table_shows_errors_in_full_and_qualified_names(installed):
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(installed), *sys.path])}
+    env["COLUMNS"] = "80"
+    out = subprocess.run(
+        [sys.executable, "-m", "quash_plugins.cli.main", "plugins", "--kind", "encoders"],
+        capture_output=True,
+        text=True,
+        env=env,
+        check=True,
+    ).stdout
+    flat = " ".join(out.split())
+    # every name whole (no ellipsis), and every error's fix readable below the table
+    assert "…" not in out and "sentence-transformers" in out
+    assert "The module 'quash_broken_plugn' it names does not exist" in flat
+    assert "it does not implement encode_text" in flat

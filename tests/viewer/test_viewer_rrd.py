@@ -474,3 +474,17 @@ def test_cli_query_rrd_per_image_feature_map(tmp_path):
         assert half == [[1.5, 1.0]] and centers == [[2.5 + i, 2.0]]
     views = blueprint_views(reader)
     assert ("2D", "images/frame000000") in views
+
+
+def test_recording_size_paragraph_describes_todays_demo():
+    """docs/rerun.md gives the size of the demo's recording for a number of methods and
+    queries: they must be the demo's own (it once said 6 methods when the demo ran 10)."""
+    import re
+
+    from quash_plugins.demo.runner import DEMO_ABSENT, DEMO_CONFIGS, DEMO_QUERIES
+
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "rerun.md").read_text()
+    found = re.search(r"`quash demo` \(51k voxels, (\d+) methods, (\d+) queries\)", doc)
+    assert found, "the recording-size paragraph of docs/rerun.md changed shape"
+    assert int(found[1]) == len(DEMO_CONFIGS)
+    assert int(found[2]) == len(DEMO_QUERIES) + len(DEMO_ABSENT)

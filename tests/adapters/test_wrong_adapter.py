@@ -1,0 +1,61 @@
+"""A map read with the wrong adapter: the error names the adapter that reads it.
+
+Before, ``quash query SCENE chair --adapter vlmaps-2d`` on a 3D VLMaps scene said only
+"no grid_lseg_1.npy found", and a config with ``adapter: vlmaps`` on a 2023 top-down map
+said "not a VLMaps map file", with nothing to say that the other VLMaps adapter reads it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from _vlmaps_writers import mobile_map, write_vlmaps_2d, write_vlmaps_h5df
+
+from quash_plugins.adapters import read_map
+from quash_plugins.cli.main import main
+from quash_plugins.core.errors import MapFormatError
+
+
+@pytest.fixture
+def scenes(tmp_path):
+    write_vlmaps_h5df(tmp_path / "s3d/vlmap/vlmaps.h5df", mobile_map(n=20, d=4, gs=20, vh=4))
+    write_vlmaps_2d(tmp_path / "s2d", gs=12, d=4)
+    np.savez(tmp_path / "m.npz", embeddings=np.eye(4, dtype=np.float32))
+    return tmp_path
+
+
+@pytest.mark.parametrize(
+    ("where", "chosen", "right"),
+    [
+        ("s3d", "vlmaps-2d", "vlmaps"),
+        ("s2d", "vlmaps", "vlmaps-2d"),
+        ("s3d/vlmap/vlmaps.h5df", "npz", "vlmaps"),
+        ("m.npz", "vlmaps", "npz"),
+    ],
+)
+def test_error_names_the_adapter_that_reads_it(scenes, where, chosen, right):
+    with pytest.raises(MapFormatError) as err:
+        read_map(scenes / where, chosen)
+    msg = str(err.value)
+    assert f"It looks like a {right!r} map, not a {chosen!r} one" in msg
+    assert f"--adapter {right}" in msg
+    assert read_map(scenes / where, right).n > 0  # and that adapter does read it
+
+
+def test_no_suggestion_when_nothing_else_reads_it(scenes):
+    bad = scenes / "bad.h5df"
+    bad.write_bytes(b"not an hdf5 file at all")
+    with pytest.raises(MapFormatError) as err:
+        read_map(bad, "vlmaps")
+    assert "It looks like" not in str(err.value)
+
+
+def test_cli_with_the_config_adapter(scenes, capsys):
+    cfg = scenes / "c.yaml"
+    cfg.write_text(
+        "encoder: {name: table, table: {chair: [1, 0, 0, 0], other: [0, 1, 0, 0]}}\n"
+        "heuristic: none\nclassifier: contrast\ncache: false\nadapter: {name: vlmaps}\n"
+    )
+    assert main(["query", str(scenes / "s2d"), "chair", "-c", str(cfg)]) == 1
+    err = " ".join(capsys.readouterr().err.split())
+    assert "not a VLMaps map file" in err and "--adapter vlmaps-2d" in err
