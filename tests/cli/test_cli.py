@@ -202,6 +202,17 @@ def test_console_script_entry_point(tiny_world):
     assert json.loads(exe.stdout)["results"][0]["query"] == "chair"
 
 
+def test_python_dash_m_runs_the_same_command(tmp_path):
+    """``python -m quash_plugins`` where the ``quash`` script is not on the PATH."""
+    run = [sys.executable, "-m", "quash_plugins"]
+    exe = subprocess.run([*run, "--version"], capture_output=True, text=True)
+    assert exe.returncode == 0 and exe.stdout.strip() == f"quash-plugins {__version__}"
+    bad = subprocess.run(
+        [*run, "query", str(tmp_path / "nope.npz"), "x"], capture_output=True, text=True
+    )
+    assert bad.returncode == 1 and "Map not found" in bad.stderr
+
+
 def test_debug_shows_traceback(tmp_path):
     """Without --debug: one line, no traceback. With it: Python's traceback through the
     package, ending in the error the user caused."""
