@@ -53,9 +53,7 @@ def _store(path):
 
 
 @pytest.mark.parametrize("backend", ["numpy", "dask"])
-def test_zarr_equals_query_many_with_refine_and_presence(
-    minilm_scene, expected, tmp_path, backend
-):
+def test_zarr_equals_query_many_with_refine_and_presence(minilm_scene, expected, tmp_path, backend):
     """Bit for bit: one group is the very same computation as query_many (the same
     classifiers in one BlockScorer over the same blocks; the Dask executor scores the same
     blocks as the local one), so any difference is a step applied differently."""
