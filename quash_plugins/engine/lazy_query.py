@@ -233,16 +233,19 @@ class LazyQuery:
 
     @property
     def scores(self) -> Any:
-        """``(Q, N)`` float32 dask array, as :attr:`QueryResult.scores` (postprocessed)."""
+        """``(Q, N)`` float32 dask array, as :attr:`QueryResult.scores` (postprocessed)
+        of the first pass: without the :attr:`skipped` steps (a warning names them)."""
         return self._lazy()[0]
 
     @property
     def masks(self) -> Any:
-        """``(Q, N)`` bool dask array, as :attr:`QueryResult.mask`."""
+        """``(Q, N)`` bool dask array, as :attr:`QueryResult.mask` of the first pass:
+        without the :attr:`skipped` steps (a warning names them)."""
         return self._lazy()[1]
 
     def compute(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(scores (Q, N) float32, masks (Q, N) bool, observed (N,) bool)`` in memory."""
+        """``(scores (Q, N) float32, masks (Q, N) bool, observed (N,) bool)`` in memory,
+        of the first pass (see :attr:`scores`)."""
         scores, masks = self._lazy()
         return tuple(np.asarray(x) for x in compute(self.client, scores, masks, self.observed))
 
