@@ -288,18 +288,19 @@ class LazyQuery:
             )
             compute(self.client, store)
             del group["_raw"]
-            group.attrs.update(self._attrs(self.classifiers))
+            group.attrs.update(self._attrs([_describe(c) for c in self.classifiers]))
         log.info("wrote %s: %d queries x %d items", path, q, n)
         return path
 
-    def _attrs(self, classifiers: Sequence[Any]) -> dict[str, Any]:
+    def _attrs(self, classifiers: Sequence[str]) -> dict[str, Any]:
         """The store's attributes: queries, threshold, query sets (with their provenance,
-        ``refine`` and ``presence`` included), classifiers and the map's source."""
+        ``refine`` and ``presence`` included), the classifiers (described) and the map's
+        source."""
         return {
             "queries": self.queries,
             "threshold": self.threshold,
             "querysets": [qs.to_dict() for qs in self.querysets],
-            "classifiers": [_describe(c) for c in classifiers],
+            "classifiers": list(classifiers),
             "map_source": {
                 k: v for k, v in self.lmap.source.items() if isinstance(v, (str, int, float))
             },
@@ -334,7 +335,7 @@ class LazyQuery:
         if len(starts) > 1:
             what += f" in {len(starts)} groups of up to {size}"
         log.info("%s: %d pass%s per group", what, passes, "es" if passes > 1 else "")
-        final: list[Any] = []
+        described: list[str] = []  # the final classifiers, not kept themselves
         t0 = time.perf_counter()
         with atomic_dir(path, overwrite=overwrite) as tmp:
             group = zarr.open_group(str(tmp), mode="w", zarr_format=3)
@@ -353,7 +354,7 @@ class LazyQuery:
                         zm[g0:g1, a:b] = np.stack([p.mask[a:b] for p in part])
                         if k == 0:
                             zo[a:b] = observed[a:b]
-                    final.extend(p.clf for p in part)
+                    described.extend(_describe(p.clf) for p in part)
                     log.info(
                         "queries %d-%d of %d answered and written (%.1fs)",
                         g0 + 1,
@@ -362,7 +363,7 @@ class LazyQuery:
                         time.perf_counter() - t0,
                     )
                     del part, observed
-            group.attrs.update(self._attrs(final))
+            group.attrs.update(self._attrs(described))
         log.info("wrote %s: %d queries x %d items", path, q, n)
         return path
 
