@@ -74,3 +74,20 @@ def tiny_world(tmp_path):
         "label_names": label_names,
         "words": WORDS,
     }
+
+
+@pytest.fixture(scope="session")
+def minilm_scene(tmp_path_factory):
+    """A small ``quash make-scene`` voxel map (2 rooms, 0.2 m voxels, grid and label list)
+    embedded with the offline MiniLM encoder, and its taxonomy beside it; built once.
+
+    Returns the map's path. For configs that use the map's topology and label list (the
+    shipped ``demo:quash-labels``: refinement and the presence check).
+    """
+    pytest.importorskip("sentence_transformers")
+    from quash_plugins.cli.main import main
+
+    out = tmp_path_factory.mktemp("minilm-scene") / "scene.npz"
+    args = ["make-scene", str(out), "--rooms", "2", "--voxel-size", "0.2", "--no-cache"]
+    assert main(args) == 0
+    return out

@@ -13,8 +13,11 @@ examples:
   quash query map.npz chair --adapter npz --rrd chair.rrd
   quash query map.npz chair sofa -c quash.yaml --out chair-sofa --format openlex3d
 The --out file holds queries (Q,) str, masks (Q, N) bool, scores (Q, N) float32 and
-display_scores (Q, N) float32 in [0, 1]. With --out RESULT.zarr the masks and scores
-stay lazy and stream to a zarr store (maps larger than memory; see docs/scale.md).
+display_scores (Q, N) float32 in [0, 1]. With --out RESULT.zarr the same masks and
+scores (the config's refine and presence applied) stream to a zarr store, without
+display_scores, for maps larger than memory: the embeddings are read in chunks; with
+refine or presence about 13 bytes per item are held per query of a group, queries
+answered in groups that fit chunk_mb (see docs/scale.md).
 With --format openlex3d, --out is a folder of per-query files aligned with the rows of
 an OpenLex3D export of the map (quash convert MAP DIR --format openlex3d):
 query_scores.npy (N, Q) in [0, 1] (0.5 at the threshold), query_scores_raw.npy,
@@ -129,7 +132,8 @@ def _check_outputs(args: argparse.Namespace) -> None:
 
 
 def _query_to_zarr(args, quash) -> int:
-    """Results too large for memory: masks and scores stay lazy and stream into zarr."""
+    """Results too large for memory: masks and scores stream into zarr, the same as
+    ``query_many``'s (``LazyQuery.to_zarr`` applies the config's refine and presence)."""
     from ..core.errors import UsageError
     from ._output import console, print_json, safe_text
     from ._viewer_opts import viewer_requested

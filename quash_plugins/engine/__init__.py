@@ -12,8 +12,10 @@ registry, never imported. Dask and zarr are imported when a function needs them.
 
 - :func:`classify_dask` is the ``backend="dask"`` pass: one ``map_blocks`` over row
   chunks scores every query at once, with the fitted classifiers shipped once.
-- :func:`query_lazy` / :func:`query_to_zarr` keep masks and scores as dask arrays and
-  write them to zarr, for maps whose results should not be gathered in memory.
+- :func:`query_to_zarr` (``LazyQuery.to_zarr``) writes ``query_many``'s masks and
+  scores to zarr, for maps whose results should not be gathered in memory: fully lazy
+  without ``refine`` and ``presence``, else in groups of queries that apply them;
+  :func:`query_lazy` gives the first pass as dask arrays.
 - :func:`as_dask` wraps any map's embeddings (numpy, memmap, h5py, zarr, dask) as a
   row-chunked dask array.
 - :func:`client_from_cli` turns ``--scheduler ADDRESS`` (or none: a LocalCluster) into a

@@ -5,17 +5,26 @@ vector. Here it is done with dask reductions: a classifier whose postprocess dep
 on the minimum and maximum of the observed scores (identity, min-max normalisation,
 clipping) is applied block by block with those two values; any other postprocess is
 detected by a probe and falls back to one ``(N,)`` float32 vector per such query.
+
+A config with ``refine`` or ``presence`` needs more than a graph of blocks: the
+refinement re-fits on the first pass's whole mask, and the presence check splits the
+final mask into connected components. :meth:`LazyQuery.to_zarr` then answers the
+queries in groups with ``Quash._answer`` (the very code of ``Quash.query_many``) and
+writes each group's rows: it holds ``(N,)`` vectors per query of the group
+(:data:`BYTES_PER_QUERY_ITEM`), never the embeddings.
 """
 
 from __future__ import annotations
 
 import logging
+import time
+import warnings
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from sklearn.base import clone
 
 from ..core.atomic import atomic_dir, refuse_own_input
 from ..core.types import QuerySet, check_query
@@ -24,6 +33,21 @@ from .dask_client import current_client, require_dask, require_zarr
 from .dask_executor import compute, scores_graph, ship
 
 log = logging.getLogger(__name__)
+
+#: Bytes per map item per query that :meth:`LazyQuery.to_zarr` sizes a group of queries
+#: by when the config has ``refine`` or ``presence``: the held scores (float32), mask
+#: (bool) and display scores (float32), 9 bytes, plus the refinement pass's new float32
+#: scores while the first pass's are still held.
+BYTES_PER_QUERY_ITEM = 13
+
+#: The config steps that only :meth:`LazyQuery.to_zarr` applies (see :func:`query_lazy`).
+STEPS = ("refine", "presence")
+
+
+def group_size(n: int, budget_bytes: int) -> int:
+    """Queries per group: as many as keep ``(group, n)`` vectors of
+    :data:`BYTES_PER_QUERY_ITEM` bytes under ``budget_bytes``, and at least one."""
+    return max(1, int(budget_bytes) // (BYTES_PER_QUERY_ITEM * max(1, int(n))))
 
 
 def postprocess_kind(clf: Any) -> str:
@@ -91,9 +115,25 @@ class LazyQuery:
     ----------
     raw
         ``(N, Q + 1)`` float32 dask array: raw decision values, last column observed.
+    skipped
+        The config's steps (``"refine"``, ``"presence"``) that :attr:`scores`,
+        :attr:`masks` and :meth:`compute` leave out; :meth:`to_zarr` applies them.
     """
 
-    def __init__(self, querysets, classifiers, raw, threshold, client, held, lmap) -> None:
+    def __init__(
+        self,
+        querysets,
+        classifiers,
+        raw,
+        threshold,
+        client,
+        held,
+        lmap,
+        *,
+        quash: Any = None,
+        pending: list[Any] | None = None,
+        pass_client: Any = None,
+    ) -> None:
         self.querysets: list[QuerySet] = querysets
         self.classifiers = classifiers
         self.raw = raw
@@ -102,6 +142,10 @@ class LazyQuery:
         self.lmap = lmap
         self._held = held
         self.kinds = [postprocess_kind(c) for c in classifiers]
+        self._quash = quash
+        self._pending = list(pending or [])
+        self._pass_client = pass_client
+        self.skipped = [k for k in STEPS if getattr(quash, k, None) is not None]
 
     @property
     def queries(self) -> list[str]:
@@ -175,31 +219,51 @@ class LazyQuery:
         return (da.where(da.isnan(m), thr, da.minimum(m, thr)) - np.float32(1.0)).astype(np.float32)
 
     def _lazy(self) -> tuple[Any, Any]:
+        if self.skipped:
+            steps = " and ".join(self.skipped)
+            warnings.warn(
+                f"LazyQuery.scores, .masks and .compute() are the first pass only: the "
+                f"config's {steps} step{'s are' if len(self.skipped) > 1 else ' is'} not "
+                "applied, so absent objects may match. LazyQuery.to_zarr (query_to_zarr, "
+                "--out *.zarr) applies them.",
+                stacklevel=3,
+            )
         post = self._post(self.raw)
         return self._final(post, self._floors(post))
 
     @property
     def scores(self) -> Any:
-        """``(Q, N)`` float32 dask array, as :attr:`QueryResult.scores` (postprocessed)."""
+        """``(Q, N)`` float32 dask array, as :attr:`QueryResult.scores` (postprocessed)
+        of the first pass: without the :attr:`skipped` steps (a warning names them)."""
         return self._lazy()[0]
 
     @property
     def masks(self) -> Any:
-        """``(Q, N)`` bool dask array, as :attr:`QueryResult.mask`."""
+        """``(Q, N)`` bool dask array, as :attr:`QueryResult.mask` of the first pass:
+        without the :attr:`skipped` steps (a warning names them)."""
         return self._lazy()[1]
 
     def compute(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(scores (Q, N) float32, masks (Q, N) bool, observed (N,) bool)`` in memory."""
+        """``(scores (Q, N) float32, masks (Q, N) bool, observed (N,) bool)`` in memory,
+        of the first pass (see :attr:`scores`)."""
         scores, masks = self._lazy()
         return tuple(np.asarray(x) for x in compute(self.client, scores, masks, self.observed))
 
-    def to_zarr(self, path: str | Path, overwrite: bool = True) -> Path:
+    def to_zarr(
+        self, path: str | Path, overwrite: bool = True, group_mb: float | None = None
+    ) -> Path:
         """Write ``scores``, ``masks`` and ``observed`` to a zarr store, atomically.
 
-        Three passes, each bounded by the chunk size: the map pass writes raw scores
-        (``4 (Q + 1)`` bytes per row) into the store; the two small passes over them
-        compute the map-level statistics and write the final arrays.
+        The arrays equal :meth:`Quash.query_many`'s ``scores`` and ``mask``. Without
+        ``refine`` and ``presence`` in the config: three passes, each bounded by the
+        chunk size: the map pass writes raw scores (``4 (Q + 1)`` bytes per row) into the
+        store; the two small passes over them compute the map-level statistics and write
+        the final arrays. With either step: see :meth:`_write_answered`; ``group_mb``
+        bounds the ``(group, N)`` vectors held at once (default: the Quash's
+        ``chunk_mb``).
         """
+        if self.skipped and self._pending:
+            return self._write_answered(path, overwrite, group_mb)
         zarr = require_zarr()
         da = require_dask()
         path = Path(path).expanduser()
@@ -224,19 +288,82 @@ class LazyQuery:
             )
             compute(self.client, store)
             del group["_raw"]
-            group.attrs.update(
-                {
-                    "queries": self.queries,
-                    "threshold": self.threshold,
-                    "querysets": [qs.to_dict() for qs in self.querysets],
-                    "classifiers": [_describe(c) for c in self.classifiers],
-                    "map_source": {
-                        k: v
-                        for k, v in self.lmap.source.items()
-                        if isinstance(v, (str, int, float))
-                    },
-                }
-            )
+            group.attrs.update(self._attrs([_describe(c) for c in self.classifiers]))
+        log.info("wrote %s: %d queries x %d items", path, q, n)
+        return path
+
+    def _attrs(self, classifiers: Sequence[str]) -> dict[str, Any]:
+        """The store's attributes: queries, threshold, query sets (with their provenance,
+        ``refine`` and ``presence`` included), the classifiers (described) and the map's
+        source."""
+        return {
+            "queries": self.queries,
+            "threshold": self.threshold,
+            "querysets": [qs.to_dict() for qs in self.querysets],
+            "classifiers": list(classifiers),
+            "map_source": {
+                k: v for k, v in self.lmap.source.items() if isinstance(v, (str, int, float))
+            },
+        }
+
+    def _write_answered(self, path: str | Path, overwrite: bool, group_mb: float | None) -> Path:
+        """The store of a config with ``refine`` or ``presence``: the queries answered in
+        groups by :meth:`Quash._answer` (the code of :meth:`Quash.query_many`).
+
+        Each group: the first pass over the map (one for the group: local, GPU or Dask
+        as the Quash runs it), the map-level postprocess, the refinement pass, the
+        presence check; then its rows are written, one chunk of rows at a time. Only the
+        group's ``(N,)`` vectors are held (:data:`BYTES_PER_QUERY_ITEM` bytes an item
+        and query, ``group_mb`` in all, at least one query) with the presence check's
+        topology of the map (built once); the embeddings are read in chunks. Every group
+        reads the map once per pass: ``G`` groups cost ``G`` times the passes of one
+        ``query_many`` call. The client process writes the store.
+        """
+        from ..core.progress import progress
+
+        zarr = require_zarr()
+        path = Path(path).expanduser()
+        refuse_own_input(path, self.lmap.source, folder=True)
+        quash, lmap, pending = self._quash, self.lmap, self._pending
+        n, q = lmap.n, len(pending)
+        rows = max(1, self.raw.chunks[0][0])  # the chunk rows of the lazy path
+        budget = quash.chunk_mb if group_mb is None else float(group_mb)
+        size = min(q, group_size(n, int(budget * 2**20)))
+        starts = list(range(0, q, size))
+        passes = quash.passes
+        what = f"answering {q} queries on {n} items ({', '.join(self.skipped)})"
+        if len(starts) > 1:
+            what += f" in {len(starts)} groups of up to {size}"
+        log.info("%s: %d pass%s per group", what, passes, "es" if passes > 1 else "")
+        described: list[str] = []  # the final classifiers, not kept themselves
+        t0 = time.perf_counter()
+        with atomic_dir(path, overwrite=overwrite) as tmp:
+            group = zarr.open_group(str(tmp), mode="w", zarr_format=3)
+            zs = group.create_array("scores", shape=(q, n), chunks=(size, rows), dtype="float32")
+            zm = group.create_array("masks", shape=(q, n), chunks=(size, rows), dtype="bool")
+            zo = group.create_array("observed", shape=(n,), chunks=(rows,), dtype="bool")
+            with progress(n * passes * len(starts), what) as advance:
+                for k, g0 in enumerate(starts):
+                    # fresh copies: the answer replaces clf (refined) and adds the vectors
+                    part = [replace(p, timings=dict(p.timings)) for p in pending[g0 : g0 + size]]
+                    observed = quash._answer(lmap, part, advance, self._pass_client)
+                    g1 = g0 + len(part)
+                    for a in range(0, n, rows):
+                        b = min(n, a + rows)
+                        zs[g0:g1, a:b] = np.stack([p.raw[a:b] for p in part])
+                        zm[g0:g1, a:b] = np.stack([p.mask[a:b] for p in part])
+                        if k == 0:
+                            zo[a:b] = observed[a:b]
+                    described.extend(_describe(p.clf) for p in part)
+                    log.info(
+                        "queries %d-%d of %d answered and written (%.1fs)",
+                        g0 + 1,
+                        g1,
+                        q,
+                        time.perf_counter() - t0,
+                    )
+                    del part, observed
+            group.attrs.update(self._attrs(described))
         log.info("wrote %s: %d queries x %d items", path, q, n)
         return path
 
@@ -251,10 +378,30 @@ def query_lazy(
 ) -> LazyQuery:
     """Fit one classifier per query and build the lazy one-pass graph over the map.
 
-    Nothing touches the embeddings until the result is computed or written. The lazy
-    graph is the first pass only: a config's ``refine`` and ``presence`` steps need the
-    whole mask in memory and are not applied (a warning says so), so an absent object is
-    not reported empty here; use :meth:`Quash.query_many` for them.
+    Nothing touches the embeddings until the result is computed or written. The text
+    side is :meth:`Quash.query_many`'s own (each query expanded once, one encoder call,
+    one classifier fitted per query).
+
+    A config's ``refine`` and ``presence`` steps need each query's whole first-pass
+    mask, then its whole final mask (connected components), so they cannot be blocks of
+    a dask graph. The returned :class:`LazyQuery` therefore keeps two faces:
+
+    - :meth:`LazyQuery.to_zarr` (and :func:`query_to_zarr`, ``--out *.zarr``) applies
+      them: it answers the queries in groups with the code of ``query_many`` and writes
+      the same masks and scores, holding ``(N,)`` vectors per query of a group, never the
+      embeddings;
+    - :attr:`LazyQuery.scores`, :attr:`LazyQuery.masks` and :meth:`LazyQuery.compute`
+      are the first pass only and warn so when the config has either step
+      (:attr:`LazyQuery.skipped`): an absent object may match there. Without the steps
+      they are the whole answer.
+
+    Why not dask arrays read back from a written store: that would write a store the
+    caller did not ask for, somewhere. The graph stays honest about what it is, and the
+    writer, which owns a store, gives the full answer.
+
+    ``client`` runs the graph (default: the Quash's client, else the process's default
+    client, else threads); given here, it also runs the passes of ``to_zarr``, which
+    otherwise run as ``query_many`` runs them.
 
     Examples
     --------
@@ -265,30 +412,34 @@ def query_lazy(
     if isinstance(texts, str):
         texts = [texts]
     texts = [check_query(t) for t in texts]
-    skipped = [k for k in ("refine", "presence") if getattr(quash, k, None) is not None]
-    if skipped:
-        import warnings
-
-        warnings.warn(
-            f"Lazy results (--out *.zarr) are the first pass only: the config's "
-            f"{' and '.join(skipped)} step{'s are' if len(skipped) > 1 else ' is'} not "
-            "applied, so absent objects may match. Write .npz (in memory) to apply them.",
-            stacklevel=2,
-        )
+    pass_client = client
     client = current_client(client if client is not None else getattr(quash, "client", None))
+    t0 = time.perf_counter()
     lmap = quash.read_map(source, **read_options)
+    t_read = time.perf_counter() - t0
     quash.check_dimension(lmap)
     from .pipeline import warn_if_empty
 
     warn_if_empty(lmap)
-    querysets = [quash.expand(text, lmap) for text in texts]
-    # one encoder call for the strings of every query set
-    sets = quash.training_sets(querysets)
-    classifiers = [clone(quash.classifier).fit(X, y) for X, y, _ in sets]
+    # query_many's text side: expand once, one encoder call, one classifier per query
+    pending = quash._prepare(lmap, texts, t_read) if texts else []
+    querysets = [p.queryset for p in pending]
+    classifiers = [p.clf for p in pending]
     chunk_bytes = int(getattr(quash, "chunk_mb", 256.0) * 2**20)
     held = ship(BlockScorer(classifiers, chunk_bytes))
     raw = scores_graph(lmap, classifiers, chunk_bytes, client, held=held)
-    return LazyQuery(querysets, classifiers, raw, quash.threshold, client, held, lmap)
+    return LazyQuery(
+        querysets,
+        classifiers,
+        raw,
+        quash.threshold,
+        client,
+        held,
+        lmap,
+        quash=quash,
+        pending=pending,
+        pass_client=pass_client,
+    )
 
 
 def query_to_zarr(
@@ -297,12 +448,18 @@ def query_to_zarr(
     texts: Sequence[str] | str,
     out_path: str | Path,
     client: Any = None,
+    group_mb: float | None = None,
     **read_options: Any,
 ) -> Path:
     """Answer ``texts`` on ``source`` and write the results to the zarr store ``out_path``.
 
     The store holds ``scores (Q, N) float32``, ``masks (Q, N) bool``, ``observed (N,) bool``
-    and the queries, query sets and classifiers as attributes. With a distributed client
-    the workers write the chunks, so ``out_path`` must be on storage they share.
+    and the queries, query sets (with their ``refine`` and ``presence`` provenance) and
+    classifiers as attributes; masks and scores are those of :meth:`Quash.query_many`,
+    the config's ``refine`` and ``presence`` steps included (see
+    :meth:`LazyQuery.to_zarr`; ``group_mb`` bounds the vectors held for them). Without
+    those steps, and a distributed client, the workers write the chunks, so ``out_path``
+    must be on storage they share.
     """
-    return query_lazy(quash, source, texts, client, **read_options).to_zarr(out_path)
+    lazy = query_lazy(quash, source, texts, client, **read_options)
+    return lazy.to_zarr(out_path, group_mb=group_mb)

@@ -346,19 +346,7 @@ class Quash:
         self.check_dimension(lmap)
         warn_if_empty(lmap)
         pending = self._prepare(lmap, texts, t_read)
-        t = time.perf_counter()
-        scores, observed = self._classify(lmap, [p.clf for p in pending], progress)
-        warn_unobserved(lmap, observed)
-        t_cls = (time.perf_counter() - t) / len(texts)
-        for p, raw in zip(pending, scores):
-            p.timings["classify"] = t_cls
-            t = time.perf_counter()
-            p.raw, p.mask, p.display = self._finish(p.clf, raw, observed)
-            p.timings["postprocess"] = time.perf_counter() - t
-        if self.refine is not None:
-            self._refine_pass(lmap, pending, observed, progress)
-        if self.presence is not None:
-            self._presence_pass(lmap, pending, observed)
+        self._answer(lmap, pending, progress)
         results = []
         for p in pending:
             instances = []
@@ -385,6 +373,33 @@ class Quash:
                 )
             )
         return results
+
+    def _answer(
+        self, lmap: LatentMap, pending: list[_Pending], progress: Any = None, client: Any = None
+    ) -> np.ndarray:
+        """The map side of :meth:`query_many` for ``pending``, in place: the first pass
+        (one for all of them), :meth:`_finish`, the refinement pass and the presence
+        check, as the config asks. Returns the ``(N,)`` bool ``observed`` mask.
+
+        Each query then holds ``raw``, ``mask`` and ``display`` ``(N,)`` vectors (9 bytes
+        an item). ``LazyQuery.to_zarr`` calls it for one group of queries at a time;
+        ``client`` runs the passes on that Dask client (see :meth:`_classify`).
+        """
+        t = time.perf_counter()
+        scores, observed = self._classify(lmap, [p.clf for p in pending], progress, client)
+        warn_unobserved(lmap, observed)
+        t_cls = (time.perf_counter() - t) / max(1, len(pending))
+        for p, raw in zip(pending, scores):
+            p.timings["classify"] = t_cls
+            t = time.perf_counter()
+            p.raw, p.mask, p.display = self._finish(p.clf, raw, observed)
+            p.timings["postprocess"] = time.perf_counter() - t
+        del scores
+        if self.refine is not None:
+            self._refine_pass(lmap, pending, observed, progress, client)
+        if self.presence is not None:
+            self._presence_pass(lmap, pending, observed)
+        return observed
 
     def _prepare(self, lmap: LatentMap, texts: list[str], t_read: float) -> list[_Pending]:
         """The text side of every query: expand each (once), embed the strings of all
@@ -438,8 +453,12 @@ class Quash:
     def query_many_lazy(self, source: Any, texts: Sequence[str], **read_options: Any) -> Any:
         """Like :meth:`query_many`, but masks and scores stay dask arrays until written.
 
-        Returns a :class:`quash_plugins.engine.LazyQuery` (``.masks``, ``.scores``,
-        ``.to_zarr(path)``); runs on :attr:`client` when set. Needs the ``[dask]`` extra.
+        Returns a :class:`quash_plugins.engine.LazyQuery`; runs on :attr:`client` when
+        set. Needs the ``[dask]`` extra. ``.to_zarr(path)`` writes :meth:`query_many`'s
+        masks and scores, ``refine`` and ``presence`` applied (the queries answered in
+        groups, ``(N,)`` vectors held per query, never the embeddings); ``.masks`` and
+        ``.scores`` are the first pass only, and warn so when the config has either step
+        (see :func:`quash_plugins.engine.lazy_query.query_lazy`).
         """
         from .lazy_query import query_lazy
 
@@ -475,7 +494,12 @@ class Quash:
         return raw, mask, display
 
     def _refine_pass(
-        self, lmap: LatentMap, pending: list[_Pending], observed: np.ndarray, progress: Any
+        self,
+        lmap: LatentMap,
+        pending: list[_Pending],
+        observed: np.ndarray,
+        progress: Any,
+        client: Any = None,
     ) -> None:
         """Re-fit each query on its map samples and classify again, in one shared pass."""
         from .refine import pseudo_labels
@@ -506,7 +530,7 @@ class Quash:
                 progress(lmap.n)  # the second pass is not needed: count it as done
             return
         t = time.perf_counter()
-        scores, _ = self._classify(lmap, [r for _, r in todo], progress)
+        scores, _ = self._classify(lmap, [r for _, r in todo], progress, client)
         share = (time.perf_counter() - t) / len(todo)
         for (p, refined), raw in zip(todo, scores):
             p.clf = refined
@@ -572,12 +596,17 @@ class Quash:
             p.queryset.provenance["presence"] = info
             p.timings["presence"] = time.perf_counter() - t
 
-    def _classify(self, lmap: LatentMap, classifiers: list[Any], progress: Any):
+    def _classify(
+        self, lmap: LatentMap, classifiers: list[Any], progress: Any, client: Any = None
+    ) -> tuple[list[np.ndarray], np.ndarray]:
+        """One pass of ``classifiers`` over ``lmap``: on Dask with ``backend: dask`` or a
+        ``client`` given here (it replaces :attr:`client`), else in this process."""
         chunk_bytes = int(self.chunk_mb * 2**20)
-        if self.backend == "dask":
+        if self.backend == "dask" or client is not None:
             from .dask_executor import classify_dask
 
-            return classify_dask(lmap, classifiers, chunk_bytes=chunk_bytes, client=self.client)
+            client = client if client is not None else self.client
+            return classify_dask(lmap, classifiers, chunk_bytes=chunk_bytes, client=client)
         if self.backend not in ("numpy", "local", None):
             raise ConfigError(f"Unknown backend {self.backend!r}. Known: numpy, dask.")
         from .device import pass_device

@@ -243,38 +243,43 @@ def test_debug_shows_traceback(tmp_path):
         main(["query", str(tmp_path / "nope.npz"), "chair", "--debug"])
 
 
-def test_query_out_zarr_streams_same_results(tiny_world, tmp_path, capsys):
+def _npz_and_zarr(map_path, queries, config, tmp_path, capsys):
+    """``quash query`` with ``--out r.npz``, then ``--out r.zarr --json``: the npz arrays,
+    the zarr store and the printed results."""
     zarr = pytest.importorskip("zarr")
-    code, _, err = run_cli(
-        "query",
-        tiny_world["map"],
-        "chair",
-        "sofa",
-        "-c",
-        tiny_world["config"],
-        "--out",
-        tmp_path / "r.npz",
-        capsys=capsys,
-    )
+    args = ("query", map_path, *queries, "-c", config)
+    code, _, err = run_cli(*args, "--out", tmp_path / "r.npz", capsys=capsys)
     assert code == 0, err
-    code, out, err = run_cli(
-        "query",
-        tiny_world["map"],
-        "chair",
-        "sofa",
-        "-c",
-        tiny_world["config"],
-        "--out",
-        tmp_path / "r.zarr",
-        "--json",
-        capsys=capsys,
-    )
+    code, out, err = run_cli(*args, "--out", tmp_path / "r.zarr", "--json", capsys=capsys)
     assert code == 0, err
-    store = zarr.open_group(str(tmp_path / "r.zarr"), mode="r")
     with np.load(tmp_path / "r.npz") as z:
-        np.testing.assert_array_equal(np.asarray(store["masks"]), z["masks"])
-        np.testing.assert_allclose(np.asarray(store["scores"]), z["scores"], atol=1e-5)
-        assert [r["matched"] for r in json.loads(out)["results"]] == z["masks"].sum(1).tolist()
+        npz = {k: z[k] for k in ("masks", "scores")}
+    return npz, zarr.open_group(str(tmp_path / "r.zarr"), mode="r"), json.loads(out)
+
+
+def test_query_out_zarr_streams_same_results(tiny_world, tmp_path, capsys):
+    npz, store, doc = _npz_and_zarr(
+        tiny_world["map"], ["chair", "sofa"], tiny_world["config"], tmp_path, capsys
+    )
+    np.testing.assert_array_equal(np.asarray(store["masks"]), npz["masks"])
+    np.testing.assert_allclose(np.asarray(store["scores"]), npz["scores"], atol=1e-5)
+    assert [r["matched"] for r in doc["results"]] == npz["masks"].sum(1).tolist()
+
+
+def test_query_out_zarr_applies_refine_and_presence(minilm_scene, tmp_path, capsys):
+    """With the shipped refine + presence config, --out r.zarr holds --out r.npz's masks
+    and scores bit for bit (one group: the same code on the same classifiers), so an
+    absent object comes back empty in both; the map is untouched."""
+    before = hashlib.sha256(minilm_scene.read_bytes()).hexdigest()
+    queries = ["chair", "piano"]  # piano: only the taxonomy knows it, never in the scene
+    npz, store, doc = _npz_and_zarr(minilm_scene, queries, "demo:quash-labels", tmp_path, capsys)
+    assert hashlib.sha256(minilm_scene.read_bytes()).hexdigest() == before
+    np.testing.assert_array_equal(np.asarray(store["masks"]), npz["masks"])
+    np.testing.assert_array_equal(np.asarray(store["scores"]), npz["scores"])
+    matched = [r["matched"] for r in doc["results"]]
+    assert matched == npz["masks"].sum(1).tolist() and matched[0] > 0 and matched[1] == 0
+    presence = [s["provenance"]["presence"]["present"] for s in store.attrs["querysets"]]
+    assert presence == [True, False]
 
 
 def test_reader_that_hangs_up_is_not_an_error():
