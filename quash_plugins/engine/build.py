@@ -71,4 +71,6 @@ def build_quash(
     )
     kwargs.update(overrides)
     kwargs["cache"] = open_cache(kwargs.get("cache", cfg.cache))
-    return cls(encoder, heuristic, classifier, **kwargs)
+    quash = cls(encoder, heuristic, classifier, **kwargs)
+    quash.config_source = cfg.source
+    return quash

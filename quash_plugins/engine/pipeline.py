@@ -190,6 +190,8 @@ class Quash:
         self.cache = cache
         self.chunk_mb = float(chunk_mb)
         self.name = name
+        #: The config file this pipeline was built from (set by :meth:`from_config`).
+        self.config_source: str | None = None
         self.backend = backend
         self.client = client
         self.device = check_device(device, "Quash: 'device'")
@@ -244,12 +246,26 @@ class Quash:
         """Fail up front when the encoder's dimension differs from the map's."""
         enc_dim = int(self.encoder.dim)
         if enc_dim != lmap.dim:
+            from ..core.registry import accepted_params
+
             where = lmap.source.get("path", "the map")
+            name = getattr(self.encoder, "name", type(self.encoder).__name__)
+            section = (
+                f" (the 'encoder:' section of {self.config_source})" if self.config_source else ""
+            )
+            fixes = []
+            if "dim" in (accepted_params(type(self.encoder)) or []):
+                fixes.append(
+                    f"set 'encoder: {{name: {name}, dim: {lmap.dim}}}' if that model supports it"
+                )
             hint = PRESETS_BY_DIM.get(lmap.dim)
-            suggestion = f" A matching encoder: {hint}." if hint else ""
+            if hint:
+                fixes.append(f"a matching encoder: {hint}")
+            text = "; or ".join(fixes)
+            suggestion = f" {text[0].upper()}{text[1:]}." if text else ""
             raise DimensionMismatchError(
                 f"{where} has {lmap.dim}-dimensional embeddings, but encoder "
-                f"{self.encoder.name!r} produces {enc_dim}-dimensional ones. Use the text "
+                f"{name!r}{section} produces {enc_dim}-dimensional ones. Use the text "
                 f"encoder that built the map.{suggestion}"
             )
 

@@ -98,6 +98,39 @@ def test_dimension_mismatch_names_both_dims():
     assert "512" in msg and "3-dimensional" in msg and "lseg" in msg
 
 
+def test_dimension_mismatch_names_the_config_and_the_dim_option(tmp_path):
+    """Built from a config file: the message names the file's encoder section; an encoder
+    that takes ``dim`` (a plugin's hashing encoder, say) is told which value to set."""
+    from quash_plugins.core.interfaces import Encoder
+
+    class Hashing(Encoder):
+        name = "hashing"
+
+        def __init__(self, dim: int = 8) -> None:
+            self._dim = dim
+
+        @property
+        def dim(self) -> int:
+            return self._dim
+
+        def encode_text(self, texts):
+            return np.ones((len(texts), self.dim), np.float32)
+
+    cfg = tmp_path / "mine.yaml"
+    cfg.write_text("encoder: {name: table, table: {chair: [1, 0, 0], other: [0, 1, 0]}}\n")
+    m = LatentMap(np.ones((4, 96), dtype=np.float32), source={"path": "map.npz"})
+    quash = Quash.from_config(cfg, cache=None)
+    with pytest.raises(DimensionMismatchError) as err:
+        quash.query(m, "chair")
+    msg = str(err.value)
+    assert f"the 'encoder:' section of {cfg}" in msg and "96-dimensional" in msg
+    assert "dim: 96" not in msg  # the table encoder has no dim to set
+    quash.encoder = Hashing()
+    with pytest.raises(DimensionMismatchError) as err:
+        quash.query(m, "chair")
+    assert "Set 'encoder: {name: hashing, dim: 96}' if that model supports it" in str(err.value)
+
+
 def test_nan_in_embeddings_is_reported_with_row():
     enc = TableEncoder(table={"chair": [1, 0], "other": [0, 1]})
     E = np.ones((10, 2), dtype=np.float32)
