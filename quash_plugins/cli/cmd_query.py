@@ -150,16 +150,28 @@ def _query_to_zarr(args, quash) -> int:
     store = zarr.open_group(str(path), mode="r")
     counts = da.from_zarr(store["masks"]).sum(axis=1).compute().tolist()
     n = int(store["masks"].shape[1])
+    from ..core.types import presence_words
+
+    sets = list(store.attrs.get("querysets") or [{}] * len(counts))
     rows = [
-        {"query": q, "matched": int(c), "share": c / max(1, n)}
-        for q, c in zip(args.queries, counts)
+        {
+            "query": q,
+            "matched": int(c),
+            "share": c / max(1, n),
+            "presence": presence_words(dict(qs.get("provenance") or {})),
+        }
+        for q, c, qs in zip(args.queries, counts, sets)
     ]
     if args.json:
         print_json({"n": n, "out": str(path), "results": rows})
         return 0
     out = console()
     for r in rows:
-        out.print(f"{safe_text(r['query'])}: {r['matched']} of {n} items ({100 * r['share']:.2f}%)")
+        said = "" if r["presence"] == "off" else f"; presence: {r['presence']}"
+        out.print(
+            f"{safe_text(r['query'])}: {r['matched']} of {n} items ({100 * r['share']:.2f}%)"
+            f"{safe_text(said)}"
+        )
     out.print(f"wrote {safe_text(path)}")
     return 0
 

@@ -425,6 +425,27 @@ class Instance:
         }
 
 
+def presence_words(provenance: dict[str, Any]) -> str:
+    """A query set's presence decision (``provenance["presence"]``) in words; see
+    :attr:`QueryResult.presence`."""
+    info = provenance.get("presence")
+    if not isinstance(info, dict):
+        return "off"
+    if not info.get("checked", True):
+        return f"not checked: {info.get('why', 'no neighbourhood')}"
+    if info.get("present"):
+        return f"present ({info.get('kept', 0)} of {info.get('components', 0)} components kept)"
+    best = [
+        f"{what} {info[key]:+.3f}"
+        for key, what in (("best_margin", "grown region"), ("best_core_margin", "own items"))
+        if isinstance(info.get(key), (int, float))
+    ]
+    if not info.get("components"):
+        return "absent: nothing matched"
+    why = f"best margins: {', '.join(best)}" if best else "no component large enough"
+    return f"absent: no component won clearly against the other labels ({why})"
+
+
 @dataclass
 class QueryResult:
     """The answer to one query over one map.
@@ -466,22 +487,7 @@ class QueryResult:
     def presence(self) -> str:
         """The presence check's decision in words: ``present``, ``absent: ...`` (why the
         mask is empty), ``not checked: ...`` or ``off`` (the config has no check)."""
-        info = self.queryset.provenance.get("presence")
-        if not isinstance(info, dict):
-            return "off"
-        if not info.get("checked", True):
-            return f"not checked: {info.get('why', 'no neighbourhood')}"
-        if info.get("present"):
-            return f"present ({info.get('kept', 0)} of {info.get('components', 0)} components kept)"
-        best = [
-            f"{what} {info[key]:+.3f}"
-            for key, what in (("best_margin", "grown region"), ("best_core_margin", "own items"))
-            if isinstance(info.get(key), (int, float))
-        ]
-        if not info.get("components"):
-            return "absent: nothing matched"
-        why = f"best margins: {', '.join(best)}" if best else "no component large enough"
-        return f"absent: no component won clearly against the other labels ({why})"
+        return presence_words(self.queryset.provenance)
 
     def summary(self) -> dict[str, Any]:
         return {

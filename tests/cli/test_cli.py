@@ -280,6 +280,9 @@ def test_query_out_zarr_applies_refine_and_presence(minilm_scene, tmp_path, caps
     assert matched == npz["masks"].sum(1).tolist() and matched[0] > 0 and matched[1] == 0
     presence = [s["provenance"]["presence"]["present"] for s in store.attrs["querysets"]]
     assert presence == [True, False]
+    # the printed decision, as the .npz report gives it
+    said = [r["presence"] for r in doc["results"]]
+    assert said[0].startswith("present (") and said[1].startswith("absent: ")
 
 
 def test_reader_that_hangs_up_is_not_an_error():
