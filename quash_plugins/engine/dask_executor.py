@@ -102,12 +102,19 @@ def _cluster_errors() -> tuple[type[BaseException], ...]:
     return tuple(errors)
 
 
-def compute(client: Any, *arrays: Any) -> tuple[Any, ...]:
+def compute(client: Any, *arrays: Any, progress: Any = None) -> tuple[Any, ...]:
     """Compute dask collections on ``client`` (or threads), turning cluster faults into
-    :class:`ClusterError`."""
+    :class:`ClusterError`.
+
+    ``progress(rows)`` (one array given, row-chunked) is called as each row block of it
+    finishes, from this thread: on threads through a dask callback, on a client as the
+    block's future completes.
+    """
     import dask
 
     try:
+        if progress is not None and len(arrays) == 1:
+            return (_compute_counted(client, arrays[0], progress),)
         if client is not None:
             return tuple(client.compute(list(arrays), sync=True))
         return dask.compute(*arrays, scheduler="threads")
@@ -119,6 +126,36 @@ def compute(client: Any, *arrays: Any) -> tuple[Any, ...]:
         raise _cluster_error(exc) from exc
     except _cluster_errors() as exc:
         raise _cluster_error(exc) from exc
+
+
+def _compute_counted(client: Any, array: Any, progress: Any) -> np.ndarray:
+    """``array`` computed with ``progress(rows)`` after each finished row block."""
+    import dask
+
+    if client is None:
+        from dask.callbacks import Callback
+
+        name = array.name
+        rows = dict(enumerate(array.chunks[0]))
+
+        def done(key, result, dsk, state, worker_id) -> None:
+            if isinstance(key, tuple) and key and key[0] == name:
+                progress(rows.get(key[1], 0))
+
+        with Callback(posttask=done):
+            (out,) = dask.compute(array, scheduler="threads")
+        return out
+    from distributed import as_completed
+
+    blocks = array.to_delayed().ravel().tolist()
+    futures = client.compute(blocks)
+    index = {f.key: i for i, f in enumerate(futures)}
+    parts: list[Any] = [None] * len(futures)
+    for fut in as_completed(futures):
+        part = fut.result()  # raises the block's error here
+        parts[index[fut.key]] = part
+        progress(len(part))
+    return np.concatenate(parts) if parts else np.empty(array.shape, array.dtype)
 
 
 def _cluster_error(exc: BaseException) -> ClusterError:
@@ -134,6 +171,7 @@ def classify_dask(
     classifiers: Sequence[Any],
     chunk_bytes: int = 256 * 2**20,
     client: Any = None,
+    progress: Any = None,
 ) -> tuple[list[np.ndarray], np.ndarray]:
     """Run every fitted classifier over ``lmap`` in one ``map_blocks`` pass on Dask.
 
@@ -147,6 +185,9 @@ def classify_dask(
         Float32 working-set budget of one chunk task.
     client
         A ``dask.distributed.Client``; default the current client, else local threads.
+    progress
+        ``progress(rows)``, called as each chunk's scores come back (the rows of the map
+        done so far add up to ``lmap.n``).
 
     Returns
     -------
@@ -178,7 +219,7 @@ def classify_dask(
         "client " + str(getattr(client, "scheduler", "")) if client is not None else "threads",
     )
     try:
-        (out,) = compute(client, graph)
+        (out,) = compute(client, graph, progress=progress)
     except QuashError:
         raise
     except Exception as exc:  # noqa: BLE001 - a chunk that cannot be read is the map's fault

@@ -622,7 +622,9 @@ class Quash:
             from .dask_executor import classify_dask
 
             client = client if client is not None else self.client
-            return classify_dask(lmap, classifiers, chunk_bytes=chunk_bytes, client=client)
+            return classify_dask(
+                lmap, classifiers, chunk_bytes=chunk_bytes, client=client, progress=progress
+            )
         if self.backend not in ("numpy", "local", None):
             raise ConfigError(f"Unknown backend {self.backend!r}. Known: numpy, dask.")
         from .device import pass_device

@@ -193,6 +193,26 @@ def test_classifiers_shipped_once(client, world):
     assert len(scores) == 2 and observed.sum() > 0.98 * N
 
 
+@pytest.mark.parametrize("on", ["client", "threads"])
+def test_progress_counts_every_row_once_as_chunks_finish(client, world, on):
+    """``progress(rows)`` moves during a Dask pass (the bar of ``quash query`` with
+    ``backend: dask``): one call per chunk, adding up to the map; the scores are those of
+    a pass without it."""
+    clf = registry.create("classifiers", "contrast")
+    clf = _quash(world, clf).fit(_quash(world, clf).expand("chair"))
+    lmap = read_map(world["path"])
+    use = client if on == "client" else None
+    calls: list[int] = []
+    counted, observed = classify_dask(
+        lmap, [clf], chunk_bytes=2**20, client=use, progress=calls.append
+    )
+    plain, _ = classify_dask(lmap, [clf], chunk_bytes=2**20, client=use)
+    assert sum(calls) == N and len(calls) == len(scores_graph(lmap, [clf], 2**20).chunks[0])
+    assert len(calls) > 1
+    np.testing.assert_array_equal(counted[0], plain[0])
+    assert observed.sum() > 0.98 * N
+
+
 @pytest.mark.parametrize("cls", [MinMaxContrast, ZScoreContrast])
 def test_map_level_postprocess_lazy_and_eager(client, world, tmp_path, cls):
     from quash_plugins.engine import postprocess_kind
