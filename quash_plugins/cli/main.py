@@ -128,6 +128,17 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+@contextlib.contextmanager
+def _dask_clients_closed() -> Iterator[None]:
+    """Close the Dask clients a command started (``--backend dask``) when it ends."""
+    try:
+        yield
+    finally:
+        started = sys.modules.get("quash_plugins.engine.dask_client")
+        if started is not None:
+            started.close_started_clients()
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -136,7 +147,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     setup_logging(args.verbose, args.quiet)
     try:
-        with _sigterm_as_exception():
+        with _sigterm_as_exception(), _dask_clients_closed():
             return int(args._run(args) or 0)
     except Terminated:
         print("terminated", file=sys.stderr)

@@ -3,7 +3,9 @@
 Which reader a chunk task gets depends on what :attr:`LatentMap.embeddings` is:
 
 - dask array: rechunked along rows only;
-- zarr array: ``da.from_zarr``; each task opens the store by its URL;
+- zarr array: a :class:`ZarrRows` around it (it pickles with its store's URL, as
+  ``da.from_zarr``'s does); a chunk that fails to read is reported by its rows and its
+  zarr chunk key, as the in-memory path reports it;
 - h5py dataset: h5py objects do not pickle, so each task gets an :class:`H5Rows`, a small
   picklable reader holding only the file name and the dataset path. It opens the file
   read-only on the worker for every chunk, so the file must be reachable at the same
@@ -67,6 +69,37 @@ class MemmapRows:
         return np.array(mm[key])
 
 
+class ZarrRows:
+    """Picklable rows of a zarr array whose read failures name the rows and the chunk.
+
+    ``where`` and ``adapter`` are the map's path and adapter, for the message.
+    """
+
+    def __init__(self, array: Any, where: str, adapter: str | None) -> None:
+        self.array = array
+        self.where = str(where)
+        self.adapter = adapter
+        self.shape = tuple(int(s) for s in array.shape)
+        self.dtype = np.dtype(array.dtype)
+        self.ndim = len(self.shape)
+
+    def __getitem__(self, key: Any) -> np.ndarray:
+        try:
+            return np.asarray(self.array[key])
+        except Exception as exc:  # noqa: BLE001 - any failure to read rows is the map's
+            from ..core.errors import QuashError
+            from ..core.maps import map_read_error
+            from .classify import _chunk_keys
+
+            if isinstance(exc, QuashError):
+                raise
+            rows = key[0] if isinstance(key, tuple) else key
+            start, stop, _ = rows.indices(self.shape[0]) if isinstance(rows, slice) else (0, 0, 1)
+            what = f"rows {start}-{stop - 1} of the embeddings" if stop > start else ""
+            what += _chunk_keys(self.array, start, stop) if stop > start else ""
+            raise map_read_error(self.where, exc, self.adapter, what) from exc
+
+
 def _reader(emb: Any) -> tuple[Any, str | None]:
     """A picklable stand-in for ``emb`` plus a stable name token (None when there is none)."""
     mod = type(emb).__module__ or ""
@@ -102,7 +135,13 @@ def as_dask(lmap: LatentMap, chunk_rows: int) -> Any:
     if isinstance(emb, da.Array):
         return emb.rechunk(chunks)
     if type(emb).__module__.startswith("zarr"):
-        return da.from_zarr(emb, chunks=chunks)
+        from dask.base import tokenize
+
+        where = lmap.source.get("path", "the map")
+        reader = ZarrRows(emb, where, lmap.source.get("adapter"))
+        token = tokenize(str(emb.store), str(emb.path), emb.shape, str(emb.dtype), chunks)
+        name = f"quash-zarr-embeddings-{token}"
+        return da.from_array(reader, chunks=chunks, name=name, lock=False, asarray=True)
     reader, token = _reader(emb)
     if token is not None:
         from dask.base import tokenize

@@ -76,6 +76,7 @@ def local_cluster_client(
             pass
 
     atexit.register(_close)
+    _STARTED.append(_close)
     return client
 
 
@@ -101,7 +102,31 @@ def client_from_cli(address: str | None) -> Any:
             "to run a local cluster (see docs/scale.md)."
         ) from None
     atexit.register(client.close)
+    _STARTED.append(client.close)
     return client
+
+
+#: Closers of the clients (and local clusters) started by :func:`local_cluster_client` and
+#: :func:`client_from_cli`, for :func:`close_started_clients`.
+_STARTED: list[Any] = []
+
+
+def close_started_clients() -> int:
+    """Close every client and local cluster this module started; how many were closed.
+
+    The ``quash`` command calls it when a command ends, so that a command run inside a
+    longer-lived process (a notebook, a test) leaves no default client behind for the
+    next Dask computation to find. Also registered at interpreter exit.
+    """
+    n = 0
+    while _STARTED:
+        close = _STARTED.pop()
+        try:
+            close()
+        except Exception:  # noqa: BLE001 - closing must never hide the command's result
+            log.debug("closing a Dask client failed", exc_info=True)
+        n += 1
+    return n
 
 
 def current_client(client: Any = None) -> Any:

@@ -213,6 +213,34 @@ def test_progress_counts_every_row_once_as_chunks_finish(client, world, on):
     assert observed.sum() > 0.98 * N
 
 
+def test_a_corrupt_chunk_on_a_worker_names_the_rows_and_the_chunk(client, world, tmp_path):
+    """A worker that fails to read a chunk: the error the client gets names the map,
+    the rows and the zarr chunk file, not a cluster fault."""
+    import shutil
+
+    from quash_plugins.core.errors import MapFormatError
+
+    path = tmp_path / "map.zarr"
+    shutil.copytree(world["path"], path)
+    chunk = sorted((path / "embeddings" / "c").iterdir())[1] / "0"
+    chunk.write_bytes(b"garbage")
+    lmap = read_map(path)
+    rows = lmap.embeddings.chunks[0]
+    clf = registry.create("classifiers", "contrast")
+    quash = _quash(world, clf, backend="dask", client=client)
+    with pytest.raises(MapFormatError) as err:
+        quash.query_many(lmap, ["chair"])
+    msg = str(err.value)
+    key = f"embeddings/c/{chunk.parent.name}/0"
+    assert str(path) in msg and f"zarr chunk {key})" in msg, msg
+    # the rows named are those of the dask task that failed: they overlap the bad chunk
+    import re
+
+    a, b = map(int, re.search(r"rows (\d+)-(\d+) of the embeddings", msg).groups())
+    first = int(chunk.parent.name) * rows
+    assert a <= first + rows - 1 and b >= first, msg
+
+
 @pytest.mark.parametrize("cls", [MinMaxContrast, ZScoreContrast])
 def test_map_level_postprocess_lazy_and_eager(client, world, tmp_path, cls):
     from quash_plugins.engine import postprocess_kind
