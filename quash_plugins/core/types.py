@@ -437,7 +437,11 @@ def presence_words(provenance: dict[str, Any]) -> str:
         return f"present ({info.get('kept', 0)} of {info.get('components', 0)} components kept)"
     best = [
         f"{what} {info[key]:+.3f}"
-        for key, what in (("best_margin", "grown region"), ("best_core_margin", "own items"))
+        for key, what in (
+            ("best_margin", "grown region"),
+            ("best_core_margin", "own items"),
+            ("best_support_margin", "own items against the support"),
+        )
         if isinstance(info.get(key), (int, float))
     ]
     if not info.get("components"):

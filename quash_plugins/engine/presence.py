@@ -13,13 +13,16 @@ alone. A component's *margin* is how far the query wins; two regions are judged:
 - the **grown region**: the component and its neighbours ``dilate`` steps away;
 - the **core**: the component's own items, whose margin must also beat
   ``size_margin / sqrt(size)`` (the mean of a few selected items is noisy and leans
-  towards the query).
+  towards the query);
+- the **core against the support** (``support_margin``): the core's margin against the
+  one competitor that wins the grown region, less the same ``size_margin / sqrt(size)``.
 
 The query is **present** when some component of at least ``min_component`` items has a
-grown-region margin above ``margin`` or a core margin above ``core_margin``. Then
-(``mode: filter``) every such component whose grown-region margin is above
-``keep_margin`` or core margin above ``core_keep_margin`` is kept; ``mode: gate`` keeps
-the whole mask. When the query is not present: an empty mask,
+grown-region margin above ``margin``, a core margin above ``core_margin`` or a margin
+against its support above ``support_margin``. Then (``mode: filter``) every such
+component whose grown-region margin is above ``keep_margin``, core margin above
+``core_keep_margin`` or margin against its support above ``support_margin`` is kept;
+``mode: gate`` keeps the whole mask. When the query is not present: an empty mask,
 ``provenance["presence"]["present"]`` False. With ``grow`` (refined scores only), the
 kept components then grow through connected items whose refined score is above ``grow``
 (hysteresis: recovers an object's items just under the threshold, never a new object).
@@ -28,9 +31,14 @@ Why a grown region: a matched set is *selected* for looking like the query, so i
 mean leans towards the query (on the proxy scenes every absent label passed such a test).
 A speck that matched by noise is judged mostly by its unselected neighbours, a whole
 object by itself. Why the core as well: a small object on a support (a book on a shelf,
-a cushion on a sofa) is swamped by its support once grown. Why centring: a modality
-offset adds the same vector to every map row, i.e. a per-string bias to every cosine;
-subtracting the map's mean removes it. Why one decision per query: an object that is
+a cushion on a sofa) is swamped by its support once grown. Why the support as well: such
+an object's own items often sit near a third label (a laptop near "desk" and "book"), so
+its core loses the contest against every label; what its surroundings say it is not (the
+support that wins the grown region) it beats clearly, while a look-alike's speck on
+another object loses to that object on its core too (``support_margin: null`` turns
+this off, the rule before it). Why centring: a modality offset adds the same vector to
+every map row, i.e. a per-string bias to every cosine; subtracting the map's mean
+removes it. Why one decision per query: an object that is
 there usually has one clear component, while an absent label's best look-alike wins
 narrowly; the defaults were chosen so (docs/benchmarks.md).
 
@@ -73,6 +81,7 @@ class PresenceOptions:
     core_keep_margin: float = 0.03
     size_margin: float = 0.3
     flat_margin: float | None = None
+    support_margin: float | None = 0.12
     k: int = 2
     mode: str = "filter"
     grow: float | None = -0.25
@@ -89,13 +98,13 @@ class PresenceOptions:
             )
             for key in ("margin", "keep_margin", "core_keep_margin", "size_margin"):
                 setattr(opts, key, float(getattr(opts, key)))
-            for key in ("core_margin", "flat_margin", "grow"):
+            for key in ("core_margin", "flat_margin", "support_margin", "grow"):
                 if getattr(opts, key) is not None:
                     setattr(opts, key, float(getattr(opts, key)))
         except (TypeError, ValueError) as exc:
             raise ConfigError(
-                f"presence: {exc}; numbers expected (null turns off core_margin, flat_margin "
-                "and grow)."
+                f"presence: {exc}; numbers expected (null turns off core_margin, flat_margin, "
+                "support_margin and grow)."
             ) from None
         if not 0 <= opts.dilate <= MAX_DILATE or opts.min_component < 1 or opts.k < 1:
             raise ConfigError(
@@ -347,33 +356,46 @@ def presence_check(
     sizes_neg = _group_sizes(groups, len(N))
     sizes = np.array([len(m) for m in comps])
 
-    def margins(dilate: int) -> tuple[np.ndarray, np.ndarray]:
+    def margins(dilate: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        # per component: the margin, the flat margin and the margin against each group
         regions = [topology.region(m, dilate) for m in comps]
         means = _unit(region_means(regions, rows_of) - mu)
         sp = _top_mean(means @ P.T, opts.k)
         CN = means @ N.T
-        sc = np.full(len(means), -np.inf)
+        per_group = []
         start = 0
         for size in sizes_neg:
             block = CN[:, start : start + size][:, nlive[start : start + size]]
             start += size
             if block.shape[1]:
-                sc = np.maximum(sc, _top_mean(block, opts.k if groups else 1))
+                per_group.append(_top_mean(block, opts.k if groups else 1))
+        if not per_group:
+            per_group.append(np.full(len(means), -np.inf))
+        against = sp[:, None] - np.column_stack(per_group)  # (components, groups)
         flat = sp - CN[:, nlive].max(axis=1) if nlive.any() else np.full(len(means), np.inf)
-        return sp - sc, flat
+        return against.min(axis=1), flat, against
 
-    grown, flat = margins(opts.dilate)
+    grown, flat, grown_against = margins(opts.dilate)
     big = sizes >= opts.min_component
     if opts.flat_margin is not None:
         # and against the single best negative string
         big &= flat > opts.flat_margin
     strong, ok = grown > opts.margin, grown > opts.keep_margin
-    core_best = None
+    core_best = support_best = None
+    if opts.core_margin is not None or opts.support_margin is not None:
+        core, _, core_against = margins(0) if opts.dilate else (grown, flat, grown_against)
+        penalty = opts.size_margin / np.sqrt(sizes)
     if opts.core_margin is not None:
-        core = (margins(0)[0] if opts.dilate else grown) - opts.size_margin / np.sqrt(sizes)
+        core = core - penalty
         strong |= core > opts.core_margin
         ok |= core > opts.core_keep_margin
         core_best = round(float(core[big].max()), 4) if big.any() else None
+    if opts.support_margin is not None:
+        # the core against the group that wins the grown region: a small object's support
+        support = core_against[np.arange(len(comps)), grown_against.argmin(axis=1)] - penalty
+        strong |= support > opts.support_margin
+        ok |= support > opts.support_margin
+        support_best = round(float(support[big].max()), 4) if big.any() else None
     present = bool(np.any(strong & big))
     kept = (ok & big) if present else np.zeros(len(comps), bool)
     for members, good in zip(comps, kept):
@@ -384,6 +406,7 @@ def presence_check(
         kept=int(kept.sum()),
         best_margin=round(float(grown[big].max()), 4) if big.any() else None,
         best_core_margin=core_best,
+        **({"best_support_margin": support_best} if opts.support_margin is not None else {}),
         largest_kept=int(sizes[kept].max()) if kept.any() else 0,
     )
     if opts.mode == "gate":
