@@ -1,4 +1,12 @@
-"""The QuASH pipeline: expand, encode, fit, classify, group.
+"""The QuASH pipeline: read the map, expand, encode, fit; then the map side; then results.
+
+:class:`Quash` holds the configuration and the text side of a query: :meth:`Quash.read_map`
+reads the map, :meth:`Quash._prepare` expands every query, embeds the query sets in one
+encoder call and fits one classifier per query. The map side (the classification pass,
+the finish, the refinement pass and the presence check) is
+:mod:`quash_plugins.engine.answer`; :meth:`Quash._classify` picks where a pass runs.
+:meth:`Quash.query_many` then groups instances and builds the
+:class:`~quash_plugins.core.types.QueryResult` objects.
 
 Examples
 --------
@@ -20,7 +28,6 @@ import time
 import warnings
 import weakref
 from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -39,7 +46,8 @@ from ..core.errors import ConfigError, DimensionMismatchError, EmptyMapWarning, 
 from ..core.interfaces import Encoder, ExpansionContext, Heuristic
 from ..core.text import TextCache, encode_texts, load_templates
 from ..core.types import DEFAULT_NEGATIVES, LatentMap, QueryResult, QuerySet, check_query
-from .classify import classify_local, warn_unobserved
+from .answer import Pending, answer, finish, presence_pass, refine_pass
+from .classify import classify_local
 from .training import CallCache, training_sets
 
 log = logging.getLogger(__name__)
@@ -390,34 +398,7 @@ class Quash:
             )
         return results
 
-    def _answer(
-        self, lmap: LatentMap, pending: list[_Pending], progress: Any = None, client: Any = None
-    ) -> np.ndarray:
-        """The map side of :meth:`query_many` for ``pending``, in place: the first pass
-        (one for all of them), :meth:`_finish`, the refinement pass and the presence
-        check, as the config asks. Returns the ``(N,)`` bool ``observed`` mask.
-
-        Each query then holds ``raw``, ``mask`` and ``display`` ``(N,)`` vectors (9 bytes
-        an item). ``LazyQuery.to_zarr`` calls it for one group of queries at a time;
-        ``client`` runs the passes on that Dask client (see :meth:`_classify`).
-        """
-        t = time.perf_counter()
-        scores, observed = self._classify(lmap, [p.clf for p in pending], progress, client)
-        warn_unobserved(lmap, observed)
-        t_cls = (time.perf_counter() - t) / max(1, len(pending))
-        for p, raw in zip(pending, scores):
-            p.timings["classify"] = t_cls
-            t = time.perf_counter()
-            p.raw, p.mask, p.display = self._finish(p.clf, raw, observed)
-            p.timings["postprocess"] = time.perf_counter() - t
-        del scores
-        if self.refine is not None:
-            self._refine_pass(lmap, pending, observed, progress, client)
-        if self.presence is not None:
-            self._presence_pass(lmap, pending, observed)
-        return observed
-
-    def _prepare(self, lmap: LatentMap, texts: list[str], t_read: float) -> list[_Pending]:
+    def _prepare(self, lmap: LatentMap, texts: list[str], t_read: float) -> list[Pending]:
         """The text side of every query: expand each (once), embed the strings of all
         query sets in one encoder call, fit one classifier per query."""
         from ..core.progress import progress
@@ -447,7 +428,7 @@ class Quash:
                 t = time.perf_counter()
                 clf = clone(self.classifier).fit(X, y)
                 tm["fit"] = time.perf_counter() - t
-                pending.append(_Pending(qs, X, y, clf, tm))
+                pending.append(Pending(qs, X, y, clf, tm))
                 advance(1)
         return pending
 
@@ -466,151 +447,39 @@ class Quash:
             progress=progress,
         )
 
-    def query_many_lazy(self, source: Any, texts: Sequence[str], **read_options: Any) -> Any:
-        """Like :meth:`query_many`, but masks and scores stay dask arrays until written.
-
-        Returns a :class:`quash_plugins.engine.LazyQuery`; runs on :attr:`client` when
-        set. Needs the ``[dask]`` extra. ``.to_zarr(path)`` writes :meth:`query_many`'s
-        masks and scores, ``refine`` and ``presence`` applied (the queries answered in
-        groups, ``(N,)`` vectors held per query, never the embeddings); ``.masks`` and
-        ``.scores`` are the first pass only, and warn so when the config has either step
-        (see :func:`quash_plugins.engine.lazy_query.query_lazy`).
-        """
-        from .lazy_query import query_lazy
-
-        return query_lazy(self, source, texts, self.client, **read_options)
+    # ------------------------------------------------------------------ the map side
+    # The steps after the text side live in quash_plugins.engine.answer; these four
+    # methods are their names on the pipeline (LazyQuery and the tests call them).
+    # _classify, the one place a pass is dispatched to its executor, stays here.
+    def _answer(
+        self, lmap: LatentMap, pending: list[Pending], progress: Any = None, client: Any = None
+    ) -> np.ndarray:
+        """The map side of :meth:`query_many` for ``pending``, in place: the first pass,
+        :meth:`_finish`, the refinement pass and the presence check; returns the
+        ``observed`` mask. See :func:`quash_plugins.engine.answer.answer`."""
+        return answer(self, lmap, pending, progress, client)
 
     def _finish(
         self, clf: Any, raw: Any, observed: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Map-level postprocess, unobserved floor, mask and display scores of one query."""
-        from ..core.interfaces import Classifier
-
-        raw = np.asarray(raw, dtype=np.float32)
-        every = bool(observed.all())  # the common case: no gather, scatter or floor
-        if type(clf).postprocess_scores is not Classifier.postprocess_scores:
-            if every:
-                raw = np.array(clf.postprocess_scores(raw), dtype=np.float32)
-            elif observed.any():
-                raw[observed] = np.asarray(clf.postprocess_scores(raw[observed]), np.float32)
-        if every:
-            floor = min(float(raw.min()), self.threshold) - 1.0 if raw.size else 0.0
-        elif observed.any():
-            floor = min(float(raw[observed].min()), self.threshold) - 1.0
-        else:
-            floor = self.threshold - 1.0
-        if not every:
-            raw[~observed] = floor
-        mask = raw > self.threshold
-        if not every:
-            mask &= observed
-        display = np.asarray(clf.display_scores(raw, self.threshold), dtype=np.float32)
-        if not every:
-            display[~observed] = 0.0
-        return raw, mask, display
+        """Map-level postprocess, unobserved floor, mask and display scores of one query
+        (:func:`quash_plugins.engine.answer.finish` at :attr:`threshold`)."""
+        return finish(clf, raw, observed, self.threshold)
 
     def _refine_pass(
         self,
         lmap: LatentMap,
-        pending: list[_Pending],
+        pending: list[Pending],
         observed: np.ndarray,
         progress: Any,
         client: Any = None,
     ) -> None:
-        """Re-fit each query on its map samples and classify again, in one shared pass."""
-        from .refine import pseudo_labels
+        """:func:`quash_plugins.engine.answer.refine_pass`."""
+        refine_pass(self, lmap, pending, observed, progress, client)
 
-        todo = []
-        for p in pending:
-            t = time.perf_counter()
-            extra = pseudo_labels(lmap, p.raw, p.mask, observed, self.refine, p.queryset.query)
-            seed_matches = int(p.mask.sum())
-            if extra is None:
-                p.queryset.provenance["refine"] = {"applied": False, "seed_matches": seed_matches}
-                p.timings["refine"] = time.perf_counter() - t
-                continue
-            Xm, ym = extra
-            refined = clone(self._refine_template).fit(
-                np.concatenate([p.X, Xm]), np.concatenate([p.y, ym])
-            )
-            p.queryset.provenance["refine"] = {
-                "applied": True,
-                "seed_matches": seed_matches,
-                "map_positives": int(ym.sum()),
-                "map_negatives": int(len(ym) - ym.sum()),
-            }
-            p.timings["refine"] = time.perf_counter() - t
-            todo.append((p, refined))
-        if not todo:
-            if progress is not None:
-                progress(lmap.n)  # the second pass is not needed: count it as done
-            return
-        t = time.perf_counter()
-        scores, _ = self._classify(lmap, [r for _, r in todo], progress, client)
-        share = (time.perf_counter() - t) / len(todo)
-        for (p, refined), raw in zip(todo, scores):
-            p.clf = refined
-            p.raw, p.mask, p.display = self._finish(refined, raw, observed)
-            p.timings["reclassify"] = share
-
-    def _presence_pass(
-        self, lmap: LatentMap, pending: list[_Pending], observed: np.ndarray
-    ) -> None:
-        """The presence check (:mod:`quash_plugins.engine.presence`) on each final mask.
-
-        Dropped items are moved below the threshold and below every kept item (their
-        order otherwise kept); items added by growth sit just above the threshold, below
-        every match of the last pass.
-        """
-        from .presence import presence_check
-        from .refine import take_rows
-
-        def rows_of(index: np.ndarray) -> np.ndarray:
-            return take_rows(lmap, index)
-
-        topology, mu = self._topology.get(lmap, rows_of)
-        for p in pending:
-            if topology.kind is None:
-                p.queryset.provenance["presence"] = {"checked": False, "why": topology.why}
-                continue
-            t = time.perf_counter()
-            n_strings = len(p.queryset.positives) + len(p.queryset.negatives)
-            reps = max(1, len(p.y) // max(1, n_strings))  # prompt templates, mode "all"
-            groups = p.queryset.provenance.get("negative_groups")
-            if groups and reps > 1:
-                groups = [int(g) * reps for g in groups]
-            keep, info = presence_check(
-                p.mask, p.X, p.y, self.presence, topology, mu, rows_of, groups=groups
-            )
-            refined = (p.queryset.provenance.get("refine") or {}).get("applied", False)
-            if self.presence.grow is not None and refined and keep.any():
-                grown = topology.grow(keep, (p.raw > self.presence.grow) & observed)
-                keep = grown & observed
-                info["grown_items"] = int(keep.sum())
-            dropped = p.mask & ~keep
-            added = keep & ~p.mask
-            if dropped.any() or added.any():
-                raw = p.raw.copy()
-                if dropped.any():
-                    span = float(raw[observed].max() - raw[observed].min()) + 1.0
-                    raw[dropped] = np.minimum(raw[dropped] - span, self.threshold - 1e-3)
-                if added.any():
-                    # just above the threshold, below every match of the last pass
-                    lo, hi = float(raw[added].min()), float(raw[added].max())
-                    kept = keep & p.mask
-                    top = float(raw[kept].min()) if kept.any() else self.threshold + 1e-3
-                    room = min(1e-3, top - self.threshold)
-                    value = self.threshold + room * (
-                        0.05 + 0.9 * (raw[added] - lo) / max(hi - lo, 1e-12)
-                    )
-                    floor = np.nextafter(np.float32(self.threshold), np.float32(np.inf))
-                    raw[added] = np.maximum(value, floor)
-                p.raw = raw
-                p.mask = keep & observed
-                p.display = np.asarray(p.clf.display_scores(raw, self.threshold), np.float32)
-                p.display[~observed] = 0.0
-            p.queryset.provenance["presence"] = info
-            p.timings["presence"] = time.perf_counter() - t
+    def _presence_pass(self, lmap: LatentMap, pending: list[Pending], observed: np.ndarray) -> None:
+        """:func:`quash_plugins.engine.answer.presence_pass`."""
+        presence_pass(self, lmap, pending, observed)
 
     def _classify(
         self, lmap: LatentMap, classifiers: list[Any], progress: Any, client: Any = None
@@ -637,19 +506,19 @@ class Quash:
             return classify_on_device(dmap, classifiers, progress)
         return classify_local(lmap, classifiers, chunk_bytes, progress)
 
+    def query_many_lazy(self, source: Any, texts: Sequence[str], **read_options: Any) -> Any:
+        """Like :meth:`query_many`, but masks and scores stay dask arrays until written.
 
-@dataclass
-class _Pending:
-    """One query on its way through :meth:`Quash.query_many`."""
+        Returns a :class:`quash_plugins.engine.LazyQuery`; runs on :attr:`client` when
+        set. Needs the ``[dask]`` extra. ``.to_zarr(path)`` writes :meth:`query_many`'s
+        masks and scores, ``refine`` and ``presence`` applied (the queries answered in
+        groups, ``(N,)`` vectors held per query, never the embeddings); ``.masks`` and
+        ``.scores`` are the first pass only, and warn so when the config has either step
+        (see :func:`quash_plugins.engine.lazy_query.query_lazy`).
+        """
+        from .lazy_query import query_lazy
 
-    queryset: QuerySet
-    X: np.ndarray
-    y: np.ndarray
-    clf: Any
-    timings: dict[str, float]
-    raw: np.ndarray | None = None
-    mask: np.ndarray | None = None
-    display: np.ndarray | None = None
+        return query_lazy(self, source, texts, self.client, **read_options)
 
 
 def warn_if_empty(lmap: LatentMap) -> None:

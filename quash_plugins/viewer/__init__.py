@@ -12,7 +12,9 @@ This package imports ``rerun`` only when a logger is built, so
 from __future__ import annotations
 
 from ._display import colormap, display_indices, pca_colors, slugify
-from ._rerun import INSTANCE_COLOR, MATCH_COLOR, RerunLogger
+from ._log_map import MATCH_COLOR
+from ._log_result import INSTANCE_COLOR
+from ._rerun import RerunLogger
 from ._sinks import (
     DEFAULT_BIND,
     DEFAULT_GRPC_PORT,

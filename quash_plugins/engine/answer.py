@@ -1,0 +1,224 @@
+"""The map side of a query: first pass, finish, refinement pass, presence check.
+
+:meth:`Quash.query_many <quash_plugins.engine.pipeline.Quash.query_many>` hands each
+query here as a :class:`Pending` (its query set, training set and fitted classifier,
+from :meth:`Quash._prepare <quash_plugins.engine.pipeline.Quash._prepare>`), and
+:func:`answer` fills in its ``(N,)`` vectors, in place, in the order of the data flow:
+
+1. **classify**: one pass over the map for every query (``Quash._classify`` picks the
+   executor: in this process, on Dask or on the GPU);
+2. :func:`finish`: the classifier's map-level postprocess, the floor of unobserved
+   items, the mask and the display scores;
+3. :func:`refine_pass` (``refine:``): each query re-fitted on its map samples
+   (:mod:`quash_plugins.engine.refine`), all of them classified again in one shared pass;
+4. :func:`presence_pass` (``presence:``): the presence check
+   (:mod:`quash_plugins.engine.presence`) on each final mask, and the scores of the
+   items it drops or adds moved across the threshold.
+
+The pipeline's ``_answer``, ``_finish``, ``_refine_pass`` and ``_presence_pass`` are
+thin delegates to these functions.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from sklearn.base import clone
+
+from ..core.types import LatentMap, QuerySet
+from .classify import warn_unobserved
+
+if TYPE_CHECKING:
+    from .pipeline import Quash
+
+
+@dataclass
+class Pending:
+    """One query on its way through :meth:`Quash.query_many`."""
+
+    queryset: QuerySet
+    X: np.ndarray
+    y: np.ndarray
+    clf: Any
+    timings: dict[str, float]
+    raw: np.ndarray | None = None
+    mask: np.ndarray | None = None
+    display: np.ndarray | None = None
+
+
+def answer(
+    quash: Quash,
+    lmap: LatentMap,
+    pending: list[Pending],
+    progress: Any = None,
+    client: Any = None,
+) -> np.ndarray:
+    """The map side of :meth:`Quash.query_many` for ``pending``, in place: the first pass
+    (one for all of them), :func:`finish`, the refinement pass and the presence check,
+    as the config asks. Returns the ``(N,)`` bool ``observed`` mask.
+
+    Each query then holds ``raw``, ``mask`` and ``display`` ``(N,)`` vectors (9 bytes
+    an item). ``LazyQuery.to_zarr`` calls it for one group of queries at a time;
+    ``client`` runs the passes on that Dask client (see ``Quash._classify``).
+    """
+    t = time.perf_counter()
+    scores, observed = quash._classify(lmap, [p.clf for p in pending], progress, client)
+    warn_unobserved(lmap, observed)
+    t_cls = (time.perf_counter() - t) / max(1, len(pending))
+    for p, raw in zip(pending, scores):
+        p.timings["classify"] = t_cls
+        t = time.perf_counter()
+        p.raw, p.mask, p.display = finish(p.clf, raw, observed, quash.threshold)
+        p.timings["postprocess"] = time.perf_counter() - t
+    del scores
+    if quash.refine is not None:
+        refine_pass(quash, lmap, pending, observed, progress, client)
+    if quash.presence is not None:
+        presence_pass(quash, lmap, pending, observed)
+    return observed
+
+
+def finish(
+    clf: Any, raw: Any, observed: np.ndarray, threshold: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Map-level postprocess, unobserved floor, mask and display scores of one query."""
+    from ..core.interfaces import Classifier
+
+    raw = np.asarray(raw, dtype=np.float32)
+    every = bool(observed.all())  # the common case: no gather, scatter or floor
+    if type(clf).postprocess_scores is not Classifier.postprocess_scores:
+        if every:
+            raw = np.array(clf.postprocess_scores(raw), dtype=np.float32)
+        elif observed.any():
+            raw[observed] = np.asarray(clf.postprocess_scores(raw[observed]), np.float32)
+    if every:
+        floor = min(float(raw.min()), threshold) - 1.0 if raw.size else 0.0
+    elif observed.any():
+        floor = min(float(raw[observed].min()), threshold) - 1.0
+    else:
+        floor = threshold - 1.0
+    if not every:
+        raw[~observed] = floor
+    mask = raw > threshold
+    if not every:
+        mask &= observed
+    display = np.asarray(clf.display_scores(raw, threshold), dtype=np.float32)
+    if not every:
+        display[~observed] = 0.0
+    return raw, mask, display
+
+
+def refine_pass(
+    quash: Quash,
+    lmap: LatentMap,
+    pending: list[Pending],
+    observed: np.ndarray,
+    progress: Any,
+    client: Any = None,
+) -> None:
+    """Re-fit each query on its map samples and classify again, in one shared pass."""
+    from .refine import pseudo_labels
+
+    todo = []
+    for p in pending:
+        t = time.perf_counter()
+        extra = pseudo_labels(lmap, p.raw, p.mask, observed, quash.refine, p.queryset.query)
+        seed_matches = int(p.mask.sum())
+        if extra is None:
+            p.queryset.provenance["refine"] = {"applied": False, "seed_matches": seed_matches}
+            p.timings["refine"] = time.perf_counter() - t
+            continue
+        Xm, ym = extra
+        refined = clone(quash._refine_template).fit(
+            np.concatenate([p.X, Xm]), np.concatenate([p.y, ym])
+        )
+        p.queryset.provenance["refine"] = {
+            "applied": True,
+            "seed_matches": seed_matches,
+            "map_positives": int(ym.sum()),
+            "map_negatives": int(len(ym) - ym.sum()),
+        }
+        p.timings["refine"] = time.perf_counter() - t
+        todo.append((p, refined))
+    if not todo:
+        if progress is not None:
+            progress(lmap.n)  # the second pass is not needed: count it as done
+        return
+    t = time.perf_counter()
+    scores, _ = quash._classify(lmap, [r for _, r in todo], progress, client)
+    share = (time.perf_counter() - t) / len(todo)
+    for (p, refined), raw in zip(todo, scores):
+        p.clf = refined
+        p.raw, p.mask, p.display = finish(refined, raw, observed, quash.threshold)
+        p.timings["reclassify"] = share
+
+
+def presence_pass(
+    quash: Quash, lmap: LatentMap, pending: list[Pending], observed: np.ndarray
+) -> None:
+    """The presence check (:mod:`quash_plugins.engine.presence`) on each final mask.
+
+    Items it drops or adds get new scores (:func:`_moved_scores`), so the mask stays
+    ``score > threshold``.
+    """
+    from .presence import presence_check
+    from .refine import take_rows
+
+    def rows_of(index: np.ndarray) -> np.ndarray:
+        return take_rows(lmap, index)
+
+    opts, threshold = quash.presence, quash.threshold
+    topology, mu = quash._topology.get(lmap, rows_of)
+    for p in pending:
+        if topology.kind is None:
+            p.queryset.provenance["presence"] = {"checked": False, "why": topology.why}
+            continue
+        t = time.perf_counter()
+        n_strings = len(p.queryset.positives) + len(p.queryset.negatives)
+        reps = max(1, len(p.y) // max(1, n_strings))  # prompt templates, mode "all"
+        groups = p.queryset.provenance.get("negative_groups")
+        if groups and reps > 1:
+            groups = [int(g) * reps for g in groups]
+        keep, info = presence_check(p.mask, p.X, p.y, opts, topology, mu, rows_of, groups=groups)
+        refined = (p.queryset.provenance.get("refine") or {}).get("applied", False)
+        if opts.grow is not None and refined and keep.any():
+            grown = topology.grow(keep, (p.raw > opts.grow) & observed)
+            keep = grown & observed
+            info["grown_items"] = int(keep.sum())
+        if (p.mask & ~keep).any() or (keep & ~p.mask).any():
+            p.raw = _moved_scores(p.raw, p.mask, keep, observed, threshold)
+            p.mask = keep & observed
+            p.display = np.asarray(p.clf.display_scores(p.raw, threshold), np.float32)
+            p.display[~observed] = 0.0
+        p.queryset.provenance["presence"] = info
+        p.timings["presence"] = time.perf_counter() - t
+
+
+def _moved_scores(
+    raw: np.ndarray, mask: np.ndarray, keep: np.ndarray, observed: np.ndarray, threshold: float
+) -> np.ndarray:
+    """A copy of ``raw`` with the presence check's changes to ``mask`` (now ``keep``).
+
+    Dropped items are moved below the threshold and below every kept item (their order
+    otherwise kept); items added by growth sit just above the threshold, below every
+    match of the last pass.
+    """
+    dropped = mask & ~keep
+    added = keep & ~mask
+    raw = raw.copy()
+    if dropped.any():
+        span = float(raw[observed].max() - raw[observed].min()) + 1.0
+        raw[dropped] = np.minimum(raw[dropped] - span, threshold - 1e-3)
+    if added.any():
+        # just above the threshold, below every match of the last pass
+        lo, hi = float(raw[added].min()), float(raw[added].max())
+        kept = keep & mask
+        top = float(raw[kept].min()) if kept.any() else threshold + 1e-3
+        room = min(1e-3, top - threshold)
+        value = threshold + room * (0.05 + 0.9 * (raw[added] - lo) / max(hi - lo, 1e-12))
+        floor = np.nextafter(np.float32(threshold), np.float32(np.inf))
+        raw[added] = np.maximum(value, floor)
+    return raw

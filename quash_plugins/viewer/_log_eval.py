@@ -1,0 +1,113 @@
+"""Logging an evaluation: per-query metrics as plots, one series per config, a summary.
+
+:class:`EvalLogging` is the part of :class:`~quash_plugins.viewer.RerunLogger` that logs
+an evaluation report beside the query results, on the same ``query`` timeline (the
+logger's state is set up in ``RerunLogger.__init__``, in ``_rerun.py``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+from ._display import slugify
+
+#: Colours of the configs' series in the evaluation plots (the same config has the same
+#: colour in every plot); a colour-blind-safe qualitative palette (Okabe-Ito).
+SERIES_COLORS = (
+    (0, 114, 178),
+    (230, 159, 0),
+    (0, 158, 115),
+    (204, 121, 167),
+    (86, 180, 233),
+    (213, 94, 0),
+    (240, 228, 66),
+    (0, 0, 0),
+)
+
+
+class EvalLogging:
+    """:meth:`log_eval_scalars`, :meth:`log_evaluation` and :meth:`log_summary`; a base of
+    ``RerunLogger``."""
+
+    def log_summary(self, markdown: str) -> None:
+        """A static Markdown document (e.g. a comparison table) shown beside the metrics."""
+        rr = self.rr
+        self.recording.log(
+            "summary", rr.TextDocument(markdown, media_type=rr.MediaType.MARKDOWN), static=True
+        )
+        self._has_summary = True
+        self._layout_changed()
+
+    def log_eval_scalars(
+        self, config_name: str, metrics: dict[str, Any], step_or_query: int | str
+    ) -> None:
+        """Log evaluation metrics as scalars under ``eval/<metric>/<config>``.
+
+        Parameters
+        ----------
+        config_name
+            The method config's name; one series per config and metric.
+        metrics
+            ``{"precision": p, "recall": r, "f1": f, "iou": i, ...}``; every finite
+            number is logged, other values are skipped. Grouping by metric first gives
+            one plot per metric that compares the configs.
+        step_or_query
+            Position on the ``query`` timeline: an int, or a query string mapped to
+            0, 1, 2... in order of first appearance (the same query string gets the
+            same step for every config).
+        """
+        rr, rec = self.rr, self.recording
+        if isinstance(step_or_query, str):
+            step = self._eval_steps.setdefault(step_or_query, len(self._eval_steps))
+        else:
+            step = int(step_or_query)
+        rec.set_time("query", sequence=step)
+        cfg = slugify(str(config_name), "config")
+        for key, value in metrics.items():
+            try:
+                v = float(value)
+            except (TypeError, ValueError):
+                continue
+            if not math.isfinite(v):
+                continue
+            metric = slugify(str(key), "metric")
+            path = f"eval/{metric}/{cfg}"
+            if path not in self._eval_series:
+                self._eval_series.add(path)
+                color = self._eval_colors.setdefault(
+                    cfg, SERIES_COLORS[len(self._eval_colors) % len(SERIES_COLORS)]
+                )
+                name = str(config_name)
+                rec.log(path, rr.SeriesLines(names=name, colors=color), static=True)
+                rec.log(
+                    path, rr.SeriesPoints(names=name, colors=color, marker_sizes=3.0), static=True
+                )
+            rec.log(path, rr.Scalars([v]))
+            self._eval_metrics.setdefault(metric, None)
+            self._eval_last = max(self._eval_last, step)
+        self._layout_changed()
+
+    def log_evaluation(
+        self,
+        configs: Sequence[dict[str, Any]],
+        queries: Sequence[str],
+        summary_markdown: str | None = None,
+        metrics: Sequence[str] = ("f1", "precision", "recall", "iou"),
+    ) -> None:
+        """Log an evaluation report: per-query metrics of every config, and a summary.
+
+        ``configs`` is the report's JSON list (``[{"name", "per_query": {query: {...}}}]``,
+        :class:`quash_plugins.evaluation.report.EvalReport`); query ``i`` of ``queries``
+        goes to step ``i`` of the ``query`` timeline, where :meth:`log_result` puts its
+        result, so the plots line up with the queries shown in the 3D views.
+        """
+        for c in configs:
+            per_query = c.get("per_query") or {}
+            for i, q in enumerate(queries):
+                row = per_query.get(q)
+                if row:
+                    self.log_eval_scalars(c["name"], {m: row.get(m) for m in metrics}, i)
+        if summary_markdown:
+            self.log_summary(summary_markdown)

@@ -1,0 +1,143 @@
+"""Logging one query's result on the map: its matches, score colours, instances, document.
+
+:class:`ResultLogging` is the part of :class:`~quash_plugins.viewer.RerunLogger` that logs
+a :class:`~quash_plugins.core.types.QueryResult` over the map logged by
+:meth:`~quash_plugins.viewer._log_map.MapLogging.log_map` (the logger's state is set up
+in ``RerunLogger.__init__``, in ``_rerun.py``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..core.errors import QuashError
+from ..core.types import LatentMap, QueryResult
+from ._display import colormap, score_classes, slugify, thin
+from ._document import queryset_markdown
+from ._log_map import MATCH_COLOR
+
+#: Colour of instance boxes.
+INSTANCE_COLOR = (255, 200, 0)
+
+
+class _ConfigState:
+    """What was logged for one config."""
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+        self.scores_logged = False
+
+
+class ResultLogging:
+    """:meth:`log_result` and the config tabs; a base of ``RerunLogger``."""
+
+    def focus(self, config_name: str) -> None:
+        """Open the viewer on this config's tab (default: the first config logged)."""
+        self._focus = slugify(str(config_name), "config")
+        self._layout_changed()
+
+    def log_result(self, lmap: LatentMap, result: QueryResult, index: int) -> None:
+        """Log one query's result at ``query = index`` on the ``query`` timeline.
+
+        Per config (``result.config_name``): ``world/matches/<config>`` (the matched
+        items), the class ids of ``world/scores/<config>``, ``world/instances/<config>``
+        and the document ``queries/<config>``; for pixel maps
+        ``images/<frame>/<config>/{mask,scores,instances}``. Each replaces the config's
+        previous query, so scrubbing the timeline shows one query at a time per config.
+        """
+        rr, rec = self.rr, self.recording
+        if self._map_key != id(lmap):
+            self.log_map(lmap)
+        if len(result.mask) != lmap.n:
+            raise QuashError(
+                f"Result for {result.query!r} has {len(result.mask)} items but the map has {lmap.n}."
+            )
+        index = int(index)
+        name = str(result.config_name or "quash")
+        c = slugify(name, "config")
+        state = self._configs.setdefault(c, _ConfigState(name))
+        rec.set_time("query", sequence=index)
+        notes = list(self._notes)
+        if self._has_world:
+            self._log_world(lmap, result, c, state, notes)
+        for fname, frame in self._frames:
+            sl = slice(frame.offset, frame.offset + frame.size)
+            hw = (frame.height, frame.width)
+            seg = np.asarray(result.mask[sl]).reshape(hw).astype(np.uint8)
+            base = f"images/{fname}/{c}"
+            rec.log(f"{base}/mask", rr.SegmentationImage(seg, opacity=0.5))
+            heat = colormap(np.asarray(result.display_scores[sl]), self.colormap)
+            rec.log(f"{base}/scores", rr.Image(heat.reshape(*hw, 3)))
+            self._log_pixel_instances(lmap, result, base, frame.frame_id)
+        text = queryset_markdown(lmap, result, index, notes)
+        rec.log(f"queries/{c}", rr.TextDocument(text, media_type=rr.MediaType.MARKDOWN))
+        self._layout_changed()
+
+    def _log_world(
+        self, lmap: LatentMap, result: QueryResult, c: str, state: _ConfigState, notes: list[str]
+    ) -> None:
+        rr, rec = self.rr, self.recording
+        matched = np.flatnonzero(result.mask)
+        shown = thin(matched, self.max_display_points)
+        if len(shown) < len(matched):
+            notes.append(
+                f"The mask layer shows {len(shown):,} of {len(matched):,} matched items "
+                "(display only)."
+            )
+        rec.log(
+            f"world/matches/{c}",
+            self._primitive(lmap.positions[shown], 0.55, 0.6, colors=MATCH_COLOR),
+        )
+        # Scores: the geometry once per config (static), then one class id per item.
+        scores = np.asarray(result.display_scores)
+        archetype = rr.Boxes3D if self._as_boxes else rr.Points3D
+        for layer, idx in self._layers.items():
+            path = f"world/scores/{c}" + (f"/{layer}" if layer else "")
+            if not state.scores_logged:
+                rec.log(path, self._primitive(lmap.positions[idx], 0.45, 0.5), static=True)
+            rec.log(
+                path,
+                archetype.from_fields(class_ids=score_classes(scores[idx], self.score_classes)),
+            )
+        state.scores_logged = True
+        path = f"world/instances/{c}"
+        insts = [i for i in result.instances if i.frame_id is None]
+        if not insts:
+            rec.log(path, rr.Clear(recursive=True))
+            return
+        lo = np.array([i.bbox_min for i in insts], dtype=np.float32).reshape(-1, 3)
+        hi = np.array([i.bbox_max for i in insts], dtype=np.float32).reshape(-1, 3)
+        pad = 0.5 * self._voxel
+        rec.log(
+            path,
+            rr.Boxes3D(
+                centers=(lo + hi) / 2,
+                half_sizes=(hi - lo) / 2 + pad,
+                colors=INSTANCE_COLOR,
+                labels=[f"{result.query} #{i.id} ({i.size}, {i.mean_score:.2f})" for i in insts],
+            ),
+        )
+        cents = np.array([i.centroid for i in insts], dtype=np.float32).reshape(-1, 3)
+        rec.log(f"{path}/centroids", rr.Points3D(cents, colors=INSTANCE_COLOR))
+
+    def _log_pixel_instances(
+        self, lmap: LatentMap, result: QueryResult, base: str, frame_id: str
+    ) -> None:
+        """Labelled 2D boxes for a pixel map's instances (pixel coordinates x=col, y=row)."""
+        rr, rec = self.rr, self.recording
+        path = f"{base}/instances"
+        insts = [i for i in result.instances if i.frame_id == frame_id]
+        if not insts or lmap.positions is not None:
+            rec.log(path, rr.Clear(recursive=False))
+            return
+        lo = np.array([i.bbox_min for i in insts], dtype=np.float32).reshape(-1, 3)[:, :2]
+        hi = np.array([i.bbox_max for i in insts], dtype=np.float32).reshape(-1, 3)[:, :2]
+        rec.log(
+            path,
+            rr.Boxes2D(
+                mins=lo,
+                sizes=hi - lo + 1.0,
+                colors=INSTANCE_COLOR,
+                labels=[f"{result.query} #{i.id} ({i.size})" for i in insts],
+            ),
+        )
