@@ -78,7 +78,11 @@ def test_terminal_tables_escape_markup_and_controls(tmp_path, capsys):
     np.savez(tmp_path / "m.npz", embeddings=np.eye(2, dtype=np.float32))
     assert main(["query", str(tmp_path / "m.npz"), "[red]chair", "-c", str(cfg)]) == 0
     assert "[red]chair" in capsys.readouterr().out  # shown literally, not as markup
-    registry.register("heuristics", "evil\x1b[2Jname", Heuristic, replace=True)
+    class Evil(Heuristic):  # a complete plugin: only its name is hostile
+        def expand(self, query, context=None):
+            raise NotImplementedError
+
+    registry.register("heuristics", "evil\x1b[2Jname", Evil, replace=True)
     try:
         assert main(["plugins", "--kind", "heuristics"]) == 0
         out = capsys.readouterr().out
