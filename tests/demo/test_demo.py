@@ -119,11 +119,11 @@ def test_demo_table_order_follows_the_shipped_configs(demo):
     strict=True,
     raises=AssertionError,
     reason="issue 12, not met on the tiny demo: the first QuASH row (quash-labels) reaches "
-    "F1 0.535 against label-argmax's 0.70 given the scene's label list, on 7 queries of a "
+    "F1 0.678 against label-argmax's 0.70 given the scene's label list, on 7 queries of a "
     "2-room scene at 0.25 m voxels; its presence check (defaults chosen at 0.1 m) returns "
-    "nothing for the sofa (under cushions, its own label wins narrowly) and the 10-voxel "
-    "lamp, and each of the 7 queries weighs 1/7. On the full demo scene (0.1 m) it is "
-    "0.748 against 0.539 (docs/evaluation.md). Remove this mark when it wins here too",
+    "nothing for the sofa (under cushions, its own label wins narrowly) and the chair "
+    "reaches 0.32, and each of the 7 queries weighs 1/7. On the full demo scene (0.1 m) it "
+    "is 0.748 against 0.539 (docs/evaluation.md). Remove this mark when it wins here too",
 )
 def test_quash_beats_the_fair_peer(demo):
     """QuASH's F1 (the demo's first QuASH row) against OpenScene's/VLMaps' label argmax
