@@ -51,9 +51,8 @@ def _object_map(kind="voxels", n_specks=30, seed=0):
     )
 
 
-def _check(m, mask, query="bed", **opts):
-    # the grown and core rules are tested alone; the support rule has its own test
-    opts.setdefault("support_margin", None)
+def _training(query):
+    """The query set (taxonomy, every other label a negative group) and its training data."""
     enc = _encoder()
     qs = (
         TaxonomyHeuristic(taxonomy=TAX, n_antonyms="all")
@@ -61,6 +60,13 @@ def _check(m, mask, query="bed", **opts):
         .with_negatives(["other"])
     )
     X, y, _ = training_set(enc, qs)
+    return qs, X, y
+
+
+def _check(m, mask, query="bed", **opts):
+    # the grown and core rules are tested alone; the support rule has its own test
+    opts.setdefault("support_margin", None)
+    qs, X, y = _training(query)
     E = np.asarray(m.embeddings)
     topo = MapTopology(m)
     return presence_check(
@@ -271,13 +277,7 @@ def _margins_by_hand(m, items, query="bed"):
     """The centred margins of the query against each label group on a set of items,
     computed here from the definition (positives: mean of the 2 best cosines; a group:
     the mean of its 2 best)."""
-    enc = _encoder()
-    qs = (
-        TaxonomyHeuristic(taxonomy=TAX, n_antonyms="all")
-        .expand(query, ExpansionContext(encoder=enc))
-        .with_negatives(["other"])
-    )
-    X, y, _ = training_set(enc, qs)
+    qs, X, y = _training(query)
 
     def unit(a):
         return a / np.linalg.norm(a, axis=-1, keepdims=True)
