@@ -78,6 +78,7 @@ def test_terminal_tables_escape_markup_and_controls(tmp_path, capsys):
     np.savez(tmp_path / "m.npz", embeddings=np.eye(2, dtype=np.float32))
     assert main(["query", str(tmp_path / "m.npz"), "[red]chair", "-c", str(cfg)]) == 0
     assert "[red]chair" in capsys.readouterr().out  # shown literally, not as markup
+
     class Evil(Heuristic):  # a complete plugin: only its name is hostile
         def expand(self, query, context=None):
             raise NotImplementedError
