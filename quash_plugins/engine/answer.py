@@ -15,8 +15,7 @@ from :meth:`Quash._prepare <quash_plugins.engine.pipeline.Quash._prepare>`), and
    (:mod:`quash_plugins.engine.presence`) on each final mask, and the scores of the
    items it drops or adds moved across the threshold.
 
-The pipeline's ``_answer``, ``_finish``, ``_refine_pass`` and ``_presence_pass`` are
-thin delegates to these functions.
+The pipeline's ``_answer`` is a thin delegate to :func:`answer`.
 """
 
 from __future__ import annotations
@@ -105,10 +104,15 @@ def finish(
     mask = raw > threshold
     if not every:
         mask &= observed
+    return raw, mask, display_scores(clf, raw, observed, threshold)
+
+
+def display_scores(clf: Any, raw: np.ndarray, observed: np.ndarray, threshold: float) -> np.ndarray:
+    """The classifier's display scores of ``raw``, 0 for unobserved items."""
     display = np.asarray(clf.display_scores(raw, threshold), dtype=np.float32)
-    if not every:
+    if not observed.all():
         display[~observed] = 0.0
-    return raw, mask, display
+    return display
 
 
 def refine_pass(
@@ -191,8 +195,7 @@ def presence_pass(
         if (p.mask & ~keep).any() or (keep & ~p.mask).any():
             p.raw = _moved_scores(p.raw, p.mask, keep, observed, threshold)
             p.mask = keep & observed
-            p.display = np.asarray(p.clf.display_scores(p.raw, threshold), np.float32)
-            p.display[~observed] = 0.0
+            p.display = display_scores(p.clf, p.raw, observed, threshold)
         p.queryset.provenance["presence"] = info
         p.timings["presence"] = time.perf_counter() - t
 

@@ -46,7 +46,7 @@ from ..core.errors import ConfigError, DimensionMismatchError, EmptyMapWarning, 
 from ..core.interfaces import Encoder, ExpansionContext, Heuristic
 from ..core.text import TextCache, encode_texts, load_templates
 from ..core.types import DEFAULT_NEGATIVES, LatentMap, QueryResult, QuerySet, check_query
-from .answer import Pending, answer, finish, presence_pass, refine_pass
+from .answer import Pending, answer
 from .classify import classify_local
 from .training import CallCache, training_sets
 
@@ -448,38 +448,16 @@ class Quash:
         )
 
     # ------------------------------------------------------------------ the map side
-    # The steps after the text side live in quash_plugins.engine.answer; these four
-    # methods are their names on the pipeline (LazyQuery and the tests call them).
-    # _classify, the one place a pass is dispatched to its executor, stays here.
+    # The steps after the text side live in quash_plugins.engine.answer; _answer is their
+    # name on the pipeline (LazyQuery calls it). _classify, the one place a pass is
+    # dispatched to its executor, stays here.
     def _answer(
         self, lmap: LatentMap, pending: list[Pending], progress: Any = None, client: Any = None
     ) -> np.ndarray:
         """The map side of :meth:`query_many` for ``pending``, in place: the first pass,
-        :meth:`_finish`, the refinement pass and the presence check; returns the
+        the finish, the refinement pass and the presence check; returns the
         ``observed`` mask. See :func:`quash_plugins.engine.answer.answer`."""
         return answer(self, lmap, pending, progress, client)
-
-    def _finish(
-        self, clf: Any, raw: Any, observed: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Map-level postprocess, unobserved floor, mask and display scores of one query
-        (:func:`quash_plugins.engine.answer.finish` at :attr:`threshold`)."""
-        return finish(clf, raw, observed, self.threshold)
-
-    def _refine_pass(
-        self,
-        lmap: LatentMap,
-        pending: list[Pending],
-        observed: np.ndarray,
-        progress: Any,
-        client: Any = None,
-    ) -> None:
-        """:func:`quash_plugins.engine.answer.refine_pass`."""
-        refine_pass(self, lmap, pending, observed, progress, client)
-
-    def _presence_pass(self, lmap: LatentMap, pending: list[Pending], observed: np.ndarray) -> None:
-        """:func:`quash_plugins.engine.answer.presence_pass`."""
-        presence_pass(self, lmap, pending, observed)
 
     def _classify(
         self, lmap: LatentMap, classifiers: list[Any], progress: Any, client: Any = None

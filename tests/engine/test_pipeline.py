@@ -229,7 +229,7 @@ def test_query_sets_are_not_reused_across_maps_with_recycled_ids():
 
 
 def _finish_reference(post, display, raw, observed, threshold):
-    """What ``Quash._finish`` must return, spelled out on float64 copies."""
+    """What ``engine.answer.finish`` must return, spelled out on float64 copies."""
     raw = raw.astype(np.float64)
     out = raw.copy()
     if observed.any():
@@ -274,19 +274,20 @@ def test_finish_matches_its_definition_with_and_without_unobserved_items(every, 
     ref_post = (
         (lambda s: (s - s.min()) / (s.max() - s.min()) - 0.5) if post == "minmax" else (lambda s: s)
     )
-    quash = Quash.__new__(Quash)
-    quash.threshold = 0.1
+    from quash_plugins.engine.answer import finish
+
+    threshold = 0.1
     given = raw.copy()
-    got_raw, got_mask, got_disp = quash._finish(clf, given, observed)
+    got_raw, got_mask, got_disp = finish(clf, given, observed, threshold)
     want_raw, want_mask, want_disp = _finish_reference(
-        ref_post, _logistic, raw, observed, quash.threshold
+        ref_post, _logistic, raw, observed, threshold
     )
     assert got_raw.dtype == np.float32 and got_disp.dtype == np.float32
     np.testing.assert_allclose(got_raw, want_raw, atol=1e-5)
     np.testing.assert_array_equal(got_mask, want_mask)
     np.testing.assert_allclose(got_disp, want_disp, atol=1e-5)
     # 0.5 sits at the threshold and unobserved items show 0
-    at = np.abs(want_raw - quash.threshold) < 1e-3
+    at = np.abs(want_raw - threshold) < 1e-3
     assert np.allclose(got_disp[at & observed], 0.5, atol=1e-2)
     assert (got_disp[~observed] == 0).all()
 
