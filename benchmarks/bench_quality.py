@@ -49,7 +49,7 @@ import numpy as np
 import yaml
 
 from quash_plugins.core import registry
-from quash_plugins.core.shipped import find_shipped
+from quash_plugins.core.shipped import LIST_PEERS, QUERY_PEERS, find_shipped
 from quash_plugins.demo.scene import SceneOptions, make_scene, write_scene
 from quash_plugins.engine import open_cache
 from quash_plugins.evaluation.plot import plot_precision_recall
@@ -63,10 +63,6 @@ GENERATORS: dict[str, dict] = {
     "b-hard": {"classes": "b", "gap_class": 0.5, "gap_instance": 0.3, "distortion": 0.5},
 }
 SCENARIOS = ("closed", "open-list", "open-none")
-#: The peers' rules given the query alone.
-QUERY_PEERS = ("vlmaps", "conceptfusion", "lerf")
-#: The peers' rules given the label list (the fair peers of the closed and open-list targets).
-LIST_PEERS = ("vlmaps-labels", "openscene-labels")
 #: The QuASH configs of each scenario; the first is the one the targets are checked on.
 QUASH = {
     "closed": ("quash-labels", "quash-taxonomy", "quash-taxonomy-svm"),
@@ -87,7 +83,7 @@ def configs(scenario: str, taxonomy: Path) -> list[dict]:
     peers = QUERY_PEERS if scenario == "open-none" else (*QUERY_PEERS, *LIST_PEERS)
     out = []
     for name in (*peers, *QUASH[scenario]):
-        cfg = yaml.safe_load(find_shipped(f"demo:{name}").path.read_text(encoding="utf-8"))
+        cfg = find_shipped(f"demo:{name}").data()
         h = cfg.get("heuristic")
         if isinstance(h, dict) and "file" in h:
             cfg["heuristic"] = {**h, "file": str(taxonomy)}

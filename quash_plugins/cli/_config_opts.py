@@ -6,7 +6,7 @@ import argparse
 
 from ..core.config import QuashConfig
 from ..core.errors import ConfigError, UsageError
-from ..core.shipped import resolve_config_path
+from ..core.shipped import LIST_PEERS, resolve_config_path
 
 
 def add_config_option(parser: argparse.ArgumentParser, multiple: bool = False) -> None:
@@ -51,7 +51,7 @@ def add_runtime_options(parser: argparse.ArgumentParser) -> None:
 #: The peers a command comparing methods runs beside the default config when given no
 #: ``-c``: VLMaps' rule over its category list and OpenScene's label argmax, each given the
 #: same label list as the default config.
-FAIR_PEERS = ("demo:vlmaps-labels", "demo:openscene-labels")
+FAIR_PEERS = tuple(f"demo:{name}" for name in LIST_PEERS)
 
 
 def fair_default_configs() -> list[QuashConfig]:

@@ -48,6 +48,20 @@ class ShippedConfig:
         """True when it runs with what the package ships (no downloads, no server)."""
         return self.needs is None
 
+    def data(self) -> dict:
+        """The config as a dict (parsed safely, as every config file is)."""
+        from .config import load_yaml_text
+
+        return dict(load_yaml_text(self.path.read_text(encoding="utf-8"), str(self.path)))
+
+
+#: The shipped peers' rules given the query alone (``demo:<name>``): VLMaps' rule over
+#: [query, "other"], ConceptFusion's relative threshold, LERF's relevancy.
+QUERY_PEERS = ("vlmaps", "conceptfusion", "lerf")
+#: The shipped peers' rules given the label list, the fair peers of a comparison in which
+#: QuASH sees the label list: VLMaps' argmax over its categories, OpenScene's label argmax.
+LIST_PEERS = ("vlmaps-labels", "openscene-labels")
+
 
 def config_dir() -> Path:
     """The folder of the shipped configs (package data)."""

@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from ..core.errors import QuashError
+from ..core.shipped import LIST_PEERS, QUERY_PEERS, find_shipped
 from ..core.text import ZERO_TOKEN
 from .plot import plot_precision_recall
 from .report import evaluate, report_markdown
@@ -53,26 +54,12 @@ CLASSIFIERS: dict[str, Any] = {
 }
 TABLES = ("prompt", "antonyms", "sources", "classifiers", "fair")
 #: The shipped configs of the fair table, peers first (quash_plugins/data/configs/demo-*).
-FAIR = (
-    "vlmaps",
-    "conceptfusion",
-    "lerf",
-    "vlmaps-labels",
-    "openscene-labels",
-    "quash-labels",
-    "quash-taxonomy",
-    "quash-taxonomy-svm",
-)
+FAIR = (*QUERY_PEERS, *LIST_PEERS, "quash-labels", "quash-taxonomy", "quash-taxonomy-svm")
 
 
 def shipped(name: str) -> dict[str, Any]:
-    """The shipped config ``demo-<name>.yaml`` as a dict (package data, read as text)."""
-    from importlib import resources
-
-    from ..core.config import load_yaml_text
-
-    text = resources.files("quash_plugins.data").joinpath(f"configs/demo-{name}.yaml")
-    return dict(load_yaml_text(text.read_text(encoding="utf-8")))
+    """The shipped config ``demo:<name>`` as a dict."""
+    return find_shipped(f"demo:{name}").data()
 
 
 def _cfg(name: str, encoder: Any, heuristic: Any, classifier: Any, **extra: Any) -> dict:
