@@ -74,3 +74,18 @@ def unknown_name_message(what: str, name: str, known: Iterable[str]) -> str:
     if guess is not None:
         msg += f" Did you mean {guess!r}?"
     return msg
+
+
+def missing_module(exc: BaseException) -> str | None:
+    """The top-level module an :class:`ImportError` could not find, or None."""
+    name = getattr(exc, "name", None)
+    return str(name).split(".")[0] if isinstance(exc, ImportError) and name else None
+
+
+def install_hint(module: str, dist: str | None = None) -> str:
+    """What to do about a missing Python module (``dist``: the plugin's distribution)."""
+    also = f", and list it in the dependencies of {dist!r}" if dist else ""
+    return (
+        f"needs the Python module {module!r}, which is not installed. Install the package "
+        f"that provides it in this environment{also}."
+    )

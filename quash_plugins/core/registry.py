@@ -34,7 +34,14 @@ from dataclasses import dataclass, field
 from importlib import metadata
 from typing import Any
 
-from .errors import ConfigError, PluginError, closest, unknown_name_message
+from .errors import (
+    ConfigError,
+    PluginError,
+    closest,
+    install_hint,
+    missing_module,
+    unknown_name_message,
+)
 
 log = logging.getLogger(__name__)
 
@@ -261,20 +268,6 @@ def _validate(info: PluginInfo, obj: Any) -> None:
             )
 
 
-def _missing_module(exc: BaseException) -> str | None:
-    """The module an ImportError could not find, or None."""
-    name = getattr(exc, "name", None)
-    return str(name) if isinstance(exc, ImportError) and name else None
-
-
-def _install_hint(module: str, dist: str) -> str:
-    top = module.split(".")[0]
-    return (
-        f"it needs the Python module {top!r}, which is not installed. Install the package "
-        f"that provides it in this environment, and list it in the dependencies of {dist!r}."
-    )
-
-
 def _import_hint(info: PluginInfo, exc: BaseException) -> str:
     """What to do about ``exc``, raised while importing ``info.target``: an entry point
     that names a module or object that does not exist, or a missing dependency."""
@@ -283,12 +276,11 @@ def _import_hint(info: PluginInfo, exc: BaseException) -> str:
         f"check the entry point {info.name!r} in group {GROUP_PREFIX + info.kind!r} of "
         f"{info.dist!r} (its pyproject.toml)"
     )
-    missing = _missing_module(exc)
-    if missing is not None:
+    missing = getattr(exc, "name", None) if isinstance(exc, ImportError) else None
+    if missing:
         if module == missing or module.startswith(missing + "."):
             return f"The module {module!r} it names does not exist: {where}."
-        hint = _install_hint(missing, info.dist)
-        return hint[0].upper() + hint[1:]
+        return f"It {install_hint(str(missing).split('.')[0], info.dist)}"
     if isinstance(exc, AttributeError) and attr:
         mod = sys.modules.get(module)
         first = attr.split(".")[0]
@@ -405,12 +397,12 @@ def create(kind: str, name: str, /, **params: Any) -> Any:
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"{_TITLE[kind]} {entry.name!r}: {exc}") from exc
     except ImportError as exc:  # a plugin that imports its dependencies when built
-        missing = _missing_module(exc)
+        missing = missing_module(exc)
         if missing is None:
             raise
         raise PluginError(
             f"{_TITLE[kind]} {entry.name!r} from distribution {entry.dist!r} cannot be "
-            f"built: {_install_hint(missing, entry.dist)} ({type(exc).__name__}: {exc})"
+            f"built: it {install_hint(missing, entry.dist)} ({type(exc).__name__}: {exc})"
         ) from exc
     if getattr(instance, "name", None) in (None, "encoder", "heuristic", "adapter"):
         with contextlib.suppress(AttributeError):

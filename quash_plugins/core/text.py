@@ -10,7 +10,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from .errors import ConfigError, EncoderError
+from .errors import ConfigError, EncoderError, install_hint, missing_module
 from .interfaces import Encoder, check_text_embeddings
 
 log = logging.getLogger(__name__)
@@ -52,13 +52,12 @@ def encode_texts(
         try:
             raw = encoder.encode_text(missing)
         except ImportError as exc:  # a plugin importing its model library on first use
-            if not getattr(exc, "name", None):
+            module = missing_module(exc)
+            if module is None:
                 raise
             raise EncoderError(
-                f"Encoder {encoder.name!r} ({type(encoder).__module__}) needs the Python "
-                f"module {exc.name.split('.')[0]!r}, which is not installed "
-                f"({type(exc).__name__}: {exc}). Install the package that provides it in "
-                "this environment."
+                f"Encoder {encoder.name!r} ({type(encoder).__module__}) failed to encode "
+                f"({type(exc).__name__}: {exc}): it {install_hint(module)}"
             ) from exc
         emb = check_text_embeddings(raw, missing, dim, encoder.name)
         new = dict(zip(missing, emb))
