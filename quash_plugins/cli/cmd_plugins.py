@@ -46,7 +46,8 @@ def run(args: argparse.Namespace) -> int:
         table.add_column(col, no_wrap=col == "name", overflow="fold")
     broken = [i for i in infos if i.status != "ok"]
     kinds = list(registry.KINDS)
-    for i in sorted(infos, key=lambda i: (kinds.index(i.kind), i.name, i.dist != "quash-plugins")):
+    builtin = registry.BUILTIN_DIST
+    for i in sorted(infos, key=lambda i: (kinds.index(i.kind), i.name, i.dist != builtin)):
         status = "[green]ok[/]" if i.status == "ok" else f"[red]{safe_text(i.status)}[/]"
         name = config_name(i, infos)
         table.add_row(*(safe_text(x) for x in (i.kind, name, i.dist, i.version)), status)
