@@ -178,7 +178,8 @@ class QuashConfig:
             "grown region the query set classifies as the query; none kept means the object "
             "is absent (empty mask) ({dilate: 1, min_component: 8, margin: 0.05, "
             "keep_margin: -0.02, core_margin: 0.12, core_keep_margin: 0.03, size_margin: 0.3, "
-            "flat_margin: null, support_margin: 0.12, k: 2, mode: filter|gate, grow: -0.25}; "
+            "flat_margin: null, support_margin: 0.12, label_name: true, k: 2, mode: filter|gate, "
+            "grow: -0.25, grow_steps: null, grow_margin: 0.0}; "
             "{} takes these defaults). Needs a voxel grid, positions or frames. null turns it off."
         },
     )

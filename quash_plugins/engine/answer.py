@@ -186,12 +186,24 @@ def presence_pass(
         groups = p.queryset.provenance.get("negative_groups")
         if groups and reps > 1:
             groups = [int(g) * reps for g in groups]
-        keep, info = presence_check(p.mask, p.X, p.y, opts, topology, mu, rows_of, groups=groups)
+        label = p.queryset.provenance.get("label")
+        head = p.queryset.positives.index(label) if label in p.queryset.positives else 0
         refined = (p.queryset.provenance.get("refine") or {}).get("applied", False)
-        if opts.grow is not None and refined and keep.any():
-            grown = topology.grow(keep, (p.raw > opts.grow) & observed)
-            keep = grown & observed
-            info["grown_items"] = int(keep.sum())
+        candidates = (p.raw > opts.grow) & observed if opts.grow is not None and refined else None
+        keep, info = presence_check(
+            p.mask,
+            p.X,
+            p.y,
+            opts,
+            topology,
+            mu,
+            rows_of,
+            groups=groups,
+            head=head,
+            reps=reps,
+            candidates=candidates,
+        )
+        keep &= observed
         if (p.mask & ~keep).any() or (keep & ~p.mask).any():
             p.raw = _moved_scores(p.raw, p.mask, keep, observed, threshold)
             p.mask = keep & observed

@@ -8,7 +8,10 @@ subtracted from the region mean, the query set's mean text row from the text row
 query's positives (mean of the ``k`` best cosines) against each competitor, each other
 label with its sub-classes when the heuristic records ``negative_groups`` (the
 ``taxonomy`` heuristic with ``n_antonyms: all``, ``label-list``), else each negative
-alone. A component's *margin* is how far the query wins; two regions are judged:
+alone. Each side is read two ways (``label_name``): as the mean of its ``k`` best
+names, and as the better of that and its label name alone (the query's label, or the
+query itself when it names no label; each competitor group's first name, its label).
+A component's *margin* is how far the query wins; two regions are judged:
 
 - the **grown region**: the component and its neighbours ``dilate`` steps away;
 - the **core**: the component's own items, whose margin must also beat
@@ -22,10 +25,14 @@ grown-region margin above ``margin``, a core margin above ``core_margin`` or a m
 against its support above ``support_margin``. Then (``mode: filter``) every such
 component whose grown-region margin is above ``keep_margin``, core margin above
 ``core_keep_margin`` or margin against its support above ``support_margin`` is kept;
-``mode: gate`` keeps the whole mask. When the query is not present: an empty mask,
-``provenance["presence"]["present"]`` False. With ``grow`` (refined scores only), the
-kept components then grow through connected items whose refined score is above ``grow``
-(hysteresis: recovers an object's items just under the threshold, never a new object).
+``mode: gate`` keeps the whole mask. A test passed under either reading counts; a
+component kept without being strong must be kept under both readings. When the query is
+not present: an empty mask, ``provenance["presence"]["present"]`` False. With ``grow``
+(refined scores only), the kept components then grow through connected items whose
+refined score is above ``grow`` (hysteresis: recovers an object's items just under the
+threshold, never a new object); with ``grow_margin``, each addition (the new items of one
+connected region) is added only when the query wins its own mean by that margin under
+either reading, else (with ``grow_steps``) only its items within that many steps.
 
 Why a grown region: a matched set is *selected* for looking like the query, so its own
 mean leans towards the query (on the proxy scenes every absent label passed such a test).
@@ -36,7 +43,14 @@ an object's own items often sit near a third label (a laptop near "desk" and "bo
 its core loses the contest against every label; what its surroundings say it is not (the
 support that wins the grown region) it beats clearly, while a look-alike's speck on
 another object loses to that object on its core too (``support_margin: null`` turns
-this off, the rule before it). Why centring: a modality offset adds the same vector to
+this off, the rule before it). Why the label name: a label's rarer sub-classes
+("settee", "chesterfield") sit far from what the encoder sees, so the mean of a group's
+best names can let a neighbouring label's sub-class ("seat cushion") tie with an object
+that its own label name wins clearly; the second reading keeps the top-k mean for the
+groups whose label is the weaker name. Why a kept-only component needs both readings: a
+near tie under one reading (cushion on the sofa's voxels) must not carry a look-alike
+into a present query's mask. Why ``grow_margin``: unchecked growth runs from a book into
+the shelf it stands on. Why centring: a modality offset adds the same vector to
 every map row, i.e. a per-string bias to every cosine; subtracting the map's mean
 removes it. Why one decision per query: an object that is
 there usually has one clear component, while an absent label's best look-alike wins
@@ -82,9 +96,12 @@ class PresenceOptions:
     size_margin: float = 0.3
     flat_margin: float | None = None
     support_margin: float | None = 0.12
+    label_name: bool = True
     k: int = 2
     mode: str = "filter"
     grow: float | None = -0.25
+    grow_steps: int | None = None
+    grow_margin: float | None = 0.0
 
     @classmethod
     def parse(cls, options: dict[str, Any]) -> PresenceOptions:
@@ -98,9 +115,11 @@ class PresenceOptions:
             )
             for key in ("margin", "keep_margin", "core_keep_margin", "size_margin"):
                 setattr(opts, key, float(getattr(opts, key)))
-            for key in ("core_margin", "flat_margin", "support_margin", "grow"):
+            for key in ("core_margin", "flat_margin", "support_margin", "grow", "grow_margin"):
                 if getattr(opts, key) is not None:
                     setattr(opts, key, float(getattr(opts, key)))
+            if opts.grow_steps is not None:
+                opts.grow_steps = int(opts.grow_steps)
         except (TypeError, ValueError) as exc:
             raise ConfigError(
                 f"presence: {exc}; numbers expected (null turns off core_margin, flat_margin, "
@@ -111,6 +130,10 @@ class PresenceOptions:
                 f"presence: dilate must be in [0, {MAX_DILATE}] (got {opts.dilate}), "
                 f"min_component >= 1 "
                 f"(got {opts.min_component}) and k >= 1 (got {opts.k})."
+            )
+        if not isinstance(opts.label_name, bool):
+            raise ConfigError(
+                f"presence: label_name must be true or false; got {opts.label_name!r}."
             )
         if opts.size_margin < 0:
             raise ConfigError(f"presence: size_margin must be >= 0; got {opts.size_margin}.")
@@ -268,10 +291,24 @@ class MapTopology:
             return np.flatnonzero(img.reshape(-1)) + frame.offset
         return members
 
-    def grow(self, keep: np.ndarray, candidates: np.ndarray) -> np.ndarray:
-        """Hysteresis: ``keep`` plus each component of ``candidates`` that touches it."""
+    def grow(
+        self, keep: np.ndarray, candidates: np.ndarray, steps: int | None = None
+    ) -> np.ndarray:
+        """Hysteresis: ``keep`` plus each component of ``candidates`` that touches it, or,
+        with ``steps``, the candidates at most that many neighbourhood steps from it."""
         if not keep.any():
             return keep
+        if steps is not None:
+            out = keep.copy()
+            front = np.flatnonzero(keep)
+            for _ in range(int(steps)):
+                near = self.region(front, 1)
+                near = near[candidates[near] & ~out[near]]
+                if not len(near):
+                    break
+                out[near] = True
+                front = near
+            return out
         out = keep.copy()
         for members in self.components(candidates | keep):
             if keep[members].any():
@@ -333,6 +370,9 @@ def presence_check(
     mu: np.ndarray,
     rows_of: Any,
     groups: list[int] | None = None,
+    head: int = 0,
+    reps: int = 1,
+    candidates: np.ndarray | None = None,
 ) -> tuple[np.ndarray, dict[str, Any]]:
     """The kept items of ``mask`` and a provenance record.
 
@@ -340,6 +380,9 @@ def presence_check(
     :func:`~quash_plugins.engine.training.training_set` builds them). ``groups``: sizes of
     consecutive negative groups (``provenance["negative_groups"]``); the negatives after
     them (the generic ones) form one more group. ``rows_of(index)`` returns the map's rows.
+    ``head``: which positive string is the query's label (0, the query itself, when it
+    names no label); ``reps``: rows per string (prompt templates, mode ``all``). Both
+    serve the ``label_name`` reading.
     """
     comps = topology.components(mask)
     keep = np.zeros(len(mask), bool)
@@ -350,52 +393,83 @@ def presence_check(
     live = np.any(X != 0, axis=1)
     centre = X[live].mean(axis=0)
     P = _unit(X[(y == 1) & live] - centre)
+    pos_rows = np.flatnonzero(y == 1)[head * reps : (head + 1) * reps]
+    pos_rows = pos_rows[live[pos_rows]]
+    P_head = _unit(X[pos_rows] - centre) if len(pos_rows) else P[:1]
     neg_rows = np.flatnonzero(y == 0)
     N = _unit(X[neg_rows] - centre)
     nlive = live[neg_rows]
     sizes_neg = _group_sizes(groups, len(N))
     sizes = np.array([len(m) for m in comps])
 
-    def margins(dilate: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        # per component: the margin, the flat margin and the margin against each group
-        regions = [topology.region(m, dilate) for m in comps]
-        means = _unit(region_means(regions, rows_of) - mu)
-        sp = _top_mean(means @ P.T, opts.k)
-        CN = means @ N.T
-        per_group = []
-        start = 0
-        for size in sizes_neg:
-            block = CN[:, start : start + size][:, nlive[start : start + size]]
-            start += size
-            if block.shape[1]:
-                per_group.append(_top_mean(block, opts.k if groups else 1))
-        if not per_group:
-            per_group.append(np.full(len(means), -np.inf))
-        against = sp[:, None] - np.column_stack(per_group)  # (components, groups)
-        flat = sp - CN[:, nlive].max(axis=1) if nlive.any() else np.full(len(means), np.inf)
-        return against.min(axis=1), flat, against
+    # the readings of a group's score: the mean of its k best names, and (label_name)
+    # the better of that and its first name alone (the label, or the query itself)
+    readings = ("top", "name") if opts.label_name and groups else ("top",)
 
-    grown, flat, grown_against = margins(opts.dilate)
+    def margins(
+        dilate: int, parts: list[np.ndarray] | None = None
+    ) -> list[tuple[np.ndarray, np.ndarray]]:
+        # per reading and component: the margin against each group, and the flat margin
+        regions = [topology.region(m, dilate) for m in (comps if parts is None else parts)]
+        means = _unit(region_means(regions, rows_of) - mu)
+        sp_top = _top_mean(means @ P.T, opts.k)
+        CN = means @ N.T
+        out = []
+        for reading in readings:
+            sp = sp_top
+            if reading == "name":
+                sp = np.maximum(sp_top, (means @ P_head.T).mean(axis=1))
+            per_group = []
+            start = 0
+            for size in sizes_neg:
+                live_g = nlive[start : start + size]
+                block = CN[:, start : start + size]
+                start += size
+                if not live_g.any():
+                    continue
+                score = _top_mean(block[:, live_g], opts.k if groups else 1)
+                name = live_g[: min(reps, size)]
+                if reading == "name" and name.all():
+                    score = np.maximum(score, block[:, : len(name)].mean(axis=1))
+                per_group.append(score)
+            if not per_group:
+                per_group.append(np.full(len(means), -np.inf))
+            flat = sp - CN[:, nlive].max(axis=1) if nlive.any() else np.full(len(means), np.inf)
+            out.append((sp[:, None] - np.column_stack(per_group), flat))  # (components, groups)
+        return out
+
+    grown_r = margins(opts.dilate)
+    grown = np.stack([a.min(axis=1) for a, _ in grown_r])  # (readings, components)
     big = sizes >= opts.min_component
     if opts.flat_margin is not None:
         # and against the single best negative string
-        big &= flat > opts.flat_margin
+        big &= grown_r[0][1] > opts.flat_margin
     strong, ok = grown > opts.margin, grown > opts.keep_margin
     core_best = support_best = None
     if opts.core_margin is not None or opts.support_margin is not None:
-        core, _, core_against = margins(0) if opts.dilate else (grown, flat, grown_against)
+        core_r = margins(0) if opts.dilate else grown_r
         penalty = opts.size_margin / np.sqrt(sizes)
     if opts.core_margin is not None:
-        core = core - penalty
+        core = np.stack([a.min(axis=1) for a, _ in core_r]) - penalty
         strong |= core > opts.core_margin
         ok |= core > opts.core_keep_margin
-        core_best = round(float(core[big].max()), 4) if big.any() else None
+        core_best = round(float(core.max(axis=0)[big].max()), 4) if big.any() else None
     if opts.support_margin is not None:
         # the core against the group that wins the grown region: a small object's support
-        support = core_against[np.arange(len(comps)), grown_against.argmin(axis=1)] - penalty
+        rows = np.arange(len(comps))
+        support = (
+            np.stack([c[rows, g.argmin(axis=1)] for (c, _), (g, _) in zip(core_r, grown_r)])
+            - penalty
+        )
         strong |= support > opts.support_margin
         ok |= support > opts.support_margin
-        support_best = round(float(support[big].max()), 4) if big.any() else None
+        support_best = round(float(support.max(axis=0)[big].max()), 4) if big.any() else None
+    # a component is strong when it is under either reading, and kept when it is kept
+    # under a reading where it is strong, or under both: a near tie under one reading
+    # cannot carry a look-alike along
+    ok = (strong & ok).any(axis=0) | ok.all(axis=0)
+    strong = strong.any(axis=0)
+    grown = grown.max(axis=0)
     present = bool(np.any(strong & big))
     kept = (ok & big) if present else np.zeros(len(comps), bool)
     for members, good in zip(comps, kept):
@@ -412,7 +486,41 @@ def presence_check(
     if opts.mode == "gate":
         keep = mask.copy() if present else np.zeros_like(mask)
     info["kept_items"] = int(keep.sum())
+    if candidates is not None and keep.any():
+        keep = _grow(keep, candidates, topology, opts, margins)
+        info["grown_items"] = int(keep.sum())
     return keep, info
+
+
+def _grow(keep, candidates, topology, opts, margins) -> np.ndarray:
+    """Hysteresis: the kept components grow through connected ``candidates``. With
+    ``grow_margin``, an addition (the new items of one connected candidate region) whose
+    own mean the query does not win by that margin under some reading (it is mostly a
+    neighbouring object) grows at most ``grow_steps`` steps (none without it)."""
+    if opts.grow_margin is None:
+        return topology.grow(keep, candidates, opts.grow_steps)
+    # the connected regions of new candidates that touch a kept component
+    new = topology.components(candidates & ~keep)
+    if topology.kind == "pixels":  # a region is grown within one frame
+        adds = [m for m in new if keep[topology.region(m, 1)].any()]
+    else:
+        touching = np.zeros_like(keep)
+        touching[topology.region(np.flatnonzero(keep), 1)] = True
+        adds = [m for m in new if touching[m].any()]
+    if not adds:
+        return keep
+    won = np.max(np.stack([a.min(axis=1) for a, _ in margins(0, adds)]), axis=0)
+    out = keep.copy()
+    for add, m in zip(adds, won):
+        if m > opts.grow_margin:
+            out[add] = True
+    if opts.grow_steps:
+        near = np.zeros_like(keep)
+        for add, m in zip(adds, won):
+            if m <= opts.grow_margin:
+                near[add] = True
+        out |= topology.grow(keep, near, opts.grow_steps)
+    return out
 
 
 def _group_sizes(groups: list[int] | None, n_neg: int) -> list[int]:

@@ -64,8 +64,10 @@ def _training(query):
 
 
 def _check(m, mask, query="bed", **opts):
-    # the grown and core rules are tested alone; the support rule has its own test
+    # the grown and core rules are tested alone; the support rule and the label-name
+    # reading have their own tests
     opts.setdefault("support_margin", None)
+    opts.setdefault("label_name", False)
     qs, X, y = _training(query)
     E = np.asarray(m.embeddings)
     topo = MapTopology(m)
@@ -252,6 +254,7 @@ def test_the_config_help_states_the_real_defaults(section):
     help_text = field.metadata["help"]
     for f in dataclasses.fields(options):
         default = "null" if f.default is None else f.default
+        default = str(default).lower() if isinstance(default, bool) else default
         assert re.search(rf"\b{f.name}: {re.escape(str(default))}\b", help_text), (f.name, default)
 
 
@@ -326,3 +329,198 @@ def test_a_small_object_on_its_support_is_judged_against_the_support():
     slab = np.zeros(m.n, bool)
     slab[:36] = True
     assert not _check(m, slab, support_margin=0.0)[0].any()
+
+
+# ------------------------------------------------------------- the label-name reading
+TAX_NAMES = {
+    "sofa": ["settee", "divan"],
+    "cushion": ["seat cushion", "bolster"],
+    "bed": ["bunk bed", "cot"],
+}
+
+
+def _names_encoder():
+    names = {n for k, v in TAX_NAMES.items() for n in (k, *v)} | {"other", "background"}
+    return TableEncoder(table=table_for(names))
+
+
+def _sofa_like_a_seat_cushion(seed=6):
+    """A 4x4x2 sofa whose items read as "sofa" and, more, as "seat cushion" (a sub-class
+    of cushion), none of them as the sofa's own rare sub-classes; a background wall far
+    away keeps the map's mean off the sofa."""
+    rng = np.random.default_rng(seed)
+    sofa = [(x, y, z) for x in range(4) for y in range(4) for z in range(2)]
+    wall = [(20 + x, 0, z) for x in range(12) for z in range(12)]
+    lean = np.asarray(vec("sofa")) + 1.5 * np.asarray(vec("seat cushion"))
+    obj = lean + 0.05 * rng.standard_normal((len(sofa), 32))
+    obj /= np.linalg.norm(obj, axis=1, keepdims=True)
+    E = np.concatenate([obj, _rows("background", len(wall), rng, 0.05)]).astype(np.float32)
+    return LatentMap(E, kind="voxels", grid_index=np.asarray(sofa + wall), voxel_size=0.1)
+
+
+def _readings_by_hand(m, items, query):
+    """The query's margin against its best competitor on ``items``, computed here from
+    the definition, under both readings: "top" (a side scores the mean of its 2 best
+    names) and "name" (the better of that and its first name: the label)."""
+    enc = _names_encoder()
+    qs = TaxonomyHeuristic(taxonomy=TAX_NAMES, n_antonyms="all").expand(
+        query, ExpansionContext(encoder=enc)
+    )
+
+    def unit(a):
+        return a / np.linalg.norm(a, axis=-1, keepdims=True)
+
+    X, y, _ = training_set(enc, qs)
+    E = unit(np.asarray(m.embeddings, np.float64))
+    mean = unit(E[items].mean(axis=0) - E.mean(axis=0))
+    c = unit(X - X.mean(axis=0)) @ mean
+    pos, neg = c[y == 1], c[y == 0]
+    sizes = list(qs.provenance["negative_groups"])
+    groups = np.split(neg, np.cumsum(sizes)[:-1])
+    top = {
+        "top": lambda g: np.sort(g)[-2:].mean(),
+        "name": lambda g: max(g[0], np.sort(g)[-2:].mean()),
+    }
+    return {r: f(pos) - max(f(g) for g in groups) for r, f in top.items()}, qs, X, y
+
+
+def _check_names(m, mask, query, **opts):
+    _, qs, X, y = _readings_by_hand(m, np.flatnonzero(mask), query)
+    E = np.asarray(m.embeddings)
+    return presence_check(
+        mask,
+        X,
+        y,
+        PresenceOptions(**{"support_margin": None, "core_margin": None, **opts}),
+        MapTopology(m),
+        map_mean(m, lambda i: E[i]),
+        lambda i: E[i],
+        groups=qs.provenance["negative_groups"],
+    )
+
+
+def test_the_label_name_reading_finds_an_object_its_sub_classes_blur():
+    """label_name: a sofa that reads as "sofa" but not as its rare sub-classes ties with
+    cushion (via "seat cushion") when each side scores its 2 best names; read by its
+    label, the sofa wins clearly. The cushion query on the same sofa stays absent."""
+    m = _sofa_like_a_seat_cushion()
+    sofa = np.zeros(m.n, bool)
+    sofa[:32] = True
+    by_hand, *_ = _readings_by_hand(m, MapTopology(m).region(np.arange(32), 1), "sofa")
+    assert abs(by_hand["top"]) < 0.1 < by_hand["name"]
+    margin = (by_hand["top"] + by_hand["name"]) / 2
+    keep, info = _check_names(m, sofa, "sofa", margin=margin, label_name=False)
+    assert not keep.any() and info["best_margin"] == pytest.approx(by_hand["top"], abs=1e-4)
+    keep, info = _check_names(m, sofa, "sofa", margin=margin)
+    assert keep[:32].all() and info["best_margin"] == pytest.approx(by_hand["name"], abs=1e-4)
+    # the cushion query on the sofa: no reading lets it through
+    cushion, *_ = _readings_by_hand(m, MapTopology(m).region(np.arange(32), 1), "cushion")
+    assert max(cushion.values()) < 0.05
+    assert not _check_names(m, sofa, "cushion", margin=0.05)[0].any()
+
+
+def test_a_near_tie_under_one_reading_does_not_carry_a_component_along():
+    """keep_margin: a component that is not strong itself must be kept under both
+    readings. The sofa ties with "cushion" under the top reading and loses under the
+    label's, so a present cushion query does not keep it."""
+    rng = np.random.default_rng(7)
+    m = _sofa_like_a_seat_cushion()
+    # a real cushion beside the sofa, one cell apart
+    cushion_cells = [(6 + x, y, z) for x in range(2) for y in range(2) for z in range(2)]
+    E = np.concatenate([np.asarray(m.embeddings), _rows("cushion", 8, rng, 0.05)])
+    grid = np.concatenate([np.asarray(m.grid_index), np.asarray(cushion_cells)])
+    m2 = LatentMap(E.astype(np.float32), kind="voxels", grid_index=grid, voxel_size=0.1)
+    mask = np.zeros(m2.n, bool)
+    mask[:32] = True
+    mask[-8:] = True
+    sofa_only, *_ = _readings_by_hand(m2, MapTopology(m2).region(np.arange(32), 1), "cushion")
+    keep_margin = sofa_only["top"] - 0.01  # the sofa is "kept" under the top reading
+    assert sofa_only["name"] < keep_margin
+    kw = dict(margin=0.05, keep_margin=keep_margin, min_component=4)
+    keep, info = _check_names(m2, mask, "cushion", **kw)
+    assert info["present"] and keep[-8:].all() and not keep[:32].any()
+    # the top reading alone keeps the sofa with the cushion
+    keep, _ = _check_names(m2, mask, "cushion", label_name=False, **kw)
+    assert keep[:32].all() and keep[-8:].all()
+
+
+def test_growth_adds_a_region_only_when_the_query_wins_it():
+    """grow_margin: a kept bed grows region by region through connected candidates; the
+    rest of the bed (won by "bed") is added, a sofa beside it (won by "sofa") is not,
+    unless grow_margin is off; with grow_steps its items one step from the bed are."""
+    rng = np.random.default_rng(8)
+    bed = [(x, y, z) for x in range(6) for y in range(3) for z in range(2)]  # 36 items
+    more_bed = [(x, y, z) for x in range(6) for y in range(3, 5) for z in range(2)]  # 24
+    sofa = [(x, y, z) for x in range(6, 12) for y in range(2) for z in range(2)]  # 24
+    wall = [(30 + x, 0, z) for x in range(12) for z in range(12)]  # keeps the mean neutral
+    E = np.concatenate(
+        [
+            _rows("bed", 36, rng, 0.05),
+            _rows("bed", 24, rng, 0.05),
+            _rows("sofa", 24, rng, 0.05),
+            _rows("background", len(wall), rng, 0.05),
+        ]
+    ).astype(np.float32)
+    grid = np.asarray(bed + more_bed + sofa + wall)
+    m = LatentMap(E, kind="voxels", grid_index=grid, voxel_size=0.1)
+    topo = MapTopology(m)
+    # two additions: more_bed touches the bed only, the sofa touches the bed only
+    assert len(topo.components(np.r_[np.zeros(36, bool), np.ones(48, bool)])) == 2
+    mask = np.zeros(m.n, bool)
+    mask[:36] = True
+    qs, X, y = _training("bed")
+
+    def run(**opts):
+        return presence_check(
+            mask,
+            X,
+            y,
+            PresenceOptions(**opts),
+            topo,
+            map_mean(m, lambda i: E[i]),
+            lambda i: E[i],
+            groups=qs.provenance["negative_groups"],
+            candidates=np.r_[np.ones(84, bool), np.zeros(len(wall), bool)],  # above `grow`
+        )
+
+    keep, info = run(grow_margin=None)
+    assert keep[:84].all() and info["grown_items"] == 84  # unchecked: the sofa comes along
+    keep, info = run()
+    assert keep[:60].all() and not keep[60:].any() and info["grown_items"] == 60
+    keep, _ = run(grow_steps=1)
+    near = np.intersect1d(topo.region(np.arange(36), 1), np.arange(60, 84))
+    assert 0 < len(near) < 24
+    assert np.array_equal(np.flatnonzero(keep), np.r_[np.arange(60), near])
+
+
+def test_growth_on_pixel_maps_stays_in_the_frame():
+    """Bed patches in two frames each grow into the rest of their own frame's bed; a
+    frame without a kept patch gets nothing."""
+    rng = np.random.default_rng(9)
+    E = np.concatenate([_rows("sofa", 64, rng, 0.05) for _ in range(3)])
+    bed = np.zeros((8, 8), bool)
+    bed[1:7, 1:7] = True
+    for f in range(3):
+        E[64 * f : 64 * (f + 1)][bed.reshape(-1)] = _rows("bed", 36, rng, 0.05)
+    m = LatentMap(
+        E.astype(np.float32),
+        kind="pixels",
+        frames=[FrameInfo(n, 8, 8, 64 * i) for i, n in enumerate("abc")],
+    )
+    core = np.zeros((8, 8), bool)
+    core[2:5, 2:5] = True
+    mask = np.r_[core.reshape(-1), np.zeros(64, bool), core.reshape(-1)]
+    qs, X, y = _training("bed")
+    keep, info = presence_check(
+        mask,
+        X,
+        y,
+        PresenceOptions(min_component=4),
+        MapTopology(m),
+        map_mean(m, lambda i: E[i]),
+        lambda i: E[i],
+        groups=qs.provenance["negative_groups"],
+        candidates=np.tile(bed.reshape(-1), 3),
+    )
+    assert info["present"] and info["grown_items"] == 72
+    assert np.array_equal(keep, np.r_[bed.reshape(-1), np.zeros(64, bool), bed.reshape(-1)])
