@@ -115,16 +115,6 @@ def test_demo_table_order_follows_the_shipped_configs(demo):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(
-    strict=True,
-    raises=AssertionError,
-    reason="issue 12, not met on the tiny demo: the first QuASH row (quash-labels) reaches "
-    "F1 0.678 against label-argmax's 0.70 given the scene's label list, on 7 queries of a "
-    "2-room scene at 0.25 m voxels; its presence check (defaults chosen at 0.1 m) returns "
-    "nothing for the sofa (under cushions, its own label wins narrowly) and the chair "
-    "reaches 0.32, and each of the 7 queries weighs 1/7. On the full demo scene (0.1 m) it "
-    "is 0.748 against 0.539 (docs/evaluation.md). Remove this mark when it wins here too",
-)
 def test_quash_beats_the_fair_peer(demo):
     """QuASH's F1 (the demo's first QuASH row) against OpenScene's/VLMaps' label argmax
     given the same information, the scene's label list, scored by the same evaluate()
@@ -149,3 +139,5 @@ def test_quash_beats_the_fair_peer(demo):
         fair = evaluate(lmap, [peer], queries=queries, absent=absent).configs[0]
     assert list(fair["per_query"]) == queries
     assert quash["mean"]["f1"] > fair["mean"]["f1"], (quash["mean"], fair["mean"])
+    # and it keeps the promise the peer breaks: nothing for the absent objects
+    assert quash["absence"]["score"] == 1.0, quash["absence"]
