@@ -63,24 +63,29 @@ def _training(query):
     return qs, X, y
 
 
-def _check(m, mask, query="bed", **opts):
-    # the grown and core rules are tested alone; the support rule and the label-name
-    # reading have their own tests
-    opts.setdefault("support_margin", None)
-    opts.setdefault("label_name", False)
+def _run(m, mask, query="bed", candidates=None, **opts):
+    """presence_check on map ``m`` with the query's training set and these options."""
     qs, X, y = _training(query)
     E = np.asarray(m.embeddings)
-    topo = MapTopology(m)
     return presence_check(
         mask,
         X,
         y,
         PresenceOptions(**opts),
-        topo,
+        MapTopology(m),
         map_mean(m, lambda i: E[i]),
         lambda i: E[i],
         groups=qs.provenance["negative_groups"],
+        candidates=candidates,
     )
+
+
+def _check(m, mask, query="bed", **opts):
+    # the grown and core rules are tested alone; the support rule and the label-name
+    # reading have their own tests
+    opts.setdefault("support_margin", None)
+    opts.setdefault("label_name", False)
+    return _run(m, mask, query, **opts)
 
 
 @pytest.mark.parametrize("kind", ["voxels", "points"])
@@ -468,20 +473,10 @@ def test_growth_adds_a_region_only_when_the_query_wins_it():
     assert len(topo.components(np.r_[np.zeros(36, bool), np.ones(48, bool)])) == 2
     mask = np.zeros(m.n, bool)
     mask[:36] = True
-    qs, X, y = _training("bed")
+    above = np.r_[np.ones(84, bool), np.zeros(len(wall), bool)]  # refined score above `grow`
 
     def run(**opts):
-        return presence_check(
-            mask,
-            X,
-            y,
-            PresenceOptions(**opts),
-            topo,
-            map_mean(m, lambda i: E[i]),
-            lambda i: E[i],
-            groups=qs.provenance["negative_groups"],
-            candidates=np.r_[np.ones(84, bool), np.zeros(len(wall), bool)],  # above `grow`
-        )
+        return _run(m, mask, candidates=above, **opts)
 
     keep, info = run(grow_margin=None)
     assert keep[:84].all() and info["grown_items"] == 84  # unchecked: the sofa comes along
@@ -510,17 +505,6 @@ def test_growth_on_pixel_maps_stays_in_the_frame():
     core = np.zeros((8, 8), bool)
     core[2:5, 2:5] = True
     mask = np.r_[core.reshape(-1), np.zeros(64, bool), core.reshape(-1)]
-    qs, X, y = _training("bed")
-    keep, info = presence_check(
-        mask,
-        X,
-        y,
-        PresenceOptions(min_component=4),
-        MapTopology(m),
-        map_mean(m, lambda i: E[i]),
-        lambda i: E[i],
-        groups=qs.provenance["negative_groups"],
-        candidates=np.tile(bed.reshape(-1), 3),
-    )
+    keep, info = _run(m, mask, candidates=np.tile(bed.reshape(-1), 3), min_component=4)
     assert info["present"] and info["grown_items"] == 72
     assert np.array_equal(keep, np.r_[bed.reshape(-1), np.zeros(64, bool), bed.reshape(-1)])
