@@ -131,6 +131,8 @@ class PresenceOptions:
                 f"min_component >= 1 "
                 f"(got {opts.min_component}) and k >= 1 (got {opts.k})."
             )
+        if opts.grow_steps is not None and opts.grow_steps < 0:
+            raise ConfigError(f"presence: grow_steps must be >= 0 or null; got {opts.grow_steps}.")
         if not isinstance(opts.label_name, bool):
             raise ConfigError(
                 f"presence: label_name must be true or false; got {opts.label_name!r}."

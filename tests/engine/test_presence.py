@@ -178,6 +178,10 @@ def test_options_are_validated_with_the_key_and_the_fix():
     with pytest.raises(ConfigError, match="numbers expected"):
         PresenceOptions.parse({"margin": "big"})
     assert PresenceOptions.parse({"grow": None}).grow is None
+    with pytest.raises(ConfigError, match="grow_steps must be >= 0"):
+        PresenceOptions.parse({"grow_steps": -1})
+    with pytest.raises(ConfigError, match="label_name must be true or false"):
+        PresenceOptions.parse({"label_name": "yes"})
     with pytest.raises(ConfigError, match="presence"):
         Quash(_encoder(), presence={"bogus": 1})
     cfg = QuashConfig.from_dict({"presence": True})
@@ -486,6 +490,11 @@ def test_growth_adds_a_region_only_when_the_query_wins_it():
     near = np.intersect1d(topo.region(np.arange(36), 1), np.arange(60, 84))
     assert 0 < len(near) < 24
     assert np.array_equal(np.flatnonzero(keep), np.r_[np.arange(60), near])
+    # grow_steps without grow_margin bounds every addition: one step into each
+    keep, _ = run(grow_margin=None, grow_steps=1)
+    one_step = np.intersect1d(topo.region(np.arange(36), 1), np.arange(36, 84))
+    assert 0 < np.isin(one_step, np.arange(36, 60)).sum() < 24
+    assert np.array_equal(np.flatnonzero(keep), np.r_[np.arange(36), one_step])
 
 
 def test_growth_on_pixel_maps_stays_in_the_frame():
