@@ -206,7 +206,7 @@ def presence_pass(
         keep &= observed
         if (p.mask & ~keep).any() or (keep & ~p.mask).any():
             p.raw = _moved_scores(p.raw, p.mask, keep, observed, threshold)
-            p.mask = keep & observed
+            p.mask = keep
             p.display = display_scores(p.clf, p.raw, observed, threshold)
         p.queryset.provenance["presence"] = info
         p.timings["presence"] = time.perf_counter() - t

@@ -406,63 +406,58 @@ def presence_check(
 
     # the readings of a group's score: the mean of its k best names, and (label_name)
     # the better of that and its first name alone (the label, or the query itself)
-    readings = ("top", "name") if opts.label_name and groups else ("top",)
+    by_name = bool(opts.label_name and groups)
 
     def margins(
         dilate: int, parts: list[np.ndarray] | None = None
-    ) -> list[tuple[np.ndarray, np.ndarray]]:
-        # per reading and component: the margin against each group, and the flat margin
+    ) -> tuple[list[np.ndarray], np.ndarray]:
+        # per reading, (components, groups) margins against each group; and the flat
+        # margin (against the single best negative string)
         regions = [topology.region(m, dilate) for m in (comps if parts is None else parts)]
         means = _unit(region_means(regions, rows_of) - mu)
-        sp_top = _top_mean(means @ P.T, opts.k)
+        sp = _top_mean(means @ P.T, opts.k)
         CN = means @ N.T
-        out = []
-        for reading in readings:
-            sp = sp_top
-            if reading == "name":
-                sp = np.maximum(sp_top, (means @ P_head.T).mean(axis=1))
-            per_group = []
-            start = 0
-            for size in sizes_neg:
-                live_g = nlive[start : start + size]
-                block = CN[:, start : start + size]
-                start += size
-                if not live_g.any():
-                    continue
-                score = _top_mean(block[:, live_g], opts.k if groups else 1)
-                name = live_g[: min(reps, size)]
-                if reading == "name" and name.all():
-                    score = np.maximum(score, block[:, : len(name)].mean(axis=1))
-                per_group.append(score)
-            if not per_group:
-                per_group.append(np.full(len(means), -np.inf))
-            flat = sp - CN[:, nlive].max(axis=1) if nlive.any() else np.full(len(means), np.inf)
-            out.append((sp[:, None] - np.column_stack(per_group), flat))  # (components, groups)
-        return out
+        top, name = [], []
+        start = 0
+        for size in sizes_neg:
+            live_g = nlive[start : start + size]
+            block = CN[:, start : start + size]
+            start += size
+            if not live_g.any():
+                continue
+            top.append(_top_mean(block[:, live_g], opts.k if groups else 1))
+            first = live_g[: min(reps, size)]
+            name.append(block[:, : len(first)].mean(axis=1) if first.all() else top[-1])
+        if not top:
+            top = name = [np.full(len(means), -np.inf)]
+        flat = sp - CN[:, nlive].max(axis=1) if nlive.any() else np.full(len(means), np.inf)
+        against = [sp[:, None] - np.column_stack(top)]
+        if by_name:
+            sp_name = np.maximum(sp, (means @ P_head.T).mean(axis=1))
+            against.append(
+                sp_name[:, None] - np.maximum(np.column_stack(top), np.column_stack(name))
+            )
+        return against, flat
 
-    grown_r = margins(opts.dilate)
-    grown = np.stack([a.min(axis=1) for a, _ in grown_r])  # (readings, components)
+    grown_r, flat = margins(opts.dilate)
+    grown = np.stack([a.min(axis=1) for a in grown_r])  # (readings, components)
     big = sizes >= opts.min_component
     if opts.flat_margin is not None:
-        # and against the single best negative string
-        big &= grown_r[0][1] > opts.flat_margin
+        big &= flat > opts.flat_margin
     strong, ok = grown > opts.margin, grown > opts.keep_margin
     core_best = support_best = None
     if opts.core_margin is not None or opts.support_margin is not None:
-        core_r = margins(0) if opts.dilate else grown_r
+        core_r = margins(0)[0] if opts.dilate else grown_r
         penalty = opts.size_margin / np.sqrt(sizes)
     if opts.core_margin is not None:
-        core = np.stack([a.min(axis=1) for a, _ in core_r]) - penalty
+        core = np.stack([a.min(axis=1) for a in core_r]) - penalty
         strong |= core > opts.core_margin
         ok |= core > opts.core_keep_margin
         core_best = round(float(core.max(axis=0)[big].max()), 4) if big.any() else None
     if opts.support_margin is not None:
         # the core against the group that wins the grown region: a small object's support
         rows = np.arange(len(comps))
-        support = (
-            np.stack([c[rows, g.argmin(axis=1)] for (c, _), (g, _) in zip(core_r, grown_r)])
-            - penalty
-        )
+        support = np.stack([c[rows, g.argmin(axis=1)] for c, g in zip(core_r, grown_r)]) - penalty
         strong |= support > opts.support_margin
         ok |= support > opts.support_margin
         support_best = round(float(support.max(axis=0)[big].max()), 4) if big.any() else None
@@ -511,16 +506,11 @@ def _grow(keep, candidates, topology, opts, margins) -> np.ndarray:
         adds = [m for m in new if touching[m].any()]
     if not adds:
         return keep
-    won = np.max(np.stack([a.min(axis=1) for a, _ in margins(0, adds)]), axis=0)
-    out = keep.copy()
+    won = np.max(np.stack([a.min(axis=1) for a in margins(0, adds)[0]]), axis=0)
+    out, near = keep.copy(), np.zeros_like(keep)
     for add, m in zip(adds, won):
-        if m > opts.grow_margin:
-            out[add] = True
+        (out if m > opts.grow_margin else near)[add] = True
     if opts.grow_steps:
-        near = np.zeros_like(keep)
-        for add, m in zip(adds, won):
-            if m <= opts.grow_margin:
-                near[add] = True
         out |= topology.grow(keep, near, opts.grow_steps)
     return out
 
