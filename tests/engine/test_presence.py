@@ -63,9 +63,10 @@ def _training(query):
     return qs, X, y
 
 
-def _run(m, mask, query="bed", candidates=None, **opts):
-    """presence_check on map ``m`` with the query's training set and these options."""
-    qs, X, y = _training(query)
+def _run(m, mask, query="bed", candidates=None, training=_training, **opts):
+    """presence_check on map ``m`` with the query's training set (``training(query)``:
+    the query set, X, y) and these options."""
+    qs, X, y = training(query)
     E = np.asarray(m.embeddings)
     return presence_check(
         mask,
@@ -285,20 +286,26 @@ def _small_object_on_a_support(seed=5):
     return LatentMap(E, kind="voxels", grid_index=np.asarray(slab + small + wall), voxel_size=0.1)
 
 
-def _margins_by_hand(m, items, query="bed"):
-    """The centred margins of the query against each label group on a set of items,
-    computed here from the definition (positives: mean of the 2 best cosines; a group:
-    the mean of its 2 best)."""
-    qs, X, y = _training(query)
+def _centred_cosines(m, items, X):
+    """The cosines of the text rows ``X`` to the mean of ``items``, both sides centred
+    (the map's mean row, the text rows' mean), computed here from the definition."""
 
     def unit(a):
         return a / np.linalg.norm(a, axis=-1, keepdims=True)
 
     E = unit(np.asarray(m.embeddings, np.float64))
     mean = unit(E[items].mean(axis=0) - E.mean(axis=0))
-    T = unit(X - X.mean(axis=0))
-    pos = np.sort(T[y == 1] @ mean)[-2:].mean()
-    neg = T[y == 0] @ mean
+    return unit(X - X.mean(axis=0)) @ mean
+
+
+def _margins_by_hand(m, items, query="bed"):
+    """The centred margins of the query against each label group on a set of items,
+    computed here from the definition (positives: mean of the 2 best cosines; a group:
+    the mean of its 2 best)."""
+    qs, X, y = _training(query)
+    c = _centred_cosines(m, items, X)
+    pos = np.sort(c[y == 1])[-2:].mean()
+    neg = c[y == 0]
     out, start = {}, 0
     groups = [*qs.provenance["negative_groups"]]
     groups.append(len(neg) - sum(groups))
@@ -367,22 +374,22 @@ def _sofa_like_a_seat_cushion(seed=6):
     return LatentMap(E, kind="voxels", grid_index=np.asarray(sofa + wall), voxel_size=0.1)
 
 
-def _readings_by_hand(m, items, query):
-    """The query's margin against its best competitor on ``items``, computed here from
-    the definition, under both readings: "top" (a side scores the mean of its 2 best
-    names) and "name" (the better of that and its first name: the label)."""
+def _names_training(query):
+    """The query set over TAX_NAMES (every other label a negative group) and its X, y."""
     enc = _names_encoder()
     qs = TaxonomyHeuristic(taxonomy=TAX_NAMES, n_antonyms="all").expand(
         query, ExpansionContext(encoder=enc)
     )
-
-    def unit(a):
-        return a / np.linalg.norm(a, axis=-1, keepdims=True)
-
     X, y, _ = training_set(enc, qs)
-    E = unit(np.asarray(m.embeddings, np.float64))
-    mean = unit(E[items].mean(axis=0) - E.mean(axis=0))
-    c = unit(X - X.mean(axis=0)) @ mean
+    return qs, X, y
+
+
+def _readings_by_hand(m, items, query):
+    """The query's margin against its best competitor on ``items``, computed here from
+    the definition, under both readings: "top" (a side scores the mean of its 2 best
+    names) and "name" (the better of that and its first name: the label)."""
+    qs, X, y = _names_training(query)
+    c = _centred_cosines(m, items, X)
     pos, neg = c[y == 1], c[y == 0]
     sizes = list(qs.provenance["negative_groups"])
     groups = np.split(neg, np.cumsum(sizes)[:-1])
@@ -390,22 +397,12 @@ def _readings_by_hand(m, items, query):
         "top": lambda g: np.sort(g)[-2:].mean(),
         "name": lambda g: max(g[0], np.sort(g)[-2:].mean()),
     }
-    return {r: f(pos) - max(f(g) for g in groups) for r, f in top.items()}, qs, X, y
+    return {r: f(pos) - max(f(g) for g in groups) for r, f in top.items()}
 
 
 def _check_names(m, mask, query, **opts):
-    _, qs, X, y = _readings_by_hand(m, np.flatnonzero(mask), query)
-    E = np.asarray(m.embeddings)
-    return presence_check(
-        mask,
-        X,
-        y,
-        PresenceOptions(**{"support_margin": None, "core_margin": None, **opts}),
-        MapTopology(m),
-        map_mean(m, lambda i: E[i]),
-        lambda i: E[i],
-        groups=qs.provenance["negative_groups"],
-    )
+    opts = {"support_margin": None, "core_margin": None, **opts}
+    return _run(m, mask, query, training=_names_training, **opts)
 
 
 def test_the_label_name_reading_finds_an_object_its_sub_classes_blur():
@@ -415,7 +412,7 @@ def test_the_label_name_reading_finds_an_object_its_sub_classes_blur():
     m = _sofa_like_a_seat_cushion()
     sofa = np.zeros(m.n, bool)
     sofa[:32] = True
-    by_hand, *_ = _readings_by_hand(m, MapTopology(m).region(np.arange(32), 1), "sofa")
+    by_hand = _readings_by_hand(m, MapTopology(m).region(np.arange(32), 1), "sofa")
     assert abs(by_hand["top"]) < 0.1 < by_hand["name"]
     margin = (by_hand["top"] + by_hand["name"]) / 2
     keep, info = _check_names(m, sofa, "sofa", margin=margin, label_name=False)
@@ -423,7 +420,7 @@ def test_the_label_name_reading_finds_an_object_its_sub_classes_blur():
     keep, info = _check_names(m, sofa, "sofa", margin=margin)
     assert keep[:32].all() and info["best_margin"] == pytest.approx(by_hand["name"], abs=1e-4)
     # the cushion query on the sofa: no reading lets it through
-    cushion, *_ = _readings_by_hand(m, MapTopology(m).region(np.arange(32), 1), "cushion")
+    cushion = _readings_by_hand(m, MapTopology(m).region(np.arange(32), 1), "cushion")
     assert max(cushion.values()) < 0.05
     assert not _check_names(m, sofa, "cushion", margin=0.05)[0].any()
 
@@ -442,7 +439,7 @@ def test_a_near_tie_under_one_reading_does_not_carry_a_component_along():
     mask = np.zeros(m2.n, bool)
     mask[:32] = True
     mask[-8:] = True
-    sofa_only, *_ = _readings_by_hand(m2, MapTopology(m2).region(np.arange(32), 1), "cushion")
+    sofa_only = _readings_by_hand(m2, MapTopology(m2).region(np.arange(32), 1), "cushion")
     keep_margin = sofa_only["top"] - 0.01  # the sofa is "kept" under the top reading
     assert sofa_only["name"] < keep_margin
     kw = dict(margin=0.05, keep_margin=keep_margin, min_component=4)
