@@ -89,10 +89,10 @@ def inverse_rank(scores, segments, truth, valid=None, max_rank: int | None = Non
 def label_segments(labels, lmap) -> np.ndarray | None:
     """Ground-truth objects for :func:`inverse_rank`: the connected components of each
     label's items (26-connected voxels, points within the linking radius, 8-connected
-    pixels of one frame; :class:`~quash_plugins.engine.presence.MapTopology`); -1 for
+    pixels of one frame; :class:`~quash_plugins.engine.topology.MapTopology`); -1 for
     unlabelled items. None when the map has no neighbourhood (no grid, positions or
     frames)."""
-    from ..engine.presence import MapTopology
+    from ..engine.topology import MapTopology
 
     topo = lmap if isinstance(lmap, MapTopology) else MapTopology(lmap)
     if topo.kind is None:

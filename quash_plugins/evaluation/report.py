@@ -143,7 +143,7 @@ def evaluate(
         )
     if not presence and not absence:
         raise QuashError("No query to evaluate: the map has no label left after --exclude.")
-    from ..engine.presence import MapTopology
+    from ..engine.topology import MapTopology
     from .ranking import average_precision, inverse_rank, label_segments
 
     segments = label_segments(labels, MapTopology(lmap)) if presence else None

@@ -18,7 +18,8 @@ from quash_plugins.core.errors import ConfigError
 from quash_plugins.core.interfaces import ExpansionContext
 from quash_plugins.core.types import FrameInfo
 from quash_plugins.encoders import TableEncoder
-from quash_plugins.engine.presence import MapTopology, PresenceOptions, map_mean, presence_check
+from quash_plugins.engine.presence import PresenceOptions, map_mean, presence_check
+from quash_plugins.engine.topology import MapTopology
 from quash_plugins.engine.training import training_set
 from quash_plugins.heuristics import TaxonomyHeuristic
 
