@@ -203,7 +203,8 @@ class Quash:
         self.backend = backend
         self.client = client
         self.device = check_device(device, "Quash: 'device'")
-        self._maps: dict[Any, LatentMap] = {}
+        # read maps: key -> (version, map), oldest first (see read_map)
+        self._maps: dict[Any, tuple[Any, LatentMap]] = {}
         self._querysets: dict[tuple[str, int], tuple[Any, QuerySet]] = {}
 
     # ------------------------------------------------------------------ building
@@ -221,8 +222,17 @@ class Quash:
         return build_quash(config, cls, **overrides)
 
     # ------------------------------------------------------------------ maps
+    #: How many maps :meth:`read_map` keeps for reuse (the least recently used go first).
+    keep_maps: int = 4
+
     def read_map(self, source: Any, adapter: str | None = None, **options: Any) -> LatentMap:
-        """Read a map once; later calls with the same unchanged file reuse it."""
+        """Read a map, reusing the one read before while its source is unchanged.
+
+        A file is read again when its modification time or size changed (a map that a
+        mapping process keeps rewriting); a live object (a ``VLMap``) when the arrays it
+        holds were replaced or resized, or when the object is gone. The same options are
+        required. At most :attr:`keep_maps` maps are kept; :meth:`forget_maps` drops them.
+        """
         from ..core.maps import read_map, resolve_adapter
 
         if isinstance(source, LatentMap):
@@ -234,21 +244,23 @@ class Quash:
             source, name = resolve_adapter(source, name)
         configured = self.adapter.name in (name, "auto")
         opts = {**self.adapter.params, **options} if configured else options
-        key: Any
-        if isinstance(source, (str, Path)):
-            p = Path(source).expanduser()
-            try:
-                key = (str(p.resolve()), p.stat().st_mtime_ns, name, repr(sorted(opts.items())))
-            except (OSError, RuntimeError):  # missing, unreadable, a symbolic-link loop
-                key = None
-        else:
-            key = (id(source), name)
-        if key is not None and key in self._maps:
-            return self._maps[key]
+        key, version = _map_key(source, name, opts)
+        if key is not None:
+            hit = self._maps.pop(key, None)
+            if hit is not None and _same_version(hit[0], version, source):
+                self._maps[key] = hit  # the most recently used goes last
+                return hit[1]
         lmap = read_map(source, name, **opts)
         if key is not None:
-            self._maps[key] = lmap
+            self._maps[key] = (version, lmap)
+            while len(self._maps) > max(int(self.keep_maps), 0):
+                del self._maps[next(iter(self._maps))]
         return lmap
+
+    def forget_maps(self) -> None:
+        """Drop the maps kept by :meth:`read_map` and the query sets built for them."""
+        self._maps.clear()
+        self._querysets.clear()
 
     def check_dimension(self, lmap: LatentMap) -> None:
         """Fail up front when the encoder's dimension differs from the map's."""
@@ -316,7 +328,10 @@ class Quash:
                 "count": len(self._templates or []),
                 "normalize": bool(self.prompt_templates.get("normalize", True)),
             }
-        # A weak reference to the map guards against a new map reusing a freed one's id.
+        # A weak reference to the map guards against a new map reusing a freed one's id;
+        # the query sets of maps that are gone are dropped.
+        for k in [k for k, (ref, _) in self._querysets.items() if ref() is None and k[1]]:
+            del self._querysets[k]
         self._querysets[key] = (weakref.ref(lmap) if lmap is not None else _none_ref, qs)
         return qs
 
@@ -513,6 +528,41 @@ def warn_if_empty(lmap: LatentMap) -> None:
             EmptyMapWarning,
             stacklevel=3,
         )
+
+
+def _map_key(source: Any, adapter: str, opts: dict[str, Any]) -> tuple[Any, Any]:
+    """``(key, version)`` of a map source for :meth:`Quash.read_map`'s reuse; ``key`` None
+    when the source cannot be told unchanged (it is then read every time)."""
+    options = repr(sorted(opts.items()))
+    if isinstance(source, (str, Path)):
+        p = Path(source).expanduser()
+        try:
+            st = p.stat()
+            return (str(p.resolve()), adapter, options), (st.st_mtime_ns, st.st_size)
+        except (OSError, RuntimeError):  # missing, unreadable, a symbolic-link loop
+            return None, None
+    state = getattr(source, "__dict__", None)
+    if not isinstance(state, dict):
+        return None, None
+    try:
+        ref = weakref.ref(source)
+    except TypeError:
+        return None, None
+    return (id(source), adapter, options), (ref, _arrays_of(state))
+
+
+def _arrays_of(state: dict[str, Any]) -> tuple[Any, ...]:
+    """The identity and shape of every array-like attribute of a live object."""
+    return tuple(
+        (k, id(v), tuple(getattr(v, "shape", ()))) for k, v in state.items() if hasattr(v, "shape")
+    )
+
+
+def _same_version(kept: Any, now: Any, source: Any) -> bool:
+    if isinstance(kept, tuple) and len(kept) == 2 and isinstance(kept[0], weakref.ref):
+        # a live object: the same object (not a new one at a freed id), the same arrays
+        return kept[0]() is source and kept[1] == now[1]
+    return bool(kept == now)
 
 
 def _none_ref() -> None:

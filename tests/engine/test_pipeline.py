@@ -51,6 +51,61 @@ def test_map_is_read_once(tiny_world, monkeypatch):
     assert len(calls) == 1
 
 
+def test_a_rewritten_map_file_is_read_again(tiny_world):
+    from quash_plugins.adapters import write_npz_map
+
+    quash = Quash.from_config(tiny_world["config"])
+    first = quash.read_map(tiny_world["map"])
+    assert quash.read_map(tiny_world["map"]) is first  # unchanged: reused
+    # a mapping process rewrites the file with more items
+    E = np.concatenate([tiny_world["E"], tiny_world["E"][:50]])
+    write_npz_map(tiny_world["map"], LatentMap(E, positions=np.zeros((650, 3), np.float32)))
+    again = quash.read_map(tiny_world["map"])
+    assert again is not first and again.n == 650
+    assert quash.query(tiny_world["map"], "chair").mask.shape == (650,)
+
+
+def test_a_live_map_whose_arrays_change_is_read_again(tiny_world):
+    class VLMap:  # the attributes of VLMaps' class that the adapter reads
+        def __init__(self, feat):
+            self.grid_feat, self.grid_pos = feat, np.zeros((len(feat), 3), np.int64)
+
+    quash = Quash.from_config(tiny_world["config"])
+    E = tiny_world["E"]
+    vlmap = VLMap(E[:300])
+    opts = {"adapter": "vlmaps-live", "gs": 1000, "cs": 0.05}
+    first = quash.read_map(vlmap, **opts)
+    assert quash.read_map(vlmap, **opts) is first
+    assert quash.read_map(vlmap, **{**opts, "cs": 0.1}) is not first  # other options
+    # the robot explores: VLMaps replaces its arrays with larger ones
+    vlmap.grid_feat, vlmap.grid_pos = E, np.zeros((600, 3), np.int64)
+    grown = quash.read_map(vlmap, **opts)
+    assert grown is not first and grown.n == 600
+    expected = _contrast_rule(
+        E, tiny_world["T"], tiny_world["words"], "sofa", ["other", "background", "nothing"]
+    )
+    result = quash.query(vlmap, "sofa", **opts)
+    np.testing.assert_array_equal(result.mask, expected)
+
+
+def test_at_most_keep_maps_maps_are_kept(tiny_world, tmp_path):
+    from quash_plugins.adapters import write_npz_map
+
+    paths = []
+    for i in range(3):
+        rows = tiny_world["E"][100 * i : 100 * i + 100]
+        paths.append(write_npz_map(tmp_path / f"m{i}.npz", LatentMap(rows)))
+    quash = Quash.from_config(tiny_world["config"])
+    quash.keep_maps = 2
+    maps = [quash.read_map(p) for p in paths]
+    assert quash.read_map(paths[2]) is maps[2]
+    assert quash.read_map(paths[0]) is not maps[0]  # the least recently used went first
+    assert quash.read_map(paths[2]) is maps[2]  # kept: used more recently than paths[1]
+    assert quash.read_map(paths[1]) is not maps[1]
+    quash.forget_maps()
+    assert quash.read_map(paths[2]) is not maps[2]
+
+
 def test_chunking_does_not_change_results(tiny_world):
     big = Quash.from_config(tiny_world["config"])
     small = Quash.from_config(tiny_world["config"], chunk_mb=0.001)  # ~15 rows per chunk
