@@ -94,6 +94,11 @@ def resolution_line(r: dict) -> str:
     "query 'bunk beds' resolved to label 'bed' (near match of sub-class 'bunk bed')"
     """
     how = r.get("how", "embedding")
+    if how == "unlisted":
+        return (
+            f"query {r['from']!r} names an object that is not in the label list: kept as its "
+            "own concept, not resolved to the nearest label"
+        )
     if r.get("to") is None:
         return (
             f"query {r['from']!r} matches no label (nearest name {r.get('via')!r}, cosine "

@@ -11,6 +11,7 @@ from ..core.errors import ConfigError, HeuristicError, closest
 from ..core.interfaces import ExpansionContext, Heuristic
 from ..core.types import QuerySet
 from ._data import read_mapping
+from ._vocabulary import head_word
 
 log = logging.getLogger(__name__)
 
@@ -96,6 +97,14 @@ class TaxonomyHeuristic(Heuristic):
         A query whose nearest label has a lower cosine is not forced onto that label: it
         stays its own positive and every label's sub-classes are antonym candidates, so
         an object the taxonomy does not know ("an elephant") can come back empty.
+    unlisted
+        Names of objects that the list may not hold: ``"vocabulary"`` (the default, the
+        shipped vocabulary of 1,144 names), a list, a file (one name a line, or a YAML
+        list), or null (off). A query that is one of these names (after
+        :func:`normalise_name`), and shares its head noun with no label or sub-class, names
+        an object of its own: it is not resolved by embedding ("fireplace" does not become
+        "stove" on a list without a fireplace; "vanity mirror" still resolves through
+        "mirror"), so an object missing from the list can come back empty.
     """
 
     name = "taxonomy"
@@ -109,9 +118,12 @@ class TaxonomyHeuristic(Heuristic):
         include_other_labels: bool = True,
         resolve: bool = True,
         min_similarity: float = 0.5,
+        unlisted: str | list[str] | None = "vocabulary",
     ) -> None:
         if file is not None and taxonomy is not None:
             raise ConfigError("Heuristic 'taxonomy' takes 'file' or 'taxonomy', not both.")
+        self.unlisted = unlisted
+        self._unlisted = _unlisted_names(unlisted)
         self.file = file
         self.taxonomy = taxonomy
         self.n_synonyms = int(n_synonyms)
@@ -175,9 +187,12 @@ class TaxonomyHeuristic(Heuristic):
            label that lists it, in file order.
         3. ``near-label`` / ``near-subclass``: equal after :func:`normalise_name` (case,
            hyphens, a leading article, a plural last word): "Bunk-beds" -> "bunk bed".
-        4. ``embedding``: the nearest of all labels *and* sub-classes by the encoder's
+        4. ``unlisted``: the query is an object name of ``unlisted`` whose head noun no
+           label or sub-class has ("fireplace" on a list without one): it stays its own
+           concept (label None).
+        5. ``embedding``: the nearest of all labels *and* sub-classes by the encoder's
            cosine, when at least ``min_similarity`` ("somewhere to sleep" -> bed).
-        5. ``none``: the query stays its own concept (label None).
+        6. ``none``: the query stays its own concept (label None).
 
         Returns ``{"from", "to", "how", "via", "cosine"}``; ``via`` is the name matched.
         """
@@ -199,6 +214,17 @@ class TaxonomyHeuristic(Heuristic):
             for sub in subs:
                 if normalise_name(sub) == nq:
                     return {"from": query, "to": label, "how": "near-subclass", "via": sub}
+        if self.resolve and nq in self._unlisted:
+            heads = {
+                head_word(normalise_name(n)) for lab, subs in tax.items() for n in (lab, *subs)
+            }
+            if head_word(nq) not in heads:
+                log.info(
+                    "taxonomy: query %r names an object that is not in the label list, so it "
+                    "is kept as its own concept (not resolved to the nearest label)",
+                    query,
+                )
+                return {"from": query, "to": None, "how": "unlisted", "via": nq}
         where = self.file or "the taxonomy"
         if not self.resolve or context.encoder is None:
             guess = closest(query, tax)
@@ -289,7 +315,22 @@ class TaxonomyHeuristic(Heuristic):
             "include_other_labels": self.include_other_labels,
             "resolve": self.resolve,
             "min_similarity": self.min_similarity,
+            "unlisted": _unlisted_param(self.unlisted),
         }
+
+
+def _unlisted_names(spec: str | list[str] | None) -> frozenset[str]:
+    """The normalised names of ``unlisted`` (empty when off)."""
+    if spec is None:
+        return frozenset()
+    from ._vocabulary import load_vocabulary
+
+    names = load_vocabulary(None if spec == "vocabulary" else spec)
+    return frozenset(normalise_name(n) for n in names)
+
+
+def _unlisted_param(spec: str | list[str] | None) -> Any:
+    return f"{len(spec)} names" if isinstance(spec, (list, tuple)) else spec
 
 
 _ARTICLES = ("a ", "an ", "the ", "some ")
@@ -352,6 +393,7 @@ class LabelListHeuristic(TaxonomyHeuristic):
         taxonomy: dict[str, Any] | None = None,
         resolve: bool = True,
         min_similarity: float = 0.5,
+        unlisted: str | list[str] | None = "vocabulary",
     ) -> None:
         super().__init__(
             file=file,
@@ -360,6 +402,7 @@ class LabelListHeuristic(TaxonomyHeuristic):
             n_antonyms=0,
             resolve=resolve,
             min_similarity=min_similarity,
+            unlisted=unlisted,
         )
 
     def expand(self, query: str, context: ExpansionContext | None = None) -> QuerySet:
@@ -380,4 +423,5 @@ class LabelListHeuristic(TaxonomyHeuristic):
             "labels": len(self._tax) if self._tax is not None else None,
             "resolve": self.resolve,
             "min_similarity": self.min_similarity,
+            "unlisted": _unlisted_param(self.unlisted),
         }

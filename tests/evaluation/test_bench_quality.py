@@ -96,3 +96,31 @@ def test_the_summary_names_the_scene_file_not_one_seeds(bq):
     table = "\n".join(bq.table(methods))
     assert "seed3" not in table and "seed14" not in table
     assert bq.given_text("the query alone") == "the query alone"
+
+
+def test_bench_unlisted_gives_every_method_the_map_names_alone(monkeypatch):
+    from quash_plugins.core import registry
+    from quash_plugins.core.errors import HeuristicError
+    from quash_plugins.core.interfaces import ExpansionContext
+
+    monkeypatch.syspath_prepend(str(ROOT / "benchmarks"))
+    spec = importlib.util.spec_from_file_location(
+        "bench_unlisted", ROOT / "benchmarks" / "bench_unlisted.py"
+    )
+    bu = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bu)
+    cfgs = {c["name"]: c for c in bu.configs(["bed", "stove"])}
+    assert list(cfgs) == list(bu.METHODS)
+    for name, c in cfgs.items():
+        h = dict(c["heuristic"])
+        # the same list for everyone, in memory: no taxonomy file, none read beside the map
+        assert "file" not in h and h["taxonomy"] == {"bed": [], "stove": []}, name
+        assert ("unlisted" in h) == name.endswith("(unlisted: null)")
+        heuristic = registry.create("heuristics", h.pop("name"), **h)
+        if "unlisted" in h:  # the rule before: only an encoder could resolve it
+            with pytest.raises(HeuristicError, match="no encoder"):
+                heuristic.expand("fireplace", ExpansionContext())
+            continue
+        # the default rule keeps an object missing from the list its own concept
+        qs = heuristic.expand("fireplace", ExpansionContext())
+        assert qs.provenance["resolved"]["how"] == "unlisted" and "stove" in qs.negatives

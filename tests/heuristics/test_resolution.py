@@ -91,6 +91,32 @@ def test_label_list_heuristic_is_the_fair_peer_query_set():
     assert TaxonomyHeuristic(taxonomy=TAX).resolve_query("somewhere to sleep", ctx)["to"] == "bed"
 
 
+def test_an_object_name_missing_from_the_list_is_not_resolved_by_embedding():
+    # "fireplace" sits on "settee"'s vector: by embedding alone it would become a sofa
+    enc = _encoder({"fireplace": vec("settee"), "double beds": vec("cot")})
+    ctx = ExpansionContext(encoder=enc)
+    off = TaxonomyHeuristic(taxonomy=TAX, unlisted=None).resolve_query("fireplace", ctx)
+    assert (off["to"], off["how"]) == ("sofa", "embedding")
+    for h in (
+        TaxonomyHeuristic(taxonomy=TAX),
+        TaxonomyHeuristic(taxonomy=TAX, unlisted=["Fireplaces"]),
+    ):
+        r = h.resolve_query("a fireplace", ctx)  # the shipped vocabulary, or a list, names it
+        assert (r["to"], r["how"], r["via"]) == (None, "unlisted", "fireplace")
+        qs = h.expand("a fireplace", ctx)
+        assert (
+            qs.positives == ["a fireplace"] and "sofa" in qs.negatives and "settee" in qs.negatives
+        )
+    # a name that shares its head noun with a label still resolves: a double bed is a bed
+    r = TaxonomyHeuristic(taxonomy=TAX).resolve_query("double beds", ctx)
+    assert (r["to"], r["how"], r["via"]) == ("bed", "embedding", "cot")
+    # the fair peer resolves the same way, and quash expand says why
+    assert LabelListHeuristic(taxonomy=TAX).expand("fireplace", ctx).positives == ["fireplace"]
+    from quash_plugins.cli.cmd_expand import resolution_line
+
+    assert "not in the label list" in resolution_line(r | {"how": "unlisted", "to": None})
+
+
 def test_without_a_file_the_label_list_is_the_maps_names_and_the_taxonomy_beside_it(tmp_path):
     m = LatentMap(np.eye(3, dtype=np.float32), label_names=["bed", "sofa", "lamp"])
     h = TaxonomyHeuristic(n_antonyms="all")
