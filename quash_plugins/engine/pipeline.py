@@ -545,10 +545,22 @@ def _map_key(source: Any, adapter: str, opts: dict[str, Any]) -> tuple[Any, Any]
     if not isinstance(state, dict):
         return None, None
     try:
-        ref = weakref.ref(source)
-    except TypeError:
-        return None, None
+        ref: Any = weakref.ref(source)
+    except TypeError:  # e.g. a SimpleNamespace: held (the kept map holds its arrays anyway)
+        ref = _Held(source)
     return (id(source), adapter, options), (ref, _arrays_of(state))
+
+
+class _Held:
+    """A strong reference with the call interface of a weak one."""
+
+    __slots__ = ("obj",)
+
+    def __init__(self, obj: Any) -> None:
+        self.obj = obj
+
+    def __call__(self) -> Any:
+        return self.obj
 
 
 def _arrays_of(state: dict[str, Any]) -> tuple[Any, ...]:
@@ -559,7 +571,7 @@ def _arrays_of(state: dict[str, Any]) -> tuple[Any, ...]:
 
 
 def _same_version(kept: Any, now: Any, source: Any) -> bool:
-    if isinstance(kept, tuple) and len(kept) == 2 and isinstance(kept[0], weakref.ref):
+    if isinstance(kept, tuple) and len(kept) == 2 and isinstance(kept[0], (weakref.ref, _Held)):
         # a live object: the same object (not a new one at a freed id), the same arrays
         return kept[0]() is source and kept[1] == now[1]
     return bool(kept == now)

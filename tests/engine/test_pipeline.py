@@ -86,6 +86,14 @@ def test_a_live_map_whose_arrays_change_is_read_again(tiny_world):
     )
     result = quash.query(vlmap, "sofa", **opts)
     np.testing.assert_array_equal(result.mask, expected)
+    # an object without weak references (a SimpleNamespace) is kept by a strong one
+    from types import SimpleNamespace
+
+    ns = SimpleNamespace(grid_feat=E[:300], grid_pos=np.zeros((300, 3), np.int64))
+    first = quash.read_map(ns, **opts)
+    assert quash.read_map(ns, **opts) is first
+    ns.grid_feat, ns.grid_pos = E, np.zeros((600, 3), np.int64)
+    assert quash.read_map(ns, **opts).n == 600
 
 
 def test_at_most_keep_maps_maps_are_kept(tiny_world, tmp_path):
