@@ -1,4 +1,4 @@
-"""Absent objects that the label list does not hold: the ``unlisted`` rule of resolution.
+"""Absent objects that the label list does not hold: the opt-in ``unlisted`` rule.
 
 A robot's label list names what the map was built with; a person may ask for an object
 that is neither in the map nor in the list ("fireplace" on a list without one). Resolving
@@ -10,10 +10,12 @@ taxonomy's absent labels as absence queries. Re-run with::
     .venv/bin/python benchmarks/bench_unlisted.py --out bench-quality --seeds 0,1,2,3,4
 
 (scenes are those of ``bench_quality.py`` under ``DIR/scenes``, built when missing;
-``--generators`` picks a subset). Rows: QuASH (``demo:quash-labels``) with ``unlisted``
-(the default) and with ``unlisted: null`` (the rule before), and the two fair peers
-(``demo:vlmaps-labels``, ``demo:openscene-labels``), which resolve queries by the same
-rule. It writes ``DIR/unlisted.md`` and ``DIR/unlisted.json``.
+``--generators`` picks a subset). Rows: QuASH (``demo:quash-labels``) as shipped and with
+``unlisted: vocabulary``, and the two fair peers (``demo:vlmaps-labels``,
+``demo:openscene-labels``) as shipped. It also counts, over each scene's open-vocabulary
+queries (``SCENE.open-queries.yaml``) on the same list, the resolutions that the rule
+changes: a present query's correct label lost ("couch" -> sofa), or an absent object's
+wrong label dropped. It writes ``DIR/unlisted.md`` and ``DIR/unlisted.json``.
 """
 
 from __future__ import annotations
@@ -28,11 +30,18 @@ import yaml
 from bench_quality import GENERATORS, scene
 
 from quash_plugins.core import registry
+from quash_plugins.core.interfaces import ExpansionContext
 from quash_plugins.core.shipped import find_shipped
 from quash_plugins.engine import open_cache
-from quash_plugins.evaluation.report import evaluate
+from quash_plugins.evaluation.report import evaluate, load_query_file
+from quash_plugins.heuristics import TaxonomyHeuristic
 
-METHODS = ("quash-labels", "quash-labels (unlisted: null)", "vlmaps-labels", "openscene-labels")
+METHODS = (
+    "quash-labels",
+    "quash-labels (unlisted: vocabulary)",
+    "vlmaps-labels",
+    "openscene-labels",
+)
 
 
 def configs(label_names: list[str]) -> list[dict]:
@@ -46,10 +55,34 @@ def configs(label_names: list[str]) -> list[dict]:
         h = {k: v for k, v in dict(cfg["heuristic"]).items() if k != "file"}
         h["taxonomy"] = listed
         if variant:
-            h["unlisted"] = None
+            h["unlisted"] = "vocabulary"
             cfg["name"] = method
         cfg["heuristic"] = h
         out.append(cfg)
+    return out
+
+
+def resolution_changes(stem: Path, names: list[str], encoder, cache) -> dict:
+    """How ``unlisted: vocabulary`` changes the resolution of the scene's open-vocabulary
+    queries on the list of label names."""
+    listed = {name: [] for name in names}
+    ctx = ExpansionContext(encoder=encoder, extra={"cache": cache})
+    before = TaxonomyHeuristic(taxonomy=listed)
+    after = TaxonomyHeuristic(taxonomy=listed, unlisted="vocabulary")
+    present, absent = load_query_file(Path(f"{stem}.open-queries.yaml"))
+    out = {
+        "queries": len(present) + len(absent),
+        "lost": [],
+        "wrong_dropped": [],
+        "absent_dropped": [],
+    }
+    for q in [*present, *absent]:
+        old, new = before.resolve_query(q, ctx)["to"], after.resolve_query(q, ctx)["to"]
+        if old == new:
+            continue
+        truth = present.get(q)
+        key = "absent_dropped" if truth is None else "lost" if old == truth else "wrong_dropped"
+        out[key].append(f"{q} -> {old}")
     return out
 
 
@@ -70,6 +103,7 @@ def run_one(out: Path, generator: str, seed: int, encoder, cache) -> dict:
         "seed": seed,
         "seconds": round(time.perf_counter() - t, 1),
         "absent": absent,
+        "resolutions": resolution_changes(stem, names, encoder, cache),
         "configs": [
             {
                 "name": c["name"],
@@ -129,6 +163,25 @@ def main() -> None:
                 + (f" ({', '.join(hits)})" if hits else "")
                 + " |"
             )
+    md += [
+        "",
+        "Open-vocabulary queries (`SCENE.open-queries.yaml`) on the same list: resolutions",
+        "that `unlisted: vocabulary` changes (over all seeds). *lost*: a present query's",
+        "correct label; *wrong dropped*: a present query's wrong label; *absent dropped*: an",
+        "absent object's label.",
+        "",
+        "| generator | queries | lost | wrong dropped | absent dropped | examples lost |",
+        "|---|---|---|---|---|---|",
+    ]
+    for gen in gens:
+        res = [run_one(out, gen, seed, encoder, cache)["resolutions"] for seed in seeds]
+        n = {k: sum(len(r[k]) for r in res) for k in ("lost", "wrong_dropped", "absent_dropped")}
+        examples = sorted({x for r in res for x in r["lost"]})[:4]
+        md.append(
+            f"| {gen} | {sum(r['queries'] for r in res)} | {n['lost']} | {n['wrong_dropped']} "
+            f"| {n['absent_dropped']} | {'; '.join(examples)} |"
+        )
+        summary[f"{gen}|resolutions"] = n
     out.mkdir(parents=True, exist_ok=True)
     (out / "unlisted.md").write_text("\n".join(md) + "\n", encoding="utf-8")
     (out / "unlisted.json").write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")

@@ -44,13 +44,7 @@ class AutoHeuristic(Heuristic):
         self.exclude = float(exclude)
         self.head_positives = int(head_positives)
         self.vocabulary = vocabulary
-        # the vocabulary also names the objects a label list may not hold (``unlisted``)
-        self._labels = TaxonomyHeuristic(
-            file=file,
-            n_synonyms=n_synonyms,
-            n_antonyms="all",
-            unlisted=vocabulary if vocabulary is not None else "vocabulary",
-        )
+        self._labels = TaxonomyHeuristic(file=file, n_synonyms=n_synonyms, n_antonyms="all")
         self._vocab: VocabularyHeuristic | None = None
 
     def _vocabulary(self) -> VocabularyHeuristic:

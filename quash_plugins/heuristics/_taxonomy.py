@@ -98,13 +98,15 @@ class TaxonomyHeuristic(Heuristic):
         stays its own positive and every label's sub-classes are antonym candidates, so
         an object the taxonomy does not know ("an elephant") can come back empty.
     unlisted
-        Names of objects that the list may not hold: ``"vocabulary"`` (the default, the
-        shipped vocabulary of 1,144 names), a list, a file (one name a line, or a YAML
-        list), or null (off). A query that is one of these names (after
-        :func:`normalise_name`), and shares its head noun with no label or sub-class, names
-        an object of its own: it is not resolved by embedding ("fireplace" does not become
-        "stove" on a list without a fireplace; "vanity mirror" still resolves through
-        "mirror"), so an object missing from the list can come back empty.
+        Off by default (null). ``"vocabulary"`` (the shipped vocabulary of 1,144 names), a
+        list, or a file (one name a line, or a YAML list): names of objects that the list
+        may not hold. A query that is one of them (after :func:`normalise_name`), and
+        shares its head noun with no label or sub-class, names an object of its own: it is
+        not resolved by embedding ("fireplace" does not become "stove" on a list without a
+        fireplace), so an object missing from the list can come back empty. The price: on
+        a list of bare label names, near-synonyms and kinds that only the embedding links
+        to their label ("couch" -> sofa, "shrub" -> plant) are not resolved either
+        (docs/benchmarks.md measures both).
     """
 
     name = "taxonomy"
@@ -118,7 +120,7 @@ class TaxonomyHeuristic(Heuristic):
         include_other_labels: bool = True,
         resolve: bool = True,
         min_similarity: float = 0.5,
-        unlisted: str | list[str] | None = "vocabulary",
+        unlisted: str | list[str] | None = None,
     ) -> None:
         if file is not None and taxonomy is not None:
             raise ConfigError("Heuristic 'taxonomy' takes 'file' or 'taxonomy', not both.")
@@ -187,9 +189,9 @@ class TaxonomyHeuristic(Heuristic):
            label that lists it, in file order.
         3. ``near-label`` / ``near-subclass``: equal after :func:`normalise_name` (case,
            hyphens, a leading article, a plural last word): "Bunk-beds" -> "bunk bed".
-        4. ``unlisted``: the query is an object name of ``unlisted`` whose head noun no
-           label or sub-class has ("fireplace" on a list without one): it stays its own
-           concept (label None).
+        4. ``unlisted`` (only with that option): the query is an object name of
+           ``unlisted`` whose head noun no label or sub-class has ("fireplace" on a list
+           without one): it stays its own concept (label None).
         5. ``embedding``: the nearest of all labels *and* sub-classes by the encoder's
            cosine, when at least ``min_similarity`` ("somewhere to sleep" -> bed).
         6. ``none``: the query stays its own concept (label None).
@@ -393,7 +395,7 @@ class LabelListHeuristic(TaxonomyHeuristic):
         taxonomy: dict[str, Any] | None = None,
         resolve: bool = True,
         min_similarity: float = 0.5,
-        unlisted: str | list[str] | None = "vocabulary",
+        unlisted: str | list[str] | None = None,
     ) -> None:
         super().__init__(
             file=file,

@@ -115,12 +115,12 @@ def test_bench_unlisted_gives_every_method_the_map_names_alone(monkeypatch):
         h = dict(c["heuristic"])
         # the same list for everyone, in memory: no taxonomy file, none read beside the map
         assert "file" not in h and h["taxonomy"] == {"bed": [], "stove": []}, name
-        assert ("unlisted" in h) == name.endswith("(unlisted: null)")
+        assert ("unlisted" in h) == name.endswith("(unlisted: vocabulary)")
         heuristic = registry.create("heuristics", h.pop("name"), **h)
-        if "unlisted" in h:  # the rule before: only an encoder could resolve it
+        if "unlisted" not in h:  # as shipped: only an encoder could resolve it
             with pytest.raises(HeuristicError, match="no encoder"):
                 heuristic.expand("fireplace", ExpansionContext())
             continue
-        # the default rule keeps an object missing from the list its own concept
+        # the opt-in rule keeps an object missing from the list its own concept
         qs = heuristic.expand("fireplace", ExpansionContext())
         assert qs.provenance["resolved"]["how"] == "unlisted" and "stove" in qs.negatives
