@@ -26,7 +26,9 @@ class AutoHeuristic(Heuristic):
       not close to the query is a competitor) and names sharing the query's head noun as
       positives.
 
-    ``provenance["auto"]`` says which was used.
+    ``unlisted`` is the label list's option of that name (off by default; see
+    :class:`~quash_plugins.heuristics.TaxonomyHeuristic`). ``provenance["auto"]`` says
+    which was used.
     """
 
     name = "auto"
@@ -38,13 +40,17 @@ class AutoHeuristic(Heuristic):
         exclude: float = 0.5,
         head_positives: int = 20,
         vocabulary: str | None = None,
+        unlisted: str | list[str] | None = None,
     ) -> None:
         self.file = file
+        self.unlisted = unlisted
         self.n_synonyms = int(n_synonyms)
         self.exclude = float(exclude)
         self.head_positives = int(head_positives)
         self.vocabulary = vocabulary
-        self._labels = TaxonomyHeuristic(file=file, n_synonyms=n_synonyms, n_antonyms="all")
+        self._labels = TaxonomyHeuristic(
+            file=file, n_synonyms=n_synonyms, n_antonyms="all", unlisted=unlisted
+        )
         self._vocab: VocabularyHeuristic | None = None
 
     def _vocabulary(self) -> VocabularyHeuristic:
@@ -84,4 +90,5 @@ class AutoHeuristic(Heuristic):
             "exclude": self.exclude,
             "head_positives": self.head_positives,
             "vocabulary": self.vocabulary,
+            "unlisted": self.unlisted if not isinstance(self.unlisted, list) else "a list",
         }

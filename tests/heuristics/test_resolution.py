@@ -114,6 +114,13 @@ def test_unlisted_keeps_an_object_name_missing_from_the_list_its_own_concept():
     peer = LabelListHeuristic(taxonomy=TAX, unlisted="vocabulary")
     assert peer.expand("fireplace", ctx).positives == ["fireplace"]
     assert LabelListHeuristic(taxonomy=TAX).expand("fireplace", ctx).positives == ["sofa"]
+    # the default config's auto heuristic passes the option to its label list
+    from quash_plugins.heuristics import AutoHeuristic
+
+    auto = AutoHeuristic(unlisted="vocabulary")
+    m = LatentMap(np.eye(3, dtype=np.float32), label_names=["bed", "sofa", "chair"])
+    qs = auto.expand("fireplace", ExpansionContext(encoder=enc, label_names=m.label_names, map=m))
+    assert qs.positives == ["fireplace"] and qs.provenance["resolved"]["how"] == "unlisted"
     from quash_plugins.cli.cmd_expand import resolution_line
 
     assert "not in the label list" in resolution_line(r | {"how": "unlisted", "to": None})
