@@ -203,8 +203,8 @@ class Quash:
         self.backend = backend
         self.client = client
         self.device = check_device(device, "Quash: 'device'")
-        # read maps: key -> (version, map), oldest first (see read_map)
-        self._maps: dict[Any, tuple[Any, LatentMap]] = {}
+        # read maps: key -> (version, reference to a live source or None, map), oldest first
+        self._maps: dict[Any, tuple[Any, Any, LatentMap]] = {}
         self._querysets: dict[tuple[str, int], tuple[Any, QuerySet]] = {}
 
     # ------------------------------------------------------------------ building
@@ -244,17 +244,21 @@ class Quash:
             source, name = resolve_adapter(source, name)
         configured = self.adapter.name in (name, "auto")
         opts = {**self.adapter.params, **options} if configured else options
-        key, version = _map_key(source, name, opts)
+        key, version, ref = _map_key(source, name, opts)
         if key is not None:
             hit = self._maps.pop(key, None)
-            if hit is not None and _same_version(hit[0], version, source):
+            # a live source must be the same object, not a new one at a freed id
+            if hit is not None and hit[0] == version and (hit[1] is None or hit[1]() is source):
                 self._maps[key] = hit  # the most recently used goes last
-                return hit[1]
+                return hit[2]
         lmap = read_map(source, name, **opts)
         if key is not None:
-            self._maps[key] = (version, lmap)
+            self._maps[key] = (version, ref, lmap)
             while len(self._maps) > max(int(self.keep_maps), 0):
                 del self._maps[next(iter(self._maps))]
+        # the query sets of maps that are gone go too (here, not on every expand)
+        for k in [k for k, (r, _) in self._querysets.items() if k[1] and r() is None]:
+            del self._querysets[k]
         return lmap
 
     def forget_maps(self) -> None:
@@ -328,10 +332,7 @@ class Quash:
                 "count": len(self._templates or []),
                 "normalize": bool(self.prompt_templates.get("normalize", True)),
             }
-        # A weak reference to the map guards against a new map reusing a freed one's id;
-        # the query sets of maps that are gone are dropped.
-        for k in [k for k, (ref, _) in self._querysets.items() if ref() is None and k[1]]:
-            del self._querysets[k]
+        # A weak reference to the map guards against a new map reusing a freed one's id.
         self._querysets[key] = (weakref.ref(lmap) if lmap is not None else _none_ref, qs)
         return qs
 
@@ -530,25 +531,27 @@ def warn_if_empty(lmap: LatentMap) -> None:
         )
 
 
-def _map_key(source: Any, adapter: str, opts: dict[str, Any]) -> tuple[Any, Any]:
-    """``(key, version)`` of a map source for :meth:`Quash.read_map`'s reuse; ``key`` None
-    when the source cannot be told unchanged (it is then read every time)."""
+def _map_key(source: Any, adapter: str, opts: dict[str, Any]) -> tuple[Any, Any, Any]:
+    """``(key, version, ref)`` of a map source for :meth:`Quash.read_map`'s reuse: a
+    file's modification time and size, or a live object's arrays, with a reference to the
+    object (None for a file). ``key`` is None when the source cannot be told unchanged
+    (it is then read every time)."""
     options = repr(sorted(opts.items()))
     if isinstance(source, (str, Path)):
         p = Path(source).expanduser()
         try:
             st = p.stat()
-            return (str(p.resolve()), adapter, options), (st.st_mtime_ns, st.st_size)
+            return (str(p.resolve()), adapter, options), (st.st_mtime_ns, st.st_size), None
         except (OSError, RuntimeError):  # missing, unreadable, a symbolic-link loop
-            return None, None
+            return None, None, None
     state = getattr(source, "__dict__", None)
     if not isinstance(state, dict):
-        return None, None
+        return None, None, None
     try:
         ref: Any = weakref.ref(source)
     except TypeError:  # e.g. a SimpleNamespace: held (the kept map holds its arrays anyway)
         ref = _Held(source)
-    return (id(source), adapter, options), (ref, _arrays_of(state))
+    return (id(source), adapter, options), _arrays_of(state), ref
 
 
 class _Held:
@@ -568,13 +571,6 @@ def _arrays_of(state: dict[str, Any]) -> tuple[Any, ...]:
     return tuple(
         (k, id(v), tuple(getattr(v, "shape", ()))) for k, v in state.items() if hasattr(v, "shape")
     )
-
-
-def _same_version(kept: Any, now: Any, source: Any) -> bool:
-    if isinstance(kept, tuple) and len(kept) == 2 and isinstance(kept[0], (weakref.ref, _Held)):
-        # a live object: the same object (not a new one at a freed id), the same arrays
-        return kept[0]() is source and kept[1] == now[1]
-    return bool(kept == now)
 
 
 def _none_ref() -> None:
