@@ -12,7 +12,7 @@ from typing import Any
 
 from ..core.interfaces import ExpansionContext, Heuristic
 from ..core.types import QuerySet
-from ._taxonomy import TaxonomyHeuristic, taxonomy_beside
+from ._taxonomy import TaxonomyHeuristic, taxonomy_beside, unlisted_param
 from ._vocabulary import VocabularyHeuristic
 
 
@@ -90,5 +90,5 @@ class AutoHeuristic(Heuristic):
             "exclude": self.exclude,
             "head_positives": self.head_positives,
             "vocabulary": self.vocabulary,
-            "unlisted": self.unlisted if not isinstance(self.unlisted, list) else "a list",
+            "unlisted": unlisted_param(self.unlisted),
         }

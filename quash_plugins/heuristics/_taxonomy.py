@@ -317,7 +317,7 @@ class TaxonomyHeuristic(Heuristic):
             "include_other_labels": self.include_other_labels,
             "resolve": self.resolve,
             "min_similarity": self.min_similarity,
-            "unlisted": _unlisted_param(self.unlisted),
+            "unlisted": unlisted_param(self.unlisted),
         }
 
 
@@ -331,7 +331,8 @@ def _unlisted_names(spec: str | list[str] | None) -> frozenset[str]:
     return frozenset(normalise_name(n) for n in names)
 
 
-def _unlisted_param(spec: str | list[str] | None) -> Any:
+def unlisted_param(spec: str | list[str] | None) -> Any:
+    """``unlisted`` as a parameter record: a list given in memory by its length."""
     return f"{len(spec)} names" if isinstance(spec, (list, tuple)) else spec
 
 
@@ -425,5 +426,5 @@ class LabelListHeuristic(TaxonomyHeuristic):
             "labels": len(self._tax) if self._tax is not None else None,
             "resolve": self.resolve,
             "min_similarity": self.min_similarity,
-            "unlisted": _unlisted_param(self.unlisted),
+            "unlisted": unlisted_param(self.unlisted),
         }
