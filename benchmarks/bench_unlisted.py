@@ -143,8 +143,9 @@ def main() -> None:
         "|---|---|---|---|---|---|",
     ]
     summary: dict = {}
+    runs: dict[str, list[dict]] = {}
     for gen in gens:
-        recs = []
+        recs = runs[gen] = []
         for seed in seeds:
             recs.append(run_one(out, gen, seed, encoder, cache))
             print(f"{gen} seed {seed}: {recs[-1]['seconds']} s", flush=True)
@@ -174,7 +175,7 @@ def main() -> None:
         "|---|---|---|---|---|---|",
     ]
     for gen in gens:
-        res = [run_one(out, gen, seed, encoder, cache)["resolutions"] for seed in seeds]
+        res = [rec["resolutions"] for rec in runs[gen]]
         n = {k: sum(len(r[k]) for r in res) for k in ("lost", "wrong_dropped", "absent_dropped")}
         examples = sorted({x for r in res for x in r["lost"]})[:4]
         md.append(
