@@ -10,7 +10,8 @@ HELP = "Generate a labelled 3D indoor proxy scene (NPZ) and its taxonomy YAML."
 ORDER = 32
 DESCRIPTION = """\
 Rooms with floor, walls and ceiling, a few dozen objects of 32 classes (--classes b: a
-second table of 34 other labels with other names), surface voxels in metres with
+second table of 34 other labels with other names; --classes FILE.yaml: a table of your
+own, see --show-classes), surface voxels in metres with
 per-class colours. Each voxel's embedding is the normalised mean of a few
 "appearance" names of its class, embedded by a real text encoder, blended with neighbours
 at boundaries, mixed with other objects (semantic confusion), plus noise and a constant
@@ -25,6 +26,8 @@ examples:
   quash make-scene scene.npz --seed 1
   quash make-scene tiny.npz --rooms 1 --voxel-size 0.25 --encoder minilm
   quash make-scene held-out.npz --classes b --gap-class 0.5 --gap-instance 0.3 --distortion 0.5
+  quash make-scene --show-classes > my-classes.yaml   # table A as a file to edit
+  quash make-scene mine.npz --classes my-classes.yaml --noise 2
   quash eval scene.npz -c my-method.yaml --absent piano,bathtub
   quash eval scene.npz -c my-method.yaml --queries-file scene.open-queries.yaml"""
 
@@ -32,7 +35,13 @@ examples:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from ..demo.scene import SceneOptions
 
-    p.add_argument("out", metavar="OUT.npz", help="Output map (our NPZ format).")
+    p.add_argument("out", metavar="OUT.npz", nargs="?", help="Output map (our NPZ format).")
+    p.add_argument(
+        "--show-classes",
+        action="store_true",
+        help="Print the class table that --classes names as YAML (a file to start a table "
+        "of your own from) and exit.",
+    )
     p.add_argument(
         "--encoder",
         default="minilm",
@@ -57,17 +66,28 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
             type=type(v),
             default=v,
             metavar=type(v).__name__.upper(),
-            help=f"(default: {v})",
+            help=_HELP.get(f.name, f"(default: {v})"),
         )
+
+
+_HELP = {
+    "classes": "The class table: a (default), b, or a class-table YAML file of your own "
+    "(labels, appearance and language names, rooms; --show-classes prints the format).",
+}
 
 
 def run(args: argparse.Namespace) -> int:
     from ..core import registry
+    from ..core.errors import UsageError
     from ..demo.scene import SceneOptions, make_scene, write_scene
     from ..engine.cache import open_cache
     from ._output import console, safe_text
 
     opts = SceneOptions(**{f.name: getattr(args, f.name) for f in dataclasses.fields(SceneOptions)})
+    if args.show_classes:
+        return _show_classes(opts.classes)
+    if args.out is None:
+        raise UsageError("give OUT.npz, the map to write (or --show-classes).")
     _check_outputs(args)
     params = {"file": args.encoder_file} if args.encoder_file else {}
     encoder = registry.create("encoders", args.encoder, **params)
@@ -80,6 +100,32 @@ def run(args: argparse.Namespace) -> int:
     )
     for k, v in paths.items():
         out.print(safe_text(f"wrote {k}: {v}"))
+    return 0
+
+
+def _show_classes(name: str) -> int:
+    import sys
+
+    import yaml
+
+    from ..demo.class_file import class_table_data
+    from ..demo.scene import class_set
+
+    data = class_table_data(class_set(name))
+    sys.stdout.write(
+        f"# quash make-scene class table {data['name']!r}: edit it, then\n"
+        "# quash make-scene OUT.npz --classes THIS.yaml (format: quash_plugins/demo/class_file.py)\n"
+    )
+
+    class Dumper(yaml.SafeDumper):  # lists of names on one line each
+        pass
+
+    def flow(dumper, value):
+        short = all(isinstance(v, (str, int, float)) for v in value)
+        return dumper.represent_sequence("tag:yaml.org,2002:seq", value, flow_style=short)
+
+    Dumper.add_representer(list, flow)
+    sys.stdout.write(yaml.dump(data, Dumper=Dumper, sort_keys=False, allow_unicode=True, width=100))
     return 0
 
 

@@ -113,7 +113,12 @@ CLASS_TABLES = ("a", "b")
 
 def class_set(name: str) -> ClassSet:
     """``"a"``: the project's table (:mod:`.classes`); ``"b"``: the second one
-    (:mod:`.classes_b`: other labels, other names, no shared word)."""
+    (:mod:`.classes_b`: other labels, other names, no shared word); a ``.yaml`` path: a
+    class-table file of your own (:mod:`.class_file`)."""
+    from .class_file import is_class_file, load_class_table
+
+    if is_class_file(name):
+        return load_class_table(name)
     if name == "a":
         from .classes import ABSENT_FREE_TEXT_OPEN, FREE_TEXT_A
 
@@ -143,7 +148,8 @@ def class_set(name: str) -> ClassSet:
             b.WALL_TOP_B,
         )
     raise ConfigError(
-        f"scene option classes must be one of {', '.join(CLASS_TABLES)}; got {name!r}."
+        f"scene option classes must be one of {', '.join(CLASS_TABLES)} or a class-table "
+        f"YAML file; got {name!r}."
     )
 
 
@@ -171,7 +177,7 @@ class SceneOptions:
     gap_class: float = 0.0
     gap_instance: float = 0.0
     distortion: float = 0.0
-    classes: str = "a"
+    classes: str = "a"  # "a", "b" or a class-table YAML file (demo/class_file.py)
 
     def validate(self) -> None:
         if self.rooms < 1:
@@ -188,11 +194,7 @@ class SceneOptions:
             )
         if min(self.gap_class, self.gap_instance, self.distortion) < 0:
             raise ConfigError("scene options gap_class, gap_instance, distortion must be >= 0.")
-        if self.classes not in CLASS_TABLES:
-            raise ConfigError(
-                f"scene option classes must be one of {', '.join(CLASS_TABLES)}; "
-                f"got {self.classes!r}."
-            )
+        class_set(self.classes)  # a shipped table, or a file that parses
 
 
 @dataclass

@@ -124,3 +124,22 @@ def test_bench_unlisted_gives_every_method_the_map_names_alone(monkeypatch):
         # the opt-in rule keeps an object missing from the list its own concept
         qs = heuristic.expand("fireplace", ExpansionContext())
         assert qs.provenance["resolved"]["how"] == "unlisted" and "stove" in qs.negatives
+
+
+def test_classes_file_runs_table_a_generators_on_it(bq, tmp_path, monkeypatch):
+    import yaml
+
+    from quash_plugins.demo.class_file import class_table_data
+    from quash_plugins.demo.scene import class_set
+
+    monkeypatch.setattr(bq, "GENERATORS", dict(bq.GENERATORS))
+    path = tmp_path / "mine.yaml"
+    path.write_text(yaml.safe_dump(class_table_data(class_set("a")), sort_keys=False))
+    names = bq.with_classes(["low-noise", "hard"], path)
+    assert names == ["mine-low-noise", "mine-hard"]
+    assert bq.GENERATORS["mine-low-noise"] == {"noise": 2.0, "classes": str(path.resolve())}
+    with pytest.raises(SystemExit, match="b-hard uses another table"):
+        bq.with_classes(["b-hard"], path)
+    path.write_text("classes: []\n")
+    with pytest.raises(Exception, match="mine.yaml: absent: missing"):
+        bq.with_classes(["project"], path)
