@@ -11,16 +11,16 @@ ORDER = 32
 DESCRIPTION = """\
 Rooms with floor, walls and ceiling, a few dozen objects of 32 classes (--classes b: a
 second table of 34 other labels with other names; --classes FILE.yaml: a table of your
-own, see --show-classes), surface voxels in metres with
-per-class colours. Each voxel's embedding is the normalised mean of a few
-"appearance" names of its class, embedded by a real text encoder, blended with neighbours
-at boundaries, mixed with other objects (semantic confusion), plus noise and a constant
-modality offset (--gap-class, --gap-instance, --distortion: a gap that is not one
-constant vector). OUT.taxonomy.yaml holds only "language" names, disjoint from the
-appearance names; OUT.queries.yaml lists present labels and absence queries,
-OUT.open-queries.yaml open-vocabulary ones (sub-class names and free text with their
-label, absent ones). Both are `quash eval --queries-file` files. Existing
-files are replaced only when they are a previous make-scene output, or with --force."""
+own, see --show-classes), surface voxels in metres with per-class colours. Each voxel's
+embedding is the normalised mean of a few "appearance" names of its class, embedded by a
+real text encoder, blended with neighbours at boundaries, mixed with other objects
+(semantic confusion), plus noise and a constant modality offset (--gap-class,
+--gap-instance, --distortion: a gap that is not one constant vector). OUT.taxonomy.yaml
+holds only "language" names, disjoint from the appearance names; OUT.queries.yaml lists
+present labels and absence queries, OUT.open-queries.yaml open-vocabulary ones (sub-class
+names and free text with their label, absent ones). Both are `quash eval --queries-file`
+files. Existing files are replaced only when they are a previous make-scene output, or
+with --force."""
 EPILOG = """\
 examples:
   quash make-scene scene.npz --seed 1
@@ -65,7 +65,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
             f"--{f.name.replace('_', '-')}",
             type=type(v),
             default=v,
-            metavar=type(v).__name__.upper(),
+            metavar="TABLE" if f.name == "classes" else type(v).__name__.upper(),
             help=_HELP.get(f.name, f"(default: {v})"),
         )
 
