@@ -12,11 +12,15 @@ log = logging.getLogger("quash_plugins.progress")
 
 #: Set by the CLI's --quiet; library users can set it too.
 QUIET = False
+#: Without a terminal, seconds between two progress lines: work that ends sooner logs
+#: nothing (43 queries expanded in 0.0 s are not news), longer work a line every ~10 %.
+MIN_INTERVAL = 2.0
 
 
 @contextlib.contextmanager
 def progress(total: int, description: str) -> Iterator[Callable[[int], None]]:
-    """Yield ``advance(n)``; shows a bar on a TTY, or logs every ~10% otherwise."""
+    """Yield ``advance(n)``; shows a bar on a TTY, or logs every ~10% otherwise (at most
+    one line per :data:`MIN_INTERVAL` seconds, and none for work done sooner)."""
     if QUIET or total <= 0:
         yield lambda n: None
         return
@@ -39,19 +43,22 @@ def progress(total: int, description: str) -> Iterator[Callable[[int], None]]:
             task = bar.add_task(description, total=total)
             yield lambda n: bar.advance(task, n)
         return
-    state = {"done": 0, "next": max(1, total // 10), "t0": time.perf_counter()}
+    t0 = time.perf_counter()
+    state = {"done": 0, "next": max(1, total // 10), "last": t0, "said": False}
 
     def advance(n: int) -> None:
         state["done"] += n
-        if state["done"] >= state["next"] or state["done"] >= total:
-            log.info(
-                "%s: %d/%d (%.0f%%, %.1fs)",
-                description,
-                state["done"],
-                total,
-                100.0 * state["done"] / total,
-                time.perf_counter() - state["t0"],
-            )
-            state["next"] = state["done"] + max(1, total // 10)
+        done = state["done"]
+        if done < state["next"] and done < total:
+            return
+        state["next"] = done + max(1, total // 10)
+        now = time.perf_counter()
+        # the closing line once a line was logged, so a reported run is seen to end
+        if now - state["last"] < MIN_INTERVAL and not (done >= total and state["said"]):
+            return
+        state["last"], state["said"] = now, True
+        log.info(
+            "%s: %d/%d (%.0f%%, %.1fs)", description, done, total, 100.0 * done / total, now - t0
+        )
 
     yield advance

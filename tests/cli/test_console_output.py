@@ -43,7 +43,8 @@ def test_progress_adds_up_to_the_passes(tiny_world, min_seed):
         assert r.timings["classify"] == results[0].timings["classify"]
 
 
-def test_query_progress_never_passes_100_percent(tiny_world, capsys):
+def test_query_progress_never_passes_100_percent(tiny_world, capsys, monkeypatch):
+    monkeypatch.setattr("quash_plugins.core.progress.MIN_INTERVAL", 0.0)  # fast here
     code = main(
         ["query", str(tiny_world["map"]), "chair", "sofa", "-c", str(refine_config(tiny_world))]
     )

@@ -116,7 +116,8 @@ def test_heuristics_that_embed_their_query_make_no_call_per_query(setup, tmp_pat
     assert len(enc.calls) == 2
 
 
-def test_many_queries_show_progress(setup, caplog):
+def test_many_queries_show_progress(setup, caplog, monkeypatch):
+    monkeypatch.setattr("quash_plugins.core.progress.MIN_INTERVAL", 0.0)  # fast here
     build, lmap = setup
     q, _, _ = build()
     caplog.set_level(logging.INFO, logger="quash_plugins.progress")
