@@ -582,10 +582,13 @@ def write_scene(
     scene: Scene, out: str | Path, options: SceneOptions | None = None
 ) -> dict[str, Path]:
     """Write ``OUT.npz``, ``OUT.taxonomy.yaml`` and ``OUT.queries.yaml``; return the paths."""
+    import hashlib
+
     import yaml
 
     from ..adapters import write_npz_map
     from ..core.atomic import atomic_write
+    from .class_file import is_class_file
 
     out = Path(out)
     if out.suffix != ".npz":
@@ -604,6 +607,9 @@ def write_scene(
         "room_types": scene.room_types,
         "options": dataclasses.asdict(options) if options else None,
     }
+    if options and is_class_file(options.classes):  # which file's content built it
+        data = Path(options.classes).read_bytes()
+        info["class_table_sha256"] = hashlib.sha256(data).hexdigest()
     with atomic_write(queries, suffix=".yaml") as tmp:
         Path(tmp).write_text(yaml.safe_dump(info, sort_keys=False), "utf-8")
     open_info = {

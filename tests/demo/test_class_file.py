@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import hashlib
 
 import numpy as np
 import pytest
@@ -12,7 +13,7 @@ from _eval_table import table_for
 from quash_plugins.cli.main import main
 from quash_plugins.core.errors import ConfigError
 from quash_plugins.demo.class_file import class_table_data, load_class_table, parse_class_table
-from quash_plugins.demo.scene import SceneOptions, class_set, make_scene
+from quash_plugins.demo.scene import SceneOptions, class_set, make_scene, write_scene
 from quash_plugins.encoders import TableEncoder
 
 OPTS = dict(rooms=2, voxel_size=0.25, room_size=4.0, extra_objects=1)
@@ -85,6 +86,11 @@ def test_a_table_of_our_own_builds_its_scene(tmp_path):
     assert s.taxonomy["printer"] == ["copier"] and s.taxonomy["piano"] == ["grand piano"]
     assert s.open_present.get("where my pages come out") == "printer"
     assert "grand piano" in s.open_absent
+    # the queries file records which content built the scene
+    write_scene(s, tmp_path / "s.npz", SceneOptions(**OPTS, classes=str(path)))
+    info = yaml.safe_load((tmp_path / "s.queries.yaml").read_text())
+    assert info["options"]["classes"] == str(path)
+    assert info["class_table_sha256"] == hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 def _broken(edit) -> dict:
