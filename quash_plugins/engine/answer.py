@@ -129,7 +129,11 @@ def refine_pass(
     todo = []
     for p in pending:
         t = time.perf_counter()
-        extra = pseudo_labels(lmap, p.raw, p.mask, observed, quash.refine, p.queryset.query)
+        # the map negatives are a seeded draw: seeded by the concept (the label a query
+        # resolves to), so "wood stove", "a fireplace" and "fireplace" draw the same ones
+        # and a sub-class query answers as its label does
+        salt = p.queryset.provenance.get("label") or p.queryset.query
+        extra = pseudo_labels(lmap, p.raw, p.mask, observed, quash.refine, str(salt))
         seed_matches = int(p.mask.sum())
         if extra is None:
             p.queryset.provenance["refine"] = {"applied": False, "seed_matches": seed_matches}

@@ -95,7 +95,8 @@ def pseudo_labels(
     ``n_positives`` highest-scoring observed items, matched or not, so that a class whose
     text sits just off its map items still seeds). Negatives: a seeded random sample of
     observed items scoring below the ``negative_quantile`` of the observed scores (and
-    not positives).
+    not positives). ``salt`` seeds the draw with ``opts.seed``: the query's label when it
+    resolves to one, else its text.
     """
     if opts.seeds == "top":
         obs_idx = np.flatnonzero(observed)

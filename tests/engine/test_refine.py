@@ -219,3 +219,33 @@ def test_refinement_reuses_the_first_pass_text_embeddings():
     r = quash.query(lmap, "chair")
     assert r.queryset.provenance["refine"]["applied"] is True
     assert len(calls) == 1  # the refit takes X, y from the first pass; no second encode
+
+
+def test_a_sub_class_query_draws_its_labels_map_negatives():
+    """The map negatives are a seeded random draw. Seeded by the label a query resolves
+    to, "armchair" (a sub-class of chair) and "chair" train on the same samples and give
+    the same answer; seeded by the text, the draws (and the answers) differed."""
+    enc, lmap, _ = _world(noise=0.6)
+    observed = np.ones(lmap.n, bool)
+    observed[:50] = False
+
+    def build(seed):
+        return Quash(
+            enc,
+            heuristic=registry.create(
+                "heuristics", "taxonomy", taxonomy={"chair": ["armchair"], "table": []}
+            ),
+            classifier=registry.create("classifiers", "contrast"),
+            refine={"n_positives": 100, "n_negatives": 150, "seed": seed},
+            instances=None,
+        )
+
+    quash = build(0)
+    sub, label = quash.query_many(lmap, ["armchair", "chair"])
+    assert sub.queryset.provenance["label"] == "chair"
+    assert set(sub.queryset.positives) == set(label.queryset.positives)
+    np.testing.assert_array_equal(sub.mask, label.mask)
+    np.testing.assert_allclose(sub.scores, label.scores, atol=1e-5)
+    # the draw matters: another seed (what another text's salt was) answers otherwise
+    other = build(1).query(lmap, "chair")
+    assert not np.allclose(other.scores, label.scores, atol=1e-3)
