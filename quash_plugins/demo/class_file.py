@@ -26,7 +26,9 @@ The format (every key required unless marked optional)::
     free_text: {desk: where to do homework}
     absent_free_text_open: [...]     # optional (default: absent_free_text)
     wall_bottom: [door]              # optional: wall objects that stand on the floor
+                                     # (default: door, and radiator if the table has one)
     wall_top: [curtain]              # optional: wall objects at the top of the wall
+                                     # (default: curtain, if the table has one)
 
 Examples
 --------
@@ -214,14 +216,17 @@ def parse_class_table(data: Any, where: str = "class table"):
     for label, names in mapping("absent", data["absent"]).items():
         if str(label) in by_label:
             raise fail(f"absent.{label}", "is a class of the table", "an absent label is in none")
-        absent[str(label)] = strings(f"absent.{label}", names or [], allow_empty=True)
+        absent[str(label)] = strings(f"absent.{label}", names or [])  # its sub-classes
     absent_free_text = strings("absent_free_text", data["absent_free_text"], allow_empty=True)
     open_text = data.get("absent_free_text_open")
     open_text = (
         absent_free_text if open_text is None else strings("absent_free_text_open", open_text)
     )
-    wall_bottom = labels("wall_bottom", data.get("wall_bottom", ["door", "radiator"]), "wall")
-    wall_top = labels("wall_top", data.get("wall_top", ["curtain"]), "wall")
+    # the defaults (table A's) only where the table has those labels
+    default_bottom = [n for n in ("door", "radiator") if n in by_label]
+    default_top = [n for n in ("curtain",) if n in by_label]
+    wall_bottom = labels("wall_bottom", data.get("wall_bottom", default_bottom), "wall")
+    wall_top = labels("wall_top", data.get("wall_top", default_top), "wall")
 
     # no method may embed a string that built the voxels (the taxonomy offers only
     # language names), so the two sets of names share no whole string

@@ -118,6 +118,7 @@ def _broken(edit) -> dict:
         ),
         (lambda d: d["room_types"].update(office=["wall"]), "room_types.office", "structure"),
         (lambda d: d["absent"].update(desk=["bureau"]), "absent.desk", "is a class"),
+        (lambda d: d["absent"].update(piano=[]), "absent.piano", "give at least one"),
         (
             lambda d: d["classes"][6].update(appearance=["copier"]),
             "classes (printer).appearance",
@@ -134,6 +135,15 @@ def test_bad_tables_name_the_field_and_the_fix(edit, field, words):
         parse_class_table(_broken(edit), "mine.yaml")
     msg = str(err.value)
     assert msg.startswith("mine.yaml: ") and field in msg and words in msg, msg
+
+
+def test_optional_keys_default_to_the_labels_the_table_has():
+    data = _tiny()
+    del data["wall_bottom"], data["wall_top"], data["name"]
+    cs = parse_class_table(data, "dir/tiny.yaml")
+    # table A's defaults (door, radiator; curtain) without the labels this table lacks
+    assert cs.wall_bottom == ("door",) and cs.wall_top == ()
+    assert cs.name == "tiny" and cs.absent_free_text_open == ("an elephant",)
 
 
 def test_missing_file_and_bad_option(tmp_path):
