@@ -76,7 +76,10 @@ def load_class_table(path: str | Path):
 
     Raises :class:`ConfigError` naming the file, the field and the fix.
     """
-    from ..core.config import load_yaml
+    import dataclasses
+    import hashlib
+
+    from ..core.config import load_yaml_text
 
     path = Path(path)
     if not path.is_file():
@@ -84,8 +87,13 @@ def load_class_table(path: str | Path):
             f"{path}: no such class-table file; give --classes a, b or a YAML file "
             "(`quash make-scene --show-classes > my-classes.yaml` writes one to start from)."
         )
-    data, _ = load_yaml(path)
-    return parse_class_table(data, str(path))
+    try:  # one read: the bytes parsed are the bytes hashed
+        raw = path.read_bytes()
+        text = raw.decode("utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path}: cannot read the class-table file: {exc}") from None
+    cs = parse_class_table(load_yaml_text(text, str(path)), str(path))
+    return dataclasses.replace(cs, sha256=hashlib.sha256(raw).hexdigest())
 
 
 def parse_class_table(data: Any, where: str = "class table"):
@@ -228,16 +236,12 @@ def parse_class_table(data: Any, where: str = "class table"):
     wall_bottom = labels("wall_bottom", data.get("wall_bottom", default_bottom), "wall")
     wall_top = labels("wall_top", data.get("wall_top", default_top), "wall")
 
-    # no method may embed a string that built the voxels (the taxonomy offers only
-    # language names), so the two sets of names share no whole string
-    appearance = {n.lower(): c.label for c in classes for n in c.appearance}
-    offered = {c.label.lower() for c in classes} | {n.lower() for c in classes for n in c.language}
-    offered |= {a.lower() for a in absent} | {n.lower() for v in absent.values() for n in v}
-    both = sorted(set(appearance) & offered)
+    both = shared_names(classes, absent)
     if both:
+        name, label = both[0]
         raise fail(
-            f"classes ({appearance[both[0]]}).appearance",
-            f"{both[0]!r} is also a label or language name",
+            f"classes ({label}).appearance",
+            f"{name!r} is also a label or language name",
             "appearance and language names must differ (methods never see appearance names)",
         )
     return ClassSet(
@@ -252,6 +256,17 @@ def parse_class_table(data: Any, where: str = "class table"):
         wall_bottom,
         wall_top,
     )
+
+
+def shared_names(classes, absent: dict[str, Any]) -> list[tuple[str, str]]:
+    """``(appearance name, its class)`` for each appearance name that is also a label or
+    a language name of the table (absent ones included), ignoring case, sorted. No
+    method may embed a string that built the voxels (the taxonomy offers only language
+    names), so a valid table has none."""
+    appearance = {n.lower(): c.label for c in classes for n in c.appearance}
+    offered = {c.label.lower() for c in classes} | {n.lower() for c in classes for n in c.language}
+    offered |= {a.lower() for a in absent} | {n.lower() for v in absent.values() for n in v}
+    return [(n, appearance[n]) for n in sorted(set(appearance) & offered)]
 
 
 def class_table_data(cs) -> dict[str, Any]:

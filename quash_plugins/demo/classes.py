@@ -342,9 +342,8 @@ ABSENT_FREE_TEXT_OPEN = (
 
 def check_disjoint() -> None:
     """Raise ValueError when an appearance name is also a language or label name."""
-    appearance = {n for c in CLASSES for n in c.appearance}
-    language = {n for c in CLASSES for n in c.language} | {c.label for c in CLASSES}
-    language |= {n for names in ABSENT.values() for n in names} | set(ABSENT)
-    both = appearance & language
+    from .class_file import shared_names
+
+    both = shared_names(CLASSES, ABSENT)
     if both:
-        raise ValueError(f"appearance and language names overlap: {sorted(both)}")
+        raise ValueError(f"appearance and language names overlap: {[n for n, _ in both]}")

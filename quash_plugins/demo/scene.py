@@ -105,6 +105,8 @@ class ClassSet:
     absent_free_text_open: tuple[str, ...]
     wall_bottom: tuple[str, ...] = ("door", "radiator")
     wall_top: tuple[str, ...] = ("curtain",)
+    #: sha256 of the file's bytes it was parsed from (a class-table file), else None
+    sha256: str | None = None
 
 
 #: The class tables ``SceneOptions.classes`` may name.
@@ -179,7 +181,8 @@ class SceneOptions:
     distortion: float = 0.0
     classes: str = "a"  # "a", "b" or a class-table YAML file (demo/class_file.py)
 
-    def validate(self) -> None:
+    def validate(self) -> ClassSet:
+        """Check the options; return the class table they name (parsed once)."""
         if self.rooms < 1:
             raise ConfigError("scene option rooms must be >= 1.")
         if not 0.02 <= self.voxel_size <= 0.5:
@@ -194,7 +197,7 @@ class SceneOptions:
             )
         if min(self.gap_class, self.gap_instance, self.distortion) < 0:
             raise ConfigError("scene options gap_class, gap_instance, distortion must be >= 0.")
-        class_set(self.classes)  # a shipped table, or a file that parses
+        return class_set(self.classes)  # a shipped table, or a file that parses
 
 
 @dataclass
@@ -209,6 +212,7 @@ class Scene:
     instance_ids: np.ndarray | None = None
     open_present: dict[str, str] = dataclasses.field(default_factory=dict)
     open_absent: list[str] = dataclasses.field(default_factory=list)
+    class_table_sha256: str | None = None  # of the class-table file that built it
 
 
 def _class_index(cs: ClassSet) -> dict[str, int]:
@@ -383,9 +387,8 @@ def make_scene(encoder: Any, options: SceneOptions | None = None, cache: Any = N
     from ..core.text import encode_texts
 
     opts = options or SceneOptions()
-    opts.validate()
+    cs = opts.validate()
     rng = np.random.default_rng(opts.seed)
-    cs = class_set(opts.classes)
     CLASSES, ABSENT, ABSENT_FREE_TEXT = cs.classes, cs.absent, cs.absent_free_text
     label, inst, inst_class, room_types, n_objects = _layout(opts, rng, cs)
     cells = np.argwhere(label >= 0)
@@ -462,6 +465,7 @@ def make_scene(encoder: Any, options: SceneOptions | None = None, cache: Any = N
         cell_inst.astype(np.int32),
         open_present,
         open_absent,
+        cs.sha256,
     )
 
 
@@ -582,13 +586,10 @@ def write_scene(
     scene: Scene, out: str | Path, options: SceneOptions | None = None
 ) -> dict[str, Path]:
     """Write ``OUT.npz``, ``OUT.taxonomy.yaml`` and ``OUT.queries.yaml``; return the paths."""
-    import hashlib
-
     import yaml
 
     from ..adapters import write_npz_map
     from ..core.atomic import atomic_write
-    from .class_file import is_class_file
 
     out = Path(out)
     if out.suffix != ".npz":
@@ -607,9 +608,8 @@ def write_scene(
         "room_types": scene.room_types,
         "options": dataclasses.asdict(options) if options else None,
     }
-    if options and is_class_file(options.classes):  # which file's content built it
-        data = Path(options.classes).read_bytes()
-        info["class_table_sha256"] = hashlib.sha256(data).hexdigest()
+    if scene.class_table_sha256:  # which file content built it
+        info["class_table_sha256"] = scene.class_table_sha256
     with atomic_write(queries, suffix=".yaml") as tmp:
         Path(tmp).write_text(yaml.safe_dump(info, sort_keys=False), "utf-8")
     open_info = {
