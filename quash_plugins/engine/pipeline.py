@@ -48,6 +48,7 @@ from ..core.text import TextCache, encode_texts, load_templates
 from ..core.types import DEFAULT_NEGATIVES, LatentMap, QueryResult, QuerySet, check_query
 from .answer import Pending, answer
 from .classify import classify_local
+from .map_cache import MapCache
 from .training import CallCache, training_sets
 
 log = logging.getLogger(__name__)
@@ -203,8 +204,7 @@ class Quash:
         self.backend = backend
         self.client = client
         self.device = check_device(device, "Quash: 'device'")
-        # read maps: key -> (version, reference to a live source or None, map), oldest first
-        self._maps: dict[Any, tuple[Any, Any, LatentMap]] = {}
+        self._maps = MapCache()  # the maps read_map has read
         self._querysets: dict[tuple[str, int], tuple[Any, QuerySet]] = {}
 
     # ------------------------------------------------------------------ building
@@ -244,18 +244,11 @@ class Quash:
             source, name = resolve_adapter(source, name)
         configured = self.adapter.name in (name, "auto")
         opts = {**self.adapter.params, **options} if configured else options
-        key, version, ref = _map_key(source, name, opts)
-        if key is not None:
-            hit = self._maps.pop(key, None)
-            # a live source must be the same object, not a new one at a freed id
-            if hit is not None and hit[0] == version and (hit[1] is None or hit[1]() is source):
-                self._maps[key] = hit  # the most recently used goes last
-                return hit[2]
+        kept, token = self._maps.lookup(source, name, opts)
+        if kept is not None:
+            return kept
         lmap = read_map(source, name, **opts)
-        if key is not None:
-            self._maps[key] = (version, ref, lmap)
-            while len(self._maps) > max(int(self.keep_maps), 0):
-                del self._maps[next(iter(self._maps))]
+        self._maps.store(token, lmap, self.keep_maps)
         # the query sets of maps that are gone go too (here, not on every expand)
         for k in [k for k, (r, _) in self._querysets.items() if k[1] and r() is None]:
             del self._querysets[k]
@@ -529,48 +522,6 @@ def warn_if_empty(lmap: LatentMap) -> None:
             EmptyMapWarning,
             stacklevel=3,
         )
-
-
-def _map_key(source: Any, adapter: str, opts: dict[str, Any]) -> tuple[Any, Any, Any]:
-    """``(key, version, ref)`` of a map source for :meth:`Quash.read_map`'s reuse: a
-    file's modification time and size, or a live object's arrays, with a reference to the
-    object (None for a file). ``key`` is None when the source cannot be told unchanged
-    (it is then read every time)."""
-    options = repr(sorted(opts.items()))
-    if isinstance(source, (str, Path)):
-        p = Path(source).expanduser()
-        try:
-            st = p.stat()
-            return (str(p.resolve()), adapter, options), (st.st_mtime_ns, st.st_size), None
-        except (OSError, RuntimeError):  # missing, unreadable, a symbolic-link loop
-            return None, None, None
-    state = getattr(source, "__dict__", None)
-    if not isinstance(state, dict):
-        return None, None, None
-    try:
-        ref: Any = weakref.ref(source)
-    except TypeError:  # e.g. a SimpleNamespace: held (the kept map holds its arrays anyway)
-        ref = _Held(source)
-    return (id(source), adapter, options), _arrays_of(state), ref
-
-
-class _Held:
-    """A strong reference with the call interface of a weak one."""
-
-    __slots__ = ("obj",)
-
-    def __init__(self, obj: Any) -> None:
-        self.obj = obj
-
-    def __call__(self) -> Any:
-        return self.obj
-
-
-def _arrays_of(state: dict[str, Any]) -> tuple[Any, ...]:
-    """The identity and shape of every array-like attribute of a live object."""
-    return tuple(
-        (k, id(v), tuple(getattr(v, "shape", ()))) for k, v in state.items() if hasattr(v, "shape")
-    )
 
 
 def _none_ref() -> None:

@@ -1,0 +1,90 @@
+"""The maps a :class:`~quash_plugins.engine.pipeline.Quash` has read, reused while their
+source is unchanged.
+
+A file is keyed by its resolved path, adapter and options and versioned by its
+modification time and size (a map that a mapping process keeps rewriting is read
+again); a live object (a ``VLMap``) by its id, adapter and options, versioned by the
+identity and shape of every array it holds, with a reference to it so that a new object
+at a freed id is not taken for it. Least recently used maps go first.
+"""
+
+from __future__ import annotations
+
+import weakref
+from pathlib import Path
+from typing import Any
+
+from ..core.types import LatentMap
+
+
+class MapCache:
+    """Read maps by source: ``lookup`` before reading, ``store`` after."""
+
+    def __init__(self) -> None:
+        # key -> (version, reference to a live source or None, map), oldest first
+        self._maps: dict[Any, tuple[Any, Any, LatentMap]] = {}
+
+    def lookup(self, source: Any, adapter: str, opts: dict[str, Any]) -> tuple[Any, Any]:
+        """``(map or None, token)``: the kept map when ``source`` is unchanged; pass the
+        token to :meth:`store` with the map read otherwise."""
+        key, version, ref = _map_key(source, adapter, opts)
+        if key is not None:
+            hit = self._maps.pop(key, None)
+            # a live source must be the same object, not a new one at a freed id
+            if hit is not None and hit[0] == version and (hit[1] is None or hit[1]() is source):
+                self._maps[key] = hit  # the most recently used goes last
+                return hit[2], None
+        return None, (key, version, ref)
+
+    def store(self, token: Any, lmap: LatentMap, keep: int) -> None:
+        """Keep ``lmap`` under ``token`` (from :meth:`lookup`), at most ``keep`` maps."""
+        key, version, ref = token
+        if key is None:  # a source that cannot be told unchanged is read every time
+            return
+        self._maps[key] = (version, ref, lmap)
+        while len(self._maps) > max(int(keep), 0):
+            del self._maps[next(iter(self._maps))]
+
+    def clear(self) -> None:
+        self._maps.clear()
+
+
+def _map_key(source: Any, adapter: str, opts: dict[str, Any]) -> tuple[Any, Any, Any]:
+    """``(key, version, ref)`` of a map source: a file's modification time and size, or
+    a live object's arrays, with a reference to the object (None for a file). ``key`` is
+    None when the source cannot be told unchanged (it is then read every time)."""
+    options = repr(sorted(opts.items()))
+    if isinstance(source, (str, Path)):
+        p = Path(source).expanduser()
+        try:
+            st = p.stat()
+            return (str(p.resolve()), adapter, options), (st.st_mtime_ns, st.st_size), None
+        except (OSError, RuntimeError):  # missing, unreadable, a symbolic-link loop
+            return None, None, None
+    state = getattr(source, "__dict__", None)
+    if not isinstance(state, dict):
+        return None, None, None
+    try:
+        ref: Any = weakref.ref(source)
+    except TypeError:  # e.g. a SimpleNamespace: held (the kept map holds its arrays anyway)
+        ref = _Held(source)
+    return (id(source), adapter, options), _arrays_of(state), ref
+
+
+class _Held:
+    """A strong reference with the call interface of a weak one."""
+
+    __slots__ = ("obj",)
+
+    def __init__(self, obj: Any) -> None:
+        self.obj = obj
+
+    def __call__(self) -> Any:
+        return self.obj
+
+
+def _arrays_of(state: dict[str, Any]) -> tuple[Any, ...]:
+    """The identity and shape of every array-like attribute of a live object."""
+    return tuple(
+        (k, id(v), tuple(getattr(v, "shape", ()))) for k, v in state.items() if hasattr(v, "shape")
+    )
