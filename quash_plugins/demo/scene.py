@@ -484,12 +484,7 @@ def open_queries(cs: ClassSet, present: list[str], seed: int) -> tuple[dict[str,
         return names[h % len(names)], h
 
     def near(name: str, h: int) -> str:
-        if (h >> 8) % 2 == 0:
-            return f"a {name}"
-        words = name.split()
-        last = words[-1]
-        words[-1] = last + ("es" if last.endswith(("s", "x", "ch", "sh")) else "s")
-        return " ".join(words)
+        return with_article(name) if (h >> 8) % 2 == 0 else plural(name)
 
     language = {c.label: c.language for c in cs.classes}
     out: dict[str, str] = {}
@@ -504,6 +499,44 @@ def open_queries(cs: ClassSet, present: list[str], seed: int) -> tuple[dict[str,
     absent = [pick(label, names)[0] for label, names in cs.absent.items()]
     absent += [t for t in cs.absent_free_text_open if t not in absent]
     return out, [a for a in dict.fromkeys(absent) if a not in out]
+
+
+def with_article(name: str) -> str:
+    """``name`` after its indefinite article: "a bed", "an armchair", "a unicycle".
+
+    The article follows the first letter's sound as far as spelling tells it: "an"
+    before a vowel, except before the "you" sound of "uni-", "use-", "usu-", "ure-" and
+    "eu-"; "a" otherwise (a name that starts with a silent "h" is rare among objects).
+    """
+    first = name.lstrip().lower()
+    vowel = first[:1] in ("a", "e", "i", "o", "u")
+    if first.startswith(("uni", "use", "usu", "ure", "eu", "one")):
+        vowel = False
+    return f"{'an' if vowel else 'a'} {name}"
+
+
+def plural(name: str) -> str:
+    """The plural of an object name: its head noun takes the plural ending.
+
+    The head is the word before "of" ("chests of drawers"), else the last word. A head
+    that already reads as plural ("railings", "dumbbells": ends in "s", not "ss", "us"
+    or "is") is left as it is; "-y" after a consonant becomes "-ies" ("cubbies"), and
+    "-s", "-x", "-z", "-ch", "-sh" take "-es".
+    """
+    words = name.split()
+    head = words.index("of") - 1 if "of" in words[1:] else len(words) - 1
+    w = words[head]
+    low = w.lower()
+    if low.endswith("s") and not low.endswith(("ss", "us", "is")):
+        return name
+    if low.endswith("y") and len(low) > 1 and low[-2] not in "aeiou":
+        w = w[:-1] + "ies"
+    elif low.endswith(("s", "x", "z", "ch", "sh")):
+        w += "es"
+    else:
+        w += "s"
+    words[head] = w
+    return " ".join(words)
 
 
 def _unit_rows(rng: np.random.Generator, n: int, d: int) -> np.ndarray:

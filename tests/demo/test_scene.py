@@ -10,7 +10,14 @@ import yaml
 from _eval_table import table_for
 
 from quash_plugins.demo.classes import ABSENT, CLASSES, check_disjoint
-from quash_plugins.demo.scene import SceneOptions, make_scene, write_scene
+from quash_plugins.demo.scene import (
+    SceneOptions,
+    make_scene,
+    open_queries,
+    plural,
+    with_article,
+    write_scene,
+)
 from quash_plugins.encoders import TableEncoder
 
 OPTS = SceneOptions(rooms=2, voxel_size=0.2, room_size=4.0, extra_objects=1)
@@ -145,7 +152,7 @@ def test_class_table_b_has_other_names_and_no_shared_word():
 
 
 def test_table_b_scene_and_its_open_queries(tmp_path):
-    from quash_plugins.demo.classes_b import ABSENT_B, CLASSES_B
+    from quash_plugins.demo.classes_b import ABSENT_B, CLASSES_B, FREE_TEXT_B
 
     enc = TableEncoder(table=table_for({n for c in CLASSES_B for n in c.appearance}))
     opts = SceneOptions(**{**OPTS.__dict__, "classes": "b"})
@@ -158,18 +165,55 @@ def test_table_b_scene_and_its_open_queries(tmp_path):
     # sub-class of that label
     assert s.open_present and set(s.open_present.values()) <= present
     for text, label in s.open_present.items():
-        base = text[2:] if text.startswith("a ") else text
-        assert (
-            base in language[label]
-            or base.rstrip("s") in language[label]
-            or base[:-2] in language[label]
-            or " " in text  # a free-text description
-        ), (text, label)
+        forms = {f for sub in language[label] for f in (sub, with_article(sub), plural(sub))}
+        assert text in forms or text == FREE_TEXT_B.get(label), (text, label)
     assert not set(s.open_absent) & set(s.open_present)
     assert any(a in {n for v in ABSENT_B.values() for n in v} for a in s.open_absent)
     paths = write_scene(s, tmp_path / "b.npz", opts)
     data = yaml.safe_load(paths["open_queries"].read_text())
     assert data["present"] == s.open_present and data["absent"] == s.open_absent
+
+
+@pytest.mark.parametrize(
+    ("name", "article", "many"),
+    [
+        ("bed", "a bed", "beds"),
+        ("armchair", "an armchair", "armchairs"),
+        ("end table", "an end table", "end tables"),
+        ("unicycle", "a unicycle", "unicycles"),
+        ("chest of drawers", "a chest of drawers", "chests of drawers"),
+        ("railings", "a railings", "railings"),  # already plural: left as it is
+        ("cubby", "a cubby", "cubbies"),
+        ("trolley", "a trolley", "trolleys"),
+        ("glass", "a glass", "glasses"),
+        ("icebox", "an icebox", "iceboxes"),
+        ("couch", "a couch", "couches"),
+        ("cactus", "a cactus", "cactuses"),
+    ],
+)
+def test_near_forms_are_english(name, article, many):
+    assert with_article(name) == article
+    assert plural(name) == many
+
+
+@pytest.mark.parametrize("table", ["a", "b", "benchmarks/classes_c.yaml"])
+def test_open_queries_have_no_grammar_slips(table):
+    """Every near form the generator can write for tables A, B and C, over many seeds:
+    no "a" before a vowel, no doubled plural ("railingses", "chest of drawerses")."""
+    import re
+
+    from quash_plugins.demo.class_file import load_class_table
+    from quash_plugins.demo.scene import class_set
+
+    cs = load_class_table(table) if table.endswith(".yaml") else class_set(table)
+    labels = [c.label for c in cs.classes]
+    texts = set()
+    for seed in range(40):
+        present, absent = open_queries(cs, labels, seed)
+        texts |= set(present) | set(absent)
+    slips = sorted(t for t in texts if re.match(r"a [aeio]", t) or re.search(r"[^aeious]ses$", t))
+    assert not slips
+    assert not any(t.endswith("ys") and t[-3] not in "aeiou" for t in texts)
 
 
 @pytest.mark.slow
