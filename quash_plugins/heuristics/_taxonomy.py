@@ -11,7 +11,6 @@ from ..core.errors import ConfigError, HeuristicError, closest
 from ..core.interfaces import ExpansionContext, Heuristic
 from ..core.types import QuerySet
 from ._data import read_mapping
-from ._vocabulary import head_word
 
 log = logging.getLogger(__name__)
 
@@ -188,7 +187,7 @@ class TaxonomyHeuristic(Heuristic):
         2. ``subclass``: the query is a listed sub-class ("bunk bed" -> bed): the first
            label that lists it, in file order.
         3. ``near-label`` / ``near-subclass``: equal after :func:`normalise_name` (case,
-           hyphens, a leading article, a plural last word): "Bunk-beds" -> "bunk bed".
+           hyphens, a leading article, a plural head noun): "Bunk-beds" -> "bunk bed".
         4. ``unlisted`` (only with that option): the query is an object name of
            ``unlisted`` whose head noun no label or sub-class has ("fireplace" on a list
            without one): it stays its own concept (label None).
@@ -218,9 +217,9 @@ class TaxonomyHeuristic(Heuristic):
                     return {"from": query, "to": label, "how": "near-subclass", "via": sub}
         if self.resolve and nq in self._unlisted:
             heads = {
-                head_word(normalise_name(n)) for lab, subs in tax.items() for n in (lab, *subs)
+                head_noun(normalise_name(n)) for lab, subs in tax.items() for n in (lab, *subs)
             }
-            if head_word(nq) not in heads:
+            if head_noun(nq) not in heads:
                 log.info(
                     "taxonomy: query %r names an object that is not in the label list, so it "
                     "is kept as its own concept (not resolved to the nearest label)",
@@ -339,11 +338,30 @@ def unlisted_param(spec: str | list[str] | None) -> Any:
 _ARTICLES = ("a ", "an ", "the ", "some ")
 
 
+def _head_index(words: list[str]) -> int:
+    """The position of the head noun: the word before "of", else the last word."""
+    return words.index("of", 1) - 1 if "of" in words[1:] else len(words) - 1
+
+
+def head_noun(name: str) -> str:
+    """The head noun of a normalised name ("chest" of "chest of drawers", "bed" of "bunk bed").
+
+    >>> head_noun("chest of drawers"), head_noun("bunk bed")
+    ('chest', 'bed')
+    """
+    words = name.split()
+    return words[_head_index(words)] if words else ""
+
+
 def normalise_name(text: str) -> str:
-    """Lower case, hyphens and underscores as spaces, no leading article, singular last word.
+    """Lower case, hyphens and underscores as spaces, no leading article, singular head.
+
+    The head is the word before "of" ("chests of drawers"), else the last word.
 
     >>> normalise_name("A Bunk-Beds"), normalise_name("benches"), normalise_name("glass")
     ('bunk bed', 'bench', 'glass')
+    >>> normalise_name("Chests of Drawers"), normalise_name("pile of clothes")
+    ('chest of drawers', 'pile of clothes')
     """
     t = " ".join(text.lower().replace("-", " ").replace("_", " ").split())
     for a in _ARTICLES:
@@ -352,14 +370,15 @@ def normalise_name(text: str) -> str:
             break
     words = t.split()
     if words:
-        w = words[-1]
+        head = _head_index(words)
+        w = words[head]
         if len(w) > 4 and w.endswith("ies"):
             w = w[:-3] + "y"
         elif len(w) > 4 and w.endswith(("ches", "shes", "sses", "xes", "zes")):
             w = w[:-2]
         elif len(w) > 3 and w.endswith("s") and not w.endswith(("ss", "us", "is")):
             w = w[:-1]
-        words[-1] = w
+        words[head] = w
     return " ".join(words)
 
 

@@ -12,6 +12,7 @@ from quash_plugins.core.errors import HeuristicError
 from quash_plugins.core.interfaces import ExpansionContext
 from quash_plugins.encoders import TableEncoder
 from quash_plugins.heuristics import LabelListHeuristic, TaxonomyHeuristic, normalise_name
+from quash_plugins.heuristics._taxonomy import head_noun
 
 TAX = {"bed": ["bunk bed", "cot"], "sofa": ["futon", "settee"], "chair": ["armchair"]}
 
@@ -77,6 +78,35 @@ def test_normalise_name():
     assert normalise_name("benches") == "bench" and normalise_name("glass") == "glass"
     assert normalise_name("an Armchair") == "armchair" and normalise_name("cactus") == "cactus"
     assert normalise_name("bodies") == "body" and normalise_name("glasses") == "glass"
+    # the head of "X of Y" is X: "chests of drawers" is a chest of drawers, not of drawer
+    assert normalise_name("Chests of Drawers") == "chest of drawers"
+    assert normalise_name("a chest of drawers") == "chest of drawers"
+    assert normalise_name("piles of clothes") == "pile of clothes"
+    assert normalise_name("office") == "office"  # "of" only as a word
+    assert head_noun("chest of drawers") == "chest" and head_noun("bunk bed") == "bed"
+
+
+def test_a_plural_of_a_compound_resolves_to_its_subclass():
+    tax = {"cabinet": ["cupboard", "chest of drawers"], "bed": ["bunk bed"]}
+    r = TaxonomyHeuristic(taxonomy=tax).resolve_query("chests of drawers", ExpansionContext())
+    assert (r["to"], r["how"], r["via"]) == ("cabinet", "near-subclass", "chest of drawers")
+
+
+def test_unlisted_reads_the_head_noun_before_of():
+    # "treasure chest" shares its head noun with "chest of drawers" (a chest), so it
+    # resolves; "drawer" does not (the head of "chest of drawers" is not "drawers")
+    tax = {"cabinet": ["cupboard", "chest of drawers"], "bed": ["bunk bed"]}
+    enc = TableEncoder(
+        table={
+            **table_for({"cabinet", "cupboard", "chest of drawers", "bed", "bunk bed"}),
+            "treasure chest": vec("cupboard"),
+            "drawer": vec("cupboard"),
+        }
+    )
+    ctx = ExpansionContext(encoder=enc)
+    h = TaxonomyHeuristic(taxonomy=tax, unlisted=["treasure chest", "drawer"])
+    assert h.resolve_query("treasure chest", ctx)["how"] == "embedding"
+    assert h.resolve_query("drawers", ctx)["how"] == "unlisted"
 
 
 def test_label_list_heuristic_is_the_fair_peer_query_set():
