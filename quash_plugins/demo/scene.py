@@ -507,12 +507,29 @@ def with_article(name: str) -> str:
     The article follows the first letter's sound as far as spelling tells it: "an"
     before a vowel, except before the "you" sound of "uni-", "use-", "usu-", "ure-" and
     "eu-"; "a" otherwise (a name that starts with a silent "h" is rare among objects).
+    A name that already reads as plural ("dumbbells") takes none.
     """
+    if _reads_plural(name):
+        return name
     first = name.lstrip().lower()
     vowel = first[:1] in ("a", "e", "i", "o", "u")
     if first.startswith(("uni", "use", "usu", "ure", "eu", "one")):
         vowel = False
     return f"{'an' if vowel else 'a'} {name}"
+
+
+def _head(words: list[str]) -> int:
+    """The position of a name's head noun: the word before "of", else the last word."""
+    return words.index("of", 1) - 1 if "of" in words[1:] else len(words) - 1
+
+
+def _reads_plural(name: str) -> bool:
+    """True when the head noun ends in "s" but not "ss", "us" or "is" ("railings")."""
+    words = name.lower().split()
+    if not words:
+        return False
+    w = words[_head(words)]
+    return w.endswith("s") and not w.endswith(("ss", "us", "is"))
 
 
 def plural(name: str) -> str:
@@ -523,12 +540,12 @@ def plural(name: str) -> str:
     or "is") is left as it is; "-y" after a consonant becomes "-ies" ("cubbies"), and
     "-s", "-x", "-z", "-ch", "-sh" take "-es".
     """
+    if _reads_plural(name):
+        return name
     words = name.split()
-    head = words.index("of") - 1 if "of" in words[1:] else len(words) - 1
+    head = _head(words)
     w = words[head]
     low = w.lower()
-    if low.endswith("s") and not low.endswith(("ss", "us", "is")):
-        return name
     if low.endswith("y") and len(low) > 1 and low[-2] not in "aeiou":
         w = w[:-1] + "ies"
     elif low.endswith(("s", "x", "z", "ch", "sh")):
