@@ -519,7 +519,10 @@ def with_article(name: str) -> str:
 
 
 def _head(words: list[str]) -> int:
-    """The position of a name's head noun: the word before "of", else the last word."""
+    """The position of a name's head noun: the word before "of", else the last word.
+
+    The taxonomy heuristic's ``normalise_name`` reads the head so too; demo/ may not
+    import heuristics/ (docs/architecture.md), hence this copy of one line."""
     return words.index("of", 1) - 1 if "of" in words[1:] else len(words) - 1
 
 
