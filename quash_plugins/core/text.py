@@ -192,3 +192,17 @@ def _checked_templates(templates: list[str]) -> list[str]:
     if not templates:
         raise ConfigError("The prompt-template list is empty.")
     return templates
+
+
+def head_index(words: Sequence[str]) -> int:
+    """The position of a noun phrase's head noun: the word before "of", else the last.
+
+    ``words`` is the phrase split on spaces (not empty). The taxonomy heuristic
+    singularises this word to match names; the demo scene pluralises it.
+
+    Examples
+    --------
+    >>> head_index(["chest", "of", "drawers"]), head_index(["bunk", "bed"])
+    (0, 1)
+    """
+    return words.index("of", 1) - 1 if "of" in words[1:] else len(words) - 1

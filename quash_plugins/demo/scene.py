@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import ConfigError
+from ..core.text import head_index
 from ..core.types import LatentMap
 from .classes import ABSENT, ABSENT_FREE_TEXT, CLASSES, SUPPORTS, SceneClass
 
@@ -518,20 +519,12 @@ def with_article(name: str) -> str:
     return f"{'an' if vowel else 'a'} {name}"
 
 
-def _head(words: list[str]) -> int:
-    """The position of a name's head noun: the word before "of", else the last word.
-
-    The taxonomy heuristic's ``normalise_name`` reads the head so too; demo/ may not
-    import heuristics/ (docs/architecture.md), hence this copy of one line."""
-    return words.index("of", 1) - 1 if "of" in words[1:] else len(words) - 1
-
-
 def _reads_plural(name: str) -> bool:
     """True when the head noun ends in "s" but not "ss", "us" or "is" ("railings")."""
     words = name.lower().split()
     if not words:
         return False
-    w = words[_head(words)]
+    w = words[head_index(words)]
     return w.endswith("s") and not w.endswith(("ss", "us", "is"))
 
 
@@ -546,7 +539,7 @@ def plural(name: str) -> str:
     if _reads_plural(name):
         return name
     words = name.split()
-    head = _head(words)
+    head = head_index(words)
     w = words[head]
     low = w.lower()
     if low.endswith("y") and len(low) > 1 and low[-2] not in "aeiou":

@@ -9,6 +9,7 @@ import numpy as np
 
 from ..core.errors import ConfigError, HeuristicError, closest
 from ..core.interfaces import ExpansionContext, Heuristic
+from ..core.text import head_index
 from ..core.types import QuerySet
 from ._data import read_mapping
 
@@ -338,11 +339,6 @@ def unlisted_param(spec: str | list[str] | None) -> Any:
 _ARTICLES = ("a ", "an ", "the ", "some ")
 
 
-def _head_index(words: list[str]) -> int:
-    """The position of the head noun: the word before "of", else the last word."""
-    return words.index("of", 1) - 1 if "of" in words[1:] else len(words) - 1
-
-
 def head_noun(name: str) -> str:
     """The head noun of a normalised name ("chest" of "chest of drawers", "bed" of "bunk bed").
 
@@ -350,7 +346,7 @@ def head_noun(name: str) -> str:
     ('chest', 'bed')
     """
     words = name.split()
-    return words[_head_index(words)] if words else ""
+    return words[head_index(words)] if words else ""
 
 
 def normalise_name(text: str) -> str:
@@ -370,7 +366,7 @@ def normalise_name(text: str) -> str:
             break
     words = t.split()
     if words:
-        head = _head_index(words)
+        head = head_index(words)
         w = words[head]
         if len(w) > 4 and w.endswith("ies"):
             w = w[:-3] + "y"
