@@ -10,14 +10,8 @@ import yaml
 from _eval_table import table_for
 
 from quash_plugins.demo.classes import ABSENT, CLASSES, check_disjoint
-from quash_plugins.demo.scene import (
-    SceneOptions,
-    make_scene,
-    open_queries,
-    plural,
-    with_article,
-    write_scene,
-)
+from quash_plugins.demo.queries import open_queries, plural, with_article
+from quash_plugins.demo.scene import SceneOptions, make_scene, write_scene
 from quash_plugins.encoders import TableEncoder
 
 OPTS = SceneOptions(rooms=2, voxel_size=0.2, room_size=4.0, extra_objects=1)
