@@ -96,14 +96,31 @@ def _commands():
     return sorted(mods, key=lambda m: (getattr(m, "ORDER", 50), m.NAME))
 
 
-def build_parser() -> argparse.ArgumentParser:
+def _output_options(suppress: bool) -> argparse.ArgumentParser:
+    """``-v``, ``-q`` and ``--debug``, accepted before and after the subcommand.
+
+    The subcommand's copies default to ``SUPPRESS``: argparse copies a subparser's
+    defaults over the main parser's values, so ``quash --debug query ...`` would
+    otherwise lose the ``--debug`` given before the subcommand.
+    """
     common = argparse.ArgumentParser(add_help=False)
     g = common.add_argument_group("output")
+    none: dict = {"default": argparse.SUPPRESS} if suppress else {}
     g.add_argument(
-        "-v", "--verbose", action="count", default=0, help="More log output (-vv: most)."
+        "-v",
+        "--verbose",
+        action="count",
+        help="More log output (-vv: most).",
+        **(none or {"default": 0}),
     )
-    g.add_argument("-q", "--quiet", action="store_true", help="Only warnings and errors.")
-    g.add_argument("--debug", action="store_true", help="Show tracebacks on errors.")
+    g.add_argument("-q", "--quiet", action="store_true", help="Only warnings and errors.", **none)
+    g.add_argument("--debug", action="store_true", help="Show tracebacks on errors.", **none)
+    return common
+
+
+def build_parser() -> argparse.ArgumentParser:
+    common = _output_options(suppress=False)
+    common_sub = _output_options(suppress=True)
 
     parser = argparse.ArgumentParser(
         prog="quash",
@@ -119,7 +136,7 @@ def build_parser() -> argparse.ArgumentParser:
             mod.NAME,
             help=mod.HELP,
             description=getattr(mod, "DESCRIPTION", mod.HELP),
-            parents=[common],
+            parents=[common_sub],
             formatter_class=argparse.RawDescriptionHelpFormatter,
             epilog=getattr(mod, "EPILOG", None),
         )

@@ -243,6 +243,23 @@ def test_debug_shows_traceback(tmp_path):
         main(["query", str(tmp_path / "nope.npz"), "chair", "--debug"])
 
 
+@pytest.mark.parametrize("where", ["before", "after"])
+def test_output_options_work_before_and_after_the_command(tmp_path, where):
+    """``quash --debug query ...`` and ``quash query ... --debug`` both raise (the global
+    options that ``quash --help`` lists must not be reset by the subcommand's parser)."""
+    cmd = ["query", str(tmp_path / "nope.npz"), "chair"]
+    argv = ["--debug", *cmd] if where == "before" else [*cmd, "--debug"]
+    with pytest.raises(MapFormatError, match="Map not found"):
+        main(argv)
+    from quash_plugins.cli.main import build_parser
+
+    flags = ["-q", "-vv"]
+    ns = build_parser().parse_args(
+        [*flags, "plugins"] if where == "before" else ["plugins", *flags]
+    )
+    assert (ns.quiet, ns.verbose, ns.debug) == (True, 2, False)
+
+
 def _npz_and_zarr(map_path, queries, config, tmp_path, capsys):
     """``quash query`` with ``--out r.npz``, then ``--out r.zarr --json``: the npz arrays,
     the zarr store and the printed results."""
