@@ -51,11 +51,26 @@ class Encoder(ABC):
         raise NotImplementedError(f"Encoder {self.name!r} has no image tower.")
 
     def config(self) -> dict[str, Any]:
-        """Parameters that identify this encoder's output (for fingerprints and provenance)."""
-        return {}
+        """Parameters that identify this encoder's output (for fingerprints and provenance).
+
+        By default: the instance's public attributes whose values are plain data
+        (strings, numbers, booleans, None, and lists or dicts of them), less ``device``.
+        Override it to name exactly what changes the output (a model object held in an
+        attribute is not plain data, so say which weights it loaded).
+        """
+        return {
+            k: v
+            for k, v in sorted(vars(self).items())
+            if not k.startswith("_") and k != "device" and _plain(v)
+        }
 
     def fingerprint(self) -> str:
-        """Identity of the embedding function: changes whenever its output could change."""
+        """Identity of the embedding function: changes whenever its output could change.
+
+        Hashes the class, ``name``, ``dim``, :meth:`config` and the name and version of
+        the installed distribution that provides the class, so that upgrading a plugin
+        package never serves text embeddings cached by the version before.
+        """
         payload = {
             "class": f"{type(self).__module__}.{type(self).__qualname__}",
             "name": self.name,
@@ -63,8 +78,24 @@ class Encoder(ABC):
             "config": self.config(),
             "normalized": True,
         }
+        from .registry import distribution_of
+
+        dist = distribution_of(type(self).__module__)
+        if dist is not None:
+            payload["distribution"] = dist
         blob = json.dumps(payload, sort_keys=True, default=str).encode()
         return f"{self.name}-{hashlib.sha256(blob).hexdigest()[:16]}"
+
+
+def _plain(value: Any) -> bool:
+    """True for JSON-like data: what a default :meth:`Encoder.config` records."""
+    if value is None or isinstance(value, (str, bool, int, float)):
+        return True
+    if isinstance(value, (list, tuple)):
+        return all(_plain(v) for v in value)
+    if isinstance(value, dict):
+        return all(isinstance(k, str) and _plain(v) for k, v in value.items())
+    return False
 
 
 def check_text_embeddings(

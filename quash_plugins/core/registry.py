@@ -94,6 +94,45 @@ _scanned: dict[str, list[PluginInfo]] = {}
 _manual: dict[str, list[PluginInfo]] = {k: [] for k in KINDS}
 
 
+#: Top-level module -> ``"name==version"``, noted by the registry from the entry points
+#: it scans (a distribution's import name need not be its name).
+_DISTRIBUTIONS: dict[str, str] = {}
+
+
+def note_distribution(module: str, dist: str, version: str) -> None:
+    """Record that ``module``'s top-level package comes from ``dist`` at ``version``."""
+    _DISTRIBUTIONS[module.partition(".")[0]] = f"{dist}=={version}"
+
+
+_LOOKED_UP: dict[str, str | None] = {}
+
+
+def distribution_of(module: str) -> str | None:
+    """``"name==version"`` of the installed distribution providing ``module``, else None.
+
+    Known from the plugin entry points the registry scanned, else looked up by the
+    top-level package's name; None for a module that no distribution installed (a
+    script, a test file).
+
+    Examples
+    --------
+    >>> distribution_of("numpy").startswith("numpy==")
+    True
+    """
+    from importlib import metadata
+
+    top = module.partition(".")[0]
+    if top in _DISTRIBUTIONS:
+        return _DISTRIBUTIONS[top]
+    if top not in _LOOKED_UP:
+        try:
+            dist = metadata.distribution(top)
+            _LOOKED_UP[top] = f"{dist.metadata['Name']}=={dist.version}"
+        except Exception:  # not installed, or broken metadata: never fail a query
+            _LOOKED_UP[top] = None
+    return _LOOKED_UP[top]
+
+
 def normalize_kind(kind: str) -> str:
     """Accept ``"encoders"`` or ``"encoder"``; reject anything else with the known kinds."""
     k = str(kind).strip().lower()
@@ -117,6 +156,8 @@ def _scan(kind: str) -> list[PluginInfo]:
             if any(i.name == ep.name and i.dist == dist_name for i in infos):
                 continue
             infos.append(PluginInfo(kind, ep.name, ep.value, dist_name, version, _loader=ep.load))
+            if dist is not None:
+                note_distribution(ep.value, dist_name, version)
         _scanned[kind] = infos
         return infos
 

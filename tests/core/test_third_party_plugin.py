@@ -40,6 +40,19 @@ def test_discovered_and_listed_with_distribution(installed):
     assert info.dist == "quash-char-ngram" and info.version == "0.2.0"
 
 
+def test_fingerprint_names_the_plugin_distribution_and_version(installed, monkeypatch):
+    """Upgrading a plugin package must not serve text embeddings cached by the version
+    before: the fingerprint (the text cache's key) hashes the distribution's version."""
+    enc = registry.create("encoders", "char-ngram")
+    top = type(enc).__module__.partition(".")[0]
+    assert registry.distribution_of(type(enc).__module__) == "quash-char-ngram==0.2.0"
+    before = enc.fingerprint()
+    monkeypatch.setitem(registry._DISTRIBUTIONS, top, "quash-char-ngram==0.3.0")
+    assert enc.fingerprint() != before
+    monkeypatch.setitem(registry._DISTRIBUTIONS, top, "quash-char-ngram==0.2.0")
+    assert enc.fingerprint() == before
+
+
 def test_usable_by_name_from_a_config(installed, tmp_path):
     rng = np.random.default_rng(0)
     from quash_char_ngram import CharNgramEncoder
