@@ -30,13 +30,42 @@ def config_name(info: Any, infos: list[Any]) -> str:
     return info.qualified
 
 
+def shadowed_by(info: Any, infos: list[Any]) -> str | None:
+    """The built-in that keeps ``info``'s bare name, when ``info`` is another
+    distribution's plugin of that name; else None."""
+    from ..core.registry import BUILTIN_DIST
+
+    if info.dist == BUILTIN_DIST:
+        return None
+    for o in infos:
+        if o.kind == info.kind and o.name == info.name and o.dist == BUILTIN_DIST:
+            return o.qualified
+    return None
+
+
 def run(args: argparse.Namespace) -> int:
+    import logging
+
     from ..core import registry
     from ._output import console, print_json, safe_text
 
-    infos = registry.plugins(args.kind, load=True)
+    # Errors are printed in full below the table: the registry's warnings would say
+    # each one twice.
+    reg_log = logging.getLogger(registry.__name__)
+    level = reg_log.level
+    reg_log.setLevel(logging.ERROR)
+    try:
+        infos = registry.plugins(args.kind, load=True)
+    finally:
+        reg_log.setLevel(level)
     if args.json:
-        print_json([i.to_dict() for i in infos])
+        rows = []
+        for i in infos:
+            row = i.to_dict()
+            row["config_name"] = config_name(i, infos)
+            row["shadowed_by"] = shadowed_by(i, infos)
+            rows.append(row)
+        print_json(rows)
         return 0
     from rich.table import Table
 
@@ -45,13 +74,27 @@ def run(args: argparse.Namespace) -> int:
         # Names are what a config spells: never cut them short with an ellipsis.
         table.add_column(col, no_wrap=col == "name", overflow="fold")
     broken = [i for i in infos if i.status != "ok"]
+    shadowed = [(i, shadowed_by(i, infos)) for i in infos if shadowed_by(i, infos)]
     kinds = list(registry.KINDS)
     builtin = registry.BUILTIN_DIST
     for i in sorted(infos, key=lambda i: (kinds.index(i.kind), i.name, i.dist != builtin)):
-        status = "[green]ok[/]" if i.status == "ok" else f"[red]{safe_text(i.status)}[/]"
+        if i.status != "ok":
+            status = f"[red]{safe_text(i.status)}[/]"
+        elif shadowed_by(i, infos):
+            status = "[yellow]ok, shadowed[/]"
+        else:
+            status = "[green]ok[/]"
         name = config_name(i, infos)
         table.add_row(*(safe_text(x) for x in (i.kind, name, i.dist, i.version)), status)
     console().print(table)
+    for i, by in shadowed:
+        console().print(
+            f"[yellow]{safe_text(i.kind)} {safe_text(i.name)}[/] ({safe_text(i.dist)}): the "
+            f"built-in {safe_text(by)} keeps the name {safe_text(i.name)!r}; a config reaches "
+            f"this one as {safe_text(i.qualified)!r}. Rename it in {safe_text(i.dist)}'s "
+            "entry points to give it a name of its own.",
+            highlight=False,
+        )
     # The errors in full, after the table: in a table cell they would be cut to a few
     # words per line.
     for i in broken:
@@ -60,4 +103,11 @@ def run(args: argparse.Namespace) -> int:
             f"{safe_text(i.error or i.status)}",
             highlight=False,
         )
+        if getattr(args, "debug", False) and i.exception is not None:
+            import traceback
+
+            text = "".join(traceback.format_exception(i.exception))
+            console().print(safe_text(text, markup=False), highlight=False, markup=False)
+    if broken and not getattr(args, "debug", False):
+        console().print("Run 'quash plugins --debug' for each error's traceback.")
     return 0

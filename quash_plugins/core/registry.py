@@ -71,6 +71,8 @@ class PluginInfo:
     error: str | None = None
     _loader: Callable[[], Any] | None = field(default=None, repr=False)
     _obj: Any = field(default=None, repr=False)
+    #: The exception raised while importing or validating the plugin (for ``--debug``).
+    exception: BaseException | None = field(default=None, repr=False)
 
     @property
     def qualified(self) -> str:
@@ -339,29 +341,32 @@ def _load_info(info: PluginInfo) -> Any:
             info.status = "ok"
             return info._obj
         if info.error is not None:
-            raise PluginError(info.error)
+            raise PluginError(info.error) from info.exception
         try:
             obj = info._loader() if info._loader else None
         except Exception as exc:  # noqa: BLE001 - any import failure is reported, not raised raw
             info.status = "error"
+            info.exception = exc
             hint = _import_hint(info, exc)
             info.error = (
                 f"{_TITLE[info.kind]} plugin {info.name!r} from distribution "
                 f"{info.dist!r} {info.version} failed to import ({info.target}): "
                 f"{type(exc).__name__}: {str(exc).rstrip('.')}. {hint}".rstrip()
+                + f" Fix or uninstall {info.dist!r}."
             )
             _warn_once(
                 ("broken", info.kind, info.qualified),
-                f"{info.error} It is skipped; fix or uninstall {info.dist!r}.",
+                f"{info.error} It is skipped.",
             )
             raise PluginError(info.error) from exc
         try:
             _validate(info, obj)
         except PluginError as exc:
             info.status = "error"
-            info.error = str(exc)
-            _warn_once(("broken", info.kind, info.qualified), f"{exc} It is skipped.")
-            raise
+            info.error = f"{exc} Fix or uninstall {info.dist!r}."
+            info.exception = exc
+            _warn_once(("broken", info.kind, info.qualified), f"{info.error} It is skipped.")
+            raise PluginError(info.error) from None
         info._obj = obj
         info.status = "ok"
         return obj

@@ -45,7 +45,8 @@ def build_quash(
         try:
             return registry.create(kind, spec.name, **params)
         except QuashError as exc:
-            raise type(exc)(f"{where}{section}: {exc}") from None
+            # Keep what caused it (a plugin's own import error) for --debug's traceback.
+            raise type(exc)(f"{where}{section}: {exc}") from exc.__cause__
 
     try:
         encoder = build("encoders", cfg.encoder, "encoder")
@@ -53,7 +54,7 @@ def build_quash(
         classifier = build("classifiers", cfg.classifier, "classifier")
     except QuashError as exc:
         if where and not str(exc).startswith(where):
-            raise type(exc)(f"{where}{exc}") from None
+            raise type(exc)(f"{where}{exc}") from exc.__cause__
         raise
     kwargs: dict[str, Any] = dict(
         negatives=cfg.negatives,

@@ -9,6 +9,7 @@ is warned about once at the default level.
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -106,7 +107,7 @@ def test_cli_default_level_warns_once_about_each(installed, tiny_world):
     assert err.count("Heuristic 'none' is also claimed by quash-shadow-plugin:none") == 1
     assert "Write 'quash-shadow-plugin:none'" in err
     assert err.count("Adapter plugin 'broken-adapter' from distribution") == 1
-    assert "WARNING" in proc.stderr and "fix or uninstall 'quash-shadow-plugin'" in err
+    assert "WARNING" in proc.stderr and "Fix or uninstall 'quash-shadow-plugin'" in err
 
 
 def test_cli_table_names_the_shadowed_plugin_as_a_config_spells_it(installed):
@@ -122,3 +123,38 @@ def test_cli_table_names_the_shadowed_plugin_as_a_config_spells_it(installed):
     names = {(r[2].strip(), r[3].strip()) for r in rows}
     assert ("none", "quash-plugins") in names
     assert ("quash-shadow-plugin:none", "quash-shadow-plugin") in names
+
+
+def test_cli_table_marks_the_shadowed_plugin_and_says_how_to_reach_it(installed):
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(installed), *sys.path])}
+    out = subprocess.run(
+        [sys.executable, "-m", "quash_plugins.cli.main", "plugins", "--kind", "heuristics"],
+        capture_output=True,
+        text=True,
+        env={**env, "COLUMNS": "160"},
+        timeout=120,
+        check=True,
+    ).stdout
+    rows = {
+        r[2].strip(): r[5].strip() for r in (ln.split("│") for ln in out.splitlines()) if len(r) > 5
+    }
+    assert rows["quash-shadow-plugin:none"] == "ok, shadowed"
+    assert rows["none"] == "ok"
+    flat = " ".join(out.split())
+    assert "the built-in quash-plugins:none keeps the name 'none'" in flat
+    assert "a config reaches this one as 'quash-shadow-plugin:none'" in flat
+    listed = json.loads(
+        subprocess.run(
+            [sys.executable, "-m", "quash_plugins.cli.main", "plugins", "--json"],
+            capture_output=True,
+            text=True,
+            env=env,
+            timeout=120,
+            check=True,
+        ).stdout
+    )
+    shadow = [
+        r for r in listed if r["distribution"] == "quash-shadow-plugin" and r["name"] == "none"
+    ]
+    assert shadow and shadow[0]["shadowed_by"] == "quash-plugins:none"
+    assert shadow[0]["config_name"] == "quash-shadow-plugin:none"

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
+import traceback
 from pathlib import Path
 
 import numpy as np
@@ -160,3 +162,30 @@ def test_cli_table_shows_errors_in_full_and_qualified_names(installed):
     assert "…" not in out and "sentence-transformers" in out
     assert "The module 'quash_broken_plugn' it names does not exist" in flat
     assert "it does not implement encode_text" in flat
+
+
+def test_debug_shows_the_plugins_own_import_traceback(installed, tmp_path):
+    """A plugin author debugging an import error sees their own module's frames: in
+    ``quash plugins --debug`` and in a query's traceback (the cause is kept)."""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(installed), *sys.path])}
+    cmd = [sys.executable, "-m", "quash_plugins.cli.main", "plugins", "--kind", "encoders"]
+    plain = subprocess.run(cmd, capture_output=True, text=True, env=env, check=True)
+    assert "Traceback" not in plain.stdout and "quash plugins --debug" in plain.stdout
+    # the errors are printed once, below the table, not also as log warnings
+    assert "failed to import" not in plain.stderr
+    debug = subprocess.run([*cmd, "--debug"], capture_output=True, text=True, env=env)
+    assert debug.returncode == 0
+    assert "Traceback (most recent call last)" in debug.stdout
+    assert re.search(r"quash_broken_plugin[/\\]__init__\.py", debug.stdout), debug.stdout
+
+    np.savez(tmp_path / "m.npz", embeddings=np.eye(8, dtype=np.float32))
+    cfg = tmp_path / "broken.yaml"
+    cfg.write_text("encoder: broken-encoder\nheuristic: none\nclassifier: contrast\n")
+    from quash_plugins.cli.main import main
+
+    with pytest.raises(PluginError, match=r"broken.yaml: .*failed to import") as err:
+        main(["query", str(tmp_path / "m.npz"), "chair", "-c", str(cfg), "--debug"])
+    cause = err.value.__cause__
+    assert isinstance(cause, ImportError)
+    frames = "".join(traceback.format_tb(cause.__traceback__))
+    assert re.search(r"quash_broken_plugin[/\\]__init__\.py", frames), frames
