@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -98,13 +99,41 @@ def _plain(value: Any) -> bool:
     return False
 
 
+_WARNED_CONTRACT: set[tuple[str, str]] = set()
+
+
+def _contract_warning(who: str, what: str, message: str) -> None:
+    if (who, what) in _WARNED_CONTRACT:
+        return
+    _WARNED_CONTRACT.add((who, what))
+    logging.getLogger(__name__).warning(
+        "Encoder %r %s. The encoder contract is (n, dim) float32 rows of unit norm; "
+        "quash_plugins.testing.check_encoder checks it.",
+        who,
+        message,
+    )
+
+
 def check_text_embeddings(
-    emb: Any, texts: Sequence[str], dim: int, who: str, normalize: bool = True
+    emb: Any,
+    texts: Sequence[str],
+    dim: int,
+    who: str,
+    normalize: bool = True,
+    *,
+    warn_norm: bool = True,
 ) -> np.ndarray:
     """Validate an encoder's output at the boundary and return unit-norm float32.
 
     Raises :class:`EncoderError` naming the encoder when the shape or values are wrong.
+    Output that breaks the contract in a way that can be mended (not float32, rows not of
+    unit norm) is mended, with one warning per encoder and process: the conformance kit
+    fails such an encoder. ``warn_norm=False``: rows off unit norm are expected (an
+    encoder configured with ``normalize: false``) and renormalised without a warning.
     """
+    dtype = getattr(emb, "dtype", None)
+    if dtype is not None and dtype != np.float32:
+        _contract_warning(who, "dtype", f"returns {dtype} embeddings; converted to float32")
     arr = np.asarray(emb, dtype=np.float32)
     if arr.shape != (len(texts), dim):
         raise EncoderError(
@@ -118,6 +147,11 @@ def check_text_embeddings(
         if (norms == 0).any():
             bad = texts[int(np.argmin(norms[:, 0]))]
             raise EncoderError(f"Encoder {who!r} returned a zero embedding for {bad!r}.")
+        off = float(np.abs(norms - 1.0).max())
+        if warn_norm and off > 1e-3:
+            _contract_warning(
+                who, "norm", f"returns rows of norm up to {1 + off:.3g} from 1; renormalised"
+            )
         arr = arr / norms
     return np.ascontiguousarray(arr, dtype=np.float32)
 

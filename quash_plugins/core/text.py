@@ -59,7 +59,13 @@ def encode_texts(
                 f"Encoder {encoder.name!r} ({type(encoder).__module__}) failed to encode "
                 f"({type(exc).__name__}: {exc}): it {install_hint(module)}"
             ) from exc
-        emb = check_text_embeddings(raw, missing, dim, encoder.name)
+        emb = check_text_embeddings(
+            raw,
+            missing,
+            dim,
+            encoder.name,
+            warn_norm=getattr(encoder, "normalize", True) is not False,
+        )
         new = dict(zip(missing, emb))
         found.update(new)
         if cache is not None and fp is not None:

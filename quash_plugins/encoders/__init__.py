@@ -9,6 +9,8 @@
 :class:`TextEmbeddingCache` (``quash_plugins.engine.cache``) is the on-disk text
 embedding cache. Heavy libraries (torch, open_clip, sentence-transformers) are imported on
 first use, never at import time; the classes below are exported lazily.
+:func:`resolve_device` turns a config's ``device`` (``auto``, ``cpu``, ``cuda:N``, ``mps``)
+into a torch device, for plugin encoders too.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ _LAZY = {
     "OPEN_CLIP_PRESETS": "._open_clip",
     "SentenceTransformerEncoder": "._sentence_transformers",
     "MiniLMEncoder": "._sentence_transformers",
+    "resolve_device": "._runtime",
 }
 
 __all__ = ["TableEncoder", *_LAZY]

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from quash_plugins import Encoder
 from quash_plugins.core import registry
+from quash_plugins.core.errors import ConfigError
 
 
 class _Seeded(Encoder):
@@ -51,3 +53,50 @@ def test_distribution_of_an_installed_module_and_of_a_script():
     assert registry.distribution_of("numpy.linalg") == f"numpy=={np.__version__}"
     assert registry.distribution_of(__name__) is None
     assert registry.distribution_of("__main__") is None
+
+
+class _Sloppy(_Seeded):
+    """Breaks the contract in ways the pipeline can mend: float64 rows of norm 2."""
+
+    name = "sloppy"
+
+    def encode_text(self, texts):
+        return 2.0 * super().encode_text(texts).astype(np.float64)
+
+
+def test_mended_output_is_warned_about_once_per_encoder(caplog):
+    from quash_plugins.core import interfaces
+    from quash_plugins.core.text import encode_texts
+
+    interfaces._WARNED_CONTRACT.discard(("sloppy", "dtype"))
+    interfaces._WARNED_CONTRACT.discard(("sloppy", "norm"))
+    enc = _Sloppy()
+    with caplog.at_level("WARNING", logger="quash_plugins.core.interfaces"):
+        first = encode_texts(enc, ["chair", "sofa"], None)
+        encode_texts(enc, ["table"], None)
+    np.testing.assert_allclose(np.linalg.norm(first, axis=1), 1.0, rtol=1e-6)
+    assert first.dtype == np.float32
+    warned = [r.getMessage() for r in caplog.records]
+    assert sum("returns float64 embeddings" in m for m in warned) == 1, warned
+    assert sum("rows of norm up to 2" in m for m in warned) == 1, warned
+    assert all("'sloppy'" in m and "check_encoder" in m for m in warned)
+
+
+def test_an_encoder_configured_not_to_normalise_is_not_warned_about(caplog):
+    from quash_plugins.core.text import encode_texts
+
+    enc = _Sloppy()
+    enc.name, enc.normalize = "sloppy-by-choice", False
+    with caplog.at_level("WARNING", logger="quash_plugins.core.interfaces"):
+        encode_texts(enc, ["chair"], None)
+    assert not any("norm up to" in r.getMessage() for r in caplog.records)
+
+
+def test_resolve_device_is_public_for_plugin_encoders():
+    pytest.importorskip("torch")
+    from quash_plugins.encoders import resolve_device
+
+    assert resolve_device("auto") in ("cpu", "cuda", "mps")
+    assert resolve_device("cpu") == "cpu"
+    with pytest.raises(ConfigError, match="not a torch device"):
+        resolve_device("tpu")
