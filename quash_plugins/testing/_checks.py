@@ -123,10 +123,22 @@ def check_encoder_output(enc: Any, tmp_path: Path) -> None:
 def check_encoder_deterministic(enc: Any, tmp_path: Path) -> None:
     a = np.asarray(enc.encode_text(["chair", "table"]))
     b = np.asarray(enc.encode_text(["chair", "table"]))
-    np.testing.assert_allclose(a, b, atol=1e-5, err_msg="encode_text must be deterministic")
+    assert np.allclose(a, b, atol=1e-5), (
+        "encode_text must be deterministic: the same texts gave embeddings differing by "
+        f"up to {float(np.abs(a - b).max()):.3g}. Embeddings are cached on disk by text, "
+        "so draw any randomness from a fixed seed or from the text itself, never from the "
+        "global random state (and put the model in eval mode: no dropout)."
+    )
+
+
+def check_encoder_batch_independent(enc: Any, tmp_path: Path) -> None:
+    pair = np.asarray(enc.encode_text(["chair", "table"]))
     single = np.asarray(enc.encode_text(["table"]))
-    np.testing.assert_allclose(
-        a[1], single[0], atol=1e-3, err_msg="an embedding must not depend on its batch"
+    assert np.allclose(pair[1], single[0], atol=1e-3), (
+        "an embedding must not depend on its batch: 'table' embedded beside 'chair' differs "
+        f"from 'table' alone by up to {float(np.abs(pair[1] - single[0]).max()):.3g}. Each "
+        "text is cached on its own, so normalise per text (not over the batch) and mask "
+        "any padding."
     )
 
 
@@ -164,7 +176,11 @@ def check_heuristic_queryset(h: Any, tmp_path: Path) -> None:
 def check_heuristic_seeded(h: Any, tmp_path: Path) -> None:
     a = h.expand("chair", _context(seed=7)).to_dict()
     b = h.expand("chair", _context(seed=7)).to_dict()
-    assert a == b, "the same seed must give the same query set"
+    assert a == b, (
+        "the same seed must give the same query set: draw randomness from "
+        "context.seed (np.random.default_rng(context.seed)) or from the query text, "
+        "never from the global random state"
+    )
 
 
 # ---------------------------------------------------------------- classifiers
@@ -385,6 +401,7 @@ _CHECKS: dict[str, list[Callable[[Any, Path], None]]] = {
     "encoders": [
         check_encoder_output,
         check_encoder_deterministic,
+        check_encoder_batch_independent,
         check_encoder_empty,
         check_encoder_fingerprint,
     ],
@@ -433,10 +450,14 @@ def _run_all(kind: str, plugin: Any, tmp_path: str | Path | None) -> None:
     import tempfile
 
     base = Path(tmp_path) if tmp_path is not None else Path(tempfile.mkdtemp(prefix="quash-kit-"))
+    who = getattr(plugin, "name", None) or type(plugin).__name__
     for c in _CHECKS[kind]:
         d = base / c.__name__
         d.mkdir(parents=True, exist_ok=True)
-        c(plugin, d)
+        try:
+            c(plugin, d)
+        except AssertionError as exc:
+            raise AssertionError(f"{kind[:-1]} {who!r}: {c.__name__}: {exc}") from exc
 
 
 def check_encoder(encoder: Any, tmp_path: str | Path | None = None) -> None:

@@ -100,3 +100,42 @@ def test_resolve_device_is_public_for_plugin_encoders():
     assert resolve_device("cpu") == "cpu"
     with pytest.raises(ConfigError, match="not a torch device"):
         resolve_device("tpu")
+
+
+class _BatchNormed(_Seeded):
+    """Normalises over the batch: a text's row depends on what it was embedded with."""
+
+    name = "batch-normed"
+
+    def encode_text(self, texts):
+        from quash_plugins.testing import HashingEncoder
+
+        e = HashingEncoder(8).encode_text(texts).astype(np.float64)
+        if len(e) > 1:
+            e = e - e.mean(axis=0)
+        return (e / np.linalg.norm(e, axis=1, keepdims=True)).astype(np.float32)
+
+
+class _Noisy(_Seeded):
+    name = "noisy"
+
+    def encode_text(self, texts):
+        e = np.random.default_rng().normal(size=(len(texts), 8))
+        return (e / np.linalg.norm(e, axis=1, keepdims=True)).astype(np.float32)
+
+
+@pytest.mark.parametrize(
+    ("encoder", "check", "hint"),
+    [
+        (_BatchNormed(), "check_encoder_batch_independent", "normalise per text"),
+        (_Noisy(), "check_encoder_deterministic", "from a fixed seed or from the text"),
+    ],
+)
+def test_the_kit_names_the_encoder_the_check_and_the_fix(encoder, check, hint, tmp_path):
+    from quash_plugins.testing import check_encoder
+
+    with pytest.raises(AssertionError) as err:
+        check_encoder(encoder, tmp_path)
+    msg = " ".join(str(err.value).split())
+    assert msg.startswith(f"encoder {encoder.name!r}: {check}: "), msg
+    assert hint in msg
