@@ -30,7 +30,12 @@ OPTIONAL = (
     "frame_ids",
     "frame_hw",
     "frame_offsets",
+    "encoder",
+    "encoder_fingerprint",
 )
+
+#: ``LatentMap.source`` keys stored as 0-d string arrays: the encoder that built the map.
+ENCODER_KEYS = ("encoder", "encoder_fingerprint")
 
 
 def check_declared_sizes(path: Path) -> None:
@@ -123,6 +128,7 @@ class NpzAdapter(MapAdapter):
                 data = {k: z[k] for k in ("embeddings", *OPTIONAL) if k in z.files}
             except ValueError as exc:
                 raise MapFormatError(f"{path}: an array holds pickled objects ({exc}).") from None
+        built_by = {k: str(data.pop(k)) for k in ENCODER_KEYS if k in data}
         kind = str(data.pop("kind")) if "kind" in data else None
         voxel = float(data.pop("voxel_size")) if "voxel_size" in data else None
         normalize = bool(data.pop("normalize")) if "normalize" in data else False
@@ -151,7 +157,7 @@ class NpzAdapter(MapAdapter):
             grid_index=data.get("grid_index"),
             normalize=normalize,
             frames=frames,
-            source={"adapter": self.name, "path": str(path)},
+            source={"adapter": self.name, "path": str(path), **built_by},
         )
 
     def write_example(self, directory: Path) -> Path:
@@ -179,6 +185,9 @@ def metadata_arrays(lmap: LatentMap) -> dict[str, Any]:
         arrays["voxel_size"] = np.float32(lmap.voxel_size)
     if lmap.normalize:
         arrays["normalize"] = np.asarray(True)
+    for key in ENCODER_KEYS:
+        if isinstance(lmap.source.get(key), str):
+            arrays[key] = np.asarray(lmap.source[key], dtype=str)
     if lmap.frames:
         arrays["frame_ids"] = np.asarray([f.frame_id for f in lmap.frames], dtype=str)
         arrays["frame_hw"] = np.asarray([(f.height, f.width) for f in lmap.frames], np.int64)

@@ -442,6 +442,7 @@ def make_scene(encoder: Any, options: SceneOptions | None = None, cache: Any = N
         source={
             "adapter": "scene",
             "encoder_hint": f"{getattr(encoder, 'name', '?')} {D}",
+            **_built_by(encoder),
             "seed": opts.seed,
         },
     )
@@ -468,6 +469,15 @@ def make_scene(encoder: Any, options: SceneOptions | None = None, cache: Any = N
         open_absent,
         cs.sha256,
     )
+
+
+def _built_by(encoder: Any) -> dict[str, str]:
+    """The map's record of the encoder that built it (``LatentMap.source``), so that a
+    query with another encoder is warned about."""
+    fingerprint = getattr(encoder, "fingerprint", None)
+    if not callable(fingerprint):
+        return {}
+    return {"encoder": str(getattr(encoder, "name", "?")), "encoder_fingerprint": fingerprint()}
 
 
 def _unit_rows(rng: np.random.Generator, n: int, d: int) -> np.ndarray:

@@ -56,6 +56,9 @@ log = logging.getLogger(__name__)
 #: From this many queries in one call, the text side shows progress.
 PROGRESS_QUERIES = 20
 
+#: (map path, the map's encoder fingerprint, the config's) already warned about.
+_WARNED_BUILT_BY: set[tuple[str, str, str]] = set()
+
 #: Encoder presets by embedding dimension, suggested on a dimension mismatch.
 PRESETS_BY_DIM = {
     384: "minilm (sentence-transformers all-MiniLM-L6-v2)",
@@ -260,7 +263,9 @@ class Quash:
         self._querysets.clear()
 
     def check_dimension(self, lmap: LatentMap) -> None:
-        """Fail up front when the encoder's dimension differs from the map's."""
+        """Fail up front when the encoder's dimension differs from the map's; warn (once
+        per map and encoder) when the map records that another encoder built it."""
+        self._check_built_by(lmap)
         enc_dim = int(self.encoder.dim)
         if enc_dim != lmap.dim:
             from ..core.registry import accepted_params
@@ -285,6 +290,27 @@ class Quash:
                 f"{name!r}{section} produces {enc_dim}-dimensional ones. Use the text "
                 f"encoder that built the map.{suggestion}"
             )
+
+    def _check_built_by(self, lmap: LatentMap) -> None:
+        built = lmap.source.get("encoder_fingerprint")
+        if not isinstance(built, str) or not built:
+            return
+        ours = self.encoder.fingerprint()
+        key = (str(lmap.source.get("path")), built, ours)
+        if built == ours or key in _WARNED_BUILT_BY:
+            return
+        _WARNED_BUILT_BY.add(key)
+        name = getattr(self.encoder, "name", type(self.encoder).__name__)
+        log.warning(
+            "%s was built with encoder %r (fingerprint %s), but this config's encoder is %r "
+            "(%s). Scores mean something only when both embed text into the same space: "
+            "query with the encoder that built the map.",
+            lmap.source.get("path", "the map"),
+            lmap.source.get("encoder", "?"),
+            built,
+            name,
+            ours,
+        )
 
     # ------------------------------------------------------------------ steps
     def context(self, lmap: LatentMap | None = None, cache: Any = None) -> ExpansionContext:

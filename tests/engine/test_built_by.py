@@ -1,0 +1,66 @@
+"""A map records the encoder that built it; a query with another encoder is warned about."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from quash_plugins import Quash
+from quash_plugins.adapters import write_npz_map
+from quash_plugins.core.maps import read_map
+from quash_plugins.demo.scene import SceneOptions, make_scene, write_scene
+from quash_plugins.engine import pipeline
+from quash_plugins.testing import HashingEncoder
+
+OPTS = dict(rooms=1, voxel_size=0.25, room_size=4.0, extra_objects=0)
+
+
+class _OtherHashing(HashingEncoder):
+    """Same dimension, another embedding function (what a dimension check cannot see)."""
+
+    name = "other-hashing"
+
+    def _word(self, word):
+        return super()._word(word[::-1])
+
+
+def _quash(encoder):
+    q = Quash.from_config({"heuristic": "none", "classifier": "contrast", "cache": False})
+    q.encoder = encoder
+    return q
+
+
+def test_the_map_records_its_encoder_and_a_copy_keeps_it(tmp_path):
+    enc = HashingEncoder(32)
+    paths = write_scene(make_scene(enc, SceneOptions(**OPTS)), tmp_path / "s.npz")
+    lmap = read_map(paths["map"])
+    assert lmap.source["encoder"] == "hashing-test"
+    assert lmap.source["encoder_fingerprint"] == enc.fingerprint()
+    copy = write_npz_map(tmp_path / "copy.npz", lmap)
+    assert read_map(copy).source["encoder_fingerprint"] == enc.fingerprint()
+
+
+def test_a_query_with_another_encoder_warns_once_and_the_same_one_never(tmp_path, caplog):
+    paths = write_scene(make_scene(HashingEncoder(32), SceneOptions(**OPTS)), tmp_path / "s.npz")
+    pipeline._WARNED_BUILT_BY.clear()
+    with caplog.at_level("WARNING", logger="quash_plugins.engine.pipeline"):
+        _quash(HashingEncoder(32)).query(str(paths["map"]), "chair")
+        assert not [r for r in caplog.records if "was built with encoder" in r.getMessage()]
+        other = _quash(_OtherHashing(32))
+        other.query(str(paths["map"]), "chair")
+        other.query(str(paths["map"]), "table")
+    warned = [r.getMessage() for r in caplog.records if "was built with encoder" in r.getMessage()]
+    assert len(warned) == 1, warned
+    assert "'hashing-test'" in warned[0] and "'other-hashing'" in warned[0]
+    assert str(paths["map"]) in warned[0]
+
+
+def test_a_map_without_the_record_is_not_warned_about(tmp_path, caplog):
+    from quash_plugins.core.types import LatentMap
+
+    rng = np.random.default_rng(0)
+    emb = rng.normal(size=(20, 32)).astype(np.float32)
+    path = write_npz_map(tmp_path / "m.npz", LatentMap(emb, kind="points"))
+    assert "encoder_fingerprint" not in np.load(path).files
+    with caplog.at_level("WARNING", logger="quash_plugins.engine.pipeline"):
+        _quash(_OtherHashing(32)).query(str(path), "chair")
+    assert not [r for r in caplog.records if "was built with encoder" in r.getMessage()]
