@@ -97,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _check_outputs(args: argparse.Namespace, outdir) -> None:
     """Refuse, before any work, to replace files in --out that the demo did not write."""
-    from ..core.atomic import check_output
+    from ..core.atomic import check_distinct_outputs, check_output
     from ..core.errors import UsageError
     from ..evaluation.plot import is_plot_png
     from ..evaluation.report import is_report_file
@@ -105,6 +105,8 @@ def _check_outputs(args: argparse.Namespace, outdir) -> None:
 
     if outdir.exists() and not outdir.is_dir():
         raise UsageError(f"--out {outdir} exists and is not a folder. Choose a folder.")
+    names = ("demo.md", "demo.json", "demo.png")
+    check_distinct_outputs([*(("--out", outdir / n) for n in names), ("--rrd", args.rrd)])
     for name, known in (
         ("demo.md", is_report_file),
         ("demo.json", is_report_file),

@@ -173,11 +173,15 @@ def run(args: argparse.Namespace) -> int:
 
 def _check_outputs(args: argparse.Namespace) -> None:
     """Refuse, before any work, outputs that would replace an input or a user's file."""
-    from ..core.atomic import check_output
+    from ..core.atomic import check_distinct_outputs, check_output
     from ..evaluation.plot import is_plot_png
     from ..evaluation.report import is_report_file
     from ._viewer_opts import check_rrd
 
+    check_distinct_outputs(
+        [("--json", args.json), ("--markdown", args.markdown), ("--plot", args.plot)]
+        + [("--rrd", args.rrd)]
+    )
     inputs = (args.map, *(args.configs or ()), *([args.queries_file] if args.queries_file else []))
     for flag, path, known in (
         ("--json", args.json, is_report_file),
@@ -186,9 +190,4 @@ def _check_outputs(args: argparse.Namespace) -> None:
     ):
         if path:
             check_output(path, inputs, what=flag, overwrite=args.force, replaceable=known)
-    outs = [p for p in (args.json, args.markdown, args.plot, args.rrd) if p]
-    if len({str(p) for p in outs}) < len(outs):
-        from ..core.errors import UsageError
-
-        raise UsageError("--json, --markdown, --plot and --rrd must name different files.")
     check_rrd(args, inputs)

@@ -22,9 +22,9 @@ With --format openlex3d, --out is a folder of per-query files aligned with the r
 an OpenLex3D export of the map (quash convert MAP DIR --format openlex3d):
 query_scores.npy (N, Q) in [0, 1] (0.5 at the threshold), query_scores_raw.npy,
 query_masks.npy and queries.json (see docs/adapters.md#openlex3d).
---out and --rrd never replace the map or any other input; an existing file is replaced
-only when it is a previous output of the same kind (a query result, a recording), or
-with --force."""
+--out and --rrd never replace the map or any other input, and never name one file;
+an existing file is replaced only when it is a previous output of the same kind (a
+query result, a recording), or with --force."""
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -108,10 +108,11 @@ def _out_format(args: argparse.Namespace) -> str:
 
 def _check_outputs(args: argparse.Namespace) -> None:
     """Refuse, before any work, outputs that would replace an input or a user's file."""
-    from ..core.atomic import check_output
+    from ..core.atomic import check_distinct_outputs, check_output
     from ..engine.results import is_openlex3d_results, is_results_npz, is_results_zarr
     from ._viewer_opts import check_rrd
 
+    check_distinct_outputs([("--out", args.out), ("--rrd", getattr(args, "rrd", None))])
     inputs = (args.map, args.config)
     if args.out:
         fmt = _out_format(args)

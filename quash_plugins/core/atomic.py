@@ -14,7 +14,8 @@ The policy, the same for every file quash-plugins writes:
 - Every write goes to a hidden temporary file (or folder) beside the target, renamed
   over it at the end; an error, Ctrl-C or SIGTERM removes it.
 
-:func:`check_output` applies the first two rules; :func:`atomic_write` and
+:func:`check_output` applies the first two rules, :func:`check_distinct_outputs` refuses
+two outputs of one command naming the same file; :func:`atomic_write` and
 :func:`atomic_dir` write.
 """
 
@@ -67,6 +68,41 @@ def check_not_input(
                     f"{what} {out} lies inside the input folder {src}. Choose an output outside it."
                 )
     return out
+
+
+def _resolved(path: str | Path) -> Path:
+    p = Path(path).expanduser()
+    try:
+        return p.resolve()
+    except (OSError, RuntimeError):  # a symbolic-link loop: refused later by check_output
+        return Path(os.path.abspath(p))
+
+
+def check_distinct_outputs(outputs: Iterable[tuple[str, str | Path | None]]) -> None:
+    """Refuse two outputs that name the same file: the same path, the same file through
+    a relative path or a symbolic link, or two hard links to one file.
+
+    ``outputs`` holds ``(option, path)`` pairs; ``None`` paths are ignored. The second
+    write would replace the first, so one output would be lost.
+
+    Raises
+    ------
+    UsageError
+        Naming both options and the file.
+    """
+    seen: list[tuple[str, Path, Path]] = []
+    for what, path in outputs:
+        if path is None or path == "":
+            continue
+        out = Path(path).expanduser()
+        real = _resolved(out)
+        for other_what, other, other_real in seen:
+            if real == other_real or (out.exists() and _same_file(out, other)):
+                raise UsageError(
+                    f"{other_what} {other} and {what} {out} name the same file: the second "
+                    f"would replace the first. Give {what} another file name."
+                )
+        seen.append((what, out, real))
 
 
 def check_output(

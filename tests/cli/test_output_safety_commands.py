@@ -105,7 +105,39 @@ def test_eval_outputs_onto_a_folder_or_the_same_file_are_refused(tiny_world, tmp
     assert "is a folder" in capsys.readouterr().err
     same = tmp_path / "r.json"
     assert _eval(tiny_world, "--json", same, "--markdown", same) == 2
-    assert "different files" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "--json" in err and "--markdown" in err and "name the same file" in err
+
+
+def test_eval_outputs_naming_one_file_through_a_link_or_a_relative_path_are_refused(
+    tiny_world, tmp_path, capsys, monkeypatch
+):
+    monkeypatch.chdir(tmp_path)
+    link = tmp_path / "link.json"
+    link.symlink_to(tmp_path / "r.json")
+    for a, b in (("r.json", link), ("r.json", tmp_path / "sub" / ".." / "r.json")):
+        assert _eval(tiny_world, "--json", a, "--plot", b, "--force") == 2
+        err = capsys.readouterr().err
+        assert "--json" in err and "--plot" in err and "name the same file" in err
+    assert not (tmp_path / "r.json").exists()
+
+
+# ---------------------------------------------------------------------- query
+def test_query_out_and_rrd_naming_one_file_are_refused_before_any_work(
+    tiny_world, tmp_path, capsys, monkeypatch
+):
+    monkeypatch.chdir(tmp_path)
+    m, c = str(tiny_world["map"]), str(tiny_world["config"])
+    (tmp_path / "d").mkdir()
+    for out, rrd in (
+        ("same.rrd", "same.rrd"),
+        ("same.rrd", str(tmp_path / "d" / ".." / "same.rrd")),
+    ):
+        assert main(["-q", "query", m, "chair", "-c", c, "--out", out, "--rrd", rrd]) == 2
+        err = capsys.readouterr().err
+        assert "--out" in err and "--rrd" in err and "name the same file" in err
+        assert "wrote" not in err
+    assert not (tmp_path / "same.rrd").exists()
 
 
 # ---------------------------------------------------------------------- bench, demo
@@ -134,6 +166,14 @@ def test_demo_refuses_foreign_files_in_out_before_any_work(tmp_path, capsys):
     assert main(["-q", "demo", "--tiny", "--out", str(out)]) == 2
     assert "--rrd" in capsys.readouterr().err
     assert (out / "demo.rrd").read_text() == "not a recording"
+
+
+def test_demo_rrd_naming_one_of_its_reports_is_refused(tmp_path, capsys):
+    out = tmp_path / "d"
+    assert main(["-q", "demo", "--tiny", "--out", str(out), "--rrd", str(out / "demo.md")]) == 2
+    err = capsys.readouterr().err
+    assert "--rrd" in err and "demo.md" in err and "name the same file" in err
+    assert not out.exists()
 
 
 # ---------------------------------------------------------------------- make-scene
