@@ -93,3 +93,41 @@ def apply_runtime_options(cfg: QuashConfig, args: argparse.Namespace) -> QuashCo
         except ConfigError as exc:
             raise UsageError(str(exc)) from None
     return cfg
+
+
+def input_files(map_path: str | None, configs: list[QuashConfig]) -> list[str]:
+    """The files a run reads besides the map, that no output may replace: the map's
+    sidecar taxonomy (``MAP.taxonomy.yaml``, read by the taxonomy heuristics), each
+    config's YAML file and every file its plugins name (``encoder.file``,
+    ``heuristic.file``, a vocabulary, a prompt-template file...). A file that does not
+    exist is listed too: nothing will then be read from it, and checks skip it."""
+    from ..core.config import PluginSpec, _is_path_key
+    from ..heuristics import taxonomy_path_beside
+
+    found: list[str] = []
+    if map_path:
+        beside = taxonomy_path_beside(map_path)
+        if beside is not None:
+            found.append(str(beside))
+
+    def walk(params: object) -> None:
+        if isinstance(params, dict):
+            for k, v in params.items():
+                if isinstance(v, str) and _is_path_key(str(k)) and k != "cache_dir":
+                    found.append(v)
+                else:
+                    walk(v)
+        elif isinstance(params, (list, tuple)):
+            for v in params:
+                walk(v)
+
+    for cfg in configs:
+        if cfg.source:
+            found.append(str(cfg.source))
+        for value in vars(cfg).values():
+            if isinstance(value, PluginSpec):
+                walk(value.params)
+        templates = (cfg.prompt_templates or {}).get("templates")
+        if isinstance(templates, str) and templates not in ("default", "vlmaps"):
+            found.append(templates)
+    return [f for f in found if "://" not in f and not f.startswith("hf-hub:")]

@@ -121,13 +121,13 @@ def run(args: argparse.Namespace) -> int:
     from ._output import console, print_markdown, safe_text
     from ._viewer_opts import open_viewer
 
-    _check_outputs(args)
-    overrides = backend_overrides(args)
     if args.configs:
         configs = [load_config(c) for c in args.configs]
     else:
         configs = fair_default_configs()
         log.info("no -c: the default config and the fair peers (%s)", ", ".join(FAIR_PEERS))
+    _check_outputs(args, configs)
+    overrides = backend_overrides(args)
     quashes = [Quash.from_config(apply_runtime_options(cfg, args), **overrides) for cfg in configs]
     lmap = quashes[0].read_map(args.map, adapter=args.adapter)
     queries: Any = _split(args.queries) or None
@@ -171,18 +171,29 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _check_outputs(args: argparse.Namespace) -> None:
-    """Refuse, before any work, outputs that would replace an input or a user's file."""
+def _check_outputs(args: argparse.Namespace, configs=()) -> None:
+    """Refuse, before any work, outputs that would replace an input or a user's file.
+
+    The inputs are the map, the taxonomy beside it, the query file, the configs and the
+    files they name (:func:`~._config_opts.input_files`); ``--force`` never lets an
+    output replace one.
+    """
     from ..core.atomic import check_distinct_outputs, check_output
     from ..evaluation.plot import is_plot_png
     from ..evaluation.report import is_report_file
+    from ._config_opts import input_files
     from ._viewer_opts import check_rrd
 
     check_distinct_outputs(
         [("--json", args.json), ("--markdown", args.markdown), ("--plot", args.plot)]
         + [("--rrd", args.rrd)]
     )
-    inputs = (args.map, *(args.configs or ()), *([args.queries_file] if args.queries_file else []))
+    inputs = (
+        args.map,
+        *(args.configs or ()),
+        *([args.queries_file] if args.queries_file else []),
+        *input_files(args.map, list(configs)),
+    )
     for flag, path, known in (
         ("--json", args.json, is_report_file),
         ("--markdown", args.markdown, is_report_file),

@@ -71,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
     from ._viewer_opts import open_viewer
 
     cfg = apply_runtime_options(load_config(args.config), args)
-    _check_outputs(args)
+    _check_outputs(args, cfg)
     quash = Quash.from_config(cfg, **backend_overrides(args))
     if args.out and _out_format(args) == "zarr":
         return _query_to_zarr(args, quash)
@@ -106,14 +106,19 @@ def _out_format(args: argparse.Namespace) -> str:
     return "zarr" if str(args.out).rstrip("/").endswith(".zarr") else "npz"
 
 
-def _check_outputs(args: argparse.Namespace) -> None:
-    """Refuse, before any work, outputs that would replace an input or a user's file."""
+def _check_outputs(args: argparse.Namespace, cfg=None) -> None:
+    """Refuse, before any work, outputs that would replace an input or a user's file.
+
+    The inputs are the map, the taxonomy beside it, the config and the files it names
+    (:func:`~._config_opts.input_files`); ``--force`` never lets an output replace one.
+    """
     from ..core.atomic import check_distinct_outputs, check_output
     from ..engine.results import is_openlex3d_results, is_results_npz, is_results_zarr
+    from ._config_opts import input_files
     from ._viewer_opts import check_rrd
 
     check_distinct_outputs([("--out", args.out), ("--rrd", getattr(args, "rrd", None))])
-    inputs = (args.map, args.config)
+    inputs = (args.map, args.config, *input_files(args.map, [cfg] if cfg is not None else []))
     if args.out:
         fmt = _out_format(args)
         replaceable = {

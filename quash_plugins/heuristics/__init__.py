@@ -17,6 +17,7 @@ _EXPORTS = {
     "LabelListHeuristic": "._taxonomy",
     "normalise_name": "._taxonomy",
     "taxonomy_beside": "._taxonomy",
+    "taxonomy_path_beside": "._taxonomy",
     "LexiconHeuristic": "._lexicon",
     "AdjectivesHeuristic": "._adjectives",
     "TemplatesHeuristic": "._templates",

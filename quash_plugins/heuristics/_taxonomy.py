@@ -38,6 +38,16 @@ def load_taxonomy(spec: str | dict | None) -> dict[str, list[str]]:
 _BESIDE: dict[tuple[str, int], dict[str, list[str]]] = {}
 
 
+def taxonomy_path_beside(map_path: Any) -> Any:
+    """The ``MAP.taxonomy.yaml`` path that :func:`taxonomy_beside` reads for a map file
+    (a :class:`~pathlib.Path`, whether it exists or not), or None for a path without a
+    suffix. The command line counts it as an input that no output may replace."""
+    from pathlib import Path
+
+    p = Path(str(map_path))
+    return p.with_name(p.name[: -len(p.suffix)] + ".taxonomy.yaml") if p.suffix else None
+
+
 def taxonomy_beside(lmap: Any) -> tuple[str, dict[str, list[str]]] | None:
     """``(path, taxonomy)`` of ``MAP.taxonomy.yaml`` next to the map's file, if there is one.
 
@@ -45,13 +55,11 @@ def taxonomy_beside(lmap: Any) -> tuple[str, dict[str, list[str]]] | None:
     finds it here, so a config without ``file`` gets the scene's sub-classes too. A file
     that is not a taxonomy is ignored (with a log line).
     """
-    from pathlib import Path
 
     path = (getattr(lmap, "source", None) or {}).get("path") if lmap is not None else None
     if not path:
         return None
-    p = Path(str(path))
-    cand = p.with_name(p.name[: -len(p.suffix)] + ".taxonomy.yaml") if p.suffix else None
+    cand = taxonomy_path_beside(path)
     if cand is None or not cand.is_file():
         return None
     try:

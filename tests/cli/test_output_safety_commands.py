@@ -140,6 +140,24 @@ def test_query_out_and_rrd_naming_one_file_are_refused_before_any_work(
     assert not (tmp_path / "same.rrd").exists()
 
 
+def test_outputs_never_replace_the_taxonomy_beside_the_map_or_a_file_the_config_names(
+    tiny_world, capsys
+):
+    """The taxonomy heuristics read MAP.taxonomy.yaml; the config names its encoder's
+    table. Neither is replaced, even with --force."""
+    taxonomy = tiny_world["map"].with_name("map.taxonomy.yaml")
+    taxonomy.write_text("chair: [armchair]\n")
+    table = tiny_world["dir"] / "text.npz"
+    before = {p: _sha(p) for p in (taxonomy, table)}
+    m, c = str(tiny_world["map"]), str(tiny_world["config"])
+    for target in (taxonomy, table):
+        assert main(["-q", "query", m, "chair", "-c", c, "--out", str(target), "--force"]) == 2
+        assert "is the input" in capsys.readouterr().err
+        assert _eval(tiny_world, "--json", target, "--force") == 2
+        assert "is the input" in capsys.readouterr().err
+    assert {p: _sha(p) for p in (taxonomy, table)} == before
+
+
 # ---------------------------------------------------------------------- bench, demo
 def test_bench_refuses_foreign_files_in_out_before_any_work(tiny_world, tmp_path, capsys):
     out = tmp_path / "bench"
