@@ -6,6 +6,22 @@ import argparse
 from typing import Any
 
 from ..viewer import DEFAULT_BIND, DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT, ViewerOptions
+from ..viewer._sinks import check_bind, check_port
+
+
+def _arg_type(check: Any, what: str) -> Any:
+    """An argparse ``type`` from a checker that raises :class:`UsageError`."""
+
+    def convert(text: str) -> Any:
+        from ..core.errors import UsageError
+
+        try:
+            return check(text, what)
+        except UsageError as exc:
+            raise argparse.ArgumentTypeError(str(exc).removeprefix(f"{what} ")) from None
+
+    convert.__name__ = what.lstrip("-").replace("-", " ")
+    return convert
 
 
 def add_viewer_arguments(parser: argparse.ArgumentParser) -> None:
@@ -37,24 +53,28 @@ def add_viewer_arguments(parser: argparse.ArgumentParser) -> None:
     )
     g.add_argument(
         "--web-port",
-        type=int,
+        type=_arg_type(check_port, "--web-port"),
         default=DEFAULT_WEB_PORT,
         metavar="PORT",
-        help=f"HTTP port of the web viewer for --serve-web (default: {DEFAULT_WEB_PORT}).",
+        help=f"HTTP port (1-65535) of the web viewer for --serve-web (default: "
+        f"{DEFAULT_WEB_PORT}).",
     )
     g.add_argument(
         "--grpc-port",
-        type=int,
+        type=_arg_type(check_port, "--grpc-port"),
         default=DEFAULT_GRPC_PORT,
         metavar="PORT",
-        help=f"gRPC port the web viewer reads the recording from (default: {DEFAULT_GRPC_PORT}).",
+        help="gRPC port (1-65535) the web viewer reads the recording from (default: "
+        f"{DEFAULT_GRPC_PORT}).",
     )
     g.add_argument(
         "--bind",
+        type=_arg_type(check_bind, "--bind"),
         default=DEFAULT_BIND,
         metavar="ADDR",
-        help=f"Address --serve-web listens on (default: {DEFAULT_BIND}, this machine only; "
-        "0.0.0.0 serves every network interface: only on a network you trust).",
+        help=f"IP address --serve-web listens on (default: {DEFAULT_BIND}, this machine only; "
+        "localhost means 127.0.0.1; 0.0.0.0 serves every network interface: only on a "
+        "network you trust).",
     )
 
 

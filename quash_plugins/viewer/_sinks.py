@@ -85,6 +85,40 @@ class ViewerOptions:
         return bool(self.rrd or self.spawn or self.connect or self.serve_web)
 
 
+def check_bind(value: str, what: str = "--bind") -> str:
+    """The IP address ``value`` for the servers to listen on; ``localhost`` is 127.0.0.1.
+
+    Raises
+    ------
+    UsageError
+        For a host name or a malformed address, naming ``what`` and the fix.
+    """
+    import ipaddress
+
+    text = str(value).strip()
+    if text.lower() == "localhost":
+        return DEFAULT_BIND
+    try:
+        return str(ipaddress.ip_address(text.strip("[]")))
+    except ValueError:
+        raise UsageError(
+            f"{what} {value!r} is not an IP address. Give one such as 127.0.0.1 (this "
+            "machine only, the default), 0.0.0.0 (every network interface) or an address of "
+            "this machine; host names other than localhost are not accepted."
+        ) from None
+
+
+def check_port(value: Any, what: str = "port") -> int:
+    """``value`` as a TCP port number in 1-65535, or a :class:`UsageError` naming ``what``."""
+    try:
+        port = int(value)
+    except (TypeError, ValueError):
+        port = None
+    if port is None or not 1 <= port <= 65535:
+        raise UsageError(f"{what} {value!r} is not a port number; give one from 1 to 65535.")
+    return port
+
+
 def is_rrd(path: str | Path) -> bool:
     """True when ``path`` is a Rerun recording (its magic bytes): a previous ``--rrd``
     output that may be replaced without ``--force``."""
@@ -221,9 +255,10 @@ class SinkRerunLogger(RerunLogger):
         rr = import_rerun()
         self.rrd_path = Path(sinks.rrd) if sinks.rrd else None
         self.serve_web = bool(sinks.serve_web)
-        self.web_port = int(sinks.web_port or DEFAULT_WEB_PORT)
-        self.grpc_port = int(sinks.grpc_port or DEFAULT_GRPC_PORT)
-        self.bind = str(sinks.bind or DEFAULT_BIND)
+        web, grpc = sinks.web_port, sinks.grpc_port
+        self.web_port = check_port(DEFAULT_WEB_PORT if web is None else web, "--web-port")
+        self.grpc_port = check_port(DEFAULT_GRPC_PORT if grpc is None else grpc, "--grpc-port")
+        self.bind = check_bind(DEFAULT_BIND if sinks.bind is None else sinks.bind)
         self.url: str | None = None
         self.streaming: list[str] = []  # streaming sinks, for messages
         self._tmp: Path | None = None

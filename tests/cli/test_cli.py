@@ -315,3 +315,33 @@ def test_reader_that_hangs_up_is_not_an_error():
     proc.stderr.close()
     assert proc.wait(timeout=120) == 141
     assert "BrokenPipe" not in err and "unexpected error" not in err, err
+
+
+@pytest.mark.parametrize(
+    ("option", "value", "said"),
+    [
+        ("--bind", "999.0.0.1", "is not an IP address"),
+        ("--bind", "myhost", "is not an IP address"),
+        ("--web-port", "70000", "from 1 to 65535"),
+        ("--grpc-port", "0", "from 1 to 65535"),
+        ("--grpc-port", "-1", "from 1 to 65535"),
+    ],
+)
+def test_viewer_address_and_ports_are_checked_when_parsed(option, value, said, tmp_path, capsys):
+    """A host name or an out-of-range port is a usage error naming the option, not an
+    'unexpected error' from the socket layer nor a silent default (grpc-port 0)."""
+    argv = ["query", str(tmp_path / "m.npz"), "chair", "--serve-web", option, value]
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert f"argument {option}" in err and said in err and "unexpected" not in err
+
+
+def test_viewer_bind_localhost_is_the_loopback_address():
+    from quash_plugins.cli.main import build_parser
+
+    ns = build_parser().parse_args(["query", "m.npz", "chair", "--bind", "localhost"])
+    assert ns.bind == "127.0.0.1"
+    ns = build_parser().parse_args(["query", "m.npz", "chair", "--bind", "::1", "--web-port", "1"])
+    assert (ns.bind, ns.web_port) == ("::1", 1)

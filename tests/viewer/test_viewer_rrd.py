@@ -418,6 +418,21 @@ def test_cli_rejects_bad_rrd_name(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["map.npz", "quash.yaml", "table.npz"]
 
 
+@pytest.mark.parametrize(
+    "opts",
+    [{"grpc_port": 0}, {"web_port": 70000}, {"bind": "localhost6.invalid"}, {"bind": "999.0.0.1"}],
+)
+def test_sink_logger_refuses_bad_ports_and_addresses(opts, tmp_path):
+    """The Python API checks them too: port 0 is not the default port in disguise."""
+    from quash_plugins.core.errors import UsageError
+    from quash_plugins.viewer import SinkRerunLogger, ViewerOptions
+
+    rrd = tmp_path / "x.rrd"
+    with pytest.raises(UsageError, match="not a port number|not an IP address"):
+        SinkRerunLogger(ViewerOptions(rrd=rrd, serve_web=True, **opts))
+    assert not list(tmp_path.iterdir())
+
+
 def test_cli_query_rrd_per_image_feature_map(tmp_path):
     pytest.importorskip("PIL")
     from PIL import Image
