@@ -79,19 +79,36 @@ def add_viewer_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def check_rrd(args: argparse.Namespace, inputs: Any = ()) -> None:
-    """Refuse, before any work, an ``--rrd`` that is an input or replaces a file that is
-    not a Rerun recording (unless ``--force``)."""
-    from ..core.atomic import check_output
-    from ..viewer import is_rrd
+    """Refuse, before any work, an ``--rrd`` that is an input, or that replaces a file
+    other than a recording quash wrote (unless ``--force``): a recording of another
+    application (a robot's own log) is refused naming its application id."""
+    from pathlib import Path
 
-    if getattr(args, "rrd", None):
-        check_output(
-            args.rrd,
-            inputs,
-            what="--rrd",
-            overwrite=bool(getattr(args, "force", False)),
-            replaceable=is_rrd,
+    from ..core.atomic import check_output
+    from ..core.errors import UsageError
+    from ..viewer._sinks import is_quash_rrd, is_rrd, rrd_application_ids
+
+    if not getattr(args, "rrd", None):
+        return
+    force = bool(getattr(args, "force", False))
+    path = Path(args.rrd).expanduser()
+    out = check_output(path, inputs, what="--rrd", overwrite=True, replaceable=is_quash_rrd)
+    if force or not out.exists() or is_quash_rrd(out):
+        return
+    if is_rrd(out):
+        ids = rrd_application_ids(out)
+        whose = (
+            f"a Rerun recording of application id {', '.join(map(repr, ids))}"
+            if ids
+            else "a Rerun recording whose application id cannot be read"
         )
+        raise UsageError(
+            f"--rrd {out} is {whose}, not one quash wrote; refusing to replace it. Pass "
+            "--force to replace it, or choose another file."
+        )
+    raise UsageError(
+        f"--rrd {out} already exists. Pass --force to replace it, or choose another file."
+    )
 
 
 def viewer_options(args: argparse.Namespace) -> ViewerOptions:

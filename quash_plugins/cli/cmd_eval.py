@@ -36,7 +36,7 @@ The JSON holds {"configs": [{"name", "given", "mean": {precision, recall, f1, io
 inv_rank}, "per_query": {query: {label, ...}}, "absence": {score, empty_tolerance,
 present_empty, per_query}}]}.
 Outputs never replace an input; an existing file is replaced only when it is a previous
-quash report, plot or recording, or with --force."""
+quash report, plot or quash recording, or with --force."""
 
 
 def _split(text: str | None) -> list[str]:

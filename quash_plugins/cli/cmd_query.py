@@ -24,7 +24,7 @@ query_scores.npy (N, Q) in [0, 1] (0.5 at the threshold), query_scores_raw.npy,
 query_masks.npy and queries.json (see docs/adapters.md#openlex3d).
 --out and --rrd never replace the map or any other input, and never name one file;
 an existing file is replaced only when it is a previous output of the same kind (a
-query result, a recording), or with --force."""
+query result, a quash recording), or with --force."""
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

@@ -407,6 +407,45 @@ def test_cli_query_rrd(tmp_path, capsys):
     assert reader.blueprints()
 
 
+def _robot_recording(path: Path) -> Path:
+    """A user's own recording, made by another application."""
+    rec = rr.RecordingStream("my-robot")
+    rec.save(str(path))
+    rec.log("robot/pose", rr.Points3D([[0.0, 0.0, 0.0]]))
+    rec.flush()
+    rec.disconnect()
+    return path
+
+
+def test_cli_rrd_replaces_only_quash_recordings_without_force(tmp_path, capsys):
+    """A recording of another application id (a robot's own log) is never replaced
+    without --force; a previous quash recording is."""
+    import hashlib
+
+    from quash_plugins.adapters import write_npz_map
+    from quash_plugins.cli.main import main
+
+    map_path = write_npz_map(tmp_path / "map.npz", voxel_map())
+    cfg = write_table_config(tmp_path)
+    robot = _robot_recording(tmp_path / "robot.rrd")
+    assert RrdReader(robot).recordings()[0].application_id == "my-robot"
+    before = hashlib.sha256(robot.read_bytes()).hexdigest()
+    argv = ["-q", "query", str(map_path), "chair", "-c", str(cfg), "--rrd", str(robot)]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert str(robot) in err and "'my-robot'" in err and "--force" in err
+    assert hashlib.sha256(robot.read_bytes()).hexdigest() == before
+    assert main([*argv, "--force"]) == 0
+    assert RrdReader(robot).recordings()[0].application_id == "quash-query"
+    assert main(argv) == 0  # now a previous quash recording: replaced without --force
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "map.npz",
+        "quash.yaml",
+        "robot.rrd",
+        "table.npz",
+    ]
+
+
 def test_cli_rejects_bad_rrd_name(tmp_path):
     from quash_plugins.adapters import write_npz_map
     from quash_plugins.cli.main import main
