@@ -24,12 +24,14 @@ def _arg_type(check: Any, what: str) -> Any:
     return convert
 
 
-def add_viewer_arguments(parser: argparse.ArgumentParser) -> None:
+#: What ``quash query`` logs; the default description of the option group.
+LOGS_QUERIES = "Log the map and every query to Rerun (needs the [rerun] extra)."
+
+
+def add_viewer_arguments(parser: argparse.ArgumentParser, logs: str = LOGS_QUERIES) -> None:
     """Add ``--rrd``, ``--spawn``, ``--connect``, ``--serve-web``, ``--web-port``,
-    ``--grpc-port`` and ``--bind``."""
-    g = parser.add_argument_group(
-        "Rerun viewer", "Log the map and every query to Rerun (needs the [rerun] extra)."
-    )
+    ``--grpc-port`` and ``--bind``; ``logs`` says what the command logs."""
+    g = parser.add_argument_group("Rerun viewer", logs)
     g.add_argument(
         "--rrd",
         metavar="FILE.rrd",

@@ -44,7 +44,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="Replace files in --out that are not previous demo outputs.",
     )
-    add_viewer_arguments(p)
+    add_viewer_arguments(
+        p,
+        "Log the scene, every method's query results and the evaluation to Rerun (needs "
+        "the [rerun] extra).",
+    )
     add_backend_arguments(p)
 
 

@@ -99,7 +99,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "previous outputs of quash (never an input).",
     )
     add_runtime_options(p)
-    add_viewer_arguments(p)
+    add_viewer_arguments(
+        p,
+        "Log the evaluation to Rerun: each config's per-query F1, precision, recall and "
+        "IoU as plots, and the comparison table (needs the [rerun] extra). The map and "
+        "the masks are not logged: quash query --rrd logs those.",
+    )
     add_backend_arguments(p)
 
 

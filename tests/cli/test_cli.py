@@ -345,3 +345,16 @@ def test_viewer_bind_localhost_is_the_loopback_address():
     assert ns.bind == "127.0.0.1"
     ns = build_parser().parse_args(["query", "m.npz", "chair", "--bind", "::1", "--web-port", "1"])
     assert (ns.bind, ns.web_port) == ("::1", 1)
+
+
+def test_each_commands_rerun_options_say_what_it_logs(capsys):
+    """quash eval logs only its metrics and table, never the map or the queries."""
+    said = {}
+    for name in ("query", "eval", "demo"):
+        with pytest.raises(SystemExit):
+            main([name, "--help"])
+        said[name] = " ".join(capsys.readouterr().out.split())
+    assert "Log the map and every query to Rerun" in said["query"]
+    assert "Log the map" not in said["eval"]
+    assert "Log the evaluation to Rerun" in said["eval"] and "not logged" in said["eval"]
+    assert "Log the scene, every method's query results and the evaluation" in said["demo"]
