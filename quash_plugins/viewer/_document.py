@@ -38,6 +38,14 @@ def _head(words: Sequence[str], limit: int = HEAD_ITEMS) -> str:
     return shown + (f" … and {more} more (listed below)" if more > 0 else "")
 
 
+def _instances_words(result: QueryResult) -> str:
+    """``N instances``, or ``instances: off`` when the config groups none (``instances:
+    false``; the pipeline times the grouping only when it runs)."""
+    if result.instances or "instances" in result.timings:
+        return f"{len(result.instances)} instances"
+    return "instances: off"
+
+
 def queryset_markdown(
     lmap: LatentMap, result: QueryResult, index: int, notes: Sequence[str] = ()
 ) -> str:
@@ -52,7 +60,7 @@ def queryset_markdown(
         f"# {_md(qs.query)} · {_md(config)}",
         "",
         f"Matched **{result.n_matched:,}** of {lmap.n:,} items ({100 * result.share:.2f} %) · "
-        f"{len(result.instances)} instances · query {index}",
+        f"{_instances_words(result)} · query {index}",
         "",
         f"Presence check: {_md(result.presence)}",
         "",
