@@ -444,10 +444,28 @@ def presence_words(provenance: dict[str, Any]) -> str:
         )
         if isinstance(info.get(key), (int, float))
     ]
-    if not info.get("components"):
+    n = info.get("components")
+    if not n:
         return "absent: nothing matched"
-    why = f"best margins: {', '.join(best)}" if best else "no component large enough"
-    return f"absent: no component won clearly against the other labels ({why})"
+    if not best:
+        return f"absent: {_no_large_component(info, int(n))}"
+    return f"absent: no component won clearly against the other labels (best margins: {', '.join(best)})"
+
+
+def _no_large_component(info: dict[str, Any], n: int) -> str:
+    """Why no component was weighed: all are smaller than ``min_component``, else the
+    flat margin left none (older provenance, without the sizes: in general words)."""
+    largest, least = info.get("largest_component"), info.get("min_component")
+    if not isinstance(largest, int) or not isinstance(least, int):
+        return "no component large enough"
+    if largest < least:
+        items = f"{largest} item{'' if largest == 1 else 's'}"
+        if n == 1:
+            return f"the only component ({items}) is smaller than min_component={least}"
+        return f"all {n} components are smaller than min_component={least} (largest: {items})"
+    return (
+        f"no component of at least min_component={least} items beat every negative by flat_margin"
+    )
 
 
 @dataclass

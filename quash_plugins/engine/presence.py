@@ -302,6 +302,8 @@ def presence_check(
         best_core_margin=core_best,
         **({"best_support_margin": support_best} if opts.support_margin is not None else {}),
         largest_kept=int(sizes[kept].max()) if kept.any() else 0,
+        largest_component=int(sizes.max()),
+        min_component=int(opts.min_component),
     )
     if opts.mode == "gate":
         keep = mask.copy() if present else np.zeros_like(mask)

@@ -22,7 +22,23 @@ from quash_plugins.core.types import QueryResult, QuerySet
         ),
         (
             {"checked": True, "present": False, "components": 3, "best_margin": None},
-            "absent: no component won clearly against the other labels (no component large",
+            "absent: no component large enough",
+        ),
+        (
+            {"checked": True, "present": False, "components": 128, "best_margin": None}
+            | {"largest_component": 5, "min_component": 8},
+            "absent: all 128 components are smaller than min_component=8 (largest: 5 items)",
+        ),
+        (
+            {"checked": True, "present": False, "components": 1, "best_margin": None}
+            | {"largest_component": 1, "min_component": 8},
+            "absent: the only component (1 item) is smaller than min_component=8",
+        ),
+        (
+            {"checked": True, "present": False, "components": 2, "best_margin": None}
+            | {"largest_component": 9, "min_component": 8},
+            "absent: no component of at least min_component=8 items beat every negative by "
+            "flat_margin",
         ),
     ],
 )

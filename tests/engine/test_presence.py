@@ -16,7 +16,7 @@ from quash_plugins import LatentMap, Quash
 from quash_plugins.core.config import QuashConfig
 from quash_plugins.core.errors import ConfigError
 from quash_plugins.core.interfaces import ExpansionContext
-from quash_plugins.core.types import FrameInfo
+from quash_plugins.core.types import FrameInfo, presence_words
 from quash_plugins.encoders import TableEncoder
 from quash_plugins.engine.presence import PresenceOptions, map_mean, presence_check
 from quash_plugins.engine.topology import MapTopology
@@ -103,6 +103,13 @@ def test_the_object_is_kept_and_specks_are_dropped(kind):
     # only specks matched: the bed query is absent
     keep, info = _check(m, np.r_[np.zeros(27, bool), mask[27:]])
     assert not keep.any() and info["present"] is False
+    # and its words say why: every component is too small to weigh
+    largest = info["largest_component"]
+    assert largest < info["min_component"] == 8
+    assert presence_words({"presence": info}) == (
+        "absent: all 6 components are smaller than min_component=8 "
+        f"(largest: {largest} item{'' if largest == 1 else 's'})"
+    )
     # gate mode keeps the whole mask when any component passes
     keep, _ = _check(m, mask, mode="gate")
     assert np.array_equal(keep, mask)
