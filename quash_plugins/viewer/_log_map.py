@@ -117,12 +117,22 @@ class MapLogging:
         self._send_blueprint()
 
     def _score_context(self) -> Any:
-        """Class ``i`` of the score layers: the colormap at ``i / (score_classes - 1)``."""
+        """Class ``i`` of the score layers: the colormap at ``i / (score_classes - 1)``,
+        labelled with that display score (``0.53``), ``(match)`` at and above the
+        threshold's 0.5."""
         rr = self.rr
         k = self.score_classes
-        rgb = colormap(np.linspace(0.0, 1.0, k), self.colormap)
+        values = np.linspace(0.0, 1.0, k)
+        rgb = colormap(values, self.colormap)
         return rr.AnnotationContext(
-            [rr.AnnotationInfo(id=i, color=(*map(int, rgb[i]), 255)) for i in range(k)]
+            [
+                rr.AnnotationInfo(
+                    id=i,
+                    label=f"{v:.2f}" + (" (match)" if v >= 0.5 else ""),
+                    color=(*map(int, rgb[i]), 255),
+                )
+                for i, v in enumerate(values)
+            ]
         )
 
     def _primitive(

@@ -141,6 +141,9 @@ def test_voxel_map_layout_counts_and_blueprint(tmp_path):
         assert got == score_classes(r.display_scores, 32).tolist()
     [(_, [context])] = rows(by_path["world/scores"], "AnnotationContext:context")
     assert [c["class_id"] for c in context] == list(range(32))
+    labels = [c["class_description"]["info"]["label"] for c in context]
+    assert labels[0] == "0.00" and labels[15] == "0.48" and labels[-1] == "1.00 (match)"
+    assert [lab.endswith("(match)") for lab in labels] == [i >= 16 for i in range(32)]
     # The document: the query and its config in the title, positives and negatives first.
     docs = rows(by_path["queries/quash"], "TextDocument:text")
     assert [t for t, _ in docs] == [0, 1]
