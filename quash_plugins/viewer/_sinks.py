@@ -459,6 +459,9 @@ class SinkRerunLogger(RerunLogger):
         except Exception as exc:  # a streaming sink that cannot take the data
             where = ", ".join(self.streaming) or "a streaming sink"
             log.warning("could not stream everything to %s (%s); carrying on.", where, exc)
+        else:
+            for where in self.streaming:  # as "wrote FILE.rrd" confirms a file
+                print(f"streamed to {where}", file=sys.stderr, flush=True)
         if self._tmp is not None:
             _finalize_files(rec)
             self._file.close()  # chmod to the umask, rename over the target

@@ -449,6 +449,29 @@ def test_cli_rrd_replaces_only_quash_recordings_without_force(tmp_path, capsys):
     ]
 
 
+def test_cli_connect_confirms_what_it_streamed(tmp_path, capsys):
+    """--connect to a listening viewer (here a gRPC server in this process) says where
+    the recording went, as --rrd says 'wrote FILE'."""
+    import socket
+
+    from quash_plugins.adapters import write_npz_map
+    from quash_plugins.cli.main import main
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    server = rr.RecordingStream("a-viewer")
+    server.set_sinks(rr.GrpcServerSink(bind_ip="127.0.0.1", port=port))
+    url = f"rerun+http://127.0.0.1:{port}/proxy"
+    try:
+        map_path = write_npz_map(tmp_path / "map.npz", voxel_map())
+        cfg = write_table_config(tmp_path)
+        assert main(["query", str(map_path), "chair", "-c", str(cfg), "--connect", url]) == 0
+    finally:
+        server.disconnect()
+    assert f"streamed to the Rerun viewer at {url}" in capsys.readouterr().err
+
+
 def test_cli_rejects_bad_rrd_name(tmp_path):
     from quash_plugins.adapters import write_npz_map
     from quash_plugins.cli.main import main
