@@ -75,6 +75,7 @@ def run(args: argparse.Namespace) -> int:
     if not args.no_rrd and not args.rrd:
         args.rrd = str(outdir / "demo.rrd")
     _check_outputs(args, outdir)
+    _check_rerun(args, outdir)
     outdir.mkdir(parents=True, exist_ok=True)
     overrides = backend_overrides(args)
     if args.no_cache:
@@ -97,6 +98,34 @@ def run(args: argparse.Namespace) -> int:
         f"wrote {', '.join(str(outdir / w) for w in written)} in {time.perf_counter() - t0:.1f} s"
     )
     return 0
+
+
+def _check_rerun(args: argparse.Namespace, outdir) -> None:
+    """Refuse, before any work, Rerun output without the rerun SDK, saying how to run
+    the demo without it (``--no-rrd``)."""
+    from ..core.errors import QuashError, UsageError
+    from ..viewer._rerun import import_rerun
+    from ._viewer_opts import viewer_requested
+
+    if not viewer_requested(args):
+        return
+    try:
+        import_rerun()
+    except QuashError:
+        default = str(outdir / "demo.rrd")
+        only_default = str(args.rrd) == default and not (
+            args.spawn or args.connect or args.serve_web
+        )
+        fix = (
+            "or pass --no-rrd to write demo.md, demo.json and demo.png without the recording"
+            if only_default
+            else "or drop the Rerun options (--rrd, --spawn, --connect, --serve-web) and "
+            "pass --no-rrd to write demo.md, demo.json and demo.png only"
+        )
+        raise UsageError(
+            f"quash demo writes its recording {args.rrd or '(streamed)'} with the rerun SDK, "
+            f'which is not installed: pip install "quash-plugins[rerun]", {fix}.'
+        ) from None
 
 
 def _check_outputs(args: argparse.Namespace, outdir) -> None:

@@ -194,6 +194,17 @@ def test_demo_rrd_naming_one_of_its_reports_is_refused(tmp_path, capsys):
     assert not out.exists()
 
 
+def test_demo_without_the_rerun_sdk_says_to_pass_no_rrd(tmp_path, capsys, monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "rerun", None)  # import rerun raises ImportError
+    out = tmp_path / "d"
+    assert main(["-q", "demo", "--tiny", "--out", str(out)]) == 2
+    err = " ".join(capsys.readouterr().err.split())
+    assert "quash-plugins[rerun]" in err and "--no-rrd" in err and "demo.rrd" in err
+    assert not out.exists()  # refused before any work
+
+
 # ---------------------------------------------------------------------- make-scene
 def test_make_scene_refuses_a_users_map_and_yaml(tiny_world, tmp_path, capsys):
     target = tmp_path / "scene.npz"
