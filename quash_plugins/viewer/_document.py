@@ -15,8 +15,9 @@ _STAGES = (
     "postprocess",
     "refine",
     "reclassify",
+    "presence",
     "instances",
-    "total",
+    "total",  # the sum of the stages above it: last
 )
 #: Stages done once for all the queries of a call (each query shows its equal share).
 SHARED_STAGES = ("read", "encode", "classify", "reclassify")
@@ -38,6 +39,21 @@ def _head(words: Sequence[str], limit: int = HEAD_ITEMS) -> str:
     return shown + (f" … and {more} more (listed below)" if more > 0 else "")
 
 
+def _provenance_yaml(provenance: dict) -> str:
+    """The provenance as YAML, lists of numbers (``negative_groups``) on one line."""
+    import yaml
+
+    class _Dumper(yaml.SafeDumper):
+        pass
+
+    def seq(dumper: yaml.SafeDumper, value: list) -> yaml.Node:
+        flat = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
+        return dumper.represent_sequence("tag:yaml.org,2002:seq", value, flow_style=flat)
+
+    _Dumper.add_representer(list, seq)
+    return yaml.dump(provenance, Dumper=_Dumper, sort_keys=False).rstrip()
+
+
 def _instances_words(result: QueryResult) -> str:
     """``N instances``, or ``instances: off`` when the config groups none (``instances:
     false``; the pipeline times the grouping only when it runs)."""
@@ -51,7 +67,6 @@ def queryset_markdown(
 ) -> str:
     """Markdown for one result: the query and its config, what matched, the positives and
     negatives (both at the top), classifier, timings, provenance and display notes."""
-    import yaml
 
     qs = result.queryset
     config = result.config_name or "-"
@@ -91,7 +106,7 @@ def queryset_markdown(
         "## Provenance",
         "",
         "```yaml",
-        yaml.safe_dump(qs.to_dict()["provenance"] or {}, sort_keys=False).rstrip(),
+        _provenance_yaml(qs.to_dict()["provenance"] or {}),
         "```",
         "",
         "## Map",

@@ -28,3 +28,23 @@ def test_document_says_instances_off_when_the_config_groups_none():
     lmap, on = _result(instances=True)
     assert on.instances
     assert f"· {len(on.instances)} instances ·" in queryset_markdown(lmap, on, 0)
+
+
+def test_document_times_presence_before_the_total_and_folds_the_group_sizes():
+    import numpy as np
+
+    from quash_plugins.core.types import QueryResult, QuerySet
+
+    lmap = voxel_map()
+    qs = QuerySet("bed", ["bed"], ["sofa", "chair", "other"], {"negative_groups": [1, 1]})
+    n = lmap.n
+    result = QueryResult(
+        qs,
+        np.zeros(n, bool),
+        np.zeros(n, np.float32),
+        np.zeros(n, np.float32),
+        timings={"classify": 0.01, "presence": 0.002, "total": 0.012},
+    )
+    text = queryset_markdown(lmap, result, 0)
+    assert text.index("| presence |") < text.index("| total |")
+    assert "negative_groups: [1, 1]" in text
