@@ -65,7 +65,7 @@ def write_npz_streaming(path: str | Path, lmap: LatentMap, chunk_rows: int = 655
 
 
 #: Output formats of :func:`convert_map`; ``auto`` picks npz or zarr by the suffix.
-FORMATS = ("auto", "npz", "zarr", "openlex3d")
+FORMATS = ("auto", "npz", "zarr", "openlex3d", "vlmaps")
 
 
 def convert_map(
@@ -80,7 +80,9 @@ def convert_map(
 
     ``format``: ``"npz"`` (our portable map), ``"zarr"`` (a chunked store),
     ``"openlex3d"`` (a folder holding OpenLex3D's ``embeddings.npy``, ``index.npy`` and
-    ``point_cloud.pcd``; see :func:`~quash_plugins.adapters._openlex3d.write_openlex3d_map`)
+    ``point_cloud.pcd``; see :func:`~quash_plugins.adapters._openlex3d.write_openlex3d_map`),
+    ``"vlmaps"`` (VLMaps' own HDF5 save layout, ``destination/vlmap_cam/vlmaps_cam.h5df``;
+    see :func:`~quash_plugins.adapters._vlmaps_write.write_vlmaps_map`; returns that file)
     or ``"auto"``: npz or zarr by the destination's suffix. The source is never written
     to; ``destination`` may not be the source (through any link) nor lie inside it. An
     existing ``destination`` is replaced (a folder only when it is a zarr store, or a
@@ -109,6 +111,18 @@ def convert_map(
             )
         check_not_input(dst, sources, what="Destination")
         return write_openlex3d_map(read_map(source, adapter, **options), dst)
+    if format == "vlmaps":
+        from ._vlmaps_write import vlmaps_outputs, write_vlmaps_map
+
+        if suffix in (".npz", ".zarr", ".h5df", ".h5"):
+            raise UsageError(
+                f"Destination {dst}: --format vlmaps writes a scene folder (DST/"
+                f"vlmap_cam/vlmaps_cam.h5df, VLMaps' own layout), not a {suffix} file."
+            )
+        check_not_input(dst, sources, what="Destination")
+        for out in vlmaps_outputs(dst):
+            check_not_input(out, sources, what="Destination")
+        return write_vlmaps_map(read_map(source, adapter, **options), dst)
     if format == "auto" and suffix not in (".npz", ".zarr"):
         raise UsageError(
             f"Destination {dst} must end in .npz (portable map) or .zarr (Zarr store), or "

@@ -5,16 +5,24 @@ from __future__ import annotations
 import argparse
 
 NAME = "convert"
-HELP = "Convert any readable map (VLMaps, ConceptFusion, OpenScene...) to .npz, zarr or OpenLex3D."
+HELP = (
+    "Convert any readable map (VLMaps, ConceptFusion, OpenScene...) to .npz, zarr, OpenLex3D "
+    "or VLMaps."
+)
 ORDER = 40
 DESCRIPTION = """\
 Read a map with any adapter and write it as quash-plugins' portable NPZ (embeddings,
 positions, colours, labels...), as a Zarr store when DST ends in .zarr, or, with
 --format openlex3d, as OpenLex3D's prediction folder DST/ (embeddings.npy, index.npy,
-point_cloud.pcd). The input is only read; the output appears atomically. Lazy maps (HDF5,
-per-image features) are streamed block by block, so the map is never held whole in
-memory. DST is never SRC (nor inside it); an existing DST is replaced only with --force
-(an OpenLex3D folder: only a previous export of quash)."""
+point_cloud.pcd). With --format vlmaps, a voxel map becomes VLMaps' own HDF5 save
+layout, DST/vlmap_cam/vlmaps_cam.h5df (the camera-base layout: it stores its cell size
+and origin, so positions read back unchanged; labels go to grid_semantic and
+vlmap_cam/obj2cls_dict.txt, which VLMaps itself ignores). The input is only read; the
+output appears atomically. Lazy maps (HDF5, per-image features) are streamed block by
+block, so the map is never held whole in memory. DST is never SRC (nor inside it); an
+existing DST is replaced only with --force (an OpenLex3D folder: only a previous export
+of quash; with --format vlmaps DST may be an existing folder, and the files written into
+it are replaced only with --force)."""
 EPILOG = """\
 examples:
   quash convert saved-map room0.npz                 # ConceptFusion pointclouds/
@@ -22,20 +30,26 @@ examples:
   quash convert saved-feat frames.npz --adapter image-features
   quash convert map.pkl.gz map.npz --allow-pickle   # ConceptGraphs, trusted files only
   quash convert saved-map room0.zarr                # chunked Zarr store (needs [dask])
-  quash convert saved-map preds/quash/replica/room0 --format openlex3d"""
+  quash convert saved-map preds/quash/replica/room0 --format openlex3d
+  quash make-scene scene.npz && quash convert scene.npz vl --format vlmaps
+                                                    # try the VLMaps drop-in offline:
+  quash query vl chair -c demo:quash-labels         # reads vl/vlmap_cam/vlmaps_cam.h5df"""
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("source", metavar="SRC", help="Map file or directory to read.")
     p.add_argument(
-        "destination", metavar="DST", help="Output: DST.npz, DST.zarr, or a folder (openlex3d)."
+        "destination",
+        metavar="DST",
+        help="Output: DST.npz, DST.zarr, or a folder (openlex3d, vlmaps).",
     )
     p.add_argument(
         "--format",
         default="auto",
-        choices=("auto", "npz", "zarr", "openlex3d"),
+        choices=("auto", "npz", "zarr", "openlex3d", "vlmaps"),
         help="Output format (default: auto, by DST's suffix). openlex3d writes OpenLex3D's "
-        "prediction folder: embeddings.npy, index.npy (arange) and point_cloud.pcd.",
+        "prediction folder: embeddings.npy, index.npy (arange) and point_cloud.pcd. vlmaps "
+        "writes DST/vlmap_cam/vlmaps_cam.h5df in VLMaps' save layout (voxel maps only).",
     )
     p.add_argument(
         "--adapter", default="auto", help="Adapter name, or 'auto' to sniff the format (default)."
@@ -119,6 +133,13 @@ def _check_destination(args: argparse.Namespace) -> None:
 
     if args.format == "openlex3d":  # a folder; write_openlex3d_map replaces only its exports
         check_not_input(args.destination, (args.source,), what="DST")
+        return
+    if args.format == "vlmaps":  # a folder (it may exist); its files need --force
+        from ..adapters._vlmaps_write import vlmaps_outputs
+
+        check_not_input(args.destination, (args.source,), what="DST")
+        for out in vlmaps_outputs(args.destination):
+            check_output(out, (args.source,), what="DST", overwrite=args.force)
         return
     dst = str(args.destination).rstrip("/").lower()
     if args.format == "auto" and not dst.endswith((".npz", ".zarr")):

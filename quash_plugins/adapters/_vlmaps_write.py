@@ -1,0 +1,134 @@
+"""Write a voxel map in VLMaps' own HDF5 save layout (``quash convert --format vlmaps``).
+
+The layout is the one VLMaps' camera-base builder (``VLMapBuilderCam.save_3d_map``)
+writes to ``<scene>/vlmap_cam/vlmaps_cam.h5df`` and ``VLMap.load_map`` reads back when
+the map config's ``pose_info.pose_type`` is ``camera_base``:
+
+==================== ============== ================================================
+``mapped_iter_list`` (F,) int32     frames fused (empty here: nothing was fused)
+``grid_feat``        (N, D) float   the map's embeddings, as stored (not normalised)
+``grid_pos``         (N, 3) int32   cells, ``round((p - pcd_min) / cs)``
+``weight``           (N,) float32   fusion weight (1 per row here)
+``occupied_ids``     (nx, ny, nz)   -1 where empty, else the row index
+``grid_rgb``         (N, 3) uint8   colour (grey 128 when the map has none)
+``pcd_min/pcd_max``  (3,) float64   the grid's bounds in metres
+``cs``               scalar float64 cell size in metres
+==================== ============== ================================================
+
+Camera-base rather than mobile-base because it is the layout that stores its own cell
+size and origin: positions read back as ``pcd_min + grid_pos * cs`` are the source's
+positions, in the source's frame. A mobile-base file stores neither; its positions are
+fixed by VLMaps' truncating bins around the grid centre, which a voxel grid from another
+frame does not land on.
+
+VLMaps has no ground-truth field. Labels are written the way VLMaps forks store them,
+as ``grid_semantic`` (N,) int64 with the names in an ``obj2cls_dict.txt`` beside the
+file (``id: id, name`` per line); the ``vlmaps`` adapter reads both back, VLMaps
+itself ignores them.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from ..core.errors import UsageError
+from ..core.types import LatentMap
+
+log = logging.getLogger(__name__)
+
+#: Where the file goes inside the destination folder (VLMaps' camera-base path).
+H5_NAME = Path("vlmap_cam") / "vlmaps_cam.h5df"
+LABELS_NAME = Path("vlmap_cam") / "obj2cls_dict.txt"
+
+
+def vlmaps_outputs(folder: str | Path, with_labels: bool = True) -> list[Path]:
+    """The files :func:`write_vlmaps_map` writes into ``folder``."""
+    folder = Path(folder).expanduser()
+    return [folder / H5_NAME, *([folder / LABELS_NAME] if with_labels else [])]
+
+
+def write_vlmaps_map(lmap: LatentMap, folder: str | Path, chunk_rows: int = 65536) -> Path:
+    """Write ``lmap`` as ``folder/vlmap_cam/vlmaps_cam.h5df`` in VLMaps' save layout.
+
+    ``lmap`` must be a voxel grid (``grid_index`` and ``voxel_size``). Embeddings are
+    copied ``chunk_rows`` rows at a time, float16 stays float16, other dtypes become
+    float32 (VLMaps' own). Each file is written beside its target and renamed into place;
+    an existing file is replaced (the command line checks ``--force`` first). Returns the
+    path of the ``.h5df``.
+    """
+    from ..core.atomic import atomic_write, refuse_own_input
+    from ._vlmaps import import_h5py
+
+    where = lmap.source.get("path", "the map")
+    if lmap.grid_index is None or lmap.voxel_size is None:
+        raise UsageError(
+            f"{where}: --format vlmaps needs a voxel grid (the map's 'grid_index' and "
+            "'voxel_size'); this map has none, so it has no VLMaps cells. Convert a voxel "
+            "map (a VLMaps or quash make-scene map), or write --format npz instead."
+        )
+    if lmap.positions is None:
+        raise UsageError(f"{where}: --format vlmaps needs positions; this map has none.")
+    h5py = import_h5py()
+    n, d = lmap.n, lmap.dim
+    cs = float(lmap.voxel_size)
+    if float(np.float32(cs)) == cs:  # a float32 0.05 is stored as 0.05, not 0.0500000007
+        cs = float(str(np.float32(cs)))
+    idx = np.asarray(lmap.grid_index, dtype=np.int64).reshape(n, 3)
+    pos = np.asarray(lmap.positions, dtype=np.float64).reshape(n, 3)
+    lo = idx.min(axis=0) if n else np.zeros(3, np.int64)
+    grid_pos = (idx - lo).astype(np.int32)
+    pcd_min = (pos - grid_pos * cs).mean(axis=0) if n else np.zeros(3)
+    off = np.abs(pcd_min + grid_pos * cs - pos).max() if n else 0.0
+    if off > 1e-3 * cs:
+        log.warning(
+            "%s: positions are not on the voxel grid (up to %.3g m off); the VLMaps file "
+            "stores cell centres (pcd_min + grid_pos * cs)",
+            where,
+            off,
+        )
+    shape = (grid_pos.max(axis=0) + 1) if n else np.ones(3, np.int64)
+    pcd_max = pcd_min + (shape - 1) * cs
+    occupied = -np.ones(tuple(int(s) for s in shape), dtype=np.int32)
+    if n:
+        occupied[grid_pos[:, 0], grid_pos[:, 1], grid_pos[:, 2]] = np.arange(n, dtype=np.int32)
+        if int((occupied >= 0).sum()) != n:
+            raise UsageError(
+                f"{where}: two or more rows share a voxel (grid_index); VLMaps stores one "
+                "row per cell. Merge them first."
+            )
+    kind = np.dtype(lmap.embeddings.dtype)
+    feat_dtype = np.float16 if kind == np.float16 else np.float32
+    colors = (
+        np.full((n, 3), 128, np.uint8)
+        if lmap.colors is None
+        else np.asarray(lmap.colors, dtype=np.uint8).reshape(n, 3)
+    )
+    folder = Path(folder).expanduser()
+    h5_path, names_path = vlmaps_outputs(folder)
+    for out in (h5_path, names_path):
+        refuse_own_input(out, lmap.source)
+    labels = None if lmap.labels is None else np.asarray(lmap.labels, dtype=np.int64)
+    if labels is not None and lmap.label_names:
+        text = "".join(f"{i}: {i}, {name}\n" for i, name in enumerate(lmap.label_names))
+        with atomic_write(names_path) as tmp:
+            tmp.write_text(text, encoding="utf-8")
+    with atomic_write(h5_path, suffix=".h5df") as tmp, h5py.File(tmp, "w") as f:
+        f.create_dataset("mapped_iter_list", data=np.zeros(0, dtype=np.int32))
+        feat = f.create_dataset("grid_feat", shape=(n, d), dtype=feat_dtype)
+        for start in range(0, n, chunk_rows):
+            stop = min(n, start + chunk_rows)
+            feat[start:stop] = np.asarray(lmap.embeddings[start:stop], dtype=feat_dtype)
+        f.create_dataset("grid_pos", data=grid_pos)
+        f.create_dataset("weight", data=np.ones(n, dtype=np.float32))
+        f.create_dataset("occupied_ids", data=occupied)
+        f.create_dataset("grid_rgb", data=colors)
+        f.create_dataset("pcd_min", data=pcd_min.astype(np.float64))
+        f.create_dataset("pcd_max", data=pcd_max.astype(np.float64))
+        f.create_dataset("cs", data=np.float64(cs))
+        if labels is not None:
+            f.create_dataset("grid_semantic", data=labels)
+    log.info("wrote VLMaps map %s: %d cells x %d", h5_path, n, d)
+    return h5_path

@@ -1,0 +1,123 @@
+"""``quash convert --format vlmaps``: a map written in VLMaps' own HDF5 save layout."""
+
+from __future__ import annotations
+
+import hashlib
+
+import numpy as np
+import pytest
+
+from quash_plugins.adapters import read_map
+from quash_plugins.cli.main import main
+
+h5py = pytest.importorskip("h5py")
+
+#: What VLMaps' camera-base ``save_3d_map`` writes (``VLMapBuilderCam``).
+UPSTREAM = {
+    "mapped_iter_list",
+    "grid_feat",
+    "grid_pos",
+    "weight",
+    "occupied_ids",
+    "grid_rgb",
+    "pcd_min",
+    "pcd_max",
+    "cs",
+}
+
+
+def _digest(path):
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def test_make_scene_round_trips_through_vlmaps(minilm_scene, tmp_path):
+    before = _digest(minilm_scene)
+    vl = tmp_path / "vl"
+    assert main(["-q", "convert", str(minilm_scene), str(vl), "--format", "vlmaps"]) == 0
+    h5 = vl / "vlmap_cam" / "vlmaps_cam.h5df"
+    with h5py.File(h5, "r") as f:
+        assert set(f) >= UPSTREAM and set(f) - UPSTREAM == {"grid_semantic"}
+        assert f["grid_pos"].dtype == np.int32 and f["grid_rgb"].dtype == np.uint8
+        assert f["cs"][()] == 0.2  # the number the user gave, not float32's 0.2000000003
+        occupied = f["occupied_ids"][()]
+        grid_pos = f["grid_pos"][()]
+        n = len(grid_pos)
+        assert (occupied[tuple(grid_pos.T)] == np.arange(n)).all()
+        assert (occupied >= 0).sum() == n
+    src, back = read_map(minilm_scene), read_map(vl)
+    assert back.source["adapter"] == "vlmaps" and back.source["pose_type"] == "camera_base"
+    np.testing.assert_array_equal(back.embeddings[()], np.asarray(src.embeddings))
+    np.testing.assert_allclose(back.positions, src.positions, atol=1e-5)
+    np.testing.assert_array_equal(back.labels, src.labels)
+    assert back.label_names == src.label_names
+    np.testing.assert_array_equal(back.colors, src.colors)
+    assert back.voxel_size == pytest.approx(src.voxel_size)
+    assert _digest(minilm_scene) == before
+
+    # the same query on both gives the same rows; the sub-classes beside scene.npz are
+    # not beside the converted map, so the config names them (as docs/vlmaps.md does)
+    tax = minilm_scene.with_name("scene.taxonomy.yaml")
+    cfg = tmp_path / "quash.yaml"
+    cfg.write_text(
+        "encoder: minilm\n"
+        f"heuristic: {{name: taxonomy, file: {tax}, n_synonyms: 20, n_antonyms: all}}\n"
+        "classifier: {name: nearest-sample, k: 2}\n"
+        "refine: {classifier: svm-rbf, n_positives: 100, n_negatives: 1000, seeds: top}\n"
+    )
+    r0, r1 = tmp_path / "r0.npz", tmp_path / "r1.npz"
+    for m, r in ((minilm_scene, r0), (vl, r1)):
+        assert main(["-q", "query", str(m), "chair", "-c", str(cfg), "--out", str(r)]) == 0
+    with np.load(r0) as a, np.load(r1) as b:
+        assert a["masks"].any()
+        np.testing.assert_array_equal(a["masks"], b["masks"])
+        np.testing.assert_allclose(a["scores"], b["scores"], atol=1e-3)  # rows re-normalised
+
+
+def test_vlmaps_format_refuses_a_map_without_a_voxel_grid(tiny_world, capsys):
+    dst = tiny_world["dir"] / "vl"
+    assert main(["convert", str(tiny_world["map"]), str(dst), "--format", "vlmaps"]) != 0
+    err = capsys.readouterr().err
+    assert "map.npz" in err and "voxel grid" in err and "grid_index" in err
+    assert not dst.exists()
+
+
+def _grid_map(path):
+    from quash_plugins.adapters import write_npz_map
+    from quash_plugins.core.types import LatentMap
+
+    rng = np.random.default_rng(1)
+    idx = np.stack(np.unravel_index(rng.choice(200, 12, replace=False), (5, 5, 8)), 1)
+    pos = (np.array([-1.0, 2.0, 0.5]) + idx * 0.05).astype(np.float32)
+    emb = rng.normal(size=(12, 4)).astype(np.float16)
+    return write_npz_map(
+        path, LatentMap(emb, kind="voxels", positions=pos, grid_index=idx, voxel_size=0.05)
+    )
+
+
+def test_vlmaps_format_keeps_float16_and_the_origin(tmp_path):
+    src = _grid_map(tmp_path / "g.npz")
+    assert main(["-q", "convert", str(src), str(tmp_path / "vl"), "--format", "vlmaps"]) == 0
+    back, orig = read_map(tmp_path / "vl"), read_map(src)
+    assert back.embeddings.dtype == np.float16 and back.labels is None
+    np.testing.assert_array_equal(back.embeddings[()], orig.embeddings)
+    np.testing.assert_allclose(back.positions, orig.positions, atol=1e-6)
+    assert not (tmp_path / "vl" / "vlmap_cam" / "obj2cls_dict.txt").exists()
+
+
+def test_vlmaps_format_needs_force_and_never_writes_its_input(tmp_path, capsys):
+    src = _grid_map(tmp_path / "g.npz")
+    vl = tmp_path / "vl"
+    args = ["-q", "convert", str(src), str(vl), "--format", "vlmaps"]
+    assert main(args) == 0
+    h5 = vl / "vlmap_cam" / "vlmaps_cam.h5df"
+    first = _digest(h5)
+    assert main(args) == 2
+    assert "--force" in capsys.readouterr().err and _digest(h5) == first
+    assert main([*args, "--force"]) == 0
+    # the VLMaps file itself as the input, written back into its own scene folder
+    again = ["-q", "convert", str(h5), str(vl), "--format", "vlmaps", "--force"]
+    assert main(again) == 2
+    assert "input" in capsys.readouterr().err
+    assert main(["-q", "convert", str(vl), str(tmp_path / "x.npz")]) == 0  # still readable
+    # a .npz destination is not a scene folder
+    assert main(["-q", "convert", str(src), str(tmp_path / "y.npz"), "--format", "vlmaps"]) == 2
