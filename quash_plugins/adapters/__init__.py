@@ -29,6 +29,7 @@ __all__ = [
     "VLMapsLiveAdapter",
     "write_openlex3d_map",
     "write_pcd",
+    "to_vlmaps_grid",
 ]
 
 #: Public helpers, imported on first use (keeps ``import quash_plugins.adapters`` light).
@@ -42,6 +43,7 @@ _LAZY = {
     "VLMapsLiveAdapter": "._vlmaps_live",
     "write_openlex3d_map": "._openlex3d",
     "write_pcd": "._openlex3d",
+    "to_vlmaps_grid": "._vlmaps2d",
 }
 
 

@@ -293,3 +293,44 @@ def _observed_cells(grid: np.ndarray, where: str, block_rows: int) -> np.ndarray
         nz = np.flatnonzero(block.any(axis=-1))
         found.append(nz + r0 * gs)
     return np.concatenate(found) if found else np.empty(0, dtype=np.int64)
+
+
+def to_vlmaps_grid(values: Any, lmap: LatentMap, fill: Any = None) -> np.ndarray:
+    """Put a per-row vector of a ``vlmaps-2d`` map back on VLMaps' ``(gs, gs)`` grid.
+
+    ``values`` is ``(N,)`` (a query's ``mask`` or ``scores``) or ``(Q, N)`` (the
+    ``masks``/``scores`` of ``quash query --out``), one entry per row of ``lmap``, which
+    is in the order of the map's ``grid_index``. Returns ``(gs, gs)`` (or ``(Q, gs, gs)``)
+    indexed ``[row, col]`` like ``grid_lseg_1.npy``; cells that are not rows of the map
+    (unobserved) get ``fill``: ``False`` for bool values, NaN for scores, unless given.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> a = VLMaps2DAdapter()
+    >>> lmap = a.read(a.write_example(pathlib.Path(tempfile.mkdtemp())))
+    >>> grid = to_vlmaps_grid(np.ones(lmap.n, bool), lmap)
+    >>> grid.shape, int(grid.sum()) == lmap.n
+    ((24, 24), True)
+    """
+    if lmap.source.get("format") != "vlmaps-2d" or lmap.grid_index is None:
+        raise QuashError(
+            f"{lmap.source.get('path', 'the map')}: to_vlmaps_grid needs a map read with the "
+            f"'vlmaps-2d' adapter (map/grid_lseg_1.npy); this one was read with "
+            f"{lmap.source.get('adapter', 'another adapter')!r}. For a 3D VLMaps map the rows "
+            "are grid_feat's rows: grid_pos[mask] gives the voxels."
+        )
+    gs = int(lmap.source["gs"])
+    arr = np.asarray(values)
+    if arr.shape[-1:] != (lmap.n,) or arr.ndim not in (1, 2):
+        raise QuashError(
+            f"to_vlmaps_grid: values must have shape (N,) or (Q, N) with N = {lmap.n} (the "
+            f"map's rows); got {arr.shape}."
+        )
+    if fill is None:
+        fill = False if arr.dtype == bool else np.nan
+    dtype = arr.dtype if arr.dtype == bool else np.result_type(arr.dtype, np.asarray(fill).dtype)
+    out = np.full((*arr.shape[:-1], gs, gs), fill, dtype=dtype)
+    rows, cols = lmap.grid_index[:, 0], lmap.grid_index[:, 1]
+    out[..., rows, cols] = arr
+    return out
