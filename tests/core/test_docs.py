@@ -23,15 +23,7 @@ from quash_plugins.core import registry
 from quash_plugins.core.config import config_reference
 
 DOCS = Path(__file__).resolve().parents[2] / "docs"
-GUIDES = (
-    "quickstart.md",
-    "scale.md",
-    "rerun.md",
-    "evaluation.md",
-    "encoders.md",
-    "config.md",
-    "vlmaps.md",
-)
+GUIDES = ("quickstart.md", "scale.md", "rerun.md", "evaluation.md", "encoders.md", "config.md")
 SKIP = re.compile(r"^# Not run by the docs test: (?P<reason>.+)$", re.M)
 WORDS = ["chair", "sofa", "table", "piano", "other", "background", "nothing"]
 
@@ -125,12 +117,6 @@ def _stand_ins(folder: Path) -> None:
         "vh": vh,
     }
     write_vlmaps_h5df(folder / "vlmap" / "vlmaps.h5df", arrays)
-    write_vlmaps_h5df(folder / "data" / "scene" / "vlmap" / "vlmaps.h5df", arrays)
-    # a 2023 top-down map/grid_lseg_1.npy: 400 observed cells of a 30 x 30 grid
-    grid = np.zeros((30 * 30, d), np.float32)
-    grid[rng.choice(30 * 30, size=400, replace=False)] = E
-    (folder / "map").mkdir()
-    np.save(folder / "map" / "grid_lseg_1.npy", grid.reshape(30, 30, d))
 
 
 @pytest.mark.parametrize("doc,line,code", CASES)

@@ -69,8 +69,14 @@ def project(tmp_path, monkeypatch):
     arrays = mobile_map(n=60, d=D, seed=5)
     arrays["grid_feat"], kind = features(60, 5)
     h5 = write_vlmaps_h5df(tmp_path / "data/scene/vlmap/vlmaps.h5df", arrays)
+    # a 2023 top-down grid of the same rows, at random cells of a 20 x 20 grid
+    cells = np.random.default_rng(6).choice(400, size=60, replace=False)
+    grid = np.zeros((400, D), np.float32)
+    grid[cells] = arrays["grid_feat"]
+    (tmp_path / "data/scene/map").mkdir()
+    np.save(tmp_path / "data/scene/map/grid_lseg_1.npy", grid.reshape(20, 20, D))
     monkeypatch.chdir(tmp_path)
-    return {"h5": h5, "kind": kind}
+    return {"h5": h5, "kind": kind, "cells": cells, "grid_pos": arrays["grid_pos"]}
 
 
 def test_doc_has_the_examples():
@@ -102,6 +108,13 @@ def test_python_blocks_run(project, capsys):
     result = ns["result"]
     np.testing.assert_array_equal(result.mask, project["kind"] == 0)
     assert str(result.n_matched) in capsys.readouterr().out
+    # "back to VLMaps' grid": 3D rows are grid_feat's, 2-D rows go back to their cells
+    chairs = project["kind"] == 0
+    np.testing.assert_array_equal(ns["chair_voxels"], project["grid_pos"][chairs])
+    expected_2d = np.zeros(400, bool)
+    expected_2d[project["cells"][chairs]] = True
+    np.testing.assert_array_equal(ns["cells_2d"], expected_2d.reshape(20, 20))
+    assert np.isnan(ns["scores_2d"]).sum() == 400 - 58  # rows 0-1 are zero: unobserved
     assert sha256(project["h5"]) == before
     unpatch_vlmap(vlmap)
     with pytest.raises(AssertionError, match="must not run"):
