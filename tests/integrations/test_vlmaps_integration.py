@@ -143,3 +143,26 @@ def test_mixin_and_categories(project):
     vlmap.categories = ["chair", "sofa"]
     assert not vlmap.index_map("chair")[2:6].any()
     assert index_map(vlmap, "chair", with_init_cat=False, quash="quash.yaml")[2:6].all()
+
+
+def test_adapter_section_of_the_config_is_reported_for_a_live_map(project, caplog):
+    """A live VLMap takes gs/cs from itself: a config's adapter section that disagrees is
+    a warning (once per map), one that agrees or is passed as an option is not."""
+    cfg = yaml.safe_load(Path("quash.yaml").read_text())
+    cfg["adapter"] = {"name": "vlmaps", "cs": 0.1, "check_finite": False}
+    Path("q-cs.yaml").write_text(yaml.safe_dump(cfg))
+    vlmap = FakeVLMap()
+    with caplog.at_level("WARNING", logger="quash_plugins.integrations.vlmaps"):
+        index_map(vlmap, "chair", quash="q-cs.yaml")
+        index_map(vlmap, "sofa", quash="q-cs.yaml")
+    msgs = [r.getMessage() for r in caplog.records if "adapter section" in r.getMessage()]
+    assert len(msgs) == 2, msgs  # cs and check_finite, each once
+    assert any("cs: 0.1" in m and "cs = 0.05" in m for m in msgs)
+    assert any("check_finite" in m and "not used" in m for m in msgs)
+    caplog.clear()
+    cfg["adapter"] = {"name": "vlmaps", "cs": 0.05}
+    Path("q-ok.yaml").write_text(yaml.safe_dump(cfg))
+    with caplog.at_level("WARNING", logger="quash_plugins.integrations.vlmaps"):
+        index_map(FakeVLMap(), "chair", quash="q-ok.yaml")
+        index_map(FakeVLMap(), "chair", quash="q-cs.yaml", cs=0.1)  # an option: applied
+    assert not [r for r in caplog.records if "(cs: " in r.getMessage()]
