@@ -247,6 +247,8 @@ class Quash:
             source, name = resolve_adapter(source, name)
         configured = self.adapter.name in (name, "auto")
         opts = {**self.adapter.params, **options} if configured else options
+        if configured and self.adapter.params:
+            self._check_adapter_section(name)
         kept, token = self._maps.lookup(source, name, opts)
         if kept is not None:
             return kept
@@ -256,6 +258,18 @@ class Quash:
         for k in [k for k, (r, _) in self._querysets.items() if k[1] and r() is None]:
             del self._querysets[k]
         return lmap
+
+    def _check_adapter_section(self, name: str) -> None:
+        """Build adapter ``name`` with the config's own ``adapter:`` options, so that a bad
+        one is reported as the config's (``q.yaml: adapter: ...``), not the command's."""
+        from ..core import registry
+        from ..core.errors import ConfigError
+
+        try:
+            registry.create("adapters", name, **self.adapter.params)
+        except ConfigError as exc:
+            where = f"{self.config_source}: " if self.config_source else ""
+            raise ConfigError(f"{where}adapter: {exc}") from None
 
     def forget_maps(self) -> None:
         """Drop the maps kept by :meth:`read_map` and the query sets built for them."""

@@ -90,3 +90,19 @@ def test_quash_configs_lists_and_prints(capsys):
     assert first.startswith("# demo:vlmaps: ") and first.endswith("demo-vlmaps.yaml")
     assert yaml.safe_load(rest) == yaml.safe_load(find_shipped("demo:vlmaps").path.read_text())
     assert main(["configs", "demo:nope"]) == 2
+
+
+def test_a_bad_adapter_option_names_the_config_file_and_section(tiny_world, capsys, monkeypatch):
+    """`adapter: {name: vlmaps, pose_typ: x}`: the error says it is q.yaml's adapter section."""
+    pytest.importorskip("h5py")
+    from quash_plugins.adapters._vlmaps import VLMapsAdapter
+
+    monkeypatch.chdir(tiny_world["dir"])
+    h5 = VLMapsAdapter().write_example(tiny_world["dir"])
+    cfg = yaml.safe_load(tiny_world["config"].read_text())
+    cfg["adapter"] = {"name": "vlmaps", "pose_typ": "x"}
+    (tiny_world["dir"] / "q.yaml").write_text(yaml.safe_dump(cfg))
+    assert main(["query", str(h5), "chair", "-c", "q.yaml"]) != 0
+    err = " ".join(capsys.readouterr().err.split())
+    assert "q.yaml: adapter: Adapter 'vlmaps' does not accept parameter 'pose_typ'" in err, err
+    assert "Did you mean 'pose_type'?" in err
