@@ -138,8 +138,43 @@ def resolve_config_path(ref: str | Path) -> Path:
     text = str(ref)
     if NAME_RE.match(text):
         return find_shipped(text).path
-    names = ", ".join(c.name for c in shipped_configs())
-    raise ConfigError(
-        f"Config file not found: {text}. A shipped config can be given by name instead "
-        f"(-c demo:quash-taxonomy); shipped: {names}."
-    )
+    shipped = [c.name for c in shipped_configs()]
+    near = _near_files(path) + _near_shipped(path, shipped)
+    if near:
+        hint = f" Did you mean {' or '.join(near)}?"
+    else:
+        hint = (
+            " A shipped config can be given by name instead (-c demo:quash-taxonomy); "
+            f"shipped: {', '.join(shipped)}."
+        )
+    raise ConfigError(f"Config file not found: {text}.{hint}")
+
+
+def _near_files(path: Path) -> list[str]:
+    """YAML files beside ``path`` with a close name (``quash.yml`` -> ``quash.yaml``)."""
+    import difflib
+
+    folder = path.parent
+    try:
+        names = sorted(
+            p.name for p in folder.iterdir() if p.suffix in (".yaml", ".yml") and p.is_file()
+        )
+    except OSError:
+        return []
+    same_stem = [n for n in names if Path(n).stem == path.stem]
+    close = same_stem or difflib.get_close_matches(path.name, names, n=3, cutoff=0.8)
+    return [n if str(folder) == "." else str(folder / n) for n in close]
+
+
+def _near_shipped(path: Path, shipped: list[str]) -> list[str]:
+    """Shipped names whose part after the colon is ``path``'s stem, else close to it
+    (``quash-labels`` -> ``demo:quash-labels``, ``lseg:quash-labels``)."""
+    import difflib
+
+    stem = path.stem if path.suffix in (".yaml", ".yml") else path.name
+    exact = [n for n in shipped if n.split(":", 1)[-1] == stem]
+    if exact or path.suffix in (".yaml", ".yml"):
+        return exact  # a file name: only an exact stem, not every 'quash-*' config
+    parts = sorted({n.split(":", 1)[-1] for n in shipped})
+    close = set(difflib.get_close_matches(stem, parts, n=2, cutoff=0.8))
+    return [n for n in shipped if n.split(":", 1)[-1] in close]

@@ -106,3 +106,22 @@ def test_a_bad_adapter_option_names_the_config_file_and_section(tiny_world, caps
     err = " ".join(capsys.readouterr().err.split())
     assert "q.yaml: adapter: Adapter 'vlmaps' does not accept parameter 'pose_typ'" in err, err
     assert "Did you mean 'pose_type'?" in err
+
+
+def test_a_missing_config_suggests_the_near_names(tmp_path, monkeypatch, capsys):
+    """`-c quash-labels` names the shipped configs of that name; `-c quash.yml` the
+    file beside it with a close name; nothing close keeps the full list."""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(ConfigError, match=r"Did you mean demo:quash-labels or lseg:quash-labels\?"):
+        resolve_config_path("quash-labels")
+    (tmp_path / "quash.yaml").write_text("encoder: minilm\n")
+    with pytest.raises(ConfigError, match=r"quash\.yml\. Did you mean quash\.yaml\?"):
+        resolve_config_path("quash.yml")
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "sub" / "quash.yaml").write_text("encoder: minilm\n")
+    with pytest.raises(ConfigError, match=r"Did you mean sub/quash\.yaml\?"):
+        resolve_config_path("sub/quash.yml")
+    with pytest.raises(ConfigError, match=r"shipped: .*demo:vlmaps"):
+        resolve_config_path("nothing-like-it")
+    assert main(["query", "map.npz", "chair", "-c", "quash-labels"]) != 0
+    assert "Did you mean demo:quash-labels or lseg:quash-labels?" in capsys.readouterr().err
