@@ -145,6 +145,8 @@ class VLMapsAdapter(MapAdapter):
     priority = 20
     suffixes = (".h5df",)
     magic = (b"\x89HDF\r\n\x1a\n",)
+    #: Scene sub-folders VLMaps writes its map into (claimed even when the file is missing).
+    folders = ("vlmap", "vlmap_cam")
 
     def __init__(
         self,
@@ -184,6 +186,7 @@ class VLMapsAdapter(MapAdapter):
         opts = self._options(options)
         path = resolve_h5(source)
         if path is None:
+            _explain_missing_file(source)
             raise MapFormatError(
                 f"{source}: not a VLMaps map file. Pass vlmap/vlmaps.h5df (or any .h5df/.h5 "
                 "holding 'grid_feat' and 'grid_pos') or the folder that holds it."
@@ -381,6 +384,21 @@ class VLMapsAdapter(MapAdapter):
             f.create_dataset("occupied_ids", data=occupied)
             f.create_dataset("grid_rgb", data=rng.integers(0, 256, (n, 3), dtype=np.uint8))
         return path
+
+
+def _explain_missing_file(source: Any) -> None:
+    """Raise naming the VLMaps sub-folder of ``source`` that lacks its map file, if any."""
+    if not isinstance(source, (str, Path)) or not Path(source).expanduser().is_dir():
+        return
+    folder = Path(source).expanduser()
+    for name in KNOWN_NAMES[:2]:
+        sub, file = name.split("/")
+        if (folder / sub).is_dir() and not (folder / name).exists():
+            raise MapFormatError(
+                f"{folder / sub}/ has no {file}. VLMaps writes it there when the map is "
+                f"built (VLMap.create_map); build or copy the map, or pass the .h5df file "
+                "itself."
+            )
 
 
 def _check_cs(cs: Any, where: str) -> None:

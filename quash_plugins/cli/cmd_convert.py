@@ -105,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
         src = Path(args.source).expanduser()
         if not src.exists():
             raise UsageError(f"Map not found: {src}")
-        name = detect_adapter(src)
+        name = detect_adapter(src, claimed=True)
     if args.allow_pickle:
         accepted = registry.accepted_params(registry.load("adapters", name))
         if accepted is not None and "allow_pickle" not in accepted:

@@ -40,15 +40,20 @@ def _ordered_adapters() -> list[tuple[str, Any]]:
 
 
 def claimed_by(source: Any) -> tuple[str, str] | None:
-    """``(adapter, why)`` for the adapter whose ``suffixes`` or ``magic`` match ``source``.
+    """``(adapter, why)`` for the adapter whose ``folders``, ``suffixes`` or ``magic`` match
+    ``source``.
 
-    Suffixes are tried first, over every adapter, then leading bytes; None when nothing
+    Sub-folders (a scene folder holding ``vlmap/``) are tried first, then suffixes, over every adapter, then leading bytes; None when nothing
     claims the path (or it is not a path).
     """
     if not isinstance(source, (str, Path)):
         return None
     path = Path(source)
     adapters = _ordered_adapters()
+    for name, cls in adapters:  # a folder holding the sub-folder a format writes
+        for sub in getattr(cls, "folders", ()) or ():
+            if (path / sub).is_dir():
+                return name, f"it holds a {sub}/ folder"
     name_lower = path.name.lower()
     for name, cls in adapters:
         for suffix in getattr(cls, "suffixes", ()) or ():

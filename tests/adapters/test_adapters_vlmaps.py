@@ -506,3 +506,20 @@ def test_2d_embeddings_pickle_by_reference(tmp_path):
     blob = pickle.dumps(emb)
     assert len(blob) < ref["grid"].nbytes // 10
     np.testing.assert_array_equal(pickle.loads(blob)[:], emb[:])
+
+
+def test_a_scene_folder_whose_vlmap_folder_has_no_file_says_so(tmp_path, capsys):
+    from quash_plugins.cli.main import main
+    from quash_plugins.core.errors import MapFormatError
+
+    (tmp_path / "scene" / "vlmap").mkdir(parents=True)
+    msg = r"scene/vlmap/ has no vlmaps\.h5df"
+    with pytest.raises(MapFormatError, match=msg):
+        read_map(tmp_path / "scene", "vlmaps")
+    with pytest.raises(MapFormatError, match=msg):
+        read_map(tmp_path / "scene")  # auto: the vlmap/ folder says whose it is
+    assert main(["convert", str(tmp_path / "scene"), str(tmp_path / "x.npz")]) != 0
+    assert "scene/vlmap/ has no vlmaps.h5df" in capsys.readouterr().err
+    (tmp_path / "cam" / "vlmap_cam").mkdir(parents=True)
+    with pytest.raises(MapFormatError, match=r"cam/vlmap_cam/ has no vlmaps_cam\.h5df"):
+        read_map(tmp_path / "cam")
