@@ -13,7 +13,9 @@ examples:
   quash query map.npz chair --adapter npz --rrd chair.rrd
   quash query map.npz chair sofa -c quash.yaml --out chair-sofa --format openlex3d
 The --out file holds queries (Q,) str, masks (Q, N) bool, scores (Q, N) float32 and
-display_scores (Q, N) float32 in [0, 1]. With --out RESULT.zarr the same masks and
+display_scores (Q, N) float32 in [0, 1] (row i: the map's item i), the map's positions
+and grid_index where it has them, and provenance (a JSON string: version, map, config,
+encoder fingerprint, each query's positives, negatives and presence decision). With --out RESULT.zarr the same masks and
 scores (the config's refine and presence applied) stream to a zarr store, without
 display_scores, for maps larger than memory: the embeddings are read in chunks; with
 refine or presence about 13 bytes per item are held per query of a group, queries
@@ -84,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
 
         write_results_openlex3d(args.out, results, lmap.source)
     elif args.out:
-        write_results_npz(args.out, results)
+        write_results_npz(args.out, results, lmap=lmap, encoder=quash.encoder)
     viewer = open_viewer(args, app_id="quash-query")
     if viewer is not None:
         viewer.log_map(lmap)

@@ -5,14 +5,18 @@ from __future__ import annotations
 import zipfile
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from ..core.atomic import atomic_dir, atomic_write, is_store_dir, refuse_own_input
 from ..core.types import QueryResult
 
-#: The arrays of a results file, as :func:`write_results_npz` writes them.
+#: The arrays every results file has, as :func:`write_results_npz` writes them.
 RESULT_ARRAYS = ("queries", "masks", "scores", "display_scores")
+#: The arrays it may have besides: where each item is (copied from the map), and a JSON
+#: record of how the results were made.
+OPTIONAL_RESULT_ARRAYS = ("positions", "grid_index", "provenance")
 
 
 def is_results_npz(path: str | Path) -> bool:
@@ -26,7 +30,9 @@ def is_results_npz(path: str | Path) -> bool:
             names = set(zf.namelist())
     except (OSError, zipfile.BadZipFile):
         return False
-    return names == {f"{a}.npy" for a in RESULT_ARRAYS}
+    required = {f"{a}.npy" for a in RESULT_ARRAYS}
+    allowed = required | {f"{a}.npy" for a in OPTIONAL_RESULT_ARRAYS}
+    return required <= names <= allowed
 
 
 def is_results_zarr(path: str | Path) -> bool:
@@ -35,20 +41,77 @@ def is_results_zarr(path: str | Path) -> bool:
     return is_store_dir(p) and (p / "masks").is_dir() and (p / "scores").is_dir()
 
 
-def write_results_npz(path: str | Path, results: Sequence[QueryResult]) -> Path:
-    """Write ``queries (Q,) str``, ``masks (Q, N) bool``, ``scores (Q, N) float32`` atomically.
+def results_provenance(results: Sequence[QueryResult], encoder: Any = None) -> dict[str, Any]:
+    """How ``results`` were made, as JSON-ready data: the package version, the map, the
+    config and its encoder, and per query its positives, negatives, heuristic and the
+    presence check's decision."""
+    from .. import __version__
+
+    first = results[0] if results else None
+    out: dict[str, Any] = {
+        "quash_plugins": __version__,
+        "map": {
+            k: v
+            for k, v in (first.map_source if first else {}).items()
+            if isinstance(v, (str, int, float, bool))
+        },
+        "config": first.config_name if first else "",
+        "queries": [
+            {
+                "query": r.query,
+                "positives": list(r.queryset.positives),
+                "negatives": list(r.queryset.negatives),
+                "heuristic": r.queryset.provenance.get("heuristic"),
+                "classifier": r.classifier,
+                "matched": r.n_matched,
+                "presence": r.presence,
+            }
+            for r in results
+        ],
+    }
+    if encoder is not None:
+        out["encoder"] = {
+            "name": getattr(encoder, "name", type(encoder).__name__),
+            "fingerprint": encoder.fingerprint(),
+        }
+    return out
+
+
+def write_results_npz(
+    path: str | Path,
+    results: Sequence[QueryResult],
+    lmap: Any = None,
+    encoder: Any = None,
+) -> Path:
+    """Write ``queries (Q,) str``, ``masks (Q, N) bool``, ``scores (Q, N) float32`` and
+    ``display_scores (Q, N) float32`` atomically; row ``i`` of a mask is item ``i`` of
+    the map (for a VLMaps map, row ``i`` of ``grid_feat``).
+
+    Also written: ``provenance``, a 0-d JSON string (:func:`results_provenance`), and,
+    given the map ``lmap``, its ``positions (N, 3)`` and ``grid_index (N, 3)`` where it
+    has them, so the file alone can be plotted or put back on a grid.
 
     ``path`` may not be the map the results came from (their ``map_source``), through
     any link: that is refused with :class:`~quash_plugins.core.errors.UsageError`.
     """
+    import json
+
     path = Path(path)
     refuse_own_input(path, [r.map_source.get("path") for r in results])
     queries = np.asarray([r.query for r in results], dtype=str)
     masks = np.stack([r.mask for r in results]).astype(bool)
     scores = np.stack([r.scores for r in results]).astype(np.float32)
     display = np.stack([r.display_scores for r in results]).astype(np.float32)
+    extra: dict[str, np.ndarray] = {}
+    if lmap is not None:
+        for key in ("positions", "grid_index"):
+            value = getattr(lmap, key, None)
+            if value is not None and len(value) == masks.shape[1]:
+                extra[key] = np.asarray(value)
+    record = json.dumps(results_provenance(results, encoder), default=str)
+    extra["provenance"] = np.asarray(record, dtype=str)
     with atomic_write(path, suffix=".npz") as tmp:
-        np.savez(tmp, queries=queries, masks=masks, scores=scores, display_scores=display)
+        np.savez(tmp, queries=queries, masks=masks, scores=scores, display_scores=display, **extra)
     return path
 
 

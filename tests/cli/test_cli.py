@@ -358,3 +358,32 @@ def test_each_commands_rerun_options_say_what_it_logs(capsys):
     assert "Log the map" not in said["eval"]
     assert "Log the evaluation to Rerun" in said["eval"] and "not logged" in said["eval"]
     assert "Log the scene, every method's query results and the evaluation" in said["demo"]
+
+
+def test_query_out_npz_records_where_items_are_and_how_it_was_made(tiny_world, tmp_path, capsys):
+    """The results file alone can be plotted (the map's positions, row for row) and says
+    how it was made: version, map, config, encoder fingerprint, each query's set and
+    decision; a second run may replace it without --force (it is a previous output)."""
+    from quash_plugins import Quash, __version__
+    from quash_plugins.engine.results import is_results_npz
+
+    out = tmp_path / "r.npz"
+    args = ("query", tiny_world["map"], "chair", "sofa", "-c", tiny_world["config"])
+    code, _, err = run_cli(*args, "--out", out, capsys=capsys)
+    assert code == 0, err
+    with np.load(out) as z:
+        positions = np.load(tiny_world["map"])["positions"]
+        np.testing.assert_array_equal(z["positions"], positions)
+        assert z["masks"].shape == (2, len(positions)) and "grid_index" not in z.files
+        record = json.loads(str(z["provenance"]))
+    q = Quash.from_config(str(tiny_world["config"]))
+    assert record["quash_plugins"] == __version__
+    assert record["map"]["path"] == str(tiny_world["map"])
+    assert record["config"] == "vlmaps-contrast"
+    assert record["encoder"] == {"name": "table", "fingerprint": q.encoder.fingerprint()}
+    chair = record["queries"][0]
+    assert chair["query"] == "chair" and chair["positives"] == ["chair"]
+    assert chair["negatives"] == ["other", "background", "nothing"]
+    assert is_results_npz(out)
+    code, _, err = run_cli(*args, "--out", out, capsys=capsys)
+    assert code == 0, err
