@@ -449,7 +449,12 @@ def presence_words(provenance: dict[str, Any]) -> str:
         return "absent: nothing matched"
     if not best:
         return f"absent: {_no_large_component(info, int(n))}"
-    return f"absent: no component won clearly against the other labels (best margins: {', '.join(best)})"
+    rival = info.get("rival")
+    against = f"; closest competitor: {rival!r}" if isinstance(rival, str) and rival else ""
+    return (
+        "absent: no component won clearly against the other labels "
+        f"(best margins: {', '.join(best)}{against})"
+    )
 
 
 def _no_large_component(info: dict[str, Any], n: int) -> str:

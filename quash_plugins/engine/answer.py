@@ -212,6 +212,9 @@ def presence_pass(
             p.raw = _moved_scores(p.raw, p.mask, keep, observed, threshold)
             p.mask = keep
             p.display = display_scores(p.clf, p.raw, observed, threshold)
+        rival = info.pop("rival_negative", None)
+        if rival is not None and 0 <= rival < len(p.queryset.negatives):
+            info["rival"] = p.queryset.negatives[rival]
         p.queryset.provenance["presence"] = info
         p.timings["presence"] = time.perf_counter() - t
 

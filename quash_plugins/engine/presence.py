@@ -262,6 +262,14 @@ def presence_check(
             )
         return against, flat
 
+    # the first negative row of each group that margins() scores (groups with a live row)
+    firsts: list[int] = []
+    start = 0
+    for size in sizes_neg:
+        if nlive[start : start + size].any():
+            firsts.append(start)
+        start += size
+
     grown_r, flat = margins(opts.dilate)
     grown = np.stack([a.min(axis=1) for a in grown_r])  # (readings, components)
     big = sizes >= opts.min_component
@@ -305,6 +313,12 @@ def presence_check(
         largest_component=int(sizes.max()),
         min_component=int(opts.min_component),
     )
+    if big.any() and firsts:
+        # the competitor that the best large component loses most to (or wins least
+        # against), as the index of its first negative string: what the query was judged
+        # against, for the viewer and the words of an absent decision
+        best = int(np.flatnonzero(big)[np.argmax(grown[big])])
+        info["rival_negative"] = int(firsts[int(grown_r[0][best].argmin())] // max(1, reps))
     if opts.mode == "gate":
         keep = mask.copy() if present else np.zeros_like(mask)
     info["kept_items"] = int(keep.sum())

@@ -324,6 +324,33 @@ def _margins_by_hand(m, items, query="bed"):
     return out
 
 
+def test_the_competitor_an_absent_query_lost_to_is_named():
+    """The bed block matched for the absent "chair": the record names the label group
+    the best component loses most to, found here from the margins by hand, and the
+    decision's words say it."""
+    m = _object_map()
+    block = np.r_[np.ones(27, bool), np.zeros(len(m.embeddings) - 27, bool)]
+    keep, info = _check(m, block, query="chair")
+    assert not keep.any()
+    by_hand = _margins_by_hand(m, np.flatnonzero(block), query="chair")
+    qs = _training("chair")[0]
+    assert qs.negatives[info["rival_negative"]] == min(by_hand, key=by_hand.get) == "bed"
+
+    # through the pipeline: a threshold that matches every item puts the bed block
+    # before the check, and the record carries the competitor's name
+    q = Quash(
+        _encoder(),
+        TaxonomyHeuristic(taxonomy=TAX, n_antonyms="all"),
+        presence={},
+        threshold=-10.0,
+        instances=False,
+    )
+    chair = q.query_many(m, ["chair"])[0]
+    assert not chair.mask.any()
+    assert chair.queryset.provenance["presence"]["rival"] == "bed"
+    assert "closest competitor: 'bed'" in chair.presence
+
+
 def test_a_small_object_on_its_support_is_judged_against_the_support():
     """support_margin: the core against the label that wins the grown region. A small
     object whose grown region is its support, and whose own items are close to a third
