@@ -131,3 +131,29 @@ def input_files(map_path: str | None, configs: list[QuashConfig]) -> list[str]:
         if isinstance(templates, str) and templates not in ("default", "vlmaps"):
             found.append(templates)
     return [f for f in found if "://" not in f and not f.startswith("hf-hub:")]
+
+
+def add_adapter_options(parser: argparse.ArgumentParser) -> None:
+    """``-o/--option KEY=VALUE``: an option of the adapter that reads the map."""
+    parser.add_argument(
+        "--option",
+        "-o",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="Adapter option, e.g. -o cs=0.05 -o positions=upstream (values parsed as YAML; "
+        "over the config's adapter section); repeatable.",
+    )
+
+
+def adapter_options(args: argparse.Namespace) -> dict:
+    """The ``-o KEY=VALUE`` options as a mapping (values parsed as YAML)."""
+    from ..core.config import load_yaml_text
+
+    out = {}
+    for item in getattr(args, "option", None) or []:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise UsageError(f"--option expects KEY=VALUE; got {item!r}.")
+        out[key.strip()] = load_yaml_text(value, f"--option {key.strip()}") if value else ""
+    return out

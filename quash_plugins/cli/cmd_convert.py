@@ -77,26 +77,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="Print a JSON summary.")
 
 
-def _parse_options(items: list[str]) -> dict:
-    from ..core.config import load_yaml_text
-    from ..core.errors import UsageError
-
-    out = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        if not sep or not key.strip():
-            raise UsageError(f"--option expects KEY=VALUE; got {item!r}.")
-        out[key.strip()] = load_yaml_text(value, f"--option {key.strip()}") if value else ""
-    return out
-
-
 def run(args: argparse.Namespace) -> int:
     from ..adapters import convert_map, detect_adapter
     from ..core import registry
     from ..core.errors import UsageError
+    from ._config_opts import adapter_options
     from ._output import console, print_json, safe_text
 
-    options = _parse_options(args.option)
+    options = adapter_options(args)
     _check_destination(args)
     name = args.adapter
     if name in (None, "auto"):

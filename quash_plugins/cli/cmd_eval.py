@@ -46,7 +46,7 @@ def _split(text: str | None) -> list[str]:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from ..evaluation.report import DEFAULT_EXCLUDE
     from ._backend_opts import add_backend_arguments
-    from ._config_opts import add_config_option, add_runtime_options
+    from ._config_opts import add_adapter_options, add_config_option, add_runtime_options
     from ._viewer_opts import add_viewer_arguments
 
     p.add_argument("map", help="Labelled map (labels + label_names), e.g. from make-scene.")
@@ -89,6 +89,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="An absence query counts as empty with at most N matches (default 0).",
     )
     p.add_argument("--adapter", default=None, help="Adapter name (default: the first config's).")
+    add_adapter_options(p)
     p.add_argument("--json", metavar="FILE", help="Write the report as JSON.")
     p.add_argument("--markdown", metavar="FILE", help="Write the comparison as Markdown.")
     p.add_argument("--plot", metavar="FILE.png", help="Plot precision vs recall per config.")
@@ -119,6 +120,7 @@ def run(args: argparse.Namespace) -> int:
     from ._backend_opts import backend_overrides
     from ._config_opts import (
         FAIR_PEERS,
+        adapter_options,
         apply_runtime_options,
         fair_default_configs,
         load_config,
@@ -134,7 +136,7 @@ def run(args: argparse.Namespace) -> int:
     _check_outputs(args, configs)
     overrides = backend_overrides(args)
     quashes = [Quash.from_config(apply_runtime_options(cfg, args), **overrides) for cfg in configs]
-    lmap = quashes[0].read_map(args.map, adapter=args.adapter)
+    lmap = quashes[0].read_map(args.map, adapter=args.adapter, **adapter_options(args))
     queries: Any = _split(args.queries) or None
     absent = _split(args.absent)
     if args.queries_file:

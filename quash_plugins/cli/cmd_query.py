@@ -31,7 +31,7 @@ query result, a quash recording), or with --force."""
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from ._backend_opts import add_backend_arguments
-    from ._config_opts import add_config_option, add_runtime_options
+    from ._config_opts import add_adapter_options, add_config_option, add_runtime_options
     from ._viewer_opts import add_viewer_arguments
 
     p.add_argument("map", help="Map file or directory.")
@@ -42,6 +42,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=None,
         help="Adapter name, or 'auto' to sniff the format (default: the config's).",
     )
+    add_adapter_options(p)
     p.add_argument(
         "--out", metavar="RESULT.npz|.zarr|DIR", help="Write masks and scores (atomically)."
     )
@@ -69,15 +70,16 @@ def run(args: argparse.Namespace) -> int:
     from ..engine.pipeline import Quash
     from ..engine.results import write_results_npz
     from ._backend_opts import backend_overrides
-    from ._config_opts import apply_runtime_options, load_config
+    from ._config_opts import adapter_options, apply_runtime_options, load_config
     from ._viewer_opts import open_viewer
 
     cfg = apply_runtime_options(load_config(args.config), args)
+    options = adapter_options(args)
     _check_outputs(args, cfg)
     quash = Quash.from_config(cfg, **backend_overrides(args))
     if args.out and _out_format(args) == "zarr":
         return _query_to_zarr(args, quash)
-    lmap = quash.read_map(args.map, adapter=args.adapter)
+    lmap = quash.read_map(args.map, adapter=args.adapter, **options)
     passes = f" ({quash.passes} passes)" if quash.passes > 1 else ""
     with progress(lmap.n * quash.passes, f"classifying {lmap.n} items{passes}") as advance:
         results = quash.query_many(lmap, args.queries, progress=advance)
@@ -143,6 +145,7 @@ def _query_to_zarr(args, quash) -> int:
     """Results too large for memory: masks and scores stream into zarr, the same as
     ``query_many``'s (``LazyQuery.to_zarr`` applies the config's refine and presence)."""
     from ..core.errors import UsageError
+    from ._config_opts import adapter_options
     from ._output import console, print_json, safe_text
     from ._viewer_opts import viewer_requested
 
@@ -150,7 +153,9 @@ def _query_to_zarr(args, quash) -> int:
         raise UsageError(
             "--out *.zarr streams results to disk; drop the Rerun options or use .npz."
         )
-    lazy = quash.query_many_lazy(args.map, args.queries, adapter=args.adapter)
+    lazy = quash.query_many_lazy(
+        args.map, args.queries, adapter=args.adapter, **adapter_options(args)
+    )
     path = lazy.to_zarr(args.out)
     import dask.array as da
     import zarr

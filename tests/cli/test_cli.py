@@ -387,3 +387,38 @@ def test_query_out_npz_records_where_items_are_and_how_it_was_made(tiny_world, t
     assert is_results_npz(out)
     code, _, err = run_cli(*args, "--out", out, capsys=capsys)
     assert code == 0, err
+
+
+def test_query_and_eval_take_adapter_options(tmp_path, capsys):
+    """-o KEY=VALUE reaches the adapter, as in quash convert: the cell size of a
+    mobile-base VLMaps map (not stored in its file) scales the positions of the result;
+    an option the adapter does not take is refused naming it."""
+    pytest.importorskip("h5py")
+    from quash_plugins.adapters._vlmaps import VLMapsAdapter
+
+    path = VLMapsAdapter().write_example(tmp_path)
+    table = tmp_path / "t.npz"
+    rng = np.random.default_rng(0)
+    words = ["chair", "other", "background", "nothing"]
+    np.savez(table, texts=np.asarray(words), embeddings=rng.normal(size=(len(words), 8)))
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(
+        f"encoder: {{name: table, file: {table}}}\nheuristic: none\nclassifier: contrast\n"
+    )
+    positions = {}
+    for cs in ("0.05", "0.1"):
+        out = tmp_path / f"r{cs}.npz"
+        code, _, err = run_cli(
+            "query", path, "chair", "-c", cfg, "-o", f"cs={cs}", "--out", out, capsys=capsys
+        )
+        assert code == 0, err
+        positions[cs] = np.load(out)["positions"]
+    np.testing.assert_allclose(positions["0.1"], 2 * positions["0.05"], rtol=1e-5, atol=1e-6)
+    code, _, err = run_cli("query", path, "chair", "-c", cfg, "-o", "cz=0.1", capsys=capsys)
+    assert code != 0 and "'cz'" in err and "cs" in err
+    code, _, err = run_cli("query", path, "chair", "-c", cfg, "-o", "cs", capsys=capsys)
+    assert code == 2 and "--option expects KEY=VALUE" in err
+    code, _, err = run_cli(
+        "eval", path, "-c", cfg, "-o", "cz=0.1", "--queries", "chair=chair", capsys=capsys
+    )
+    assert code != 0 and "'cz'" in err
