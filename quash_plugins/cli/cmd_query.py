@@ -50,7 +50,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--format",
         default="auto",
         choices=("auto", "npz", "zarr", "openlex3d"),
-        help="Format of --out (default: auto, .zarr or else npz). openlex3d: a folder of "
+        help="Format of --out (default: auto, by its suffix, .npz or .zarr). openlex3d: a folder of "
         "per-query scores and masks aligned with an OpenLex3D export of the map.",
     )
     p.add_argument(
@@ -102,12 +102,23 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _out_format(args: argparse.Namespace) -> str:
-    """``npz``, ``zarr`` or ``openlex3d``: ``--format``, else by the suffix of ``--out``."""
+def _out_format(args: argparse.Namespace, strict: bool = True) -> str:
+    """``npz``, ``zarr`` or ``openlex3d``: ``--format``, else by the suffix of ``--out``
+    (``strict``: a suffix that is neither ``.npz`` nor ``.zarr`` is a usage error)."""
     fmt = getattr(args, "format", "auto") or "auto"
     if fmt != "auto":
         return fmt
-    return "zarr" if str(args.out).rstrip("/").endswith(".zarr") else "npz"
+    out = str(args.out).rstrip("/")
+    if out.endswith(".zarr"):
+        return "zarr"
+    if strict and not out.endswith(".npz"):
+        from ..core.errors import UsageError
+
+        raise UsageError(
+            f"--out {args.out}: name a results file RESULT.npz or a store RESULT.zarr, or "
+            "pass --format (npz, zarr, openlex3d) to write that format under this name."
+        )
+    return "npz"
 
 
 def _check_outputs(args: argparse.Namespace, cfg=None) -> None:
@@ -124,7 +135,8 @@ def _check_outputs(args: argparse.Namespace, cfg=None) -> None:
     check_distinct_outputs([("--out", args.out), ("--rrd", getattr(args, "rrd", None))])
     inputs = (args.map, args.config, *input_files(args.map, [cfg] if cfg is not None else []))
     if args.out:
-        fmt = _out_format(args)
+        # an output that is an input (or not a regular file) is the first thing to say
+        fmt = _out_format(args, strict=False)
         replaceable = {
             "zarr": is_results_zarr,
             "openlex3d": is_openlex3d_results,
@@ -138,6 +150,7 @@ def _check_outputs(args: argparse.Namespace, cfg=None) -> None:
             replaceable=replaceable,
             folder=fmt != "npz",
         )
+        _out_format(args)
     check_rrd(args, inputs)
 
 

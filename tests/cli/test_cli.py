@@ -422,3 +422,34 @@ def test_query_and_eval_take_adapter_options(tmp_path, capsys):
         "eval", path, "-c", cfg, "-o", "cz=0.1", "--queries", "chair=chair", capsys=capsys
     )
     assert code != 0 and "'cz'" in err
+
+
+def test_query_out_with_an_unknown_suffix_is_refused_before_any_work(tiny_world, tmp_path, capsys):
+    """--out out.h5df wrote an NPZ under a VLMaps-looking name: refused, the fix named."""
+    for name in ("out.h5df", "out"):
+        code, _, err = run_cli(
+            "query",
+            tiny_world["map"],
+            "chair",
+            "-c",
+            tiny_world["config"],
+            "--out",
+            tmp_path / name,
+            capsys=capsys,
+        )
+        assert code == 2 and "RESULT.npz" in err and "--format" in err
+        assert not (tmp_path / name).exists()
+    code, _, err = run_cli(
+        "query",
+        tiny_world["map"],
+        "chair",
+        "-c",
+        tiny_world["config"],
+        "--out",
+        tmp_path / "out.h5df",
+        "--format",
+        "npz",
+        capsys=capsys,
+    )
+    assert code == 0, err
+    assert np.load(tmp_path / "out.h5df")["masks"].shape[0] == 1
