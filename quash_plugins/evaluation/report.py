@@ -73,6 +73,38 @@ def _as_quash(config: Any, overrides: dict[str, Any]):
     return Quash.from_config(config, **overrides)
 
 
+def missing_ground_truth(lmap: LatentMap) -> str:
+    """Why ``lmap`` cannot be evaluated: which of its labels and label names is missing,
+    and where each comes from for the map's format."""
+    where = lmap.source.get("path", "the map")
+    adapter = lmap.source.get("adapter", "")
+    if lmap.labels is not None:
+        if adapter.startswith(("vlmaps", "openscene")):
+            fix = (
+                "Give them to the adapter: in the config, 'adapter: {name: "
+                f"{adapter}, label_names: names.txt}}' (one name a line, in label order), "
+                "or -o label_names=names.txt on the command line."
+            )
+            if adapter.startswith("vlmaps"):
+                fix += " VLMaps forks write them as obj2cls_dict.txt beside the map."
+        else:
+            fix = "Write the map with its label names (the NPZ array label_names (L,))."
+        return (
+            f"{where} has per-item labels but no label names, which evaluation needs to "
+            f"match queries to labels. {fix}"
+        )
+    hint = (
+        " Upstream VLMaps writes no ground truth; its forks store grid_semantic (3-D) or "
+        "grid_<n>_gt.npy (top-down) with obj2cls_dict.txt."
+        if adapter.startswith("vlmaps")
+        else ""
+    )
+    return (
+        f"{where} has no ground-truth labels (per-item labels and their names); evaluation "
+        f"needs them. Use a labelled map, e.g. `quash make-scene`.{hint}"
+    )
+
+
 def evaluate(
     source: Any,
     configs: Sequence[Any],
@@ -116,11 +148,7 @@ def evaluate(
     quashes = [_as_quash(c, overrides) for c in configs]
     lmap = source if isinstance(source, LatentMap) else quashes[0].read_map(source)
     if lmap.labels is None or not lmap.label_names:
-        where = lmap.source.get("path", "the map")
-        raise QuashError(
-            f"{where} has no ground-truth labels (labels + label_names); "
-            "evaluation needs them. Use a labelled map, e.g. `quash make-scene`."
-        )
+        raise QuashError(missing_ground_truth(lmap))
     labels = np.asarray(lmap.labels)
     names = list(lmap.label_names)
     valid = valid_items(labels, names, exclude)

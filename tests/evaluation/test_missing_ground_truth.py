@@ -1,0 +1,38 @@
+"""quash eval on a map without ground truth says which half is missing and where it
+comes from for the map's format."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from quash_plugins import Quash
+from quash_plugins.adapters import write_npz_map
+from quash_plugins.core.errors import QuashError
+from quash_plugins.core.types import LatentMap
+from quash_plugins.evaluation.report import evaluate, missing_ground_truth
+
+E = np.eye(4, dtype=np.float32)
+
+
+def test_labels_without_names_in_an_npz_say_the_names_are_missing(tmp_path):
+    path = write_npz_map(tmp_path / "m.npz", LatentMap(E, labels=np.array([0, 1, 0, 1])))
+    q = Quash.from_config({"encoder": {"name": "table", "table": {"a": [1, 0, 0, 0]}}})
+    with pytest.raises(QuashError) as err:
+        evaluate(str(path), [q])
+    msg = str(err.value)
+    assert str(path) in msg and "labels but no label names" in msg
+    assert "label_names (L,)" in msg
+
+
+def test_a_vlmaps_map_names_the_adapter_option_and_the_forks_files():
+    with_labels = LatentMap(
+        E, labels=np.array([0, 1, 0, 1]), source={"adapter": "vlmaps-2d", "path": "m/map"}
+    )
+    msg = missing_ground_truth(with_labels)
+    assert "'adapter: {name: vlmaps-2d, label_names: names.txt}'" in msg
+    assert "-o label_names=names.txt" in msg and "obj2cls_dict.txt" in msg
+    bare = LatentMap(E, source={"adapter": "vlmaps", "path": "vlmap/vlmaps.h5df"})
+    msg = missing_ground_truth(bare)
+    assert "no ground-truth labels" in msg and "Upstream VLMaps writes no ground truth" in msg
+    assert "grid_semantic" in msg
