@@ -148,12 +148,17 @@ def add_adapter_options(parser: argparse.ArgumentParser) -> None:
 
 def adapter_options(args: argparse.Namespace) -> dict:
     """The ``-o KEY=VALUE`` options as a mapping (values parsed as YAML)."""
+    return key_values(getattr(args, "option", None) or [], "--option")
+
+
+def key_values(items: list[str], option: str) -> dict:
+    """``KEY=VALUE`` command-line items as a mapping, values parsed as YAML."""
     from ..core.config import load_yaml_text
 
     out = {}
-    for item in getattr(args, "option", None) or []:
+    for item in items:
         key, sep, value = item.partition("=")
         if not sep or not key.strip():
-            raise UsageError(f"--option expects KEY=VALUE; got {item!r}.")
-        out[key.strip()] = load_yaml_text(value, f"--option {key.strip()}") if value else ""
+            raise UsageError(f"{option} expects KEY=VALUE; got {item!r}.")
+        out[key.strip()] = load_yaml_text(value, f"{option} {key.strip()}") if value else ""
     return out

@@ -52,6 +52,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=None,
         help="'file' parameter of the encoder (e.g. a table encoder's NPZ/YAML).",
     )
+    p.add_argument(
+        "--encoder-option",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        dest="encoder_option",
+        help="A parameter of the encoder, e.g. --encoder-option dim=384 (values parsed as "
+        "YAML); repeatable. A query must then use the same encoder and parameters.",
+    )
     p.add_argument("--no-cache", action="store_true", help="Do not use the text-embedding cache.")
     p.add_argument(
         "--force",
@@ -78,9 +87,10 @@ _HELP = {
 
 def run(args: argparse.Namespace) -> int:
     from ..core import registry
-    from ..core.errors import UsageError
+    from ..core.errors import QuashError, UsageError
     from ..demo.scene import SceneOptions, make_scene, write_scene
     from ..engine.cache import open_cache
+    from ._config_opts import key_values
     from ._output import console, safe_text
 
     opts = SceneOptions(**{f.name: getattr(args, f.name) for f in dataclasses.fields(SceneOptions)})
@@ -90,7 +100,11 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError("give OUT.npz, the map to write (or --show-classes).")
     _check_outputs(args)
     params = {"file": args.encoder_file} if args.encoder_file else {}
-    encoder = registry.create("encoders", args.encoder, **params)
+    params.update(key_values(args.encoder_option, "--encoder-option"))
+    try:
+        encoder = registry.create("encoders", args.encoder, **params)
+    except QuashError as exc:
+        raise UsageError(f"--encoder {args.encoder}: {exc}") from exc.__cause__
     scene = make_scene(encoder, opts, cache=open_cache(not args.no_cache))
     paths = write_scene(scene, args.out, opts)
     out = console()

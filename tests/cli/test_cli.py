@@ -453,3 +453,33 @@ def test_query_out_with_an_unknown_suffix_is_refused_before_any_work(tiny_world,
     )
     assert code == 0, err
     assert np.load(tmp_path / "out.h5df")["masks"].shape[0] == 1
+
+
+def test_make_scene_passes_encoder_options(tmp_path, capsys, monkeypatch):
+    """--encoder-option KEY=VALUE reaches the encoder (a plugin's dim, a batch size); an
+    option the encoder does not take is a usage error naming it and the accepted ones."""
+    import quash_plugins.demo.scene as scene
+
+    seen = {}
+
+    def stop(encoder, opts, cache=None):
+        seen["batch_size"] = encoder.batch_size
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(scene, "make_scene", stop)
+    out = tmp_path / "s.npz"
+    code, _, _ = run_cli(
+        "make-scene",
+        out,
+        "--encoder",
+        "minilm",
+        "--encoder-option",
+        "batch_size=16",
+        capsys=capsys,
+    )
+    assert code == 130 and seen == {"batch_size": 16}
+    code, _, err = run_cli(
+        "make-scene", out, "--encoder", "minilm", "--encoder-option", "bogus=1", capsys=capsys
+    )
+    assert code == 2 and "'bogus'" in err and "batch_size" in err
+    assert not out.exists()
