@@ -30,6 +30,7 @@ __all__ = [
     "write_openlex3d_map",
     "write_pcd",
     "to_vlmaps_grid",
+    "vlmaps_outputs",
 ]
 
 #: Public helpers, imported on first use (keeps ``import quash_plugins.adapters`` light).
@@ -44,6 +45,7 @@ _LAZY = {
     "write_openlex3d_map": "._openlex3d",
     "write_pcd": "._openlex3d",
     "to_vlmaps_grid": "._vlmaps2d",
+    "vlmaps_outputs": "._vlmaps_write",
 }
 
 

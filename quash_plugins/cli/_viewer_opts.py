@@ -5,8 +5,14 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from ..viewer import DEFAULT_BIND, DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT, ViewerOptions
-from ..viewer._sinks import check_bind, check_port
+from ..viewer import (
+    DEFAULT_BIND,
+    DEFAULT_GRPC_PORT,
+    DEFAULT_WEB_PORT,
+    ViewerOptions,
+    check_bind,
+    check_port,
+)
 
 
 def _arg_type(check: Any, what: str) -> Any:
@@ -88,7 +94,7 @@ def check_rrd(args: argparse.Namespace, inputs: Any = ()) -> None:
 
     from ..core.atomic import check_output
     from ..core.errors import UsageError
-    from ..viewer._sinks import is_quash_rrd, is_rrd, rrd_application_ids
+    from ..viewer import is_quash_rrd, is_rrd, rrd_application_ids
 
     if not getattr(args, "rrd", None):
         return

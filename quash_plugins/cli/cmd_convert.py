@@ -123,7 +123,7 @@ def _check_destination(args: argparse.Namespace) -> None:
         check_not_input(args.destination, (args.source,), what="DST")
         return
     if args.format == "vlmaps":  # a folder (it may exist); its files need --force
-        from ..adapters._vlmaps_write import vlmaps_outputs
+        from ..adapters import vlmaps_outputs
 
         check_not_input(args.destination, (args.source,), what="DST")
         for out in vlmaps_outputs(args.destination):

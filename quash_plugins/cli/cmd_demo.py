@@ -104,7 +104,7 @@ def _check_rerun(args: argparse.Namespace, outdir) -> None:
     """Refuse, before any work, Rerun output without the rerun SDK, saying how to run
     the demo without it (``--no-rrd``)."""
     from ..core.errors import QuashError, UsageError
-    from ..viewer._rerun import import_rerun
+    from ..viewer import import_rerun
     from ._viewer_opts import viewer_requested
 
     if not viewer_requested(args):

@@ -14,18 +14,21 @@ from __future__ import annotations
 from ._display import colormap, display_indices, pca_colors, slugify
 from ._log_map import MATCH_COLOR
 from ._log_result import INSTANCE_COLOR
-from ._rerun import RerunLogger
+from ._rerun import RerunLogger, import_rerun
 from ._sinks import (
     DEFAULT_BIND,
     DEFAULT_GRPC_PORT,
     DEFAULT_WEB_PORT,
     SinkRerunLogger,
     ViewerOptions,
+    check_bind,
+    check_port,
     display_available,
     is_quash_rrd,
     is_rrd,
     open_viewer,
     rerun_executable,
+    rrd_application_ids,
     web_viewer_url,
 )
 
@@ -38,8 +41,12 @@ __all__ = [
     "RerunLogger",
     "SinkRerunLogger",
     "ViewerOptions",
+    "check_bind",
+    "check_port",
+    "import_rerun",
     "is_quash_rrd",
     "is_rrd",
+    "rrd_application_ids",
     "open_viewer",
     "display_available",
     "rerun_executable",
