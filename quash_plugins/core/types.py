@@ -485,6 +485,9 @@ class QueryResult:
         ``(N,)`` float32 raw decision values; ``mask == scores > threshold``.
     display_scores
         ``(N,)`` float32 in [0, 1], for colormaps; 0.5 at the threshold.
+    rejected
+        ``(N,)`` bool: the items the last pass matched that the presence check dropped
+        (what an absent object's look-alikes were); None when the config has no check.
     """
 
     queryset: QuerySet
@@ -497,6 +500,7 @@ class QueryResult:
     classifier: str = ""
     config_name: str = ""
     map_source: dict[str, Any] = field(default_factory=dict)
+    rejected: np.ndarray | None = None
 
     @property
     def query(self) -> str:

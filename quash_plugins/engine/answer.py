@@ -46,6 +46,8 @@ class Pending:
     raw: np.ndarray | None = None
     mask: np.ndarray | None = None
     display: np.ndarray | None = None
+    #: the items the presence check dropped (None until it runs)
+    rejected: np.ndarray | None = None
 
 
 def answer(
@@ -208,6 +210,7 @@ def presence_pass(
             candidates=candidates,
         )
         keep &= observed
+        p.rejected = p.mask & ~keep
         if (p.mask & ~keep).any() or (keep & ~p.mask).any():
             p.raw = _moved_scores(p.raw, p.mask, keep, observed, threshold)
             p.mask = keep

@@ -443,6 +443,7 @@ class Quash:
                     classifier=describe() if callable(describe) else type(p.clf).__name__,
                     config_name=self.name,
                     map_source=dict(lmap.source),
+                    rejected=p.rejected,
                 )
             )
         return results

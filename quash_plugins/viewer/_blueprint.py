@@ -75,6 +75,7 @@ def _config_panel(rrb: Any, layout: Layout, c: str | None, name: str) -> Any:
                 "+ world/map",
                 "+ world/ceiling",
                 f"+ world/matches/{c}",
+                f"+ world/rejected/{c}",
                 f"+ world/instances/{c}/**",
             ],
             overrides={"world/ceiling": hidden} if layout.has_ceiling else None,

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+import numpy as np
+
 from ..core.types import LatentMap, QueryResult
 
 _STAGES = (
@@ -77,7 +79,7 @@ def queryset_markdown(
         f"Matched **{result.n_matched:,}** of {lmap.n:,} items ({100 * result.share:.2f} %) · "
         f"{_instances_words(result)} · query {index}",
         "",
-        f"Presence check: {_md(result.presence)}",
+        f"Presence check: {_md(result.presence)}{_rejected_words(result)}",
         "",
         f"**Positives ({len(pos)}):** {_head(pos)}",
         "",
@@ -119,3 +121,12 @@ def queryset_markdown(
         lines += [f"- {n}" for n in notes]
         lines.append("")
     return "\n".join(lines)
+
+
+def _rejected_words(result: QueryResult) -> str:
+    """How many matched items the presence check dropped, shown grey in the map view."""
+    rejected = getattr(result, "rejected", None)
+    n = int(np.count_nonzero(rejected)) if rejected is not None else 0
+    if not n:
+        return ""
+    return f" · dropped {n:,} matched item{'' if n == 1 else 's'} (grey in the map view)"

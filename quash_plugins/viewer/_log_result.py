@@ -18,6 +18,8 @@ from ._log_map import MATCH_COLOR
 
 #: Colour of instance boxes.
 INSTANCE_COLOR = (255, 200, 0)
+#: Items the presence check dropped.
+REJECTED_COLOR = (150, 150, 150)
 
 
 class _ConfigState:
@@ -40,7 +42,7 @@ class ResultLogging:
         """Log one query's result at ``query = index`` on the ``query`` timeline.
 
         Per config (``result.config_name``): ``world/matches/<config>`` (the matched
-        items), the class ids of ``world/scores/<config>``, ``world/instances/<config>``
+        items), ``world/rejected/<config>`` (those the presence check dropped, grey), the class ids of ``world/scores/<config>``, ``world/instances/<config>``
         and the document ``queries/<config>``; for pixel maps
         ``images/<frame>/<config>/{mask,scores,instances}``. Each replaces the config's
         previous query, so scrubbing the timeline shows one query at a time per config.
@@ -88,6 +90,16 @@ class ResultLogging:
             f"world/matches/{c}",
             self._primitive(lmap.positions[shown], 0.55, 0.6, colors=MATCH_COLOR),
         )
+        # what the presence check dropped: an absent object's look-alikes, in grey
+        dropped = np.flatnonzero(result.rejected) if result.rejected is not None else []
+        if len(dropped):
+            dropped = thin(dropped, self.max_display_points)
+            rec.log(
+                f"world/rejected/{c}",
+                self._primitive(lmap.positions[dropped], 0.5, 0.55, colors=REJECTED_COLOR),
+            )
+        else:
+            rec.log(f"world/rejected/{c}", rr.Clear(recursive=True))
         # Scores: the geometry once per config (static), then one class id per item.
         scores = np.asarray(result.display_scores)
         archetype = rr.Boxes3D if self._as_boxes else rr.Points3D

@@ -349,6 +349,9 @@ def test_the_competitor_an_absent_query_lost_to_is_named():
     assert not chair.mask.any()
     assert chair.queryset.provenance["presence"]["rival"] == "bed"
     assert "closest competitor: 'bed'" in chair.presence
+    # what the check dropped is kept for the viewer: here every item had matched
+    assert chair.rejected is not None and chair.rejected.all()
+    assert Quash(_encoder(), instances=False).query(m, "bed").rejected is None  # no check
 
 
 def test_a_small_object_on_its_support_is_judged_against_the_support():

@@ -568,3 +568,29 @@ def test_recording_size_paragraph_describes_todays_demo():
     assert found, "the recording-size paragraph of docs/rerun.md changed shape"
     assert int(found[1]) == len(DEMO_CONFIGS)
     assert int(found[2]) == len(DEMO_QUERIES) + len(DEMO_ABSENT)
+
+
+def test_items_the_presence_check_dropped_are_shown_grey(tmp_path):
+    """world/rejected/<config> holds exactly the dropped items, grey, at the query's step;
+    a query with nothing dropped clears it; the document says how many."""
+    import dataclasses
+
+    from quash_plugins.viewer._log_result import REJECTED_COLOR
+
+    lmap = voxel_map()
+    chair, sofa = make_quash().query_many(lmap, ["chair", "sofa"])
+    dropped = lmap.labels == 1  # say the check dropped the sofa block for "chair"
+    chair = dataclasses.replace(chair, rejected=dropped)
+    sofa = dataclasses.replace(sofa, rejected=np.zeros(lmap.n, bool))
+    out = tmp_path / "r.rrd"
+    log_to_file(out, lmap, [chair, sofa])
+    reader, by_path = read_rrd(out)
+    [(t, centers)] = rows(by_path["world/rejected/quash"], "Boxes3D:centers")
+    assert t == 0
+    np.testing.assert_allclose(np.array(centers), lmap.positions[dropped], atol=1e-6)
+    for _, colors in rows(by_path["world/rejected/quash"], "Boxes3D:colors"):
+        assert {(c >> 24) & 255 for c in colors} == {REJECTED_COLOR[0]}
+    texts = [str(v[0]) for _, v in rows(by_path["queries/quash"], "TextDocument:text")]
+    assert f"dropped {int(dropped.sum()):,} matched items (grey in the map view)" in texts[0]
+    assert "dropped" not in texts[1]
+    assert "+ world/rejected/quash" in blueprint_contents(reader)
