@@ -67,8 +67,10 @@ CHOSEN_PRESENCE: dict[str, Any] = {}
 
 #: The config a command runs when given no ``-c`` (``quash query MAP QUERY``), and
 #: :meth:`QuashConfig.default`: safe on any map. With a label list (the map's label
-#: names, or a taxonomy beside the map) it is the chosen method, ``demo:quash-labels``;
-#: without one the shipped vocabulary stands in for the list (the ``auto`` heuristic).
+#: names, or a taxonomy beside the map) it answers as the chosen method,
+#: ``demo:quash-labels``; without one as ``demo:quash-vocabulary`` (the shipped
+#: vocabulary stands in for the list: the ``auto`` heuristic, and ``auto`` refinement
+#: seeds and growth check), so each case is the config the quality tables measure.
 #: The presence check returns an empty mask for an object that is not in the map. It
 #: needs a text encoder that can embed the vocabulary (any sentence or CLIP encoder).
 DEFAULT_CONFIG: dict[str, Any] = {
@@ -76,8 +78,10 @@ DEFAULT_CONFIG: dict[str, Any] = {
     "encoder": "minilm",
     "heuristic": {"name": "auto"},
     "classifier": DEFAULT_CLASSIFIER.to_dict(),
-    "refine": CHOSEN_REFINE,
-    "presence": CHOSEN_PRESENCE,
+    # auto: demo:quash-labels' settings (seeds: top, grow_margin: 0.0) for a query set
+    # from a label list, demo:quash-vocabulary's (matched, null) for one from the vocabulary
+    "refine": {**CHOSEN_REFINE, "seeds": "auto"},
+    "presence": {**CHOSEN_PRESENCE, "grow_margin": "auto"},
 }
 
 
@@ -168,7 +172,8 @@ class QuashConfig:
             "help": "Transductive refinement: re-fit on the map's most confident matches "
             "and a sample of clear non-matches, then classify again ({classifier: svm-rbf, "
             "n_positives: 100, n_negatives: 1000, negative_quantile: 0.5, min_seed: 10, "
-            "seed: 0, seeds: matched|top}; {} takes these defaults). null turns it off."
+            "seed: 0, seeds: matched|top|auto}; auto: top for a query set from a label list, "
+            "else matched; {} takes these defaults). null turns it off."
         },
     )
     presence: dict[str, Any] | None = field(
@@ -179,7 +184,8 @@ class QuashConfig:
             "is absent (empty mask) ({dilate: 1, min_component: 8, margin: 0.05, "
             "keep_margin: -0.02, core_margin: 0.12, core_keep_margin: 0.03, size_margin: 0.3, "
             "flat_margin: null, support_margin: 0.12, label_name: true, k: 2, mode: filter|gate, "
-            "grow: -0.25, grow_steps: null, grow_margin: 0.0}; "
+            "grow: -0.25, grow_steps: null, grow_margin: 0.0 (auto: 0.0 with a label list, "
+            "else null)}; "
             "{} takes these defaults). Needs a voxel grid, positions or frames. null turns it off."
         },
     )

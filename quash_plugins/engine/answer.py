@@ -126,7 +126,7 @@ def refine_pass(
     client: Any = None,
 ) -> None:
     """Re-fit each query on its map samples and classify again, in one shared pass."""
-    from .refine import pseudo_labels
+    from .refine import pseudo_labels, resolve_seeds
 
     todo = []
     for p in pending:
@@ -135,10 +135,15 @@ def refine_pass(
         # resolves to), so "wood stove", "a fireplace" and "fireplace" draw the same ones
         # and a sub-class query answers as its label does
         salt = p.queryset.provenance.get("label") or p.queryset.query
-        extra = pseudo_labels(lmap, p.raw, p.mask, observed, quash.refine, str(salt))
+        seeds = resolve_seeds(quash.refine.seeds, p.queryset.provenance)
+        extra = pseudo_labels(lmap, p.raw, p.mask, observed, quash.refine, str(salt), seeds)
         seed_matches = int(p.mask.sum())
         if extra is None:
-            p.queryset.provenance["refine"] = {"applied": False, "seed_matches": seed_matches}
+            p.queryset.provenance["refine"] = {
+                "applied": False,
+                "seed_matches": seed_matches,
+                "seeds": seeds,
+            }
             p.timings["refine"] = time.perf_counter() - t
             continue
         Xm, ym = extra
@@ -147,6 +152,7 @@ def refine_pass(
         )
         p.queryset.provenance["refine"] = {
             "applied": True,
+            "seeds": seeds,
             "seed_matches": seed_matches,
             "map_positives": int(ym.sum()),
             "map_negatives": int(len(ym) - ym.sum()),

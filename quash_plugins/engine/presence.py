@@ -32,7 +32,9 @@ not present: an empty mask, ``provenance["presence"]["present"]`` False. With ``
 refined score is above ``grow`` (hysteresis: recovers an object's items just under the
 threshold, never a new object); with ``grow_margin``, each addition (the new items of one
 connected region) is added only when the query wins its own mean by that margin under
-either reading, else (with ``grow_steps``) only its items within that many steps.
+either reading, else (with ``grow_steps``) only its items within that many steps;
+``grow_margin: auto`` checks growth (0.0) for a query set with label groups and grows
+unchecked without them (a vocabulary standing in for the list), as the default config does.
 
 Why a grown region: a matched set is *selected* for looking like the query, so its own
 mean leans towards the query (on the proxy scenes every absent label passed such a test).
@@ -68,7 +70,7 @@ Examples
 from __future__ import annotations
 
 import weakref
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from typing import Any
 
 import numpy as np
@@ -98,7 +100,7 @@ class PresenceOptions:
     mode: str = "filter"
     grow: float | None = -0.25
     grow_steps: int | None = None
-    grow_margin: float | None = 0.0
+    grow_margin: float | str | None = 0.0
 
     @classmethod
     def parse(cls, options: dict[str, Any]) -> PresenceOptions:
@@ -113,6 +115,8 @@ class PresenceOptions:
             for key in ("margin", "keep_margin", "core_keep_margin", "size_margin"):
                 setattr(opts, key, float(getattr(opts, key)))
             for key in ("core_margin", "flat_margin", "support_margin", "grow", "grow_margin"):
+                if key == "grow_margin" and opts.grow_margin == "auto":
+                    continue
                 if getattr(opts, key) is not None:
                     setattr(opts, key, float(getattr(opts, key)))
             if opts.grow_steps is not None:
@@ -323,6 +327,10 @@ def presence_check(
         keep = mask.copy() if present else np.zeros_like(mask)
     info["kept_items"] = int(keep.sum())
     if candidates is not None and keep.any():
+        if opts.grow_margin == "auto":
+            # checked growth with a label list; without one (a vocabulary standing in)
+            # every connected candidate grows, as it measured better (docs/benchmarks.md)
+            opts = replace(opts, grow_margin=0.0 if groups else None)
         keep = _grow(keep, candidates, topology, opts, margins)
         info["grown_items"] = int(keep.sum())
     return keep, info
@@ -335,6 +343,8 @@ def _grow(keep, candidates, topology, opts, margins) -> np.ndarray:
     neighbouring object) grows at most ``grow_steps`` steps (none without it)."""
     if opts.grow_margin is None:
         return topology.grow(keep, candidates, opts.grow_steps)
+    if opts.grow_margin == "auto":
+        raise ValueError("resolve grow_margin: auto for the query set first")
     # the connected regions of new candidates that touch a kept component
     new = topology.components(candidates & ~keep)
     if topology.kind == "pixels":  # a region is grown within one frame

@@ -19,8 +19,27 @@ import numpy as np
 from ..core.errors import ConfigError, check_options
 from ..core.types import LatentMap, prepare_block
 
-#: Where the map positives come from: the first pass's matches, or its best-scored items.
-SEEDS = ("matched", "top")
+#: Where the map positives come from: the first pass's matches, or its best-scored items;
+#: ``auto``: ``top`` for a query set from a label list (it records label groups), else
+#: ``matched`` (see :func:`resolve_seeds`).
+SEEDS = ("matched", "top", "auto")
+
+
+def resolve_seeds(seeds: str, provenance: dict[str, Any]) -> str:
+    """``seeds`` for one query set: ``auto`` is ``top`` when the query set has label
+    groups (``provenance["negative_groups"]``: every other label a competitor), else
+    ``matched``. With a label list the best-scored items are the query's object often
+    enough to seed from; with only a vocabulary a refit on items of the wrong object
+    ranks the map worse (docs/benchmarks.md), so only the first pass's matches seed it.
+
+    Examples
+    --------
+    >>> resolve_seeds("auto", {"negative_groups": [3, 2]}), resolve_seeds("auto", {})
+    ('top', 'matched')
+    """
+    if seeds != "auto":
+        return seeds
+    return "top" if provenance.get("negative_groups") else "matched"
 
 
 @dataclass
@@ -88,6 +107,7 @@ def pseudo_labels(
     observed: np.ndarray,
     opts: RefineOptions,
     salt: str,
+    seeds: str | None = None,
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """Map samples ``(k, D)`` and labels ``(k,)`` from a first pass, or None to keep it.
 
@@ -96,9 +116,13 @@ def pseudo_labels(
     text sits just off its map items still seeds). Negatives: a seeded random sample of
     observed items scoring below the ``negative_quantile`` of the observed scores (and
     not positives). ``salt`` seeds the draw with ``opts.seed``: the query's label when it
-    resolves to one, else its text.
+    resolves to one, else its text. ``seeds`` overrides ``opts.seeds`` (resolved for the
+    query set, :func:`resolve_seeds`).
     """
-    if opts.seeds == "top":
+    seeds = seeds or opts.seeds
+    if seeds == "auto":
+        raise ValueError("resolve seeds: auto for the query set first (resolve_seeds)")
+    if seeds == "top":
         obs_idx = np.flatnonzero(observed)
         if len(obs_idx) < 2 * opts.min_seed:
             return None

@@ -35,9 +35,60 @@ def test_the_default_is_one_config_in_core_and_the_chosen_method():
 
     shipped = QuashConfig.from_yaml(find_shipped("demo:quash-labels").path)
     assert shipped.classifier.to_dict() == cfg.classifier.to_dict()
-    assert shipped.refine == cfg.refine
-    assert PresenceOptions.parse(shipped.presence) == PresenceOptions.parse(cfg.presence)
+    # refinement's seeds and the growth check are "auto": the label list's settings for
+    # a query set with label groups (tested on maps below)
+    assert shipped.refine == {**cfg.refine, "seeds": "top"}
+    assert PresenceOptions.parse(shipped.presence) == PresenceOptions.parse(
+        {**cfg.presence, "grow_margin": 0.0}
+    )
     assert shipped.heuristic.name == "taxonomy" and shipped.heuristic.params["n_antonyms"] == "all"
+    vocabulary = QuashConfig.from_yaml(find_shipped("demo:quash-vocabulary").path)
+    from quash_plugins.engine.refine import RefineOptions
+
+    assert RefineOptions.parse(vocabulary.refine) == RefineOptions.parse(
+        {**cfg.refine, "seeds": "matched"}
+    )
+    assert PresenceOptions.parse(vocabulary.presence) == PresenceOptions.parse(
+        {**cfg.presence, "grow_margin": None}
+    )
+
+
+@pytest.mark.slow
+def test_the_default_answers_as_the_measured_configs(minilm_scene, tmp_path):
+    """On a map with a label list the default's answers are demo:quash-labels' (masks and
+    scores equal); on the same map without one, demo:quash-vocabulary's: what the
+    quality tables measure is what `quash query MAP QUERY` does."""
+    from quash_plugins import Quash
+    from quash_plugins.adapters import read_map, write_npz_map
+
+    lmap = read_map(minilm_scene, "npz")
+    bare_path = tmp_path / "bare.npz"
+    write_npz_map(
+        bare_path,
+        LatentMap(
+            np.asarray(lmap.embeddings),
+            kind="voxels",
+            positions=lmap.positions,
+            grid_index=lmap.grid_index,
+            voxel_size=lmap.voxel_size,
+        ),
+    )
+    queries = ["chair", "sofa", "a bunk bed", "piano"]
+    default = Quash.from_config(QuashConfig.default())
+    for path, shipped in (
+        (minilm_scene, "demo:quash-labels"),
+        (bare_path, "demo:quash-vocabulary"),
+    ):
+        measured = Quash.from_config(find_shipped(shipped).path)
+        ours = default.query_many(str(path), queries)
+        theirs = measured.query_many(str(path), queries)
+        for a, b in zip(ours, theirs):
+            assert a.queryset.positives == b.queryset.positives, (shipped, a.query)
+            assert a.queryset.negatives == b.queryset.negatives, (shipped, a.query)
+            np.testing.assert_array_equal(a.mask, b.mask, err_msg=f"{shipped} {a.query}")
+            np.testing.assert_array_equal(a.scores, b.scores, err_msg=f"{shipped} {a.query}")
+        refined = [r.queryset.provenance.get("refine", {}).get("seeds") for r in ours]
+        assert set(refined) <= {"top" if shipped == "demo:quash-labels" else "matched", None}
 
 
 def test_the_cli_loads_the_default_without_c():

@@ -552,3 +552,16 @@ def test_growth_on_pixel_maps_stays_in_the_frame():
     keep, info = _run(m, mask, candidates=np.tile(bed.reshape(-1), 3), min_component=4)
     assert info["present"] and info["grown_items"] == 72
     assert np.array_equal(keep, np.r_[bed.reshape(-1), np.zeros(64, bool), bed.reshape(-1)])
+
+
+def test_grow_margin_auto_parses_and_refine_seeds_auto_resolves_by_label_groups():
+    from quash_plugins.engine.refine import RefineOptions, resolve_seeds
+
+    assert PresenceOptions.parse({"grow_margin": "auto"}).grow_margin == "auto"
+    with pytest.raises(ConfigError, match="numbers expected"):
+        PresenceOptions.parse({"grow_margin": "automatic"})
+    assert RefineOptions.parse({"seeds": "auto"}).seeds == "auto"
+    qs = _training("bed")[0]  # taxonomy, n_antonyms: all: label groups
+    assert resolve_seeds("auto", qs.provenance) == "top"
+    assert resolve_seeds("auto", {"heuristic": "vocabulary"}) == "matched"
+    assert resolve_seeds("matched", qs.provenance) == "matched"
