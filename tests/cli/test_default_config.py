@@ -25,6 +25,22 @@ from quash_plugins.heuristics import AutoHeuristic
 from quash_plugins.heuristics._vocabulary import load_vocabulary
 
 
+def _without_labels(lmap: LatentMap, path):
+    """The same voxel map without labels or label names, and nothing beside it."""
+    from quash_plugins.adapters import write_npz_map
+
+    return write_npz_map(
+        path,
+        LatentMap(
+            np.asarray(lmap.embeddings),
+            kind="voxels",
+            positions=lmap.positions,
+            grid_index=lmap.grid_index,
+            voxel_size=lmap.voxel_size,
+        ),
+    )
+
+
 def test_the_default_is_one_config_in_core_and_the_chosen_method():
     cfg = QuashConfig.default()
     assert cfg.to_dict() == QuashConfig.from_dict(DEFAULT_CONFIG).to_dict()
@@ -59,20 +75,9 @@ def test_the_default_answers_as_the_measured_configs(minilm_scene, tmp_path):
     scores equal); on the same map without one, demo:quash-vocabulary's: what the
     quality tables measure is what `quash query MAP QUERY` does."""
     from quash_plugins import Quash
-    from quash_plugins.adapters import read_map, write_npz_map
+    from quash_plugins.adapters import read_map
 
-    lmap = read_map(minilm_scene, "npz")
-    bare_path = tmp_path / "bare.npz"
-    write_npz_map(
-        bare_path,
-        LatentMap(
-            np.asarray(lmap.embeddings),
-            kind="voxels",
-            positions=lmap.positions,
-            grid_index=lmap.grid_index,
-            voxel_size=lmap.voxel_size,
-        ),
-    )
+    bare_path = _without_labels(read_map(minilm_scene, "npz"), tmp_path / "bare.npz")
     queries = ["chair", "sofa", "a bunk bed", "piano"]
     default = Quash.from_config(QuashConfig.default())
     for path, shipped in (
@@ -116,7 +121,7 @@ def test_quash_query_without_c_is_safe_on_make_scene_maps(seed, tmp_path, capsys
     without matching most of the map, and returns nothing for objects that are not there,
     with the map's label list and without it (label names removed: the vocabulary)."""
     pytest.importorskip("sentence_transformers")
-    from quash_plugins.adapters import read_map, write_npz_map
+    from quash_plugins.adapters import read_map
     from quash_plugins.cli.main import main
 
     out = tmp_path / "scene.npz"
@@ -125,17 +130,7 @@ def test_quash_query_without_c_is_safe_on_make_scene_maps(seed, tmp_path, capsys
     lmap = read_map(out, "npz")
     labels = np.asarray(lmap.labels)
     chair_share = float(np.mean(labels == lmap.label_names.index("chair")))
-    bare = tmp_path / "bare.npz"  # the same map without labels, and nothing beside it
-    write_npz_map(
-        bare,
-        LatentMap(
-            np.asarray(lmap.embeddings),
-            kind="voxels",
-            positions=lmap.positions,
-            grid_index=lmap.grid_index,
-            voxel_size=lmap.voxel_size,
-        ),
-    )
+    bare = _without_labels(lmap, tmp_path / "bare.npz")
     capsys.readouterr()
     for path, label_list in ((out, True), (bare, False)):
         queries = ["chair", "piano", "an elephant"]
