@@ -167,6 +167,7 @@ def refine_pass(
     scores, _ = quash._classify(lmap, [r for _, r in todo], progress, client)
     share = (time.perf_counter() - t) / len(todo)
     for (p, refined), raw in zip(todo, scores):
+        p.queryset.provenance["refine"]["first_pass"] = _describe(p.clf)
         p.clf = refined
         p.raw, p.mask, p.display = finish(refined, raw, observed, quash.threshold)
         p.timings["reclassify"] = share
@@ -253,3 +254,18 @@ def _moved_scores(
         floor = np.nextafter(np.float32(threshold), np.float32(np.inf))
         raw[added] = np.maximum(value, floor)
     return raw
+
+
+def _describe(clf: Any) -> str:
+    """A classifier in a few words: its ``describe()``, else its class name."""
+    describe = getattr(clf, "describe", None)
+    return describe() if callable(describe) else type(clf).__name__
+
+
+def classifier_words(p: Pending) -> str:
+    """The classifier that gave ``p`` its scores, with the first pass's when refinement
+    re-fitted it: ``"NearestSampleClassifier(k=2), refined as RbfSvmClassifier(...) on
+    the map's items"`` (``QueryResult.classifier``)."""
+    first = (p.queryset.provenance.get("refine") or {}).get("first_pass")
+    words = _describe(p.clf)
+    return f"{first}, refined as {words} on the map's items" if first else words

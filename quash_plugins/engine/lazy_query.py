@@ -28,6 +28,7 @@ import numpy as np
 
 from ..core.atomic import atomic_dir, refuse_own_input
 from ..core.types import QuerySet, check_query
+from .answer import _describe, classifier_words
 from .classify import BlockScorer
 from .dask_client import current_client, require_dask, require_zarr
 from .dask_executor import compute, scores_graph, ship
@@ -354,7 +355,7 @@ class LazyQuery:
                         zm[g0:g1, a:b] = np.stack([p.mask[a:b] for p in part])
                         if k == 0:
                             zo[a:b] = observed[a:b]
-                    described.extend(_describe(p.clf) for p in part)
+                    described.extend(classifier_words(p) for p in part)
                     log.info(
                         "queries %d-%d of %d answered and written (%.1fs)",
                         g0 + 1,
@@ -366,11 +367,6 @@ class LazyQuery:
             group.attrs.update(self._attrs(described))
         log.info("wrote %s: %d queries x %d items", path, q, n)
         return path
-
-
-def _describe(clf: Any) -> str:
-    describe = getattr(clf, "describe", None)
-    return describe() if callable(describe) else type(clf).__name__
 
 
 def query_lazy(

@@ -46,7 +46,7 @@ from ..core.errors import ConfigError, DimensionMismatchError, EmptyMapWarning, 
 from ..core.interfaces import Encoder, ExpansionContext, Heuristic
 from ..core.text import TextCache, encode_texts, load_templates
 from ..core.types import DEFAULT_NEGATIVES, LatentMap, QueryResult, QuerySet, check_query
-from .answer import Pending, answer
+from .answer import Pending, answer, classifier_words
 from .classify import classify_local
 from .map_cache import MapCache
 from .training import CallCache, training_sets
@@ -430,7 +430,6 @@ class Quash:
                 instances = find_instances(lmap, p.mask, p.display, **self.instances)
                 p.timings["instances"] = time.perf_counter() - t
             p.timings["total"] = sum(p.timings.values())
-            describe = getattr(p.clf, "describe", None)
             results.append(
                 QueryResult(
                     queryset=p.queryset,
@@ -440,7 +439,7 @@ class Quash:
                     threshold=self.threshold,
                     instances=instances,
                     timings=p.timings,
-                    classifier=describe() if callable(describe) else type(p.clf).__name__,
+                    classifier=classifier_words(p),
                     config_name=self.name,
                     map_source=dict(lmap.source),
                     rejected=p.rejected,

@@ -129,7 +129,10 @@ def test_refinement_second_pass_and_provenance():
     assert b.queryset.provenance["refine"]["applied"] is True
     assert b.queryset.provenance["refine"]["map_positives"] == 100
     assert "refine" in b.timings
-    assert b.classifier.startswith("RbfSvmClassifier")
+    # both stages are named: the first pass's classifier and the refit
+    first = b.queryset.provenance["refine"]["first_pass"]
+    assert first.startswith("ContrastClassifier")
+    assert b.classifier.startswith(f"{first}, refined as RbfSvmClassifier"), b.classifier
     assert not b.mask[:50].any()  # unobserved rows never match
     assert (b.mask == (b.scores > 0)).all()
     # deterministic
