@@ -80,7 +80,7 @@ def test_alias_bomb_is_refused_by_load_yaml(tmp_path, tail):
 
 def test_every_yaml_loader_is_bounded(tmp_path):
     from quash_plugins.adapters._vlmaps_common import _names_from_file
-    from quash_plugins.cli.cmd_convert import _parse_options
+    from quash_plugins.cli._config_opts import key_values
     from quash_plugins.core.errors import MapFormatError
     from quash_plugins.core.text import load_templates
     from quash_plugins.encoders import TableEncoder
@@ -96,7 +96,7 @@ def test_every_yaml_loader_is_bounded(tmp_path):
         (lambda: read_word_list(str(listing), "vocabulary.txt", "vocabulary"), ConfigError),
         (lambda: TableEncoder(file=str(mapping)).dim, QuashError),
         (lambda: _names_from_file(mapping), MapFormatError),
-        (lambda: _parse_options(["x=" + BOMB_BODY.replace("\n", ", ").join("{}")]), QuashError),
+        (lambda: key_values(["x=" + BOMB_BODY.replace("\n", ", ").join("{}")], "-o"), QuashError),
     ]
     for load, error in cases:
         with time_limit(10), pytest.raises(error):
