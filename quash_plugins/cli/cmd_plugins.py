@@ -104,10 +104,12 @@ def run(args: argparse.Namespace) -> int:
             highlight=False,
         )
         if getattr(args, "debug", False) and i.exception is not None:
+            import sys
             import traceback
 
+            # to stderr, unwrapped, as Python prints a traceback
             text = "".join(traceback.format_exception(i.exception))
-            console().print(safe_text(text, markup=False), highlight=False, markup=False)
+            print(safe_text(text, markup=False), file=sys.stderr)
     if broken and not getattr(args, "debug", False):
         console().print("Run 'quash plugins --debug' for each error's traceback.")
     return 0

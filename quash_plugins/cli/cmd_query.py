@@ -88,7 +88,9 @@ def run(args: argparse.Namespace) -> int:
 
         write_results_openlex3d(args.out, results, lmap.source)
     elif args.out:
-        write_results_npz(args.out, results, lmap=lmap, encoder=quash.encoder)
+        write_results_npz(
+            args.out, results, lmap=lmap, encoder=quash.encoder, config_file=cfg.source
+        )
     viewer = open_viewer(args, app_id="quash-query")
     if viewer is not None:
         viewer.log_map(lmap)
@@ -105,20 +107,24 @@ def run(args: argparse.Namespace) -> int:
 def _out_format(args: argparse.Namespace, strict: bool = True) -> str:
     """``npz``, ``zarr`` or ``openlex3d``: ``--format``, else by the suffix of ``--out``
     (``strict``: a suffix that is neither ``.npz`` nor ``.zarr`` is a usage error)."""
-    fmt = getattr(args, "format", "auto") or "auto"
-    if fmt != "auto":
-        return fmt
-    out = str(args.out).rstrip("/")
-    if out.endswith(".zarr"):
-        return "zarr"
-    if strict and not out.endswith(".npz"):
-        from ..core.errors import UsageError
+    from ..core.errors import UsageError
 
+    fmt = getattr(args, "format", "auto") or "auto"
+    out = str(args.out).rstrip("/").lower()
+    by_suffix = "zarr" if out.endswith(".zarr") else "npz" if out.endswith(".npz") else None
+    if fmt != "auto":
+        if strict and by_suffix is not None and by_suffix != fmt:
+            raise UsageError(
+                f"--out {args.out} names a .{by_suffix} but --format is {fmt}: change the "
+                "suffix or the format, so that the file is what its name says."
+            )
+        return fmt
+    if by_suffix is None and strict:
         raise UsageError(
             f"--out {args.out}: name a results file RESULT.npz or a store RESULT.zarr, or "
             "pass --format (npz, zarr, openlex3d) to write that format under this name."
         )
-    return "npz"
+    return by_suffix or "npz"
 
 
 def _check_outputs(args: argparse.Namespace, cfg=None) -> None:
@@ -233,7 +239,7 @@ def _report(args, cfg, lmap, results) -> None:
             safe_text(r.query),
             f"{r.n_matched}",
             f"{100 * r.share:.2f}%",
-            f"{len(r.instances)}",
+            _instances_cell(r),
             f"{len(r.queryset.positives)}",
             f"{len(r.queryset.negatives)}",
             f"{r.timings.get('total', 0.0) * 1000:.0f} ms",
@@ -253,3 +259,8 @@ def _report(args, cfg, lmap, results) -> None:
     out.print(timings_table(results))
     if args.out:
         out.print(f"wrote {safe_text(args.out)}")
+
+
+def _instances_cell(r) -> str:
+    """The instance count, or ``off`` when the config groups none (as the viewer says)."""
+    return str(len(r.instances)) if r.instances or "instances" in r.timings else "off"

@@ -393,6 +393,8 @@ def info(kind: str, name: str) -> PluginInfo:
 
 def accepted_params(obj: Any) -> list[str] | None:
     """Keyword parameters a plugin accepts, or None when it takes ``**kwargs``."""
+    if inspect.isclass(obj) and obj.__init__ is object.__init__:
+        return []  # no constructor of its own: it takes no parameters
     target = obj.__init__ if inspect.isclass(obj) else obj
     try:
         sig = inspect.signature(target)

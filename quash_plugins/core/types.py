@@ -525,7 +525,10 @@ class QueryResult:
             "query": self.query,
             "matched": self.n_matched,
             "share": self.share,
-            "instances": len(self.instances),
+            # None when the config groups no instances (instances: false), not 0
+            "instances": (
+                len(self.instances) if self.instances or "instances" in self.timings else None
+            ),
             "presence": self.presence,
             "timings": dict(self.timings),
         }

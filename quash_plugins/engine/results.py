@@ -41,10 +41,12 @@ def is_results_zarr(path: str | Path) -> bool:
     return is_store_dir(p) and (p / "masks").is_dir() and (p / "scores").is_dir()
 
 
-def results_provenance(results: Sequence[QueryResult], encoder: Any = None) -> dict[str, Any]:
+def results_provenance(
+    results: Sequence[QueryResult], encoder: Any = None, config_file: Any = None
+) -> dict[str, Any]:
     """How ``results`` were made, as JSON-ready data: the package version, the map, the
-    config and its encoder, and per query its positives, negatives, heuristic and the
-    presence check's decision."""
+    config (its name, and its file when it came from one) and its encoder, and per query
+    its positives, negatives, heuristic and the presence check's decision."""
     from .. import __version__
 
     first = results[0] if results else None
@@ -56,6 +58,7 @@ def results_provenance(results: Sequence[QueryResult], encoder: Any = None) -> d
             if isinstance(v, (str, int, float, bool))
         },
         "config": first.config_name if first else "",
+        "config_file": str(config_file) if config_file else None,
         "queries": [
             {
                 "query": r.query,
@@ -82,6 +85,7 @@ def write_results_npz(
     results: Sequence[QueryResult],
     lmap: Any = None,
     encoder: Any = None,
+    config_file: Any = None,
 ) -> Path:
     """Write ``queries (Q,) str``, ``masks (Q, N) bool``, ``scores (Q, N) float32`` and
     ``display_scores (Q, N) float32`` atomically; row ``i`` of a mask is item ``i`` of
@@ -108,7 +112,7 @@ def write_results_npz(
             value = getattr(lmap, key, None)
             if value is not None and len(value) == masks.shape[1]:
                 extra[key] = np.asarray(value)
-    record = json.dumps(results_provenance(results, encoder), default=str)
+    record = json.dumps(results_provenance(results, encoder, config_file), default=str)
     extra["provenance"] = np.asarray(record, dtype=str)
     with atomic_write(path, suffix=".npz") as tmp:
         np.savez(tmp, queries=queries, masks=masks, scores=scores, display_scores=display, **extra)

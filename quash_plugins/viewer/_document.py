@@ -60,7 +60,8 @@ def _instances_words(result: QueryResult) -> str:
     """``N instances``, or ``instances: off`` when the config groups none (``instances:
     false``; the pipeline times the grouping only when it runs)."""
     if result.instances or "instances" in result.timings:
-        return f"{len(result.instances)} instances"
+        n = len(result.instances)
+        return f"{n} instance{'' if n == 1 else 's'}"
     return "instances: off"
 
 

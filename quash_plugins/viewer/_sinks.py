@@ -99,13 +99,20 @@ def check_bind(value: str, what: str = "--bind") -> str:
     if text.lower() == "localhost":
         return DEFAULT_BIND
     try:
-        return str(ipaddress.ip_address(text.strip("[]")))
+        address = ipaddress.ip_address(text.strip("[]"))
     except ValueError:
         raise UsageError(
             f"{what} {value!r} is not an IP address. Give one such as 127.0.0.1 (this "
             "machine only, the default), 0.0.0.0 (every network interface) or an address of "
             "this machine; host names other than localhost are not accepted."
         ) from None
+    if address.version != 4:
+        raise UsageError(
+            f"{what} {value!r} is an IPv6 address, which the viewer's servers do not take "
+            "here. Give an IPv4 address: 127.0.0.1 (this machine only, the default) or "
+            "0.0.0.0 (every network interface)."
+        )
+    return str(address)
 
 
 def check_port(value: Any, what: str = "port") -> int:
@@ -287,6 +294,11 @@ class SinkRerunLogger(RerunLogger):
         self.web_port = check_port(DEFAULT_WEB_PORT if web is None else web, "--web-port")
         self.grpc_port = check_port(DEFAULT_GRPC_PORT if grpc is None else grpc, "--grpc-port")
         self.bind = check_bind(DEFAULT_BIND if sinks.bind is None else sinks.bind)
+        if self.serve_web and self.web_port == self.grpc_port:
+            raise UsageError(
+                f"web_port and grpc_port are both {self.web_port}: the web viewer and its "
+                "gRPC server need a port each. Give them different ports."
+            )
         self.url: str | None = None
         self.streaming: list[str] = []  # streaming sinks, for messages
         self._tmp: Path | None = None

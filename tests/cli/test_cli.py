@@ -343,8 +343,70 @@ def test_viewer_bind_localhost_is_the_loopback_address():
 
     ns = build_parser().parse_args(["query", "m.npz", "chair", "--bind", "localhost"])
     assert ns.bind == "127.0.0.1"
-    ns = build_parser().parse_args(["query", "m.npz", "chair", "--bind", "::1", "--web-port", "1"])
-    assert (ns.bind, ns.web_port) == ("::1", 1)
+    ns = build_parser().parse_args(
+        ["query", "m.npz", "chair", "--bind", "10.0.0.1", "--web-port", "1"]
+    )
+    assert (ns.bind, ns.web_port) == ("10.0.0.1", 1)
+    # IPv6 got past the parser and failed in Rerun as an 'unexpected error'
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["query", "m.npz", "chair", "--bind", "::1"])
+
+
+def test_serving_on_one_port_for_both_servers_is_refused_before_any_work(tiny_world, capsys):
+    code, _, err = run_cli(
+        "query",
+        tiny_world["map"],
+        "chair",
+        "-c",
+        tiny_world["config"],
+        "--serve-web",
+        "--web-port",
+        "9090",
+        "--grpc-port",
+        "9090",
+        capsys=capsys,
+    )
+    assert code == 2 and "need a port each" in err and "read" not in err
+
+
+def test_out_suffix_and_format_must_agree(tiny_world, tmp_path, capsys):
+    args = ("query", tiny_world["map"], "chair", "-c", tiny_world["config"])
+    code, _, err = run_cli(*args, "--out", tmp_path / "r.zarr", "--format", "npz", capsys=capsys)
+    assert code == 2 and "names a .zarr but --format is npz" in err
+    code, _, err = run_cli(*args, "--out", tmp_path / "R.NPZ", capsys=capsys)
+    assert code == 0, err
+    assert np.load(tmp_path / "R.NPZ")["masks"].shape[0] == 1
+
+
+def test_an_adapter_without_options_refuses_one_by_name(tiny_world, capsys):
+    code, _, err = run_cli(
+        "query",
+        tiny_world["map"],
+        "chair",
+        "-c",
+        tiny_world["config"],
+        "-o",
+        "nosuch=1",
+        capsys=capsys,
+    )
+    assert code == 1
+    assert "Adapter 'npz' does not accept parameter 'nosuch'. Accepted: (none)." in err
+
+
+def test_instances_read_off_when_the_config_groups_none(tiny_world, tmp_path, capsys):
+    """A config with instances: false shows 'off' (table) and null (--json), not 0."""
+    cfg = tmp_path / "off.yaml"
+    cfg.write_text(tiny_world["config"].read_text() + "instances: false\n")
+    (tmp_path / tiny_world["table"].name).write_bytes(tiny_world["table"].read_bytes())
+    code, out, err = run_cli(
+        "query", tiny_world["map"], "chair", "-c", cfg, "--json", capsys=capsys
+    )
+    assert code == 0, err
+    assert json.loads(out)["results"][0]["instances"] is None
+    code, out, err = run_cli(
+        "query", tiny_world["map"], "chair", "-c", tiny_world["config"], "--json", capsys=capsys
+    )
+    assert isinstance(json.loads(out)["results"][0]["instances"], int)
 
 
 def test_each_commands_rerun_options_say_what_it_logs(capsys):
@@ -380,6 +442,7 @@ def test_query_out_npz_records_where_items_are_and_how_it_was_made(tiny_world, t
     assert record["quash_plugins"] == __version__
     assert record["map"]["path"] == str(tiny_world["map"])
     assert record["config"] == "vlmaps-contrast"
+    assert record["config_file"] == str(tiny_world["config"])
     assert record["encoder"] == {"name": "table", "fingerprint": q.encoder.fingerprint()}
     chair = record["queries"][0]
     assert chair["query"] == "chair" and chair["positives"] == ["chair"]

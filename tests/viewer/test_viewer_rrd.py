@@ -485,7 +485,14 @@ def test_cli_rejects_bad_rrd_name(tmp_path):
 
 @pytest.mark.parametrize(
     "opts",
-    [{"grpc_port": 0}, {"web_port": 70000}, {"bind": "localhost6.invalid"}, {"bind": "999.0.0.1"}],
+    [
+        {"grpc_port": 0},
+        {"web_port": 70000},
+        {"bind": "localhost6.invalid"},
+        {"bind": "999.0.0.1"},
+        {"bind": "::1"},
+        {"web_port": 9090, "grpc_port": 9090},
+    ],
 )
 def test_sink_logger_refuses_bad_ports_and_addresses(opts, tmp_path):
     """The Python API checks them too: port 0 is not the default port in disguise."""
@@ -493,7 +500,7 @@ def test_sink_logger_refuses_bad_ports_and_addresses(opts, tmp_path):
     from quash_plugins.viewer import SinkRerunLogger, ViewerOptions
 
     rrd = tmp_path / "x.rrd"
-    with pytest.raises(UsageError, match="not a port number|not an IP address"):
+    with pytest.raises(UsageError, match="not a port number|not an IP address|IPv6|a port each"):
         SinkRerunLogger(ViewerOptions(rrd=rrd, serve_web=True, **opts))
     assert not list(tmp_path.iterdir())
 
