@@ -151,6 +151,12 @@ def check_encoder_fingerprint(enc: Any, tmp_path: Path) -> None:
     fp = enc.fingerprint()
     assert isinstance(fp, str) and fp, "fingerprint() must be a non-empty string"
     assert fp == enc.fingerprint(), "fingerprint() must be stable"
+    enc.encode_text(["chair"])
+    assert fp == enc.fingerprint(), (
+        "fingerprint() changed after encode_text: the default config() records public "
+        "attributes, so keep state that changes with use (a loaded model, counters) in "
+        "attributes whose names start with '_', or override config()"
+    )
     assert isinstance(enc.name, str) and enc.name, "name must be a non-empty string"
 
 

@@ -139,3 +139,33 @@ def test_the_kit_names_the_encoder_the_check_and_the_fix(encoder, check, hint, t
     msg = " ".join(str(err.value).split())
     assert msg.startswith(f"encoder {encoder.name!r}: {check}: "), msg
     assert hint in msg
+
+
+def _counting_encoder():
+    from quash_plugins.testing import HashingEncoder
+
+    class Counting(HashingEncoder):
+        """A conformant encoder that counts its calls in a public attribute, without its
+        own config(): its fingerprint would drift with use."""
+
+        name = "counting"
+
+        def __init__(self) -> None:
+            super().__init__(dim=8)
+            self.calls = 0
+
+        def encode_text(self, texts):
+            self.calls += 1
+            return super().encode_text(texts)
+
+        config = Encoder.config  # the default: public plain attributes
+
+    return Counting()
+
+
+def test_the_kit_catches_a_fingerprint_that_drifts_with_use(tmp_path):
+    from quash_plugins.testing import HashingEncoder, check_encoder
+
+    with pytest.raises(AssertionError, match="fingerprint\\(\\) changed after encode_text"):
+        check_encoder(_counting_encoder(), tmp_path)
+    check_encoder(HashingEncoder(8), tmp_path / "ok")
