@@ -27,7 +27,8 @@ def test_document_says_instances_off_when_the_config_groups_none():
     assert "instances: off" in text and "0 instances" not in text
     lmap, on = _result(instances=True)
     assert on.instances
-    assert f"· {len(on.instances)} instances ·" in queryset_markdown(lmap, on, 0)
+    n = len(on.instances)
+    assert f"· {n} instance{'' if n == 1 else 's'} ·" in queryset_markdown(lmap, on, 0)
 
 
 def test_document_times_presence_before_the_total_and_folds_the_group_sizes():
