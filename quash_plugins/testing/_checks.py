@@ -438,8 +438,19 @@ def plugin_checks(
             if dist is not None and not registry._same_dist(info.dist, dist):
                 continue
             qualified = info.qualified if _ambiguous(kind, info.name) else info.name
+            try:
+                registry.load(kind, qualified)
+            except QuashError:
+                # one failing check says why it does not load, not one per check
+                out.append(PluginCheck(kind, qualified, check_plugin_loads))
+                continue
             out.extend(PluginCheck(kind, qualified, c) for c in _CHECKS[kind])
     return out
+
+
+def check_plugin_loads(plugin: Any, tmp_path: Path) -> None:
+    """Stands for every check of a plugin that does not load: :class:`PluginCheck`
+    loads the plugin first, so running it raises the load error (what to fix)."""
 
 
 def _ambiguous(kind: str, name: str) -> bool:

@@ -198,3 +198,19 @@ def test_debug_shows_the_plugins_own_import_traceback(installed, tmp_path):
     assert isinstance(cause, ImportError)
     frames = "".join(traceback.format_tb(cause.__traceback__))
     assert re.search(r"quash_broken_plugin[/\\]__init__\.py", frames), frames
+
+
+def test_the_kit_gives_a_plugin_that_does_not_load_one_failing_check(installed, tmp_path):
+    """Not one failure of the same import error per check: one check, with the fix."""
+    from quash_plugins.testing import plugin_checks
+
+    checks = plugin_checks(dist="quash-broken-plugin")
+    by_name: dict[str, list[str]] = {}
+    for c in checks:
+        by_name.setdefault(c.name, []).append(c.check.__name__)
+    for broken in ("broken-encoder", "typo-module", "half-encoder", "not-a-classifier"):
+        assert by_name[broken] == ["check_plugin_loads"], (broken, by_name[broken])
+    assert len(by_name["lazy-library"]) > 1  # it loads; it fails when used
+    single = next(c for c in checks if c.name == "typo-module")
+    with pytest.raises(PluginError, match="does not exist.*Fix or uninstall"):
+        single(tmp_path)
