@@ -319,6 +319,10 @@ class MapAdapter(ABC):
     #: Leading bytes of this adapter's files (``(b"\x89HDF\r\n\x1a\n",)``), used the
     #: same way when no suffix matches.
     magic: tuple[bytes, ...] = ()
+    #: Sub-folders that mark a folder as this adapter's (``("vlmap", "vlmap_cam")``):
+    #: tried first, so that a folder holding one but not its map file is read with this
+    #: adapter and its error names the missing file.
+    folders: tuple[str, ...] = ()
 
     @abstractmethod
     def sniff(self, source: Any) -> bool:

@@ -43,8 +43,9 @@ def claimed_by(source: Any) -> tuple[str, str] | None:
     """``(adapter, why)`` for the adapter whose ``folders``, ``suffixes`` or ``magic`` match
     ``source``.
 
-    Sub-folders (a scene folder holding ``vlmap/``) are tried first, then suffixes, over every adapter, then leading bytes; None when nothing
-    claims the path (or it is not a path).
+    Sub-folders (a scene folder holding ``vlmap/``) are tried first, then suffixes,
+    over every adapter, then leading bytes; None when nothing claims the path (or it is
+    not a path).
     """
     if not isinstance(source, (str, Path)):
         return None
