@@ -239,7 +239,7 @@ def _report(args, cfg, lmap, results) -> None:
             safe_text(r.query),
             f"{r.n_matched}",
             f"{100 * r.share:.2f}%",
-            _instances_cell(r),
+            "off" if r.n_instances is None else str(r.n_instances),
             f"{len(r.queryset.positives)}",
             f"{len(r.queryset.negatives)}",
             f"{r.timings.get('total', 0.0) * 1000:.0f} ms",
@@ -259,8 +259,3 @@ def _report(args, cfg, lmap, results) -> None:
     out.print(timings_table(results))
     if args.out:
         out.print(f"wrote {safe_text(args.out)}")
-
-
-def _instances_cell(r) -> str:
-    """The instance count, or ``off`` when the config groups none (as the viewer says)."""
-    return str(len(r.instances)) if r.instances or "instances" in r.timings else "off"

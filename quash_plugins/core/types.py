@@ -511,6 +511,14 @@ class QueryResult:
         return int(np.count_nonzero(self.mask))
 
     @property
+    def n_instances(self) -> int | None:
+        """How many instances were found; None when the config groups none
+        (``instances: false``: the pipeline times the grouping only when it runs)."""
+        if self.instances or "instances" in self.timings:
+            return len(self.instances)
+        return None
+
+    @property
     def share(self) -> float:
         return self.n_matched / max(1, len(self.mask))
 
@@ -525,10 +533,7 @@ class QueryResult:
             "query": self.query,
             "matched": self.n_matched,
             "share": self.share,
-            # None when the config groups no instances (instances: false), not 0
-            "instances": (
-                len(self.instances) if self.instances or "instances" in self.timings else None
-            ),
+            "instances": self.n_instances,  # None when the config groups none, not 0
             "presence": self.presence,
             "timings": dict(self.timings),
         }

@@ -57,12 +57,11 @@ def _provenance_yaml(provenance: dict) -> str:
 
 
 def _instances_words(result: QueryResult) -> str:
-    """``N instances``, or ``instances: off`` when the config groups none (``instances:
-    false``; the pipeline times the grouping only when it runs)."""
-    if result.instances or "instances" in result.timings:
-        n = len(result.instances)
-        return f"{n} instance{'' if n == 1 else 's'}"
-    return "instances: off"
+    """``N instances``, or ``instances: off`` when the config groups none."""
+    n = result.n_instances
+    if n is None:
+        return "instances: off"
+    return f"{n} instance{'' if n == 1 else 's'}"
 
 
 def queryset_markdown(
