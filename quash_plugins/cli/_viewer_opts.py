@@ -11,6 +11,7 @@ from ..viewer import (
     DEFAULT_WEB_PORT,
     ViewerOptions,
     check_bind,
+    check_distinct_ports,
     check_port,
 )
 
@@ -97,14 +98,7 @@ def check_rrd(args: argparse.Namespace, inputs: Any = ()) -> None:
     from ..viewer import is_quash_rrd, is_rrd, rrd_application_ids
 
     if getattr(args, "serve_web", False):
-        web, grpc = getattr(args, "web_port", None), getattr(args, "grpc_port", None)
-        web = DEFAULT_WEB_PORT if web is None else web
-        grpc = DEFAULT_GRPC_PORT if grpc is None else grpc
-        if web == grpc:
-            raise UsageError(
-                f"--web-port and --grpc-port are both {web}: the web viewer and its gRPC "
-                "server need a port each. Give them different ports."
-            )
+        check_distinct_ports(getattr(args, "web_port", None), getattr(args, "grpc_port", None))
     if not getattr(args, "rrd", None):
         return
     force = bool(getattr(args, "force", False))

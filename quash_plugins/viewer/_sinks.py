@@ -115,6 +115,19 @@ def check_bind(value: str, what: str = "--bind") -> str:
     return str(address)
 
 
+def check_distinct_ports(
+    web: int | None, grpc: int | None, web_what: str = "--web-port", grpc_what: str = "--grpc-port"
+) -> None:
+    """Refuse one port for both servers of ``serve_web`` (None: the default port)."""
+    web = DEFAULT_WEB_PORT if web is None else web
+    grpc = DEFAULT_GRPC_PORT if grpc is None else grpc
+    if web == grpc:
+        raise UsageError(
+            f"{web_what} and {grpc_what} are both {web}: the web viewer and its gRPC "
+            "server need a port each. Give them different ports."
+        )
+
+
 def check_port(value: Any, what: str = "port") -> int:
     """``value`` as a TCP port number in 1-65535, or a :class:`UsageError` naming ``what``."""
     try:
@@ -294,11 +307,8 @@ class SinkRerunLogger(RerunLogger):
         self.web_port = check_port(DEFAULT_WEB_PORT if web is None else web, "--web-port")
         self.grpc_port = check_port(DEFAULT_GRPC_PORT if grpc is None else grpc, "--grpc-port")
         self.bind = check_bind(DEFAULT_BIND if sinks.bind is None else sinks.bind)
-        if self.serve_web and self.web_port == self.grpc_port:
-            raise UsageError(
-                f"web_port and grpc_port are both {self.web_port}: the web viewer and its "
-                "gRPC server need a port each. Give them different ports."
-            )
+        if self.serve_web:
+            check_distinct_ports(self.web_port, self.grpc_port, "web_port", "grpc_port")
         self.url: str | None = None
         self.streaming: list[str] = []  # streaming sinks, for messages
         self._tmp: Path | None = None
