@@ -58,12 +58,13 @@ def run(args: argparse.Namespace) -> int:
         infos = registry.plugins(args.kind, load=True)
     finally:
         reg_log.setLevel(level)
+    by = {id(i): shadowed_by(i, infos) for i in infos}  # the built-in hiding each, if any
     if args.json:
         rows = []
         for i in infos:
             row = i.to_dict()
             row["config_name"] = config_name(i, infos)
-            row["shadowed_by"] = shadowed_by(i, infos)
+            row["shadowed_by"] = by[id(i)]
             rows.append(row)
         print_json(rows)
         return 0
@@ -74,23 +75,22 @@ def run(args: argparse.Namespace) -> int:
         # Names are what a config spells: never cut them short with an ellipsis.
         table.add_column(col, no_wrap=col == "name", overflow="fold")
     broken = [i for i in infos if i.status != "ok"]
-    shadowed = [(i, shadowed_by(i, infos)) for i in infos if shadowed_by(i, infos)]
     kinds = list(registry.KINDS)
     builtin = registry.BUILTIN_DIST
     for i in sorted(infos, key=lambda i: (kinds.index(i.kind), i.name, i.dist != builtin)):
         if i.status != "ok":
             status = f"[red]{safe_text(i.status)}[/]"
-        elif shadowed_by(i, infos):
+        elif by[id(i)]:
             status = "[yellow]ok, shadowed[/]"
         else:
             status = "[green]ok[/]"
         name = config_name(i, infos)
         table.add_row(*(safe_text(x) for x in (i.kind, name, i.dist, i.version)), status)
     console().print(table)
-    for i, by in shadowed:
+    for i in (i for i in infos if by[id(i)]):
         console().print(
             f"[yellow]{safe_text(i.kind)} {safe_text(i.name)}[/] ({safe_text(i.dist)}): the "
-            f"built-in {safe_text(by)} keeps the name {safe_text(i.name)!r}; a config reaches "
+            f"built-in {safe_text(by[id(i)])} keeps the name {safe_text(i.name)!r}; a config reaches "
             f"this one as {safe_text(i.qualified)!r}. Rename it in {safe_text(i.dist)}'s "
             "entry points to give it a name of its own.",
             highlight=False,
