@@ -228,7 +228,13 @@ def presence_check(
     neg_rows = np.flatnonzero(y == 0)
     N = _unit(X[neg_rows] - centre)
     nlive = live[neg_rows]
-    sizes_neg = _group_sizes(groups, len(N))
+    # the negative groups scored, as (first row, size): those with a live row
+    scored: list[tuple[int, int]] = []
+    start = 0
+    for size in _group_sizes(groups, len(N)):
+        if nlive[start : start + size].any():
+            scored.append((start, size))
+        start += size
     sizes = np.array([len(m) for m in comps])
 
     # the readings of a group's score: the mean of its k best names, and (label_name)
@@ -245,13 +251,9 @@ def presence_check(
         sp = _top_mean(means @ P.T, opts.k)
         CN = means @ N.T
         top, name = [], []
-        start = 0
-        for size in sizes_neg:
+        for start, size in scored:
             live_g = nlive[start : start + size]
             block = CN[:, start : start + size]
-            start += size
-            if not live_g.any():
-                continue
             top.append(_top_mean(block[:, live_g], opts.k if groups else 1))
             first = live_g[: min(reps, size)]
             name.append(block[:, : len(first)].mean(axis=1) if first.all() else top[-1])
@@ -265,14 +267,6 @@ def presence_check(
                 sp_name[:, None] - np.maximum(np.column_stack(top), np.column_stack(name))
             )
         return against, flat
-
-    # the first negative row of each group that margins() scores (groups with a live row)
-    firsts: list[int] = []
-    start = 0
-    for size in sizes_neg:
-        if nlive[start : start + size].any():
-            firsts.append(start)
-        start += size
 
     grown_r, flat = margins(opts.dilate)
     grown = np.stack([a.min(axis=1) for a in grown_r])  # (readings, components)
@@ -317,12 +311,13 @@ def presence_check(
         largest_component=int(sizes.max()),
         min_component=int(opts.min_component),
     )
-    if big.any() and firsts:
+    if big.any() and scored:
         # the competitor that the best large component loses most to (or wins least
         # against), as the index of its first negative string: what the query was judged
         # against, for the viewer and the words of an absent decision
         best = int(np.flatnonzero(big)[np.argmax(grown[big])])
-        info["rival_negative"] = int(firsts[int(grown_r[0][best].argmin())] // max(1, reps))
+        first_row = scored[int(grown_r[0][best].argmin())][0]
+        info["rival_negative"] = int(first_row // max(1, reps))
     if opts.mode == "gate":
         keep = mask.copy() if present else np.zeros_like(mask)
     info["kept_items"] = int(keep.sum())
