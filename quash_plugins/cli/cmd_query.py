@@ -104,27 +104,34 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _out_format(args: argparse.Namespace, strict: bool = True) -> str:
-    """``npz``, ``zarr`` or ``openlex3d``: ``--format``, else by the suffix of ``--out``
-    (``strict``: a suffix that is neither ``.npz`` nor ``.zarr`` is a usage error)."""
+def _out_suffix(args: argparse.Namespace) -> str | None:
+    """``zarr`` or ``npz`` by the suffix of ``--out`` (any case), else None."""
+    out = str(args.out).rstrip("/").lower()
+    return "zarr" if out.endswith(".zarr") else "npz" if out.endswith(".npz") else None
+
+
+def _out_format(args: argparse.Namespace) -> str:
+    """``npz``, ``zarr`` or ``openlex3d``: ``--format``, else by the suffix of ``--out``."""
+    fmt = getattr(args, "format", "auto") or "auto"
+    return fmt if fmt != "auto" else _out_suffix(args) or "npz"
+
+
+def _check_out_name(args: argparse.Namespace) -> None:
+    """Refuse an ``--out`` whose name does not say its format: a suffix other than
+    ``.npz`` or ``.zarr`` without ``--format``, or one that contradicts it."""
     from ..core.errors import UsageError
 
-    fmt = getattr(args, "format", "auto") or "auto"
-    out = str(args.out).rstrip("/").lower()
-    by_suffix = "zarr" if out.endswith(".zarr") else "npz" if out.endswith(".npz") else None
-    if fmt != "auto":
-        if strict and by_suffix is not None and by_suffix != fmt:
-            raise UsageError(
-                f"--out {args.out} names a .{by_suffix} but --format is {fmt}: change the "
-                "suffix or the format, so that the file is what its name says."
-            )
-        return fmt
-    if by_suffix is None and strict:
+    fmt, suffix = getattr(args, "format", "auto") or "auto", _out_suffix(args)
+    if fmt == "auto" and suffix is None:
         raise UsageError(
             f"--out {args.out}: name a results file RESULT.npz or a store RESULT.zarr, or "
             "pass --format (npz, zarr, openlex3d) to write that format under this name."
         )
-    return by_suffix or "npz"
+    if fmt != "auto" and suffix is not None and suffix != fmt:
+        raise UsageError(
+            f"--out {args.out} names a .{suffix} but --format is {fmt}: change the "
+            "suffix or the format, so that the file is what its name says."
+        )
 
 
 def _check_outputs(args: argparse.Namespace, cfg=None) -> None:
@@ -141,8 +148,7 @@ def _check_outputs(args: argparse.Namespace, cfg=None) -> None:
     check_distinct_outputs([("--out", args.out), ("--rrd", getattr(args, "rrd", None))])
     inputs = (args.map, args.config, *input_files(args.map, [cfg] if cfg is not None else []))
     if args.out:
-        # an output that is an input (or not a regular file) is the first thing to say
-        fmt = _out_format(args, strict=False)
+        fmt = _out_format(args)
         replaceable = {
             "zarr": is_results_zarr,
             "openlex3d": is_openlex3d_results,
@@ -156,7 +162,7 @@ def _check_outputs(args: argparse.Namespace, cfg=None) -> None:
             replaceable=replaceable,
             folder=fmt != "npz",
         )
-        _out_format(args)
+        _check_out_name(args)  # after: an output that is an input is the first thing to say
     check_rrd(args, inputs)
 
 
