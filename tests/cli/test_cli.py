@@ -25,6 +25,13 @@ def run_cli(*args, capsys):
     return code, out.out, out.err
 
 
+def query_chair(world, *extra, capsys, config=None):
+    """``quash query MAP chair -c CONFIG *extra`` on the tiny world: (code, out, err)."""
+    return run_cli(
+        "query", world["map"], "chair", "-c", config or world["config"], *extra, capsys=capsys
+    )
+
+
 def test_help_for_every_subcommand(capsys):
     from quash_plugins.cli.main import _commands
 
@@ -353,42 +360,23 @@ def test_viewer_bind_localhost_is_the_loopback_address():
 
 
 def test_serving_on_one_port_for_both_servers_is_refused_before_any_work(tiny_world, capsys):
-    code, _, err = run_cli(
-        "query",
-        tiny_world["map"],
-        "chair",
-        "-c",
-        tiny_world["config"],
-        "--serve-web",
-        "--web-port",
-        "9090",
-        "--grpc-port",
-        "9090",
-        capsys=capsys,
+    code, _, err = query_chair(
+        tiny_world, "--serve-web", "--web-port", "9090", "--grpc-port", "9090", capsys=capsys
     )
     assert code == 2 and "need a port each" in err and "read" not in err
 
 
 def test_out_suffix_and_format_must_agree(tiny_world, tmp_path, capsys):
-    args = ("query", tiny_world["map"], "chair", "-c", tiny_world["config"])
-    code, _, err = run_cli(*args, "--out", tmp_path / "r.zarr", "--format", "npz", capsys=capsys)
+    r_zarr = tmp_path / "r.zarr"
+    code, _, err = query_chair(tiny_world, "--out", r_zarr, "--format", "npz", capsys=capsys)
     assert code == 2 and "names a .zarr but --format is npz" in err
-    code, _, err = run_cli(*args, "--out", tmp_path / "R.NPZ", capsys=capsys)
+    code, _, err = query_chair(tiny_world, "--out", tmp_path / "R.NPZ", capsys=capsys)
     assert code == 0, err
     assert np.load(tmp_path / "R.NPZ")["masks"].shape[0] == 1
 
 
 def test_an_adapter_without_options_refuses_one_by_name(tiny_world, capsys):
-    code, _, err = run_cli(
-        "query",
-        tiny_world["map"],
-        "chair",
-        "-c",
-        tiny_world["config"],
-        "-o",
-        "nosuch=1",
-        capsys=capsys,
-    )
+    code, _, err = query_chair(tiny_world, "-o", "nosuch=1", capsys=capsys)
     assert code == 1
     assert "Adapter 'npz' does not accept parameter 'nosuch'. Accepted: (none)." in err
 
@@ -398,14 +386,10 @@ def test_instances_read_off_when_the_config_groups_none(tiny_world, tmp_path, ca
     cfg = tmp_path / "off.yaml"
     cfg.write_text(tiny_world["config"].read_text() + "instances: false\n")
     (tmp_path / tiny_world["table"].name).write_bytes(tiny_world["table"].read_bytes())
-    code, out, err = run_cli(
-        "query", tiny_world["map"], "chair", "-c", cfg, "--json", capsys=capsys
-    )
+    code, out, err = query_chair(tiny_world, "--json", capsys=capsys, config=cfg)
     assert code == 0, err
     assert json.loads(out)["results"][0]["instances"] is None
-    code, out, err = run_cli(
-        "query", tiny_world["map"], "chair", "-c", tiny_world["config"], "--json", capsys=capsys
-    )
+    code, out, err = query_chair(tiny_world, "--json", capsys=capsys)
     assert isinstance(json.loads(out)["results"][0]["instances"], int)
 
 
@@ -490,29 +474,11 @@ def test_query_and_eval_take_adapter_options(tmp_path, capsys):
 def test_query_out_with_an_unknown_suffix_is_refused_before_any_work(tiny_world, tmp_path, capsys):
     """--out out.h5df wrote an NPZ under a VLMaps-looking name: refused, the fix named."""
     for name in ("out.h5df", "out"):
-        code, _, err = run_cli(
-            "query",
-            tiny_world["map"],
-            "chair",
-            "-c",
-            tiny_world["config"],
-            "--out",
-            tmp_path / name,
-            capsys=capsys,
-        )
+        code, _, err = query_chair(tiny_world, "--out", tmp_path / name, capsys=capsys)
         assert code == 2 and "RESULT.npz" in err and "--format" in err
         assert not (tmp_path / name).exists()
-    code, _, err = run_cli(
-        "query",
-        tiny_world["map"],
-        "chair",
-        "-c",
-        tiny_world["config"],
-        "--out",
-        tmp_path / "out.h5df",
-        "--format",
-        "npz",
-        capsys=capsys,
+    code, _, err = query_chair(
+        tiny_world, "--out", tmp_path / "out.h5df", "--format", "npz", capsys=capsys
     )
     assert code == 0, err
     assert np.load(tmp_path / "out.h5df")["masks"].shape[0] == 1
