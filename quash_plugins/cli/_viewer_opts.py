@@ -95,7 +95,7 @@ def check_rrd(args: argparse.Namespace, inputs: Any = ()) -> None:
 
     from ..core.atomic import check_output
     from ..core.errors import UsageError
-    from ..viewer import is_quash_rrd, is_rrd, rrd_application_ids
+    from ..viewer import is_quash_app_id, is_rrd, rrd_application_ids
 
     if getattr(args, "serve_web", False):
         check_distinct_ports(getattr(args, "web_port", None), getattr(args, "grpc_port", None))
@@ -103,11 +103,14 @@ def check_rrd(args: argparse.Namespace, inputs: Any = ()) -> None:
         return
     force = bool(getattr(args, "force", False))
     path = Path(args.rrd).expanduser()
-    out = check_output(path, inputs, what="--rrd", overwrite=True, replaceable=is_quash_rrd)
-    if force or not out.exists() or is_quash_rrd(out):
+    # the input and file-kind refusals; whether it may be replaced is decided below
+    out = check_output(path, inputs, what="--rrd", overwrite=True)
+    if force or not out.exists():
         return
     if is_rrd(out):
-        ids = rrd_application_ids(out)
+        ids = rrd_application_ids(out)  # read once: whether quash wrote it, and whose it is
+        if ids and all(is_quash_app_id(i) for i in ids):
+            return
         whose = (
             f"a Rerun recording of application id {', '.join(map(repr, ids))}"
             if ids
