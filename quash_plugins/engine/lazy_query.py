@@ -414,7 +414,7 @@ def query_lazy(
     lmap = quash.read_map(source, **read_options)
     t_read = time.perf_counter() - t0
     quash.check_dimension(lmap)
-    from .pipeline import warn_if_empty
+    from .map_fit import warn_if_empty
 
     warn_if_empty(lmap)
     # query_many's text side: expand once, one encoder call, one classifier per query

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import logging
 import time
-import warnings
 import weakref
 from collections.abc import Sequence
 from pathlib import Path
@@ -42,30 +41,20 @@ from ..core.config import (
     QuashConfig,
     check_device,
 )
-from ..core.errors import ConfigError, DimensionMismatchError, EmptyMapWarning, QuashError
+from ..core.errors import ConfigError, QuashError
 from ..core.interfaces import Encoder, ExpansionContext, Heuristic
 from ..core.text import TextCache, encode_texts, load_templates
 from ..core.types import DEFAULT_NEGATIVES, LatentMap, QueryResult, QuerySet, check_query
 from .answer import Pending, answer, classifier_words
 from .classify import classify_local
 from .map_cache import MapCache
+from .map_fit import check_encoder_fits, warn_if_empty
 from .training import CallCache, training_sets
 
 log = logging.getLogger(__name__)
 
 #: From this many queries in one call, the text side shows progress.
 PROGRESS_QUERIES = 20
-
-#: (map path, the map's encoder fingerprint, the config's) already warned about.
-_WARNED_BUILT_BY: set[tuple[str, str, str]] = set()
-
-#: Encoder presets by embedding dimension, suggested on a dimension mismatch.
-PRESETS_BY_DIM = {
-    384: "minilm (sentence-transformers all-MiniLM-L6-v2)",
-    512: "open-clip preset 'lseg' (CLIP ViT-B/32, for LSeg/VLMaps maps)",
-    768: "open-clip preset 'openseg' (ViT-L/14@336, for OpenSeg maps)",
-    1024: "open-clip preset 'conceptfusion' (ViT-H-14 laion2b, for ConceptFusion maps)",
-}
 
 
 class Quash:
@@ -278,53 +267,9 @@ class Quash:
 
     def check_dimension(self, lmap: LatentMap) -> None:
         """Fail up front when the encoder's dimension differs from the map's; warn (once
-        per map and encoder) when the map records that another encoder built it."""
-        self._check_built_by(lmap)
-        enc_dim = int(self.encoder.dim)
-        if enc_dim != lmap.dim:
-            from ..core.registry import accepted_params
-
-            where = lmap.source.get("path", "the map")
-            name = getattr(self.encoder, "name", type(self.encoder).__name__)
-            section = (
-                f" (the 'encoder:' section of {self.config_source})" if self.config_source else ""
-            )
-            fixes = []
-            if "dim" in (accepted_params(type(self.encoder)) or []):
-                fixes.append(
-                    f"set 'encoder: {{name: {name}, dim: {lmap.dim}}}' if that model supports it"
-                )
-            hint = PRESETS_BY_DIM.get(lmap.dim)
-            if hint:
-                fixes.append(f"a matching encoder: {hint}")
-            text = "; or ".join(fixes)
-            suggestion = f" {text[0].upper()}{text[1:]}." if text else ""
-            raise DimensionMismatchError(
-                f"{where} has {lmap.dim}-dimensional embeddings, but encoder "
-                f"{name!r}{section} produces {enc_dim}-dimensional ones. Use the text "
-                f"encoder that built the map.{suggestion}"
-            )
-
-    def _check_built_by(self, lmap: LatentMap) -> None:
-        built = lmap.source.get("encoder_fingerprint")
-        if not isinstance(built, str) or not built:
-            return
-        ours = self.encoder.fingerprint()
-        key = (str(lmap.source.get("path")), built, ours)
-        if built == ours or key in _WARNED_BUILT_BY:
-            return
-        _WARNED_BUILT_BY.add(key)
-        name = getattr(self.encoder, "name", type(self.encoder).__name__)
-        log.warning(
-            "%s was built with encoder %r (fingerprint %s), but this config's encoder is %r "
-            "(%s). Scores mean something only when both embed text into the same space: "
-            "query with the encoder that built the map.",
-            lmap.source.get("path", "the map"),
-            lmap.source.get("encoder", "?"),
-            built,
-            name,
-            ours,
-        )
+        per map and encoder) when the map records that another encoder built it
+        (:func:`~quash_plugins.engine.map_fit.check_encoder_fits`)."""
+        check_encoder_fits(self.encoder, lmap, self.config_source)
 
     # ------------------------------------------------------------------ steps
     def context(self, lmap: LatentMap | None = None, cache: Any = None) -> ExpansionContext:
@@ -546,22 +491,6 @@ class Quash:
         from .lazy_query import query_lazy
 
         return query_lazy(self, source, texts, self.client, **read_options)
-
-
-def warn_if_empty(lmap: LatentMap) -> None:
-    """Warn (:class:`~quash_plugins.core.errors.EmptyMapWarning`) when ``lmap`` has no items.
-
-    Upstream mappers write empty maps when nothing was fused; a query on one is an empty
-    result, not an error.
-    """
-    if lmap.n == 0:
-        where = lmap.source.get("path", "the map")
-        warnings.warn(
-            f"{where} is empty (0 items x {lmap.dim}): nothing was fused into it, so every "
-            "query matches nothing.",
-            EmptyMapWarning,
-            stacklevel=3,
-        )
 
 
 def _none_ref() -> None:

@@ -159,7 +159,7 @@ def test_missing_preset_weights_fail_fast_with_file_and_place(preset, tmp_path, 
 def test_presets_match_open_clip_and_pipeline():
     """Preset towers exist in open_clip with the stated tag and dimension."""
     from quash_plugins.encoders._open_clip import OPEN_CLIP_PRESETS
-    from quash_plugins.engine.pipeline import PRESETS_BY_DIM
+    from quash_plugins.engine.map_fit import PRESETS_BY_DIM
 
     for preset, (model, tag, dim, _) in OPEN_CLIP_PRESETS.items():
         assert model in open_clip.list_models()

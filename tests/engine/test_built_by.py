@@ -8,7 +8,7 @@ from quash_plugins import Quash
 from quash_plugins.adapters import write_npz_map
 from quash_plugins.core.maps import read_map
 from quash_plugins.demo.scene import SceneOptions, make_scene, write_scene
-from quash_plugins.engine import pipeline
+from quash_plugins.engine import map_fit
 from quash_plugins.testing import HashingEncoder
 
 OPTS = dict(rooms=1, voxel_size=0.25, room_size=4.0, extra_objects=0)
@@ -41,8 +41,8 @@ def test_the_map_records_its_encoder_and_a_copy_keeps_it(tmp_path):
 
 def test_a_query_with_another_encoder_warns_once_and_the_same_one_never(tmp_path, caplog):
     paths = write_scene(make_scene(HashingEncoder(32), SceneOptions(**OPTS)), tmp_path / "s.npz")
-    pipeline._WARNED_BUILT_BY.clear()
-    with caplog.at_level("WARNING", logger="quash_plugins.engine.pipeline"):
+    map_fit._WARNED_BUILT_BY.clear()
+    with caplog.at_level("WARNING", logger="quash_plugins.engine.map_fit"):
         _quash(HashingEncoder(32)).query(str(paths["map"]), "chair")
         assert not [r for r in caplog.records if "was built with encoder" in r.getMessage()]
         other = _quash(_OtherHashing(32))
@@ -61,6 +61,6 @@ def test_a_map_without_the_record_is_not_warned_about(tmp_path, caplog):
     emb = rng.normal(size=(20, 32)).astype(np.float32)
     path = write_npz_map(tmp_path / "m.npz", LatentMap(emb, kind="points"))
     assert "encoder_fingerprint" not in np.load(path).files
-    with caplog.at_level("WARNING", logger="quash_plugins.engine.pipeline"):
+    with caplog.at_level("WARNING", logger="quash_plugins.engine.map_fit"):
         _quash(_OtherHashing(32)).query(str(path), "chair")
     assert not [r for r in caplog.records if "was built with encoder" in r.getMessage()]

@@ -1,0 +1,98 @@
+"""Whether a map fits the encoder a query runs with, checked before any work.
+
+- :func:`check_encoder_fits`: the dimensions must agree (else an error naming the fix),
+  and a map that records the encoder that built it (``quash make-scene``) warns once
+  when another one queries it: a dimension check cannot tell two 384-d encoders apart.
+- :func:`warn_if_empty`: an empty map is a warning, not an error.
+"""
+
+from __future__ import annotations
+
+import logging
+import warnings
+from typing import Any
+
+from ..core.errors import DimensionMismatchError, EmptyMapWarning
+from ..core.types import LatentMap
+
+log = logging.getLogger(__name__)
+
+#: Encoder presets by embedding dimension, suggested on a dimension mismatch.
+PRESETS_BY_DIM = {
+    384: "minilm (sentence-transformers all-MiniLM-L6-v2)",
+    512: "open-clip preset 'lseg' (CLIP ViT-B/32, for LSeg/VLMaps maps)",
+    768: "open-clip preset 'openseg' (ViT-L/14@336, for OpenSeg maps)",
+    1024: "open-clip preset 'conceptfusion' (ViT-H-14 laion2b, for ConceptFusion maps)",
+}
+
+#: (map path, the map's encoder fingerprint, the config's) already warned about.
+_WARNED_BUILT_BY: set[tuple[str, str, str]] = set()
+
+
+def check_encoder_fits(encoder: Any, lmap: LatentMap, config_source: Any = None) -> None:
+    """Fail when ``encoder``'s dimension differs from ``lmap``'s; warn (once per map and
+    encoder) when the map records that another encoder built it.
+
+    ``config_source``: the config file the encoder came from, named in the error.
+    """
+    warn_built_by(encoder, lmap)
+    enc_dim = int(encoder.dim)
+    if enc_dim == lmap.dim:
+        return
+    from ..core.registry import accepted_params
+
+    where = lmap.source.get("path", "the map")
+    name = getattr(encoder, "name", type(encoder).__name__)
+    section = f" (the 'encoder:' section of {config_source})" if config_source else ""
+    fixes = []
+    if "dim" in (accepted_params(type(encoder)) or []):
+        fixes.append(f"set 'encoder: {{name: {name}, dim: {lmap.dim}}}' if that model supports it")
+    hint = PRESETS_BY_DIM.get(lmap.dim)
+    if hint:
+        fixes.append(f"a matching encoder: {hint}")
+    text = "; or ".join(fixes)
+    suggestion = f" {text[0].upper()}{text[1:]}." if text else ""
+    raise DimensionMismatchError(
+        f"{where} has {lmap.dim}-dimensional embeddings, but encoder "
+        f"{name!r}{section} produces {enc_dim}-dimensional ones. Use the text "
+        f"encoder that built the map.{suggestion}"
+    )
+
+
+def warn_built_by(encoder: Any, lmap: LatentMap) -> None:
+    """Warn once per map and encoder when ``lmap.source`` records another encoder's
+    fingerprint (``encoder_fingerprint``) than ``encoder``'s."""
+    built = lmap.source.get("encoder_fingerprint")
+    if not isinstance(built, str) or not built:
+        return
+    ours = encoder.fingerprint()
+    key = (str(lmap.source.get("path")), built, ours)
+    if built == ours or key in _WARNED_BUILT_BY:
+        return
+    _WARNED_BUILT_BY.add(key)
+    log.warning(
+        "%s was built with encoder %r (fingerprint %s), but this config's encoder is %r "
+        "(%s). Scores mean something only when both embed text into the same space: "
+        "query with the encoder that built the map.",
+        lmap.source.get("path", "the map"),
+        lmap.source.get("encoder", "?"),
+        built,
+        getattr(encoder, "name", type(encoder).__name__),
+        ours,
+    )
+
+
+def warn_if_empty(lmap: LatentMap) -> None:
+    """Warn (:class:`~quash_plugins.core.errors.EmptyMapWarning`) when ``lmap`` has no items.
+
+    Upstream mappers write empty maps when nothing was fused; a query on one is an empty
+    result, not an error.
+    """
+    if lmap.n == 0:
+        where = lmap.source.get("path", "the map")
+        warnings.warn(
+            f"{where} is empty (0 items x {lmap.dim}): nothing was fused into it, so every "
+            "query matches nothing.",
+            EmptyMapWarning,
+            stacklevel=3,
+        )
