@@ -83,8 +83,22 @@ def test_builtin_keeps_its_bare_name_and_the_other_is_reachable_qualified(instal
     assert shadow.expand("chair").positives == ["chair", "shadowed"]
 
 
-def test_cli_default_level_warns_once_about_each(installed, tiny_world):
+def _quash_cli(installed, *args, columns=None, check=False):
+    """``quash ARGS`` in a subprocess that sees the installed plugins."""
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(installed), *sys.path])}
+    if columns:
+        env["COLUMNS"] = str(columns)
+    return subprocess.run(
+        [sys.executable, "-m", "quash_plugins.cli.main", *map(str, args)],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=120,
+        check=check,
+    )
+
+
+def test_cli_default_level_warns_once_about_each(installed, tiny_world):
     cfg = tiny_world["dir"] / "default-heuristic.yaml"
     cfg.write_text(
         textwrap.dedent(
@@ -94,13 +108,8 @@ def test_cli_default_level_warns_once_about_each(installed, tiny_world):
             """
         )
     )
-    proc = subprocess.run(
-        [sys.executable, "-m", "quash_plugins.cli.main", "query", str(tiny_world["map"])]
-        + ["chair", "sofa", "-c", str(cfg), "--adapter", "auto"],
-        capture_output=True,
-        text=True,
-        env=env,
-        timeout=120,
+    proc = _quash_cli(
+        installed, "query", tiny_world["map"], "chair", "sofa", "-c", cfg, "--adapter", "auto"
     )
     assert proc.returncode == 0, proc.stderr
     err = " ".join(proc.stderr.split())
@@ -111,14 +120,7 @@ def test_cli_default_level_warns_once_about_each(installed, tiny_world):
 
 
 def test_cli_table_names_the_shadowed_plugin_as_a_config_spells_it(installed):
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(installed), *sys.path])}
-    proc = subprocess.run(
-        [sys.executable, "-m", "quash_plugins.cli.main", "plugins", "--kind", "heuristics"],
-        capture_output=True,
-        text=True,
-        env={**env, "COLUMNS": "120"},
-        timeout=120,
-    )
+    proc = _quash_cli(installed, "plugins", "--kind", "heuristics", columns=120)
     rows = [line.split("│") for line in proc.stdout.splitlines() if "│" in line]
     names = {(r[2].strip(), r[3].strip()) for r in rows}
     assert ("none", "quash-plugins") in names
@@ -126,15 +128,7 @@ def test_cli_table_names_the_shadowed_plugin_as_a_config_spells_it(installed):
 
 
 def test_cli_table_marks_the_shadowed_plugin_and_says_how_to_reach_it(installed):
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(installed), *sys.path])}
-    out = subprocess.run(
-        [sys.executable, "-m", "quash_plugins.cli.main", "plugins", "--kind", "heuristics"],
-        capture_output=True,
-        text=True,
-        env={**env, "COLUMNS": "160"},
-        timeout=120,
-        check=True,
-    ).stdout
+    out = _quash_cli(installed, "plugins", "--kind", "heuristics", columns=160, check=True).stdout
     rows = {
         r[2].strip(): r[5].strip() for r in (ln.split("│") for ln in out.splitlines()) if len(r) > 5
     }
@@ -143,16 +137,7 @@ def test_cli_table_marks_the_shadowed_plugin_and_says_how_to_reach_it(installed)
     flat = " ".join(out.split())
     assert "the built-in quash-plugins:none keeps the name 'none'" in flat
     assert "a config reaches this one as 'quash-shadow-plugin:none'" in flat
-    listed = json.loads(
-        subprocess.run(
-            [sys.executable, "-m", "quash_plugins.cli.main", "plugins", "--json"],
-            capture_output=True,
-            text=True,
-            env=env,
-            timeout=120,
-            check=True,
-        ).stdout
-    )
+    listed = json.loads(_quash_cli(installed, "plugins", "--json", check=True).stdout)
     shadow = [
         r for r in listed if r["distribution"] == "quash-shadow-plugin" and r["name"] == "none"
     ]
