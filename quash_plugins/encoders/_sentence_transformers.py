@@ -190,18 +190,24 @@ class SentenceTransformerEncoder(Encoder):
         return {"model": "sentence-transformers/all-MiniLM-L6-v2", "device": "cpu"}
 
     def fingerprint(self) -> str:
-        """Model identity (path or id + weights identity) and normalisation; not the device."""
+        """The embedding function's identity: the weights and the normalisation.
+
+        A model found on disk is named by its weights (:func:`weights_identity`), not by
+        the string that found it, so ``minilm`` and ``sentence-transformers`` loading the
+        same files share one fingerprint (one cache, and no "built with another encoder"
+        warning between them). A model only the loader can find is named by its id.
+        Neither the device nor the batch size is identity.
+        """
         import hashlib
         import json
 
-        ident: dict[str, Any] = {"model": self.model, "normalize": self.normalize}
+        ident: dict[str, Any] = {"family": "sentence-transformers", "normalize": self.normalize}
         if self._path is not None:
             ident["weights"] = weights_identity(self._path)
         else:
-            ident["weights"] = None
-        ident["class"] = f"{type(self).__module__}.{type(self).__qualname__}"
+            ident["model"] = self.model
         blob = json.dumps(ident, sort_keys=True, default=str).encode()
-        return f"{self.name}-{hashlib.sha256(blob).hexdigest()[:16]}"
+        return f"sentence-transformers-{hashlib.sha256(blob).hexdigest()[:16]}"
 
 
 class MiniLMEncoder(SentenceTransformerEncoder):

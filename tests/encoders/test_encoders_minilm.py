@@ -102,6 +102,46 @@ def test_sentence_transformers_by_path_matches_minilm(minilm, tmp_path):
     assert SentenceTransformerEncoder(model=str(copy), device="cpu").fingerprint() != fp
 
 
+def test_same_weights_share_one_fingerprint(caplog):
+    """minilm and sentence-transformers on the same files are one embedding function: one
+    fingerprint, so a map built with one is queried with the other without a warning."""
+    from quash_plugins.core.types import LatentMap
+    from quash_plugins.encoders._sentence_transformers import (
+        MiniLMEncoder,
+        SentenceTransformerEncoder,
+        minilm_model_dir,
+    )
+    from quash_plugins.engine.map_fit import warn_built_by
+
+    st = SentenceTransformerEncoder(model="sentence-transformers/all-MiniLM-L6-v2", device="cpu")
+    if st._path is None or st._path.resolve() != minilm_model_dir().resolve():
+        pytest.skip("the id resolves to another copy (a Hugging Face cache) on this machine")
+    mini = MiniLMEncoder(device="cpu")
+    assert st.fingerprint() == mini.fingerprint()
+    assert (
+        st.fingerprint()
+        != SentenceTransformerEncoder(
+            model="sentence-transformers/all-MiniLM-L6-v2", device="cpu", normalize=False
+        ).fingerprint()
+    )
+    lmap = LatentMap(
+        embeddings=np.eye(2, 384, dtype=np.float32),
+        positions=np.zeros((2, 3), dtype=np.float32),
+        source={
+            "path": "built.npz",
+            "encoder": "minilm",
+            "encoder_fingerprint": mini.fingerprint(),
+        },
+    )
+    with caplog.at_level("WARNING"):
+        warn_built_by(st, lmap)
+    assert "was built with encoder" not in caplog.text
+    other = dict(lmap.source, encoder_fingerprint="sentence-transformers-0000000000000000")
+    with caplog.at_level("WARNING"):
+        warn_built_by(st, LatentMap(lmap.embeddings, positions=lmap.positions, source=other))
+    assert "was built with encoder 'minilm'" in caplog.text
+
+
 def test_sentence_transformers_missing_model_says_how_to_fix():
     from quash_plugins.encoders._sentence_transformers import SentenceTransformerEncoder
 
