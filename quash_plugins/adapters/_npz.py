@@ -38,6 +38,21 @@ OPTIONAL = (
 ENCODER_KEYS = ("encoder", "encoder_fingerprint")
 
 
+def encoder_record(fields: dict[str, Any]) -> dict[str, str]:
+    """The encoder record (:data:`ENCODER_KEYS`) among ``fields`` (an HDF5 file's
+    attributes, an export's JSON), as strings; other fields are ignored."""
+    out: dict[str, str] = {}
+    for key in ENCODER_KEYS:
+        value = fields.get(key)
+        if isinstance(value, bytes):
+            value = value.decode("utf-8", "replace")
+        if isinstance(value, np.ndarray) and value.shape == ():
+            value = str(value)
+        if isinstance(value, str) and value:
+            out[key] = value
+    return out
+
+
 def check_declared_sizes(path: Path) -> None:
     """Refuse an NPZ whose arrays declare more data than the file holds.
 

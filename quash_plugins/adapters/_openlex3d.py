@@ -30,6 +30,7 @@ import numpy as np
 from ..core.errors import MapFormatError, QuashError
 from ..core.interfaces import MapAdapter
 from ..core.types import LatentMap
+from ._npz import encoder_record
 from ._rows import IndexedRows, colors_to_uint8, scan_finite, should_scan
 
 log = logging.getLogger(__name__)
@@ -194,6 +195,7 @@ class OpenLex3DAdapter(MapAdapter):
                 "cloud": cloud.name,
                 "objects": int(table.shape[0]),
                 "dense": bool(dense),
+                **_exported_encoder(folder),
             },
         )
 
@@ -321,6 +323,22 @@ def write_pcd(
                 rec["rgb"] = (c[:, 0] << 16) | (c[:, 1] << 8) | c[:, 2]
             fh.write(rec.tobytes())
     return path
+
+
+def _exported_encoder(folder: Path) -> dict[str, str]:
+    """The encoder record of a quash export (``quash_export.json``'s ``source``), if any."""
+    import json
+
+    marker = folder / EXPORT_MARKER
+    if not marker.is_file():
+        return {}
+    try:
+        meta = json.loads(marker.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        log.warning("%s: not readable JSON; the map's encoder record is ignored", marker)
+        return {}
+    recorded = meta.get("source") if isinstance(meta, dict) else None
+    return encoder_record(recorded if isinstance(recorded, dict) else {})
 
 
 def is_openlex3d_export(path: str | Path) -> bool:

@@ -49,6 +49,7 @@ import numpy as np
 from ..core.errors import MapFormatError, QuashError
 from ..core.interfaces import MapAdapter
 from ..core.types import LatentMap
+from ._npz import encoder_record
 from ._vlmaps_common import (
     DEFAULT_CS,
     POSE_TYPES,
@@ -350,6 +351,7 @@ class VLMapsAdapter(MapAdapter):
         names = fit_label_names(names, labels)
         if "mapped_iter_list" in f:
             source["frames_fused"] = int(np.asarray(f["mapped_iter_list"]).size)
+        source.update(encoder_record(dict(f.attrs)))
         return LatentMap(
             embeddings=feat,
             kind="voxels",

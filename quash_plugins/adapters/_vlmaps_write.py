@@ -21,6 +21,11 @@ positions, in the source's frame. A mobile-base file stores neither; its positio
 fixed by VLMaps' truncating bins around the grid centre, which a voxel grid from another
 frame does not land on.
 
+The encoder that built the map (``encoder``, ``encoder_fingerprint``), when the source
+records it, is kept as attributes of the file's root group: VLMaps reads datasets by
+name and ignores them; the ``vlmaps`` adapter reads them back, so a query with another
+encoder warns as it does on the NPZ.
+
 VLMaps has no ground-truth field. Labels are written the way VLMaps forks store them,
 as ``grid_semantic`` (N,) int64 with the names in an ``obj2cls_dict.txt`` beside the
 file (``id: id, name`` per line); the ``vlmaps`` adapter reads both back, VLMaps
@@ -36,6 +41,7 @@ import numpy as np
 
 from ..core.errors import UsageError
 from ..core.types import LatentMap
+from ._npz import ENCODER_KEYS
 
 log = logging.getLogger(__name__)
 
@@ -81,6 +87,9 @@ def write_vlmaps_map(lmap: LatentMap, folder: str | Path, chunk_rows: int = 6553
     lo = idx.min(axis=0) if n else np.zeros(3, np.int64)
     grid_pos = (idx - lo).astype(np.int32)
     pcd_min = (pos - grid_pos * cs).mean(axis=0) if n else np.zeros(3)
+    # The mean carries float rounding (3e-9 for an origin of 0); micrometres are far
+    # below any cell size and read back as the round number the source meant.
+    pcd_min = np.round(pcd_min, 6) + 0.0
     off = np.abs(pcd_min + grid_pos * cs - pos).max() if n else 0.0
     if off > 1e-3 * cs:
         log.warning(
@@ -130,5 +139,8 @@ def write_vlmaps_map(lmap: LatentMap, folder: str | Path, chunk_rows: int = 6553
         f.create_dataset("cs", data=np.float64(cs))
         if labels is not None:
             f.create_dataset("grid_semantic", data=labels)
+        for key in ENCODER_KEYS:
+            if isinstance(lmap.source.get(key), str):
+                f.attrs[key] = lmap.source[key]
     log.info("wrote VLMaps map %s: %d cells x %d", h5_path, n, d)
     return h5_path

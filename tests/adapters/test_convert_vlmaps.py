@@ -52,6 +52,13 @@ def test_make_scene_round_trips_through_vlmaps(minilm_scene, tmp_path):
     assert back.label_names == src.label_names
     np.testing.assert_array_equal(back.colors, src.colors)
     assert back.voxel_size == pytest.approx(src.voxel_size)
+    # the origin reads back as the number it is, not 3e-9 of float rounding
+    assert (np.asarray(src.grid_index).min(axis=0) == 0).all()
+    assert back.source["pcd_min"] == np.asarray(src.positions).min(axis=0).tolist()
+    # the encoder record survives, so a query with another encoder still warns
+    assert src.source["encoder"] == "minilm"
+    for key in ("encoder", "encoder_fingerprint"):
+        assert back.source[key] == src.source[key]
     assert _digest(minilm_scene) == before
 
     # the same query on both gives the same rows; the sub-classes beside scene.npz are

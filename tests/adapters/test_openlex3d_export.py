@@ -155,3 +155,16 @@ def test_docs_snippet_runs(tmp_path, monkeypatch, capsys):
     [code] = re.findall(r"```python\n(.*?)```", section, flags=re.S)
     exec(compile(code, str(DOC), "exec"), {})
     assert "chair [" in capsys.readouterr().out
+
+
+def test_convert_keeps_the_encoder_record(minilm_scene, tmp_path):
+    """A map made by make-scene records its encoder; the OpenLex3D export keeps it in
+    quash_export.json and the adapter reads it back."""
+    out = tmp_path / "ol3d"
+    assert main(["-q", "convert", str(minilm_scene), str(out), "--format", "openlex3d"]) == 0
+    src, back = read_map(minilm_scene), read_map(out, adapter="openlex3d")
+    assert src.source["encoder"] == "minilm"
+    for key in ("encoder", "encoder_fingerprint"):
+        assert back.source[key] == src.source[key]
+    (out / "quash_export.json").write_text("{not json", encoding="utf-8")
+    assert "encoder" not in read_map(out, adapter="openlex3d").source
