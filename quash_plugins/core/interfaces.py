@@ -23,6 +23,7 @@ from sklearn.utils import ClassifierTags
 
 from .errors import EncoderError
 from .kernels import CosineExpansion, KernelExpansion
+from .once import first_time
 from .types import DEFAULT_NEGATIVES, LatentMap, QuerySet
 
 
@@ -99,13 +100,9 @@ def _plain(value: Any) -> bool:
     return False
 
 
-_WARNED_CONTRACT: set[tuple[str, str]] = set()
-
-
 def _contract_warning(who: str, what: str, message: str) -> None:
-    if (who, what) in _WARNED_CONTRACT:
+    if not first_time(("encoder-contract", who, what)):
         return
-    _WARNED_CONTRACT.add((who, what))
     logging.getLogger(__name__).warning(
         "Encoder %r %s. The encoder contract is (n, dim) float32 rows of unit norm; "
         "quash_plugins.testing.check_encoder checks it.",

@@ -42,6 +42,7 @@ from .errors import (
     missing_module,
     unknown_name_message,
 )
+from .once import first_time
 
 log = logging.getLogger(__name__)
 
@@ -91,7 +92,6 @@ class PluginInfo:
 
 
 _lock = threading.RLock()
-_warned: set[tuple[str, str, str]] = set()
 _scanned: dict[str, list[PluginInfo]] = {}
 _manual: dict[str, list[PluginInfo]] = {k: [] for k in KINDS}
 
@@ -374,11 +374,8 @@ def _load_info(info: PluginInfo) -> Any:
 
 def _warn_once(key: tuple[str, str, str], message: str) -> None:
     """Log ``message`` as a warning the first time ``key`` is seen in this process."""
-    with _lock:
-        if key in _warned:
-            return
-        _warned.add(key)
-    log.warning("%s", message)
+    if first_time(("registry", *key)):
+        log.warning("%s", message)
 
 
 def load(kind: str, name: str) -> Any:

@@ -12,6 +12,7 @@ import numpy as np
 
 from .errors import ConfigError, EncoderError, install_hint, missing_module
 from .interfaces import Encoder, check_text_embeddings
+from .once import first_time
 
 log = logging.getLogger(__name__)
 
@@ -135,11 +136,6 @@ def read_vlmaps_templates(path: str | Path) -> list[str]:
     return list(value)
 
 
-#: Whether the missing-VLMaps warning of :func:`load_templates` was given (later ones log
-#: at INFO).
-_WARNED_NO_VLMAPS = False
-
-
 def load_templates(spec: Any) -> list[str]:
     """Resolve a ``templates`` setting.
 
@@ -153,16 +149,14 @@ def load_templates(spec: Any) -> list[str]:
         found = vlmaps_templates_file()
         if found is not None:
             return _checked_templates(read_vlmaps_templates(found))
-        global _WARNED_NO_VLMAPS
         # Once per process: a benchmark builds the VLMaps configs for every scene.
         log.log(
-            logging.INFO if _WARNED_NO_VLMAPS else logging.WARNING,
+            logging.WARNING if first_time(("no-vlmaps",)) else logging.INFO,
             "templates: vlmaps: no installed VLMaps package was found (vlmaps/utils/"
             "clip_utils.py), so the default templates are used and the rule is not VLMaps' "
             "exactly. Install VLMaps from its clone (pip install -e .), or set templates: "
             "to VLMaps' clip_utils.py or to a file with one template per line.",
         )
-        _WARNED_NO_VLMAPS = True
         spec = "default"
     if spec is None or spec == "default":
         text = (

@@ -49,6 +49,7 @@ from ..core.cpu import HALF_SQ_LIMIT, blas_single_thread, cpu_threads, half_to_f
 from ..core.errors import MapFormatError, QuashError
 from ..core.kernels import CosineExpansion, KernelExpansion, KernelStack, StackEpilogue
 from ..core.maps import map_read_error
+from ..core.once import first_time
 from ..core.types import LatentMap
 
 log = logging.getLogger(__name__)
@@ -451,7 +452,6 @@ def _chunk_keys(E: Any, start: int, stop: int, most: int = 4) -> str:
 
 #: Share of unobserved (all-zero) items above which a query warns about the map.
 UNOBSERVED_WARNING = 0.5
-_warned: set[tuple[str, int, int]] = set()
 
 
 def warn_unobserved(lmap: LatentMap, observed: np.ndarray) -> None:
@@ -465,10 +465,8 @@ def warn_unobserved(lmap: LatentMap, observed: np.ndarray) -> None:
     if n == 0 or unobserved <= UNOBSERVED_WARNING * n:
         return
     where = str(lmap.source.get("path", "the map"))
-    key = (where, n, unobserved)
-    if key in _warned:
+    if not first_time(("unobserved", where, n, unobserved)):
         return
-    _warned.add(key)
     if unobserved == n:
         log.warning(
             "%s: every one of its %d items has an all-zero embedding (unobserved), so no "

@@ -13,6 +13,7 @@ import warnings
 from typing import Any
 
 from ..core.errors import DimensionMismatchError, EmptyMapWarning
+from ..core.once import first_time
 from ..core.types import LatentMap
 
 log = logging.getLogger(__name__)
@@ -26,7 +27,6 @@ PRESETS_BY_DIM = {
 }
 
 #: (map path, the map's encoder fingerprint, the config's) already warned about.
-_WARNED_BUILT_BY: set[tuple[str, str, str]] = set()
 
 
 def check_encoder_fits(encoder: Any, lmap: LatentMap, config_source: Any = None) -> None:
@@ -66,10 +66,8 @@ def warn_built_by(encoder: Any, lmap: LatentMap) -> None:
     if not isinstance(built, str) or not built:
         return
     ours = encoder.fingerprint()
-    key = (str(lmap.source.get("path")), built, ours)
-    if built == ours or key in _WARNED_BUILT_BY:
+    if built == ours or not first_time(("built-by", str(lmap.source.get("path")), built, ours)):
         return
-    _WARNED_BUILT_BY.add(key)
     log.warning(
         "%s was built with encoder %r (fingerprint %s), but this config's encoder is %r "
         "(%s). Scores mean something only when both embed text into the same space: "

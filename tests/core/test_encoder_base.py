@@ -65,11 +65,10 @@ class _Sloppy(_Seeded):
 
 
 def test_mended_output_is_warned_about_once_per_encoder(caplog):
-    from quash_plugins.core import interfaces
+    from quash_plugins.core import once
     from quash_plugins.core.text import encode_texts
 
-    interfaces._WARNED_CONTRACT.discard(("sloppy", "dtype"))
-    interfaces._WARNED_CONTRACT.discard(("sloppy", "norm"))
+    once.forget("encoder-contract")
     enc = _Sloppy()
     with caplog.at_level("WARNING", logger="quash_plugins.core.interfaces"):
         first = encode_texts(enc, ["chair", "sofa"], None)

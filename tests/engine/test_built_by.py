@@ -6,9 +6,9 @@ import numpy as np
 
 from quash_plugins import Quash
 from quash_plugins.adapters import write_npz_map
+from quash_plugins.core import once
 from quash_plugins.core.maps import read_map
 from quash_plugins.demo.scene import SceneOptions, make_scene, write_scene
-from quash_plugins.engine import map_fit
 from quash_plugins.testing import HashingEncoder
 
 OPTS = dict(rooms=1, voxel_size=0.25, room_size=4.0, extra_objects=0)
@@ -41,7 +41,7 @@ def test_the_map_records_its_encoder_and_a_copy_keeps_it(tmp_path):
 
 def test_a_query_with_another_encoder_warns_once_and_the_same_one_never(tmp_path, caplog):
     paths = write_scene(make_scene(HashingEncoder(32), SceneOptions(**OPTS)), tmp_path / "s.npz")
-    map_fit._WARNED_BUILT_BY.clear()
+    once.forget("built-by")
     with caplog.at_level("WARNING", logger="quash_plugins.engine.map_fit"):
         _quash(HashingEncoder(32)).query(str(paths["map"]), "chair")
         assert not [r for r in caplog.records if "was built with encoder" in r.getMessage()]

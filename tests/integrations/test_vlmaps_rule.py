@@ -62,9 +62,9 @@ def test_templates_without_vlmaps_fall_back_with_a_warning(monkeypatch, caplog, 
     monkeypatch.setattr(
         importlib.util, "find_spec", lambda name, *a: None if name == "vlmaps" else real(name, *a)
     )
-    import quash_plugins.core.text as text_mod
+    from quash_plugins.core import once
 
-    monkeypatch.setattr(text_mod, "_WARNED_NO_VLMAPS", False)
+    once.forget("no-vlmaps")
     with caplog.at_level("INFO"):
         assert load_templates("vlmaps") == load_templates("default")
         load_templates("vlmaps")  # a second config: said again at INFO, not warned
