@@ -33,6 +33,8 @@ class Layout:
         A ``summary`` document exists.
     focus
         Slug of the config whose tab is open first (default: the first).
+    query_list
+        The ``query_list`` text log exists (one row per query step).
     """
 
     has_world: bool = False
@@ -45,6 +47,23 @@ class Layout:
     eval_steps: int = 0
     has_summary: bool = False
     focus: str | None = None
+    query_list: bool = False
+
+
+#: Entity of the text log that names each step of the ``query`` timeline.
+QUERY_LIST = "query_list"
+
+
+def _query_list_view(rrb: Any) -> Any:
+    """The queries by step; clicking one moves the ``query`` timeline to it."""
+    return rrb.TextLogView(name="queries (click one to go to it)", origin=QUERY_LIST)
+
+
+def _with_query_list(rrb: Any, layout: Layout, view: Any) -> Any:
+    """``view`` above the list of queries by step, when the recording has one."""
+    if not layout.query_list:
+        return view
+    return rrb.Vertical(view, _query_list_view(rrb), row_shares=[3, 1])
 
 
 def _config_panel(rrb: Any, layout: Layout, c: str | None, name: str) -> Any:
@@ -65,7 +84,9 @@ def _config_panel(rrb: Any, layout: Layout, c: str | None, name: str) -> Any:
             overrides={"world/ceiling": hidden} if layout.has_ceiling else None,
             eye_controls=eye,
         )
-    doc = rrb.TextDocumentView(name=f"{name}: query set", origin=f"queries/{c}")
+    doc = _with_query_list(
+        rrb, layout, rrb.TextDocumentView(name=f"{name}: query set", origin=f"queries/{c}")
+    )
     views: list[Any] = []
     if layout.has_world:
         matches = rrb.Spatial3DView(
@@ -147,7 +168,11 @@ def _eval_panel(rrb: Any, layout: Layout) -> Any:
     if plots:
         parts.append(rrb.Grid(*plots, grid_columns=2 if len(plots) > 1 else 1))
     if layout.has_summary:
-        parts.append(rrb.TextDocumentView(name="Comparison", origin="summary"))
+        parts.append(
+            _with_query_list(rrb, layout, rrb.TextDocumentView(name="Comparison", origin="summary"))
+        )
+    elif plots and layout.query_list:
+        parts.append(_query_list_view(rrb))
     if len(parts) == 2:
         return rrb.Horizontal(*parts, column_shares=[3, 2], name="evaluation")
     return rrb.Vertical(*parts, name="evaluation")
@@ -162,7 +187,8 @@ def build_blueprint(layout: Layout) -> Any:
     the current query (its title names the query, then the positives and negatives).
     Pixel maps get one tab of 2D views per frame. Evaluation metrics, when logged, get
     their own tab. The time panel is on the ``query`` timeline: scrubbing it steps
-    through the queries, and every config's tab shows the same query.
+    through the queries, and every config's tab shows the same query; the queries list
+    (the ``query_list`` text log) names each step, and clicking one goes to it.
     """
     import rerun.blueprint as rrb
 

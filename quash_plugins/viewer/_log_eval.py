@@ -64,6 +64,8 @@ class EvalLogging:
         else:
             step = int(step_or_query)
         rec.set_time("query", sequence=step)
+        if isinstance(step_or_query, str):
+            self._list_query(step, step_or_query)
         cfg = slugify(str(config_name), "config")
         for key, value in metrics.items():
             try:

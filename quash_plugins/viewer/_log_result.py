@@ -12,6 +12,7 @@ import numpy as np
 
 from ..core.errors import QuashError
 from ..core.types import LatentMap, QueryResult
+from ._blueprint import QUERY_LIST
 from ._display import colormap, score_classes, slugify, thin
 from ._document import queryset_markdown
 from ._log_map import MATCH_COLOR
@@ -59,6 +60,7 @@ class ResultLogging:
         c = slugify(name, "config")
         state = self._configs.setdefault(c, _ConfigState(name))
         rec.set_time("query", sequence=index)
+        self._list_query(index, result.query)
         notes = list(self._notes)
         if self._has_world:
             self._log_world(lmap, result, c, state, notes)
@@ -73,6 +75,15 @@ class ResultLogging:
             self._log_pixel_instances(lmap, result, base, frame.frame_id)
         text = queryset_markdown(lmap, result, index, notes)
         rec.log(f"queries/{c}", rr.TextDocument(text, media_type=rr.MediaType.MARKDOWN))
+        self._layout_changed()
+
+    def _list_query(self, step: int, query: str) -> None:
+        """Name the query at ``step`` once, in the ``query_list`` text log: the list of
+        queries by step, where clicking a row moves the timeline to that query."""
+        if step in self._listed:
+            return
+        self._listed.add(step)
+        self.recording.log(QUERY_LIST, self.rr.TextLog(f"{step}: {query}"))
         self._layout_changed()
 
     def _log_world(

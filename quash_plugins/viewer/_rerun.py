@@ -133,6 +133,7 @@ class RerunLogger(MapLogging, ResultLogging, EvalLogging):
         self._eval_colors: dict[str, tuple[int, int, int]] = {}
         self._eval_last = -1
         self._has_summary = False
+        self._listed: set[int] = set()
 
     # ------------------------------------------------------------------ lifecycle
     def _layout_changed(self) -> None:
@@ -158,6 +159,7 @@ class RerunLogger(MapLogging, ResultLogging, EvalLogging):
             metrics=tuple(self._eval_metrics),
             eval_steps=self._eval_last + 1,
             has_summary=self._has_summary,
+            query_list=bool(self._listed),
             focus=self._focus,
         )
         if layout == self._layout_sent:

@@ -238,6 +238,9 @@ def test_configs_get_tabs_and_share_the_query_timeline(tmp_path):
         [(t, [text]), _] = rows(by_path[f"queries/{c}"], "TextDocument:text")
         assert t == 0 and text.startswith("# chair · ")
     assert {"quash: map and matches", "other method: map and matches"} <= view_names(reader)
+    # the queries by step, once each (not once per config), in a text log view
+    assert rows(by_path["query_list"], "TextLog:text") == [(0, ["0: chair"]), (1, ["1: sofa"])]
+    assert ("TextLog", "query_list") in blueprint_views(reader)
     # The last blueprint: a Tabs container of one tab per config, focus() the active one.
     containers = {}
     for store in reader.blueprints():
@@ -347,8 +350,10 @@ def test_eval_scalars(tmp_path):
     assert rows(by_path["eval/f1/contrast"], "Scalars:scalars") == [(0, [pytest.approx(0.1)])]
     assert rows(by_path["eval/iou/svm_rbf"], "Scalars:scalars") == [(0, [0.5])]
     assert "eval/note/svm_rbf" not in by_path
+    assert rows(by_path["query_list"], "TextLog:text") == [(0, ["0: chair"]), (1, ["1: sofa"])]
     views = blueprint_views(reader)
     assert ("TimeSeries", "eval/f1") in views and ("TimeSeries", "eval/iou") in views
+    assert ("TextLog", "query_list") in views
     # One colour per config, the same in every metric's plot.
     [(_, f1_color)] = rows(by_path["eval/f1/svm_rbf"], "SeriesLines:colors")
     [(_, iou_color)] = rows(by_path["eval/iou/svm_rbf"], "SeriesLines:colors")
