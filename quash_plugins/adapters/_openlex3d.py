@@ -350,12 +350,17 @@ def is_openlex3d_export(path: str | Path) -> bool:
 def write_openlex3d_map(lmap: LatentMap, folder: str | Path, chunk_rows: int = 65536) -> Path:
     """Write ``lmap`` as OpenLex3D's prediction folder, atomically.
 
-    ``embeddings.npy`` (N, D) float32 (values as stored, not normalised: OpenLex3D takes
-    cosines), ``index.npy`` (N,) int64 ``arange`` (a dense map: one row per point),
-    ``point_cloud.pcd`` (the map's positions and colours) and ``quash_export.json``
-    (provenance). Embeddings are copied ``chunk_rows`` rows at a time. The folder is
-    written beside ``folder`` and renamed into place; an existing ``folder`` is replaced
-    only when it is a previous export.
+    ``embeddings.npy`` float32 (values as stored, not normalised: OpenLex3D takes
+    cosines), ``index.npy`` int64, ``point_cloud.pcd`` (the map's positions and colours)
+    and ``quash_export.json`` (provenance). A map of objects (rows gathered through an
+    index: ConceptGraphs, a sparse OpenLex3D folder, OpenScene's 2D-3D features) keeps
+    its objects: ``embeddings.npy`` is its ``(M, D)`` table and ``index.npy`` its
+    point-to-object index, so OpenLex3D ranks objects, not single points. Points of no
+    object (index -1, which OpenLex3D would read as the last row) point to one extra
+    zero row. Any other map is dense: ``(N, D)`` and ``arange(N)``. Embeddings are
+    copied ``chunk_rows`` rows at a time. The folder is written beside ``folder`` and
+    renamed into place; an existing ``folder`` is replaced only when it is a previous
+    export.
     """
     import json
 
@@ -369,25 +374,49 @@ def write_openlex3d_map(lmap: LatentMap, folder: str | Path, chunk_rows: int = 6
             "OpenLex3D's point_cloud.pcd needs one 3D point per item."
         )
     n, d = lmap.n, lmap.dim
+    rows, index = lmap.embeddings, np.arange(n, dtype=np.int64)
+    dense = not isinstance(rows, IndexedRows)
+    if not dense:
+        rows, index = rows.table, np.asarray(rows.index, dtype=np.int64)
+        if (index < 0).any():  # no object: one zero row, never -1 (the last row upstream)
+            index = np.where(index < 0, int(rows.shape[0]), index)
+            rows = _ZeroRowAfter(rows)
+    m = int(rows.shape[0])
     kind = f"OpenLex3D export of quash (with {EXPORT_MARKER})"
     with atomic_dir(folder, replaceable=is_openlex3d_export, kind=kind) as tmp:
         tmp.mkdir()
-        out = np.lib.format.open_memmap(tmp / "embeddings.npy", "w+", np.float32, (n, d))
-        for start in range(0, n, chunk_rows):
-            stop = min(n, start + chunk_rows)
-            out[start:stop] = np.asarray(lmap.embeddings[start:stop], dtype=np.float32)
+        out = np.lib.format.open_memmap(tmp / "embeddings.npy", "w+", np.float32, (m, d))
+        for start in range(0, m, chunk_rows):
+            stop = min(m, start + chunk_rows)
+            out[start:stop] = np.asarray(rows[start:stop], dtype=np.float32)
         out.flush()
         del out
-        np.save(tmp / "index.npy", np.arange(n, dtype=np.int64))
+        np.save(tmp / "index.npy", index)
         write_pcd(tmp / "point_cloud.pcd", lmap.positions, lmap.colors)
         meta = {
             "format": "openlex3d-predictions",
             "written_by": "quash-plugins",
             "n_points": n,
+            "n_rows": m,
             "dim": d,
-            "dense": True,
+            "dense": dense,
             "source": {k: v for k, v in lmap.source.items() if isinstance(v, (str, int, float))},
         }
         (tmp / EXPORT_MARKER).write_text(json.dumps(meta, indent=2) + "\n", encoding="utf-8")
-    log.info("wrote OpenLex3D predictions %s: %d points x %d", folder, n, d)
+    log.info("wrote OpenLex3D predictions %s: %d points, %d rows x %d", folder, n, m, d)
     return folder
+
+
+class _ZeroRowAfter:
+    """``table`` with one zero row appended (row ``M``), sliced without copying ``table``."""
+
+    def __init__(self, table: Any) -> None:
+        self.table = table
+        self.shape = (int(table.shape[0]) + 1, int(table.shape[1]))
+
+    def __getitem__(self, rows: slice) -> np.ndarray:
+        start, stop, _ = rows.indices(self.shape[0])
+        part = np.asarray(self.table[start : min(stop, self.shape[0] - 1)])
+        if stop == self.shape[0]:
+            part = np.concatenate([part, np.zeros((1, self.shape[1]), part.dtype)])
+        return part

@@ -14,7 +14,8 @@ DESCRIPTION = """\
 Read a map with any adapter and write it as quash-plugins' portable NPZ (embeddings,
 positions, colours, labels...), as a Zarr store when DST ends in .zarr, or, with
 --format openlex3d, as OpenLex3D's prediction folder DST/ (embeddings.npy, index.npy,
-point_cloud.pcd). With --format vlmaps, a voxel map becomes VLMaps' own HDF5 save
+point_cloud.pcd; a map of objects, such as ConceptGraphs', keeps one row per object).
+With --format vlmaps, a voxel map becomes VLMaps' own HDF5 save
 layout, DST/vlmap_cam/vlmaps_cam.h5df (the camera-base layout: it stores its cell size
 and origin, so positions read back unchanged; labels go to grid_semantic and
 vlmap_cam/obj2cls_dict.txt, which VLMaps itself ignores). The input is only read; the

@@ -20,8 +20,9 @@ scores (the config's refine and presence applied) stream to a zarr store, withou
 display_scores, for maps larger than memory: the embeddings are read in chunks; with
 refine or presence about 13 bytes per item are held per query of a group, queries
 answered in groups that fit chunk_mb (see docs/scale.md).
-With --format openlex3d, --out is a folder of per-query files aligned with the rows of
-an OpenLex3D export of the map (quash convert MAP DIR --format openlex3d):
+With --format openlex3d, --out is a folder of per-query files aligned with the points
+(point_cloud.pcd) of an OpenLex3D export of the map (quash convert MAP DIR --format
+openlex3d):
 query_scores.npy (N, Q) in [0, 1] (0.5 at the threshold), query_scores_raw.npy,
 query_masks.npy and queries.json (see docs/adapters.md#openlex3d).
 --out and --rrd never replace the map or any other input, and never name one file;

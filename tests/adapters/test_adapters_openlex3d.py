@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 from _cf_writers import contrast_config, save_openlex3d, text_table, tree_hash
 
@@ -31,6 +33,32 @@ def test_object_level_index(tmp_path):
     np.testing.assert_array_equal(lmap.embeddings[0:40], expected)
     np.testing.assert_array_equal(lmap.embeddings[[9, 1, 3]], expected[[9, 1, 3]])
     assert lmap.normalize
+
+
+def test_a_map_of_objects_exports_as_objects(tmp_path):
+    """--format openlex3d keeps a map's objects: the table and the point-to-object index,
+    with points of no object on one extra zero row (OpenLex3D reads -1 as the last row)."""
+    rng = np.random.default_rng(1)
+    pts, cols = rng.uniform(-2, 2, size=(50, 3)), rng.uniform(0, 1, size=(50, 3))
+    table = rng.normal(size=(7, 8)).astype(np.float32)
+    index = rng.integers(0, 7, size=50)
+    index[[0, 11, 49]] = -1
+    save_openlex3d(tmp_path / "objects", pts, cols, table, index)
+    out = tmp_path / "export"
+    args = ["-q", "convert", str(tmp_path / "objects"), str(out), "--format", "openlex3d"]
+    assert main(args) == 0
+    emb, idx = np.load(out / "embeddings.npy"), np.load(out / "index.npy")
+    assert emb.shape == (8, 8) and (idx >= 0).all()
+    np.testing.assert_array_equal(emb[:7], table)
+    assert not emb[7].any() and (idx[[0, 11, 49]] == 7).all()
+    # what OpenLex3D computes, embeddings[index], is the map's rows
+    src = read_map(tmp_path / "objects")
+    np.testing.assert_array_equal(emb[idx], np.asarray(src.embeddings[0:50]))
+    meta = json.loads((out / "quash_export.json").read_text())
+    assert meta["dense"] is False and meta["n_points"] == 50 and meta["n_rows"] == 8
+    back = read_map(out)
+    assert isinstance(back.embeddings, IndexedRows)
+    np.testing.assert_array_equal(back.embeddings[0:50], src.embeddings[0:50])
 
 
 def test_dense_index_uses_memmap(tmp_path):
