@@ -15,9 +15,9 @@ Read a map with any adapter and write it as quash-plugins' portable NPZ (embeddi
 positions, colours, labels...), as a Zarr store when DST ends in .zarr, or, with
 --format openlex3d, as OpenLex3D's prediction folder DST/ (embeddings.npy, index.npy,
 point_cloud.pcd; a map of objects, such as ConceptGraphs', keeps one row per object).
-With --format vlmaps, a voxel map becomes VLMaps' own HDF5 save
-layout, DST/vlmap_cam/vlmaps_cam.h5df (the camera-base layout: it stores its cell size
-and origin, so positions read back unchanged; labels go to grid_semantic and
+With --format vlmaps, a voxel map becomes VLMaps' own HDF5 save layout,
+DST/vlmap_cam/vlmaps_cam.h5df (the camera-base layout: it stores its cell size and
+origin, so positions read back unchanged; labels go to grid_semantic and
 vlmap_cam/obj2cls_dict.txt, which VLMaps itself ignores). The input is only read; the
 output appears atomically. Lazy maps (HDF5, per-image features) are streamed block by
 block, so the map is never held whole in memory. DST is never SRC (nor inside it); an
