@@ -55,15 +55,26 @@ QUERY_LIST = "query_list"
 
 
 def _query_list_view(rrb: Any) -> Any:
-    """The queries by step; clicking one moves the ``query`` timeline to it."""
-    return rrb.TextLogView(name="queries (click one to go to it)", origin=QUERY_LIST)
+    """The queries by step (the step, then the text; no entity or level columns);
+    clicking one moves the ``query`` timeline to it."""
+    from rerun.blueprint.encodings import TextLogColumn, TimelineColumn
+
+    columns = rrb.archetypes.TextLogColumns(
+        timeline_columns=[TimelineColumn("query")],
+        text_log_columns=[
+            TextLogColumn("EntityPath", visible=False),
+            TextLogColumn("LogLevel", visible=False),
+            TextLogColumn("Body"),
+        ],
+    )
+    return rrb.TextLogView(name="queries", origin=QUERY_LIST, columns=columns)
 
 
 def _with_query_list(rrb: Any, layout: Layout, view: Any) -> Any:
-    """``view`` above the list of queries by step, when the recording has one."""
+    """``view`` beside the list of queries by step, when the recording has one."""
     if not layout.query_list:
         return view
-    return rrb.Vertical(view, _query_list_view(rrb), row_shares=[3, 1])
+    return rrb.Horizontal(view, _query_list_view(rrb), column_shares=[3, 1])
 
 
 def _config_panel(rrb: Any, layout: Layout, c: str | None, name: str) -> Any:

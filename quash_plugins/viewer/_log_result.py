@@ -78,12 +78,12 @@ class ResultLogging:
         self._layout_changed()
 
     def _list_query(self, step: int, query: str) -> None:
-        """Name the query at ``step`` once, in the ``query_list`` text log: the list of
-        queries by step, where clicking a row moves the timeline to that query."""
+        """Name the query at ``step`` once, in the ``query_list`` text log (at that step):
+        the list of queries by step, where clicking a row moves the timeline to it."""
         if step in self._listed:
             return
         self._listed.add(step)
-        self.recording.log(QUERY_LIST, self.rr.TextLog(f"{step}: {query}"))
+        self.recording.log(QUERY_LIST, self.rr.TextLog(str(query)))
         self._layout_changed()
 
     def _log_world(

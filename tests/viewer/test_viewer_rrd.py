@@ -239,7 +239,7 @@ def test_configs_get_tabs_and_share_the_query_timeline(tmp_path):
         assert t == 0 and text.startswith("# chair · ")
     assert {"quash: map and matches", "other method: map and matches"} <= view_names(reader)
     # the queries by step, once each (not once per config), in a text log view
-    assert rows(by_path["query_list"], "TextLog:text") == [(0, ["0: chair"]), (1, ["1: sofa"])]
+    assert rows(by_path["query_list"], "TextLog:text") == [(0, ["chair"]), (1, ["sofa"])]
     assert ("TextLog", "query_list") in blueprint_views(reader)
     # The last blueprint: a Tabs container of one tab per config, focus() the active one.
     containers = {}
@@ -350,7 +350,7 @@ def test_eval_scalars(tmp_path):
     assert rows(by_path["eval/f1/contrast"], "Scalars:scalars") == [(0, [pytest.approx(0.1)])]
     assert rows(by_path["eval/iou/svm_rbf"], "Scalars:scalars") == [(0, [0.5])]
     assert "eval/note/svm_rbf" not in by_path
-    assert rows(by_path["query_list"], "TextLog:text") == [(0, ["0: chair"]), (1, ["1: sofa"])]
+    assert rows(by_path["query_list"], "TextLog:text") == [(0, ["chair"]), (1, ["sofa"])]
     views = blueprint_views(reader)
     assert ("TimeSeries", "eval/f1") in views and ("TimeSeries", "eval/iou") in views
     assert ("TextLog", "query_list") in views
