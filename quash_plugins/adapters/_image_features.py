@@ -82,12 +82,31 @@ def _load_tensor(path: Path) -> np.ndarray:
         ) from None
     if not isinstance(obj, torch.Tensor):
         raise MapFormatError(
-            f"{path}: holds a {type(obj).__name__}, not a bare tensor (H, W, D) or (1, D, h, w)."
+            f"{path}: holds a {type(obj).__name__}, not a bare tensor (H, W, D) or (1, D, h, w)"
+            f"{_not_a_tensor_fix(obj, path)}"
         )
     obj = obj.detach()
     if obj.dtype == torch.bfloat16:
         obj = obj.float()
     return obj.numpy()
+
+
+def _not_a_tensor_fix(obj: Any, path: Path) -> str:
+    """How to turn what a ``.pt`` holds into the bare tensor this adapter reads."""
+    if not isinstance(obj, dict):
+        return ". Save one frame's feature tensor per file: torch.save(tensor, PATH)."
+    keys = list(obj)
+    if {"feat", "mask_full"} <= set(keys):
+        return (
+            " (keys 'feat', 'mask_full': OpenScene's fused point features, not an image's). "
+            "Read it with --adapter openscene (docs/adapters.md#openscene)."
+        )
+    shown = ", ".join(repr(k) for k in keys[:8]) + (", ..." if len(keys) > 8 else "")
+    key = next((k for k in keys if isinstance(obj[k], _torch().Tensor)), "KEY")
+    return (
+        f" (keys: {shown}). Save the feature tensor itself, one file per frame: "
+        f"torch.save(d[{key!r}], {str(path.name)!r})."
+    )
 
 
 def _load_array(path: Path) -> np.ndarray:
@@ -141,6 +160,29 @@ def list_feature_files(folder: Path) -> list[Path]:
         if p.is_file() and p.suffix in FEATURE_SUFFIXES and not _NOT_FRAMES.match(p.stem)
     ]
     return sorted(files, key=lambda p: _natural_key(p.stem))
+
+
+def _refuse_shared_stems(files: list[Path]) -> None:
+    """Two files of one stem would be two frames with one id (``masks_per_frame`` keys)."""
+    seen: dict[str, Path] = {}
+    for f in files:
+        if f.stem in seen:
+            raise MapFormatError(
+                f"{f.parent}: frame {f.stem!r} has two feature files, {seen[f.stem].name} and "
+                f"{f.name}; a frame is one file named after its image. Move one of them "
+                "out of the folder."
+            )
+        seen[f.stem] = f
+
+
+def _images_only_hint(path: Path) -> str:
+    """Said when a folder without features holds images: the RGB folder was given."""
+    if not path.is_dir() or not any(p.suffix in IMAGE_SUFFIXES for p in path.iterdir()):
+        return ""
+    return (
+        " It holds images: pass the folder of their feature files (ConceptFusion's "
+        "saved-feat/); the images are found beside it, or name them with -o images=DIR."
+    )
 
 
 def _find_image(stem: str, dirs: list[Path]) -> Path | None:
@@ -235,7 +277,9 @@ class ImageFeaturesAdapter(MapAdapter):
         if not files:
             raise MapFormatError(
                 f"{path}: no feature maps (<stem>.pt or <stem>.npy) found; the map is empty."
+                f"{_images_only_hint(path)}"
             )
+        _refuse_shared_stems(files)
 
         shapes, dtypes, layouts = [], [], []
         for f in files:

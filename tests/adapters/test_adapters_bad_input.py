@@ -168,6 +168,41 @@ def test_feat_pickled_object_refused(tmp_path):
     _check(tmp_path, "f0.pt", adapter="image-features")
 
 
+@pytest.mark.parametrize(
+    ("saved", "needles"),
+    [
+        ({"feat": "tensor", "step": 3}, ("keys: 'feat', 'step'", "torch.save(d['feat'], 'f0.pt')")),
+        ({"feat": "tensor", "mask_full": "mask"}, ("--adapter openscene",)),
+        (["tensor"], ("holds a list", "torch.save(tensor, PATH)")),
+    ],
+)
+def test_feat_container_of_tensors_says_how_to_save_a_bare_one(tmp_path, saved, needles):
+    import torch
+
+    made = {"tensor": torch.ones(2, 2, 3), "mask": torch.ones(4, dtype=torch.bool)}
+    if isinstance(saved, dict):
+        obj = {k: made.get(v, v) for k, v in saved.items()}
+    else:
+        obj = [made[v] for v in saved]
+    torch.save(obj, tmp_path / "f0.pt")
+    _check(tmp_path, "f0.pt", "not a bare tensor", *needles, adapter="image-features")
+
+
+def test_feat_two_files_of_one_stem_refused(tmp_path):
+    """a.pt and a.npy would be two frames with one id: masks_per_frame would drop one."""
+    save_feat_pt(tmp_path, "a", np.ones((2, 3, 4), np.float16))
+    np.save(tmp_path / "a.npy", np.ones((2, 3, 4), np.float16))
+    save_feat_pt(tmp_path, "b", np.ones((2, 3, 4), np.float16))
+    _check(tmp_path, "frame 'a'", "a.npy", "a.pt", "Move one", adapter="image-features")
+
+
+def test_feat_images_folder_given_says_where_features_go(tmp_path):
+    from _cf_writers import save_png
+
+    save_png(tmp_path / "rgb" / "frame0.png", np.zeros((4, 4, 3), np.uint8))
+    _check(tmp_path / "rgb", "no feature maps", "It holds images", adapter="image-features")
+
+
 def test_feat_truncated_pt(tmp_path):
     path = save_feat_pt(tmp_path, "f0", np.ones((8, 8, 16), np.float16))
     path.write_bytes(path.read_bytes()[:200])
