@@ -21,6 +21,7 @@ __all__ = [
     "read_map",
     "detect_adapter",
     "masks_per_frame",
+    "frames_from_npz",
     "pixel_coordinates",
     "convert_map",
     "write_npz_map",
@@ -36,6 +37,7 @@ __all__ = [
 #: Public helpers, imported on first use (keeps ``import quash_plugins.adapters`` light).
 _LAZY = {
     "masks_per_frame": "._image_features",
+    "frames_from_npz": "._convert",
     "pixel_coordinates": "._image_features",
     "convert_map": "._convert",
     "write_npz_map": "._npz",

@@ -27,7 +27,9 @@ log = logging.getLogger(__name__)
 
 
 def frames_from_npz(path: str | Path) -> list[FrameInfo] | None:
-    """The frames stored by :func:`write_npz_streaming` in ``path``, or None."""
+    """The frames of a pixel map stored in ``path``, or None: a map ``quash convert``
+    wrote (:func:`write_npz_streaming`) or a ``quash query --out RESULT.npz`` file, for
+    :func:`~quash_plugins.adapters.masks_per_frame`."""
     with np.load(path, allow_pickle=False) as z:
         if "frame_ids" not in z.files:
             return None

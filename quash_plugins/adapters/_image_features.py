@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import logging
 import re
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -392,8 +393,12 @@ class ImageFeaturesAdapter(MapAdapter):
         return folder
 
 
-def masks_per_frame(lmap: LatentMap, mask: Any) -> dict[str, np.ndarray]:
+def masks_per_frame(lmap: LatentMap | Sequence[FrameInfo], mask: Any) -> dict[str, np.ndarray]:
     """Split an ``(N,)`` item mask of a pixel map into ``{frame_id: (H, W) bool}``.
+
+    ``lmap`` is the pixel map, or its frames: ``LatentMap.frames``, or
+    ``frames_from_npz(path)`` of a ``quash query --out RESULT.npz`` file or of a map
+    ``quash convert`` wrote.
 
     Examples
     --------
@@ -403,18 +408,25 @@ def masks_per_frame(lmap: LatentMap, mask: Any) -> dict[str, np.ndarray]:
     ...               frames=[FrameInfo("a", 1, 2, 0), FrameInfo("b", 2, 2, 2)])
     >>> masks_per_frame(m, np.array([1, 0, 0, 0, 0, 1], bool))["b"].tolist()
     [[False, False], [False, True]]
+    >>> masks_per_frame(m.frames, np.array([1, 0, 0, 0, 0, 1], bool))["a"].tolist()
+    [[True, False]]
     """
-    if not lmap.frames:
+    if isinstance(lmap, LatentMap):
+        frames, n, where = lmap.frames, lmap.n, lmap.source.get("path", "the map")
+    else:
+        frames = list(lmap) if lmap is not None else None
+        n, where = sum(f.size for f in frames or ()), "these frames"
+    if not frames:
         raise QuashError(
-            f"{lmap.source.get('path', 'the map')} has no frames; per-image masks need a "
-            "pixel map (e.g. read with the 'image-features' adapter)."
+            f"{where} has no frames; per-image masks need a pixel map (e.g. read with the "
+            "'image-features' adapter) or its frames (frames_from_npz of a result file)."
         )
     mask = np.asarray(mask)
-    if mask.shape != (lmap.n,):
-        raise QuashError(f"mask must have shape ({lmap.n},); got {mask.shape}.")
+    if mask.shape != (n,):
+        raise QuashError(f"mask must have shape ({n},); got {mask.shape}.")
     return {
         f.frame_id: mask[f.offset : f.offset + f.size].astype(bool).reshape(f.height, f.width)
-        for f in lmap.frames
+        for f in frames
     }
 
 

@@ -14,7 +14,8 @@ examples:
   quash query map.npz chair sofa -c quash.yaml --out chair-sofa --format openlex3d
 The --out file holds queries (Q,) str, masks (Q, N) bool, scores (Q, N) float32 and
 display_scores (Q, N) float32 in [0, 1] (row i: the map's item i), the map's positions
-and grid_index where it has them, and provenance (a JSON string: version, map, config,
+and grid_index where it has them (a pixel map: frame_ids, frame_hw and frame_offsets,
+for masks_per_frame), and provenance (a JSON string: version, map, config,
 encoder fingerprint, each query's positives, negatives and presence decision). With --out RESULT.zarr the same masks and
 scores (the config's refine and presence applied) stream to a zarr store, without
 display_scores, for maps larger than memory: the embeddings are read in chunks; with

@@ -14,9 +14,16 @@ from ..core.types import QueryResult
 
 #: The arrays every results file has, as :func:`write_results_npz` writes them.
 RESULT_ARRAYS = ("queries", "masks", "scores", "display_scores")
-#: The arrays it may have besides: where each item is (copied from the map), and a JSON
-#: record of how the results were made.
-OPTIONAL_RESULT_ARRAYS = ("positions", "grid_index", "provenance")
+#: The arrays it may have besides: where each item is (copied from the map; a pixel map's
+#: frames as ``quash convert`` writes them), and a JSON record of how the results were made.
+OPTIONAL_RESULT_ARRAYS = (
+    "positions",
+    "grid_index",
+    "frame_ids",
+    "frame_hw",
+    "frame_offsets",
+    "provenance",
+)
 
 
 def is_results_npz(path: str | Path) -> bool:
@@ -93,7 +100,10 @@ def write_results_npz(
 
     Also written: ``provenance``, a 0-d JSON string (:func:`results_provenance`), and,
     given the map ``lmap``, its ``positions (N, 3)`` and ``grid_index (N, 3)`` where it
-    has them, so the file alone can be plotted or put back on a grid.
+    has them, so the file alone can be plotted or put back on a grid; for a pixel map its
+    frames (``frame_ids (F,)``, ``frame_hw (F, 2)``, ``frame_offsets (F,)``, as ``quash
+    convert`` writes them), so each mask can be cut into per-image masks
+    (``masks_per_frame(frames_from_npz(path), masks[q])``).
 
     ``path`` may not be the map the results came from (their ``map_source``), through
     any link: that is refused with :class:`~quash_plugins.core.errors.UsageError`.
@@ -112,6 +122,11 @@ def write_results_npz(
             value = getattr(lmap, key, None)
             if value is not None and len(value) == masks.shape[1]:
                 extra[key] = np.asarray(value)
+        frames = getattr(lmap, "frames", None)
+        if frames and sum(f.size for f in frames) == masks.shape[1]:
+            extra["frame_ids"] = np.asarray([f.frame_id for f in frames], dtype=str)
+            extra["frame_hw"] = np.asarray([(f.height, f.width) for f in frames], np.int64)
+            extra["frame_offsets"] = np.asarray([f.offset for f in frames], np.int64)
     record = json.dumps(results_provenance(results, encoder, config_file), default=str)
     extra["provenance"] = np.asarray(record, dtype=str)
     with atomic_write(path, suffix=".npz") as tmp:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from _cf_writers import contrast_config, save_feat_pt, save_png, text_table, tree_hash
@@ -150,10 +152,21 @@ def test_cli_query_auto_input_unchanged(cf_feat):
         assert z["masks"].shape == (1, 105)
         expected = sum((y1 - y0) * (x1 - x0 - (x0 == 0)) for y0, y1, x0, x1 in boxes.values())
         assert z["masks"].sum() == expected
+        mask = z["masks"][0]
     assert tree_hash(folder) == before
+    # The result file alone cuts its masks into per-image masks, as the map does.
+    from quash_plugins.adapters import frames_from_npz
+
+    lmap = read_map(folder)
+    assert frames_from_npz(out) == [replace(f, image_path=None) for f in lmap.frames]
+    from_file = masks_per_frame(frames_from_npz(out), mask)
+    from_map = masks_per_frame(lmap, mask)
+    assert list(from_file) == list(boxes) == list(from_map)
+    for stem in boxes:
+        np.testing.assert_array_equal(from_file[stem], from_map[stem])
 
 
-def test_docs_adapters_python_blocks_run(capsys):
+def test_docs_adapters_python_blocks_run(cf_feat, capsys, monkeypatch):
     import re
     from pathlib import Path
 
@@ -162,6 +175,13 @@ def test_docs_adapters_python_blocks_run(capsys):
     text = re.sub(r"### Writing OpenLex3D's layout.*?### ", "### ", doc.read_text(), flags=re.S)
     blocks = re.findall(r"```python\n(.*?)```", text, flags=re.S)
     assert blocks
+    # The per-image block reads chair.npz, as the command above it writes it.
+    tmp, folder, _, boxes, table, _ = cf_feat
+    monkeypatch.chdir(tmp)
+    cfg = contrast_config(tmp, table)
+    assert main(["-q", "query", str(folder), "chair", "-c", str(cfg), "--out", "chair.npz"]) == 0
     for block in blocks:
         exec(compile(block, str(doc), "exec"), {"__name__": "adapters_doc"})
-    assert "(6, 8)" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "(6, 8)" in out
+    assert all(f"'{stem}': ((5, 7), " in out for stem in boxes), out
