@@ -36,9 +36,9 @@ __all__ = [
 
 #: Public helpers, imported on first use (keeps ``import quash_plugins.adapters`` light).
 _LAZY = {
-    "masks_per_frame": "._image_features",
+    "masks_per_frame": "._frames",
     "frames_from_npz": "._convert",
-    "pixel_coordinates": "._image_features",
+    "pixel_coordinates": "._frames",
     "convert_map": "._convert",
     "write_npz_map": "._npz",
     "read_zarr_map": "._zarr_store",

@@ -10,9 +10,8 @@ from _cf_writers import save_feat_pt, save_pointclouds
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from quash_plugins.adapters import read_map
+from quash_plugins.adapters import masks_per_frame, read_map
 from quash_plugins.adapters._convert import write_npz_streaming
-from quash_plugins.adapters._image_features import masks_per_frame
 
 SETTINGS = settings(
     max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]

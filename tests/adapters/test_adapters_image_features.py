@@ -9,8 +9,7 @@ import pytest
 from _cf_writers import contrast_config, save_feat_pt, save_png, text_table, tree_hash
 
 from quash_plugins import Quash
-from quash_plugins.adapters import detect_adapter, read_map
-from quash_plugins.adapters._image_features import masks_per_frame, pixel_coordinates
+from quash_plugins.adapters import detect_adapter, masks_per_frame, pixel_coordinates, read_map
 from quash_plugins.cli.main import main
 from quash_plugins.core import registry
 
