@@ -99,9 +99,14 @@ def missing_ground_truth(lmap: LatentMap) -> str:
         if adapter.startswith("vlmaps")
         else ""
     )
+    own = (
+        " To score your own map, convert it (quash convert MAP map.npz) and add the arrays "
+        "labels (N,) int (-1: unlabelled) and label_names (L,) "
+        "(docs/evaluation.md#ground-truth-for-your-own-map)."
+    )
     return (
         f"{where} has no ground-truth labels (per-item labels and their names); evaluation "
-        f"needs them. Use a labelled map, e.g. `quash make-scene`.{hint}"
+        f"needs them. Use a labelled map, e.g. `quash make-scene`.{hint}{own}"
     )
 
 

@@ -36,3 +36,11 @@ def test_a_vlmaps_map_names_the_adapter_option_and_the_forks_files():
     msg = missing_ground_truth(bare)
     assert "no ground-truth labels" in msg and "Upstream VLMaps writes no ground truth" in msg
     assert "grid_semantic" in msg
+
+
+def test_an_unlabelled_map_says_how_to_add_ground_truth():
+    """A ConceptFusion point cloud has no labels: the message names the NPZ arrays to add."""
+    bare = LatentMap(E, source={"adapter": "conceptfusion", "path": "saved-map/pointclouds"})
+    msg = missing_ground_truth(bare)
+    assert "saved-map/pointclouds" in msg and "no ground-truth labels" in msg
+    assert "quash convert MAP map.npz" in msg and "labels (N,)" in msg and "label_names" in msg
