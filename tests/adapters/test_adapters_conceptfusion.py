@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import h5py
 import numpy as np
 import pytest
@@ -116,3 +118,21 @@ def test_color_range_option(tmp_path):
     assert (lmap.colors == 128).all()
     # Default 0-255: a dark colour stays dark (no silent 0-1 guess).
     assert (read_map(tmp_path).colors <= 1).all()
+
+
+def test_docs_conceptfusion_yaml_is_the_default_config_with_its_encoder():
+    """adapters.md's conceptfusion.yaml, which its commands name, is what it says."""
+    import re
+    from pathlib import Path
+
+    import yaml
+
+    from quash_plugins import QuashConfig
+
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "adapters.md").read_text()
+    section = doc[doc.index("## conceptfusion") : doc.index("## image-features")]
+    (block,) = re.findall(r"```yaml\n(.*?)```", section, flags=re.S)
+    cfg = QuashConfig.from_dict(yaml.safe_load(block))
+    assert cfg.encoder.name == "open-clip" and cfg.encoder.params == {"preset": "conceptfusion"}
+    default = QuashConfig.default()
+    assert replace(cfg, name=default.name, encoder=default.encoder) == default
