@@ -306,7 +306,7 @@ class ImageFeaturesAdapter(MapAdapter):
         for f, (h, w, _) in zip(files, shapes):
             img = _find_image(f.stem, image_dirs) if opts["colors"] else None
             images.append(img)
-            frames.append(FrameInfo(f.stem, h, w, offset, str(img) if img else None))
+            frames.append(FrameInfo(f.stem, h, w, offset, str(img.absolute()) if img else None))
             offset += h * w
 
         def loader(f: Path, lay: str):

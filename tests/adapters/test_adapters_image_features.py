@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -74,6 +75,20 @@ def test_masks_per_frame_recovered_end_to_end(cf_feat):
     coords = pixel_coordinates(lmap, np.flatnonzero(result.mask))
     for x, y, f in coords:
         assert per_image[lmap.frames[f].frame_id][y, x]
+
+
+def test_image_paths_hold_from_any_folder(cf_feat, monkeypatch):
+    """A map read by a relative path records its images absolutely: a zarr store keeps
+    the frames, and its image paths must not depend on the folder it was written from."""
+    tmp, folder, _, boxes, _, _ = cf_feat
+    monkeypatch.chdir(tmp)
+    lmap = read_map("saved-feat")
+    monkeypatch.chdir(folder)
+    assert [f.frame_id for f in lmap.frames] == list(boxes)
+    for f in lmap.frames:
+        path = Path(f.image_path)
+        assert path.is_absolute() and path.is_file()
+        assert path.samefile(folder / f"{f.frame_id}.png")
 
 
 def test_lseg_layout_and_npy(tmp_path):
