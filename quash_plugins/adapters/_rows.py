@@ -252,10 +252,23 @@ def colors_to_uint8(values: Any, label: str, color_range: str = "0-255") -> np.n
     if arr.dtype.kind == "f" and not np.isfinite(arr).all():
         raise MapFormatError(f"{label}: field 'colors' contains NaN or Inf.")
     arr = arr.astype(np.float32, copy=False)
+    if color_range not in ("0-255", "0-1", "auto"):
+        raise MapFormatError(f"color_range must be '0-255', '0-1' or 'auto'; got {color_range!r}.")
+    top = float(arr.max()) if arr.size else 0.0
     if color_range == "auto":
-        color_range = "0-1" if arr.size and float(arr.max()) <= 1.0 else "0-255"
+        color_range = "0-1" if top <= 1.0 else "0-255"
+    elif color_range == "0-1" and top > 1.5:  # a little overshoot is rounding; 255 is not
+        raise MapFormatError(
+            f"{label}: field 'colors' goes up to {top:.4g}, so it is not in the color_range "
+            "'0-1' it is read with (every colour would be white). Read it with color_range "
+            "'0-255' or 'auto' (-o color_range=auto)."
+        )
+    elif color_range == "0-255" and 0.0 < top <= 1.0:
+        log.warning(
+            "%s: every colour lies in [0, 1] but is read as 0-255, so the map shows black; "
+            "if they are 0-1 colours, pass color_range '0-1' or 'auto' (-o color_range=auto)",
+            label,
+        )
     if color_range == "0-1":
         arr = arr * 255.0
-    elif color_range != "0-255":
-        raise MapFormatError(f"color_range must be '0-255', '0-1' or 'auto'; got {color_range!r}.")
     return np.clip(np.rint(arr), 0, 255).astype(np.uint8)

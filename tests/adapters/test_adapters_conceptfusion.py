@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 from dataclasses import replace
 
 import h5py
@@ -110,14 +111,28 @@ def test_cli_query_auto(tmp_path):
     assert tree_hash(tmp_path / "m") == before
 
 
-def test_color_range_option(tmp_path):
+def test_color_range_option(tmp_path, caplog):
     arrays = cf_arrays(n=10, d=4)
     arrays["pc_colors"] = np.full((10, 3), 0.5, dtype=np.float32)
     save_pointclouds(tmp_path, **arrays)
     lmap = registry.create("adapters", "conceptfusion", color_range="0-1").read(tmp_path)
     assert (lmap.colors == 128).all()
-    # Default 0-255: a dark colour stays dark (no silent 0-1 guess).
-    assert (read_map(tmp_path).colors <= 1).all()
+    # Default 0-255: a dark colour stays dark (no silent 0-1 guess), but it is said.
+    with caplog.at_level(logging.WARNING):
+        assert (read_map(tmp_path).colors <= 1).all()
+    assert "pc_colors" in caplog.text and "color_range '0-1' or 'auto'" in caplog.text
+
+
+def test_color_range_0_1_refused_for_0_255_colours(tmp_path):
+    """0-255 colours read as 0-1 would all be white: refused, naming the file and option."""
+    from quash_plugins.core.errors import MapFormatError
+
+    save_pointclouds(tmp_path, **cf_arrays(n=10, d=4))
+    with pytest.raises(MapFormatError) as info:
+        registry.create("adapters", "conceptfusion", color_range="0-1").read(tmp_path)
+    msg = str(info.value)
+    assert "pc_colors.h5" in msg and "'colors'" in msg and "color_range '0-255' or 'auto'" in msg
+    assert read_map(tmp_path, "conceptfusion", color_range="auto").colors.max() > 200
 
 
 def test_docs_conceptfusion_yaml_is_the_default_config_with_its_encoder():
