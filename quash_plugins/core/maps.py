@@ -94,7 +94,31 @@ def detect_adapter(source: Any, *, claimed: bool = False) -> str:
     raise MapFormatError(
         f"No adapter recognises {what}. Known adapters: "
         f"{', '.join(registry.available('adapters'))}. Pass --adapter NAME to choose one."
+        f"{_maps_inside(source)}"
     )
+
+
+def _maps_inside(source: Any, limit: int = 64) -> str:
+    """For a folder no adapter takes: the sub-folders one does (a project folder holding
+    a map folder and a feature folder, e.g.), as a sentence; else ``""``."""
+    if not isinstance(source, (str, Path)) or not Path(source).is_dir():
+        return ""
+    found = []
+    try:
+        subs = sorted(p for p in Path(source).iterdir() if p.is_dir())[:limit]
+    except OSError:
+        return ""
+    for sub in subs:
+        for name, cls in _ordered_adapters():
+            try:
+                if cls().sniff(sub):
+                    found.append(f"{sub} ({name})")
+                    break
+            except Exception:  # noqa: BLE001, S112 - a faulty sniff must not break the hint
+                continue
+    if not found:
+        return ""
+    return f" Maps inside it: {', '.join(found)}; pass one of them."
 
 
 def check_map_path(path: Path) -> Path:

@@ -59,3 +59,19 @@ def test_cli_with_the_config_adapter(scenes, capsys):
     assert main(["query", str(scenes / "s2d"), "chair", "-c", str(cfg)]) == 1
     err = " ".join(capsys.readouterr().err.split())
     assert "not a VLMaps map file" in err and "--adapter vlmaps-2d" in err
+
+
+def test_a_project_folder_names_the_maps_inside_it(tmp_path):
+    """ConceptFusion's output folder holds saved-map/ and saved-feat/: no adapter reads the
+    folder itself, and the error names the sub-folders one does, with their adapters."""
+    from _cf_writers import cf_arrays, save_feat_pt, save_pointclouds
+
+    save_pointclouds(tmp_path / "saved-map", **cf_arrays(n=6, d=4))
+    save_feat_pt(tmp_path / "saved-feat", "frame0", np.ones((2, 3, 4), np.float16))
+    (tmp_path / "notes").mkdir()
+    with pytest.raises(MapFormatError) as info:
+        read_map(tmp_path)
+    msg = str(info.value)
+    assert "No adapter recognises" in msg
+    assert f"{tmp_path / 'saved-feat'} (image-features)" in msg
+    assert f"{tmp_path / 'saved-map'} (conceptfusion)" in msg and "notes" not in msg
