@@ -162,6 +162,21 @@ def list_feature_files(folder: Path) -> list[Path]:
     return sorted(files, key=lambda p: _natural_key(p.stem))
 
 
+def _check_options(opts: dict[str, Any]) -> None:
+    """``colors`` and ``cache_frames`` are honoured as given or refused, never coerced."""
+    if not isinstance(opts["colors"], (bool, np.bool_)):
+        raise MapFormatError(
+            f"Adapter 'image-features': option 'colors' must be true or false; got "
+            f"{opts['colors']!r}."
+        )
+    cache = opts["cache_frames"]
+    if isinstance(cache, (bool, np.bool_)) or not isinstance(cache, (int, np.integer)) or cache < 1:
+        raise MapFormatError(
+            "Adapter 'image-features': option 'cache_frames' must be a whole number of "
+            f"frames, at least 1; got {cache!r}."
+        )
+
+
 def _refuse_shared_stems(files: list[Path]) -> None:
     """Two files of one stem would be two frames with one id (``masks_per_frame`` keys)."""
     seen: dict[str, Path] = {}
@@ -267,6 +282,7 @@ class ImageFeaturesAdapter(MapAdapter):
 
     def read(self, source: Any, **options: Any) -> LatentMap:
         opts = self.options(options)
+        _check_options(opts)
         path = Path(source).expanduser()
         if path.is_file():
             folder, files = path.parent, [path]

@@ -203,6 +203,22 @@ def test_feat_images_folder_given_says_where_features_go(tmp_path):
     _check(tmp_path / "rgb", "no feature maps", "It holds images", adapter="image-features")
 
 
+@pytest.mark.parametrize(
+    ("option", "value"),
+    [
+        ("colors", "maybe"),
+        ("colors", 1),
+        ("cache_frames", 0),
+        ("cache_frames", -3),
+        ("cache_frames", 2.5),
+        ("cache_frames", True),
+    ],
+)
+def test_feat_options_refused_not_coerced(tmp_path, option, value):
+    save_feat_pt(tmp_path, "f0", np.ones((2, 3, 4), np.float16))
+    _check(tmp_path, f"option '{option}'", repr(value), adapter="image-features", **{option: value})
+
+
 def test_feat_truncated_pt(tmp_path):
     path = save_feat_pt(tmp_path, "f0", np.ones((8, 8, 16), np.float16))
     path.write_bytes(path.read_bytes()[:200])
