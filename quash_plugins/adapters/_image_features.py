@@ -269,6 +269,11 @@ class ImageFeaturesAdapter(MapAdapter):
             if not isinstance(source, (str, Path)):
                 return False
             p = Path(source)
+            if p.is_file() and p.suffix == ".npy":  # one frame, by its header's shape
+                shape = np.load(p, mmap_mode="r", allow_pickle=False).shape
+                return not _NOT_FRAMES.match(p.stem) and (
+                    len(shape) == 3 or (len(shape) == 4 and shape[0] == 1)
+                )
             if p.is_file():
                 return p.suffix in (".pt", ".pth")
             if not p.is_dir() or (p / "pc_points.h5").exists():
@@ -277,7 +282,7 @@ class ImageFeaturesAdapter(MapAdapter):
                 if q.is_file() and q.suffix in FEATURE_SUFFIXES and not _NOT_FRAMES.match(q.stem):
                     return True
             return False
-        except OSError:
+        except (OSError, ValueError):
             return False
 
     def read(self, source: Any, **options: Any) -> LatentMap:

@@ -105,6 +105,22 @@ def test_lseg_layout_and_npy(tmp_path):
     assert np.array_equal(lmap.embeddings[1 * 4 + 2], a[0, :, 1, 2])
 
 
+def test_one_npy_frame_is_detected_by_its_shape(tmp_path):
+    """A single <stem>.npy frame is read with --adapter auto, as a single .pt is; other
+    .npy files (an (N, D) table, an OpenLex3D embeddings.npy) are not taken for frames."""
+    rng = np.random.default_rng(0)
+    np.save(tmp_path / "img_0.npy", rng.normal(size=(1, 6, 3, 4)).astype(np.float32))
+    np.save(tmp_path / "frame1.npy", rng.normal(size=(3, 4, 6)).astype(np.float16))
+    np.save(tmp_path / "table.npy", rng.normal(size=(12, 6)).astype(np.float32))
+    assert detect_adapter(tmp_path / "img_0.npy") == "image-features"
+    assert detect_adapter(tmp_path / "frame1.npy") == "image-features"
+    assert read_map(tmp_path / "img_0.npy").frames[0].frame_id == "img_0"
+    from quash_plugins.core.errors import MapFormatError
+
+    with pytest.raises(MapFormatError, match="No adapter recognises"):
+        detect_adapter(tmp_path / "table.npy")
+
+
 def test_images_in_sibling_folder_and_option(tmp_path):
     feat = np.ones((2, 3, 4), np.float16)
     save_feat_pt(tmp_path / "saved-feat", "frame7", feat)
