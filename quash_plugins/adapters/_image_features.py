@@ -190,6 +190,24 @@ def _refuse_shared_stems(files: list[Path]) -> None:
         seen[f.stem] = f
 
 
+def _refuse_unmatched_images(images: str, files: list[Path]) -> None:
+    """``images=DIR`` was given, but no frame has an image there: the option is not
+    honoured, so it is refused rather than the map read without colours."""
+    found = sorted(
+        p.name for p in Path(images).expanduser().iterdir() if p.suffix in IMAGE_SUFFIXES
+    )
+    holds = (
+        f"it holds {', '.join(found[:3])}{', ...' if len(found) > 3 else ''}"
+        if found
+        else ("it holds no .png or .jpg")
+    )
+    raise MapFormatError(
+        f"images={images!r}: no image named after a frame ({files[0].stem}.png, "
+        f"{files[0].stem}.jpg...); {holds}. An image must have its feature file's stem: "
+        "rename them, or pass colors=false to read the map without colours."
+    )
+
+
 def _images_only_hint(path: Path) -> str:
     """Said when a folder without features holds images: the RGB folder was given."""
     if not path.is_dir() or not any(p.suffix in IMAGE_SUFFIXES for p in path.iterdir()):
@@ -346,6 +364,8 @@ class ImageFeaturesAdapter(MapAdapter):
             locate=locate,
             cache=opts["cache_frames"],
         )
+        if opts["images"] is not None and opts["colors"] and not any(images):
+            _refuse_unmatched_images(opts["images"], files)
         colors = self._colors(frames, images) if any(images) else None
         log.debug(
             "image-features: %d frames, %d pixels x %d (%s)", len(frames), emb.shape[0], dim, dtype

@@ -219,6 +219,18 @@ def test_feat_options_refused_not_coerced(tmp_path, option, value):
     _check(tmp_path, f"option '{option}'", repr(value), adapter="image-features", **{option: value})
 
 
+def test_feat_images_option_matching_no_frame_refused(tmp_path):
+    """images=DIR whose files are not named after the frames would read no colour at all."""
+    from _cf_writers import save_png
+
+    save_feat_pt(tmp_path / "saved-feat", "frame0", np.ones((2, 3, 4), np.float16))
+    save_png(tmp_path / "photos" / "000000.png", np.zeros((2, 3, 3), np.uint8))
+    feat, photos = tmp_path / "saved-feat", str(tmp_path / "photos")
+    _check(feat, "images=", "frame0.png", "000000.png", "colors=false", images=photos)
+    # colors=false asks for no colours: the unmatched folder is then no error.
+    assert read_map(feat, colors=False, images=photos).colors is None
+
+
 def test_feat_truncated_pt(tmp_path):
     path = save_feat_pt(tmp_path, "f0", np.ones((8, 8, 16), np.float16))
     path.write_bytes(path.read_bytes()[:200])
