@@ -28,221 +28,33 @@ Design choices
 from __future__ import annotations
 
 import logging
-import re
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..core.errors import MapFormatError, QuashError
+from ..core.errors import MapFormatError
 from ..core.interfaces import MapAdapter
 from ..core.types import FrameInfo, LatentMap
+from ._feature_files import (
+    FEATURE_SUFFIXES,
+    IMAGE_DIRS,
+    NOT_FRAMES,
+    as_rows,
+    check_options,
+    find_image,
+    frame_layout,
+    images_only_hint,
+    import_torch,
+    list_feature_files,
+    load_array,
+    read_rgb,
+    refuse_shared_stems,
+    refuse_unmatched_images,
+)
 from ._rows import ConcatRows
 
 log = logging.getLogger(__name__)
-
-FEATURE_SUFFIXES = (".pt", ".pth", ".npy")
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".PNG", ".JPG", ".JPEG")
-#: Sibling folders searched for RGB frames (relative to the feature directory's parent).
-IMAGE_DIRS = ("rgb", "color", "colors", "image", "images", "results", "frames")
-#: Files that belong to other layouts (VLMaps 2D grids, OpenLex3D) and are never frames.
-_NOT_FRAMES = re.compile(r"^(grid_|weight_|color_top_down|obstacles|embeddings$|index$)")
-LAYOUTS = ("auto", "hwd", "1dhw")
-
-
-def _natural_key(name: str) -> list[Any]:
-    return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", name)]
-
-
-def _torch():
-    try:
-        import torch
-    except ImportError:
-        raise QuashError(
-            'Reading .pt feature maps needs torch: pip install "quash-plugins[clip]"'
-        ) from None
-    return torch
-
-
-def _load_tensor(path: Path) -> np.ndarray:
-    """A bare tensor saved with ``torch.save``, as numpy (memory-mapped where possible)."""
-    torch = _torch()
-    try:
-        try:
-            obj = torch.load(path, map_location="cpu", weights_only=True, mmap=True)
-        except RuntimeError as exc:  # legacy (non-zip) files cannot be memory-mapped
-            if "mmap" not in str(exc):
-                raise
-            obj = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # noqa: BLE001 - torch raises many types for bad files
-        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise MapFormatError(
-            f"{path}: not a readable tensor file ({msg}). Only bare tensors saved with "
-            "torch.save are read, with weights_only=True (no pickled objects)."
-        ) from None
-    if not isinstance(obj, torch.Tensor):
-        raise MapFormatError(
-            f"{path}: holds a {type(obj).__name__}, not a bare tensor (H, W, D) or (1, D, h, w)"
-            f"{_not_a_tensor_fix(obj, path)}"
-        )
-    obj = obj.detach()
-    if obj.dtype == torch.bfloat16:
-        obj = obj.float()
-    return obj.numpy()
-
-
-def _not_a_tensor_fix(obj: Any, path: Path) -> str:
-    """How to turn what a ``.pt`` holds into the bare tensor this adapter reads."""
-    if not isinstance(obj, dict):
-        return ". Save one frame's feature tensor per file: torch.save(tensor, PATH)."
-    keys = list(obj)
-    if {"feat", "mask_full"} <= set(keys):
-        return (
-            " (keys 'feat', 'mask_full': OpenScene's fused point features, not an image's). "
-            "Read it with --adapter openscene (docs/adapters.md#openscene)."
-        )
-    shown = ", ".join(repr(k) for k in keys[:8]) + (", ..." if len(keys) > 8 else "")
-    key = next((k for k in keys if isinstance(obj[k], _torch().Tensor)), "KEY")
-    return (
-        f" (keys: {shown}). Save the feature tensor itself, one file per frame: "
-        f"torch.save(d[{key!r}], {str(path.name)!r})."
-    )
-
-
-def _load_array(path: Path) -> np.ndarray:
-    if path.suffix == ".npy":
-        try:
-            return np.load(path, mmap_mode="r", allow_pickle=False)
-        except (ValueError, OSError, EOFError) as exc:
-            raise MapFormatError(f"{path}: not a readable .npy array ({exc}).") from None
-    return _load_tensor(path)
-
-
-def _frame_layout(shape: tuple[int, ...], layout: str, path: Path) -> tuple[int, int, int, str]:
-    """``(H, W, D, layout)`` of one feature file; wrong ranks raise naming the file."""
-    if layout not in LAYOUTS:
-        raise MapFormatError(f"layout must be one of {LAYOUTS}; got {layout!r}.")
-    if layout == "auto":
-        if len(shape) == 4 and shape[0] == 1:
-            layout = "1dhw"
-        elif len(shape) == 3:
-            layout = "hwd"
-        else:
-            raise MapFormatError(
-                f"{path}: field 'embeddings' must be (H, W, D) or (1, D, h, w); got shape "
-                f"{tuple(shape)} (rank {len(shape)})."
-            )
-    if layout == "1dhw":
-        if len(shape) != 4 or shape[0] != 1:
-            raise MapFormatError(f"{path}: expected (1, D, h, w); got shape {tuple(shape)}.")
-        _, d, h, w = shape
-    else:
-        if len(shape) != 3:
-            raise MapFormatError(f"{path}: expected (H, W, D); got shape {tuple(shape)}.")
-        h, w, d = shape
-    if min(h, w, d) <= 0:
-        raise MapFormatError(f"{path}: field 'embeddings' is empty (shape {tuple(shape)}).")
-    return int(h), int(w), int(d), layout
-
-
-def _as_rows(arr: np.ndarray, layout: str) -> np.ndarray:
-    """``(H*W, D)`` view of one frame (a transposed view for the (1, D, h, w) layout)."""
-    if layout == "1dhw":
-        d = arr.shape[1]
-        return arr[0].reshape(d, -1).T
-    return arr.reshape(-1, arr.shape[-1])
-
-
-def list_feature_files(folder: Path) -> list[Path]:
-    files = [
-        p
-        for p in folder.iterdir()
-        if p.is_file() and p.suffix in FEATURE_SUFFIXES and not _NOT_FRAMES.match(p.stem)
-    ]
-    return sorted(files, key=lambda p: _natural_key(p.stem))
-
-
-def _check_options(opts: dict[str, Any]) -> None:
-    """``colors`` and ``cache_frames`` are honoured as given or refused, never coerced."""
-    if not isinstance(opts["colors"], (bool, np.bool_)):
-        raise MapFormatError(
-            f"Adapter 'image-features': option 'colors' must be true or false; got "
-            f"{opts['colors']!r}."
-        )
-    cache = opts["cache_frames"]
-    if isinstance(cache, (bool, np.bool_)) or not isinstance(cache, (int, np.integer)) or cache < 1:
-        raise MapFormatError(
-            "Adapter 'image-features': option 'cache_frames' must be a whole number of "
-            f"frames, at least 1; got {cache!r}."
-        )
-
-
-def _refuse_shared_stems(files: list[Path]) -> None:
-    """Two files of one stem would be two frames with one id (``masks_per_frame`` keys)."""
-    seen: dict[str, Path] = {}
-    for f in files:
-        if f.stem in seen:
-            raise MapFormatError(
-                f"{f.parent}: frame {f.stem!r} has two feature files, {seen[f.stem].name} and "
-                f"{f.name}; a frame is one file named after its image. Move one of them "
-                "out of the folder."
-            )
-        seen[f.stem] = f
-
-
-def _refuse_unmatched_images(images: str, files: list[Path]) -> None:
-    """``images=DIR`` was given, but no frame has an image there: the option is not
-    honoured, so it is refused rather than the map read without colours."""
-    found = sorted(
-        p.name for p in Path(images).expanduser().iterdir() if p.suffix in IMAGE_SUFFIXES
-    )
-    holds = (
-        f"it holds {', '.join(found[:3])}{', ...' if len(found) > 3 else ''}"
-        if found
-        else ("it holds no .png or .jpg")
-    )
-    raise MapFormatError(
-        f"images={images!r}: no image named after a frame ({files[0].stem}.png, "
-        f"{files[0].stem}.jpg...); {holds}. An image must have its feature file's stem: "
-        "rename them, or pass colors=false to read the map without colours."
-    )
-
-
-def _images_only_hint(path: Path) -> str:
-    """Said when a folder without features holds images: the RGB folder was given."""
-    if not path.is_dir() or not any(p.suffix in IMAGE_SUFFIXES for p in path.iterdir()):
-        return ""
-    return (
-        " It holds images: pass the folder of their feature files (ConceptFusion's "
-        "saved-feat/); the images are found beside it, or name them with -o images=DIR."
-    )
-
-
-def _find_image(stem: str, dirs: list[Path]) -> Path | None:
-    for d in dirs:
-        for suffix in IMAGE_SUFFIXES:
-            p = d / f"{stem}{suffix}"
-            if p.is_file():
-                return p
-    return None
-
-
-def _read_rgb(path: Path, height: int, width: int) -> np.ndarray | None:
-    """``(H, W, 3)`` uint8, resized (bilinear) to the feature resolution when it differs."""
-    try:
-        from PIL import Image
-    except ImportError:  # pragma: no cover - pillow ships with matplotlib
-        log.warning("Pillow is not installed; colours are not read from %s", path)
-        return None
-    try:
-        with Image.open(path) as im:
-            im = im.convert("RGB")
-            if im.size != (width, height):
-                im = im.resize((width, height), Image.Resampling.BILINEAR)
-            return np.asarray(im, dtype=np.uint8)
-    except OSError as exc:
-        log.warning("cannot read image %s (%s); using grey", path, exc)
-        return None
 
 
 class ImageFeaturesAdapter(MapAdapter):
@@ -289,7 +101,7 @@ class ImageFeaturesAdapter(MapAdapter):
             p = Path(source)
             if p.is_file() and p.suffix == ".npy":  # one frame, by its header's shape
                 shape = np.load(p, mmap_mode="r", allow_pickle=False).shape
-                return not _NOT_FRAMES.match(p.stem) and (
+                return not NOT_FRAMES.match(p.stem) and (
                     len(shape) == 3 or (len(shape) == 4 and shape[0] == 1)
                 )
             if p.is_file():
@@ -297,7 +109,7 @@ class ImageFeaturesAdapter(MapAdapter):
             if not p.is_dir() or (p / "pc_points.h5").exists():
                 return False
             for q in p.iterdir():
-                if q.is_file() and q.suffix in FEATURE_SUFFIXES and not _NOT_FRAMES.match(q.stem):
+                if q.is_file() and q.suffix in FEATURE_SUFFIXES and not NOT_FRAMES.match(q.stem):
                     return True
             return False
         except (OSError, ValueError):
@@ -305,7 +117,7 @@ class ImageFeaturesAdapter(MapAdapter):
 
     def read(self, source: Any, **options: Any) -> LatentMap:
         opts = self.options(options)
-        _check_options(opts)
+        check_options(opts)
         path = Path(source).expanduser()
         if path.is_file():
             folder, files = path.parent, [path]
@@ -316,14 +128,14 @@ class ImageFeaturesAdapter(MapAdapter):
         if not files:
             raise MapFormatError(
                 f"{path}: no feature maps (<stem>.pt or <stem>.npy) found; the map is empty."
-                f"{_images_only_hint(path)}"
+                f"{images_only_hint(path)}"
             )
-        _refuse_shared_stems(files)
+        refuse_shared_stems(files)
 
         shapes, dtypes, layouts = [], [], []
         for f in files:
-            arr = _load_array(f)
-            h, w, d, lay = _frame_layout(tuple(arr.shape), opts["layout"], f)
+            arr = load_array(f)
+            h, w, d, lay = frame_layout(tuple(arr.shape), opts["layout"], f)
             if arr.dtype.kind not in "fiu":
                 raise MapFormatError(f"{f}: field 'embeddings' must hold numbers; got {arr.dtype}.")
             if shapes and d != shapes[0][2]:
@@ -343,13 +155,13 @@ class ImageFeaturesAdapter(MapAdapter):
         offset = 0
         images: list[Path | None] = []
         for f, (h, w, _) in zip(files, shapes):
-            img = _find_image(f.stem, image_dirs) if opts["colors"] else None
+            img = find_image(f.stem, image_dirs) if opts["colors"] else None
             images.append(img)
             frames.append(FrameInfo(f.stem, h, w, offset, str(img.absolute()) if img else None))
             offset += h * w
 
         def loader(f: Path, lay: str):
-            return lambda: _as_rows(_load_array(f), lay)
+            return lambda: as_rows(load_array(f), lay)
 
         def locate(i: int, row: int) -> str:
             y, x = divmod(row, frames[i].width)
@@ -365,7 +177,7 @@ class ImageFeaturesAdapter(MapAdapter):
             cache=opts["cache_frames"],
         )
         if opts["images"] is not None and opts["colors"] and not any(images):
-            _refuse_unmatched_images(opts["images"], files)
+            refuse_unmatched_images(opts["images"], files)
         colors = self._colors(frames, images) if any(images) else None
         log.debug(
             "image-features: %d frames, %d pixels x %d (%s)", len(frames), emb.shape[0], dim, dtype
@@ -402,7 +214,7 @@ class ImageFeaturesAdapter(MapAdapter):
         for fr, img in zip(frames, images):
             if img is None:
                 continue
-            rgb = _read_rgb(img, fr.height, fr.width)
+            rgb = read_rgb(img, fr.height, fr.width)
             if rgb is not None:
                 out[fr.offset : fr.offset + fr.size] = rgb.reshape(-1, 3)
         missing = sum(1 for i in images if i is None)
@@ -414,7 +226,7 @@ class ImageFeaturesAdapter(MapAdapter):
 
     def write_example(self, directory: Path) -> Path:
         """Write two ConceptFusion-style frames (``.pt``, float16) with PNG images."""
-        torch = _torch()
+        torch = import_torch()
         folder = Path(directory) / "saved-feat"
         folder.mkdir(parents=True, exist_ok=True)
         rng = np.random.default_rng(0)
