@@ -146,6 +146,13 @@ class ConcatRows(_RowArray):
         self._cache_size = max(1, int(cache))
         self.check_finite = check_finite
 
+    def __getstate__(self) -> dict[str, Any]:
+        """Pickled (a Dask task sent to a worker) without the loaded pieces: the worker
+        loads the pieces its rows need, and a graph never carries frames' data."""
+        state = self.__dict__.copy()
+        state["_cache"] = OrderedDict()
+        return state
+
     def piece(self, i: int) -> np.ndarray:
         """The ``(size_i, D)`` block of piece ``i`` (cached)."""
         if i in self._cache:

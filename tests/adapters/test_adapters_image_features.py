@@ -91,6 +91,20 @@ def test_image_paths_hold_from_any_folder(cf_feat, monkeypatch):
         assert path.samefile(folder / f"{f.frame_id}.png")
 
 
+def test_pickled_pixel_map_carries_no_loaded_frames(cf_feat):
+    """A Dask task holding the embeddings (``--backend dask``) must not carry the frames
+    already loaded on the client: the frames of a real map are 100s of MB each."""
+    cloudpickle = pytest.importorskip("cloudpickle")
+    lmap = read_map(cf_feat[1])
+    cold = len(cloudpickle.dumps(lmap.embeddings))
+    everything = np.asarray(lmap.embeddings)  # every frame now loaded (cached)
+    warm = cloudpickle.dumps(lmap.embeddings)
+    assert len(warm) < cold + 256 < cold + everything.nbytes // 4
+    again = cloudpickle.loads(warm)
+    np.testing.assert_array_equal(np.asarray(again), everything)
+    np.testing.assert_array_equal(again[40:50], everything[40:50])
+
+
 def test_lseg_layout_and_npy(tmp_path):
     rng = np.random.default_rng(0)
     a = rng.normal(size=(1, 6, 3, 4)).astype(np.float32)  # (1, D, h, w)
