@@ -57,6 +57,17 @@ from ._rows import ConcatRows
 log = logging.getLogger(__name__)
 
 
+def _dim_note(path: Path, hwd: tuple[int, int, int], layout: str, asked: str) -> dict[str, str]:
+    """How D was read, for a dimension mismatch to explain (``source["dim_note"]``): a
+    ``(D, h, w)`` frame, LSeg's output without its leading 1, reads as ``(H, W, D)``."""
+    if asked != "auto" or layout != "hwd" or hwd[0] <= hwd[2]:  # H > D: (D, h, w)?
+        return {}
+    return {
+        "dim_note": f"D is the last axis of {path.name}, read as (H, W, D) = {hwd}; if it "
+        "is (D, h, w), save it with a leading 1, (1, D, h, w), as LSeg's extractor does"
+    }
+
+
 class ImageFeaturesAdapter(MapAdapter):
     """Read a directory of per-image feature maps (``<stem>.pt`` / ``<stem>.npy``).
 
@@ -193,6 +204,7 @@ class ImageFeaturesAdapter(MapAdapter):
                 "path": str(path),
                 "layout": sorted(set(layouts)),
                 "images": [str(d) for d in image_dirs],
+                **_dim_note(files[0], shapes[0], layouts[0], opts["layout"]),
             },
         )
 

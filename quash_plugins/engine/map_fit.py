@@ -52,8 +52,10 @@ def check_encoder_fits(encoder: Any, lmap: LatentMap, config_source: Any = None)
         fixes.append(f"a matching encoder: {hint}")
     text = "; or ".join(fixes)
     suggestion = f" {text[0].upper()}{text[1:]}." if text else ""
+    note = lmap.source.get("dim_note")  # the adapter's word on how it read D
+    note = f" ({note})" if isinstance(note, str) and note else ""
     raise DimensionMismatchError(
-        f"{where} has {lmap.dim}-dimensional embeddings, but encoder "
+        f"{where} has {lmap.dim}-dimensional embeddings{note}, but encoder "
         f"{name!r}{section} produces {enc_dim}-dimensional ones. Use the text "
         f"encoder that built the map.{suggestion}"
     )

@@ -231,6 +231,25 @@ def test_feat_images_option_matching_no_frame_refused(tmp_path):
     assert read_map(feat, colors=False, images=photos).colors is None
 
 
+def test_feat_squeezed_lseg_frame_explained_by_the_dimension_error(tmp_path):
+    """A (D, h, w) frame (LSeg's (1, D, h, w) without its 1) reads as (H, W, D) with
+    D = w: the dimension error says how D was read and how to save the frame."""
+    from quash_plugins import Quash
+    from quash_plugins.core.errors import DimensionMismatchError
+
+    save_feat_pt(tmp_path / "sq", "f0", np.ones((8, 3, 4), np.float32))  # (D=8, h, w)
+    save_feat_pt(tmp_path / "ok", "f0", np.ones((3, 4, 6), np.float32))  # (H, W, D=6)
+    quash = Quash.from_config({"encoder": {"name": "table", "table": {"a": [1.0] * 8}}})
+    with pytest.raises(DimensionMismatchError) as info:
+        quash.query(str(tmp_path / "sq"), "a")
+    msg = str(info.value)
+    assert "4-dimensional" in msg and "f0.pt, read as (H, W, D) = (8, 3, 4)" in msg
+    assert "(1, D, h, w)" in msg
+    with pytest.raises(DimensionMismatchError) as info:  # H < D: nothing to explain
+        quash.query(str(tmp_path / "ok"), "a")
+    assert "6-dimensional" in str(info.value) and "read as" not in str(info.value)
+
+
 def test_feat_truncated_pt(tmp_path):
     path = save_feat_pt(tmp_path, "f0", np.ones((8, 8, 16), np.float16))
     path.write_bytes(path.read_bytes()[:200])
