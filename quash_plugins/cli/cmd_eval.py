@@ -134,16 +134,10 @@ def run(args: argparse.Namespace) -> int:
         configs = fair_default_configs()
         log.info("no -c: the default config and the fair peers (%s)", ", ".join(FAIR_PEERS))
     _check_outputs(args, configs)
+    queries, absent = _queries(args)  # a query file's mistakes before any work
     overrides = backend_overrides(args)
     quashes = [Quash.from_config(apply_runtime_options(cfg, args), **overrides) for cfg in configs]
     lmap = quashes[0].read_map(args.map, adapter=args.adapter, **adapter_options(args))
-    queries: Any = _split(args.queries) or None
-    absent = _split(args.absent)
-    if args.queries_file:
-        from ..evaluation.report import load_query_file
-
-        queries, more = load_query_file(args.queries_file)
-        absent = list(dict.fromkeys([*more, *absent]))
     with progress(len(quashes), f"evaluating {len(quashes)} config(s)") as advance:
         report = evaluate(
             lmap,
@@ -176,6 +170,24 @@ def run(args: argparse.Namespace) -> int:
     if viewer is not None:
         viewer.close()  # with --serve-web this serves until Ctrl-C or SIGTERM
     return 0
+
+
+def _queries(args: argparse.Namespace) -> tuple[Any, list[str]]:
+    """The queries to score (None: every label) and the absence queries of the command line."""
+    from ..core.errors import UsageError
+    from ..evaluation.report import load_query_file
+
+    queries: Any = _split(args.queries) or None
+    if args.queries is not None and not queries:
+        raise UsageError(
+            "--queries is empty: give labels or TEXT=LABEL items, or leave it out to score "
+            "every label of the map."
+        )
+    absent = _split(args.absent)
+    if args.queries_file:
+        queries, more = load_query_file(args.queries_file)
+        absent = list(dict.fromkeys([*more, *absent]))
+    return queries, absent
 
 
 def _check_outputs(args: argparse.Namespace, configs=()) -> None:

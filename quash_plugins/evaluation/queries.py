@@ -13,14 +13,26 @@ from typing import Any
 from ..core.errors import QuashError
 
 
-def parse_queries(queries: Any) -> dict[str, str]:
+def parse_queries(queries: Any, source: str = "") -> dict[str, str]:
     """``{query text: ground-truth label}`` from labels, ``"text=label"`` items or a mapping.
+
+    A label must be text (a mapping's value, not a list or nothing), and a query text
+    named twice must name the same label both times; ``source`` (a query file's path)
+    starts an error message.
 
     >>> parse_queries(["chair", "bunk bed=bed", "somewhere to sleep = bed"])
     {'chair': 'chair', 'bunk bed': 'bed', 'somewhere to sleep': 'bed'}
     """
+    what = f"{source}: query" if source else "Query"
     if isinstance(queries, dict):
-        items = [(str(k), str(v)) for k, v in queries.items()]
+        items = []
+        for k, v in queries.items():
+            if v is None or isinstance(v, (dict, list, tuple, set, bool)):
+                raise QuashError(
+                    f"{what} {k!r} has the label {v!r}; each query names one "
+                    f"label as text ({k}: LABEL, e.g. 'bunk bed: bed')."
+                )
+            items.append((str(k), str(v)))
     else:
         items = []
         for q in queries:
@@ -31,11 +43,21 @@ def parse_queries(queries: Any) -> dict[str, str]:
         text, label = " ".join(text.split()), " ".join(label.split())
         if not text or not label:
             raise QuashError(
-                f"Query {text or label!r}: write an open-vocabulary query as TEXT=LABEL "
+                f"{what} {text or label!r}: write an open-vocabulary query as TEXT=LABEL "
                 "(e.g. 'bunk bed=bed'), with neither side empty."
+            )
+        if out.get(text, label) != label:
+            raise QuashError(
+                f"{what} {text!r} is given twice, with the labels {out[text]!r} and "
+                f"{label!r}: give each query text one ground-truth label."
             )
         out[text] = label
     return out
+
+
+#: Keys a query file may hold besides ``present`` and ``absent``: what ``quash make-scene``
+#: writes to describe the scene the queries came from.
+QUERY_FILE_INFO = ("kind", "room_types", "options", "class_table_sha256")
 
 
 def load_query_file(path: str | Path) -> tuple[dict[str, str], list[str]]:
@@ -43,13 +65,30 @@ def load_query_file(path: str | Path) -> tuple[dict[str, str], list[str]]:
 
     The file is ``{present: ..., absent: [...]}``; ``present`` is a list of labels and
     ``"text=label"`` items or a ``{text: label}`` mapping (``quash make-scene`` writes such
-    files: ``SCENE.queries.yaml``, ``SCENE.open-queries.yaml``). A plain ``{text: label}``
-    mapping without those keys is all presence queries.
+    files: ``SCENE.queries.yaml``, ``SCENE.open-queries.yaml``, with the keys of
+    :data:`QUERY_FILE_INFO` too). A plain ``{text: label}`` mapping without those keys is
+    all presence queries. A missing file, another key beside ``present`` and ``absent``
+    (``presnt``), or a label that is not text is refused, naming the file and the fix.
     """
     from ..core.config import load_yaml
+    from ..core.errors import closest
 
+    if not Path(path).is_file():
+        raise QuashError(
+            f"Query file not found: {path}. A query file is YAML {{present: {{text: label}} "
+            "or [labels], absent: [texts]} (quash make-scene writes SCENE.queries.yaml)."
+        )
     data, _ = load_yaml(path)
     if isinstance(data, dict) and ("present" in data or "absent" in data):
+        known = ("present", "absent", *QUERY_FILE_INFO)
+        for key in data:
+            if key not in known:
+                guess = closest(str(key), ("present", "absent"))
+                hint = f" Did you mean {guess!r}?" if guess else ""
+                raise QuashError(
+                    f"{path}: unknown key {key!r}; a query file holds 'present' and "
+                    f"'absent' (and make-scene's {', '.join(QUERY_FILE_INFO)}).{hint}"
+                )
         present, absent = data.get("present") or [], data.get("absent") or []
     elif isinstance(data, (dict, list)):
         present, absent = data, []
@@ -63,7 +102,7 @@ def load_query_file(path: str | Path) -> tuple[dict[str, str], list[str]]:
             f"{path}: 'present' must be a list or a {{text: label}} mapping and 'absent' a "
             "list of texts."
         )
-    return parse_queries(present), [" ".join(str(a).split()) for a in absent]
+    return parse_queries(present, source=str(path)), [" ".join(str(a).split()) for a in absent]
 
 
 __all__ = ["load_query_file", "parse_queries"]
