@@ -56,7 +56,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--queries",
         metavar="A,B,...",
         help="Comma-separated queries to score: labels, or TEXT=LABEL for an "
-        "open-vocabulary query with its ground-truth label ('bunk bed=bed').",
+        "open-vocabulary query with its ground-truth label ('bunk bed=bed'); a label "
+        "matches the map's names ignoring case and spacing.",
     )
     g.add_argument(
         "--queries-file",
@@ -73,7 +74,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--absent",
         metavar="X,Y,...",
         default=None,
-        help="Absence queries: labels or free text that are not in the map.",
+        help="Absence queries: labels or free text that are not in the map (a label "
+        "the map's items carry is refused).",
     )
     p.add_argument(
         "--exclude",

@@ -7,10 +7,14 @@ read them into ``{query text: label}`` (and a list of absence queries).
 
 from __future__ import annotations
 
+import logging
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from ..core.errors import QuashError
+
+log = logging.getLogger(__name__)
 
 
 def parse_queries(queries: Any, source: str = "") -> dict[str, str]:
@@ -51,6 +55,48 @@ def parse_queries(queries: Any, source: str = "") -> dict[str, str]:
                 f"{what} {text!r} is given twice, with the labels {out[text]!r} and "
                 f"{label!r}: give each query text one ground-truth label."
             )
+        out[text] = label
+    return out
+
+
+def _fold(name: str) -> str:
+    return " ".join(str(name).replace("_", " ").split()).casefold()
+
+
+def match_labels(gt_of: dict[str, str], names: Sequence[str]) -> dict[str, str]:
+    """Each query's label as the map spells it.
+
+    A label that is not one of the map's ``names`` but is one when case, spacing and
+    underscores are ignored ("Robot Arm", "robot_arm") becomes that name. A ``TEXT=LABEL``
+    query whose label is still no name of the map is warned about, with the closest
+    name: it is scored as an absence query, so a misspelt label would score an object
+    that is there as absent.
+
+    >>> match_labels({"a cobot": "Robot Arm", "Forklift": "Forklift"}, ["robot arm", "forklift"])
+    {'a cobot': 'robot arm', 'Forklift': 'forklift'}
+    """
+    from ..core.errors import closest
+
+    exact = set(names)
+    folded: dict[str, list[str]] = {}
+    for n in names:
+        folded.setdefault(_fold(n), []).append(n)
+    out: dict[str, str] = {}
+    for text, label in gt_of.items():
+        if label not in exact:
+            same = folded.get(_fold(label), [])
+            if len(same) == 1:
+                log.info("query %r: label %r is the map's label %r", text, label, same[0])
+                label = same[0]
+            elif text != label:
+                guess = closest(label, names)
+                log.warning(
+                    "query %r: its label %r is not a label of the map, so it is scored as an "
+                    "absence query.%s",
+                    text,
+                    label,
+                    f" Did you mean {guess!r}?" if guess else "",
+                )
         out[text] = label
     return out
 
@@ -105,4 +151,4 @@ def load_query_file(path: str | Path) -> tuple[dict[str, str], list[str]]:
     return parse_queries(present, source=str(path)), [" ".join(str(a).split()) for a in absent]
 
 
-__all__ = ["load_query_file", "parse_queries"]
+__all__ = ["load_query_file", "match_labels", "parse_queries"]

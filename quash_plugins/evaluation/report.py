@@ -29,7 +29,7 @@ import numpy as np
 from ..core.errors import QuashError
 from ..core.types import LatentMap
 from .metrics import METRICS, RANKING, absence_score, macro_mean, query_metrics, valid_items
-from .queries import load_query_file, parse_queries
+from .queries import load_query_file, match_labels, parse_queries
 
 log = logging.getLogger(__name__)
 
@@ -165,12 +165,12 @@ def evaluate(
     )
     if queries is None:
         queries = [n for i, n in enumerate(names) if counts[i] > 0 and n not in set(exclude)]
-    gt_of = parse_queries(queries)
+    gt_of = match_labels(parse_queries(queries), names)
     index = {n: i for i, n in enumerate(names)}
     unknown_here = [q for q, g in gt_of.items() if g not in index or counts[index[g]] == 0]
     presence = [q for q in gt_of if q not in unknown_here]
+    _check_absent(absent, presence, {n: int(counts[i]) for i, n in enumerate(names)})
     absence = list(dict.fromkeys([*unknown_here, *absent]))
-    absence = [a for a in absence if a not in presence]
     if unknown_here:
         log.info(
             "labels absent from the map, scored as absence queries: %s", ", ".join(unknown_here)
@@ -218,6 +218,25 @@ def evaluate(
         if on_query is not None:
             on_query(name, len(texts))
     return EvalReport(out, presence, absence, all_results)
+
+
+def _check_absent(absent: Sequence[str], presence: Sequence[str], counts: dict[str, int]):
+    """Refuse an absence query that is a present query, or a label the map's items carry:
+    its score would count a method that finds the object as wrong."""
+    have = {" ".join(n.replace("_", " ").split()).casefold(): n for n, c in counts.items() if c}
+    for a in absent:
+        if a in presence:
+            raise QuashError(
+                f"{a!r} is both a present query and an absence query (--absent or the query "
+                "file's 'absent'): remove it from one of them."
+            )
+        name = have.get(" ".join(a.replace("_", " ").split()).casefold())
+        if name is not None:
+            raise QuashError(
+                f"Absence query {a!r}: {counts[name]} items of the map carry the label "
+                f"{name!r}, so it is not absent. Absence queries name objects the map does "
+                "not have; remove it from --absent or the query file's 'absent'."
+            )
 
 
 #: What each heuristic gives a method besides the query (the "given" column of a table).

@@ -60,3 +60,81 @@ def test_cli_refuses_a_missing_query_file_and_empty_queries_before_reading_the_m
     assert "Query file not found" in err and "nope.yaml" in err and "Config file" not in err
     assert main(["eval", missing_map, "--queries", " , "]) != 0
     assert "--queries is empty" in capsys.readouterr().err
+
+
+def _robot_map_and_peer():
+    """Two 8-voxel blocks, 'robot arm' and 'forklift', and a label-argmax peer."""
+    import numpy as np
+    from _eval_table import table_for, vec
+
+    from quash_plugins import LatentMap, Quash
+    from quash_plugins.core import registry
+    from quash_plugins.encoders import TableEncoder
+
+    grid, rows, labels = [], [], []
+    for li, (name, x0) in enumerate((("robot arm", 0), ("forklift", 10))):
+        for i in range(8):
+            grid.append((x0 + i % 2, i // 2 % 2, i // 4))
+            rows.append(vec(name))
+            labels.append(li)
+    lmap = LatentMap(
+        np.asarray(rows, np.float32),
+        kind="voxels",
+        grid_index=np.asarray(grid),
+        voxel_size=0.1,
+        labels=np.asarray(labels),
+        label_names=["robot arm", "forklift"],
+    )
+    tax = {"robot arm": ["cobot"], "forklift": ["stacker"], "drone": ["quadcopter"]}
+    names = {n for k, v in tax.items() for n in (k, *v)} | {"other", "background", "nothing"}
+    peer = Quash(
+        TableEncoder(table=table_for(names | {"a cobot", "Forklift", "a giraffe"})),
+        registry.create("heuristics", "label-list", taxonomy=tax),
+        registry.create("classifiers", "label-argmax"),
+        negatives=["other"],
+        instances=False,
+        name="peer",
+    )
+    return lmap, peer
+
+
+def test_a_label_spelt_in_another_case_is_the_maps_label():
+    from quash_plugins.evaluation import evaluate
+
+    lmap, peer = _robot_map_and_peer()
+    rep = evaluate(lmap, [peer], queries=["a cobot=Robot Arm", "Forklift", "a giraffe=robot_arm"])
+    pq = rep.configs[0]["per_query"]
+    assert rep.absent == []
+    assert {q: v["label"] for q, v in pq.items()} == {
+        "a cobot": "robot arm",
+        "Forklift": "forklift",
+        "a giraffe": "robot arm",
+    }
+    assert pq["Forklift"]["n_true"] == 8 and pq["Forklift"]["recall"] == 1.0
+
+
+def test_a_misspelt_label_is_warned_about_with_the_closest_name(caplog):
+    import logging
+
+    from quash_plugins.evaluation import evaluate
+
+    lmap, peer = _robot_map_and_peer()
+    with caplog.at_level(logging.WARNING):
+        rep = evaluate(lmap, [peer], queries=["a cobot=robot amr", "Forklift"])
+    assert rep.absent == ["a cobot"]  # as documented: scored as an absence query...
+    warned = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    assert any("'robot amr' is not a label of the map" in m for m in warned)  # ...said loudly
+    assert any("Did you mean 'robot arm'?" in m for m in warned)
+
+
+def test_an_absence_query_that_the_map_has_is_refused():
+    from quash_plugins.evaluation import evaluate
+
+    lmap, peer = _robot_map_and_peer()
+    with pytest.raises(QuashError, match=r"'forklift' is both a present query and an absence"):
+        evaluate(lmap, [peer], queries=["forklift"], absent=["forklift"])
+    with pytest.raises(QuashError, match=r"Absence query 'Forklift': 8 items of the map carry"):
+        evaluate(lmap, [peer], queries=["robot arm"], absent=["Forklift"])
+    # an absent label of the list, or free text, is an absence query as before
+    rep = evaluate(lmap, [peer], queries=["robot arm"], absent=["drone", "a giraffe"])
+    assert rep.absent == ["drone", "a giraffe"]
