@@ -307,51 +307,60 @@ def _fmt(v: Any) -> str:
 def report_markdown(
     configs: Sequence[dict[str, Any]], per_query: bool = True, title: str | None = None
 ) -> str:
-    """Configs side by side: a summary table, then F1 per query (one column per config)."""
+    """Configs side by side: a summary table, then F1 per query (one column per config,
+    and the ground-truth label when a query is not its label's name) and the items each
+    absence query matched. With no present query the means are n/a, not 0."""
     lines = [f"### {title}", ""] if title else []
     lines += [
         "| method | given | F1 | precision | recall | IoU | AP | inv. rank | absence "
         "| present -> empty |",
         "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
-    best = max((c["mean"]["f1"] for c in configs), default=0.0)
+    scored = [c for c in configs if c.get("per_query")]
+    best = max((c["mean"]["f1"] for c in scored), default=None)
     for c in configs:
-        f1 = _fmt(c["mean"]["f1"])
-        if c["mean"]["f1"] == best and len(configs) > 1:
+        mean = c["mean"] if c.get("per_query") else {}
+        f1 = _fmt(mean.get("f1"))
+        if mean and mean["f1"] == best and len(scored) > 1:
             f1 = f"**{f1}**"
         ab = c.get("absence", {}) or {}
         n_present = len(c.get("per_query") or {})
         empty = ab.get("present_empty")
         lines.append(
-            f"| {c['name']} | {c.get('given', '')} | {f1} | {_fmt(c['mean']['precision'])} | "
-            f"{_fmt(c['mean']['recall'])} | {_fmt(c['mean']['iou'])} | "
-            f"{_fmt(c['mean'].get('ap'))} | {_fmt(c['mean'].get('inv_rank'))} | "
+            f"| {c['name']} | {c.get('given', '')} | {f1} | {_fmt(mean.get('precision'))} | "
+            f"{_fmt(mean.get('recall'))} | {_fmt(mean.get('iou'))} | "
+            f"{_fmt(mean.get('ap'))} | {_fmt(mean.get('inv_rank'))} | "
             f"{_fmt(ab.get('score'))} | "
             f"{'' if empty is None else f'{empty}/{n_present}' if n_present else empty} |"
         )
     if per_query and configs and configs[0]["per_query"]:
+        label_of = {q: m.get("label", q) for q, m in configs[0]["per_query"].items()}
+        show = any(q != label for q, label in label_of.items())
         lines += [
             "",
             "F1 per query:",
             "",
-            "| query | " + " | ".join(c["name"] for c in configs) + " |",
+            "| query | "
+            + ("label | " if show else "")
+            + " | ".join(c["name"] for c in configs)
+            + " |",
+            "|---|" + ("---|" if show else "") + "---:|" * len(configs),
+        ]
+        for q, label in label_of.items():
+            row = [_fmt(c["per_query"].get(q, {}).get("f1")) for c in configs]
+            lines.append(f"| {q} | " + (f"{label} | " if show else "") + " | ".join(row) + " |")
+    ab_q = list((configs[0].get("absence") or {}).get("per_query", {})) if configs else []
+    if per_query and ab_q:
+        lines += [
+            "",
+            "Items matched by absence queries (0 = correct):",
+            "",
+            "| absence query | " + " | ".join(c["name"] for c in configs) + " |",
             "|---|" + "---:|" * len(configs),
         ]
-        for q in configs[0]["per_query"]:
-            row = [_fmt(c["per_query"].get(q, {}).get("f1")) for c in configs]
+        for q in ab_q:
+            row = [str(c["absence"]["per_query"][q]["matched"]) for c in configs]
             lines.append(f"| {q} | " + " | ".join(row) + " |")
-        ab_q = list((configs[0].get("absence") or {}).get("per_query", {}))
-        if ab_q:
-            lines += [
-                "",
-                "Items matched by absence queries (0 = correct):",
-                "",
-                "| absence query | " + " | ".join(c["name"] for c in configs) + " |",
-                "|---|" + "---:|" * len(configs),
-            ]
-            for q in ab_q:
-                row = [str(c["absence"]["per_query"][q]["matched"]) for c in configs]
-                lines.append(f"| {q} | " + " | ".join(row) + " |")
     return "\n".join(lines) + "\n"
 
 

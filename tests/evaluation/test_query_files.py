@@ -138,3 +138,29 @@ def test_an_absence_query_that_the_map_has_is_refused():
     # an absent label of the list, or free text, is an absence query as before
     rep = evaluate(lmap, [peer], queries=["robot arm"], absent=["drone", "a giraffe"])
     assert rep.absent == ["drone", "a giraffe"]
+
+
+def test_the_per_query_table_shows_each_open_vocabulary_querys_label():
+    from quash_plugins.evaluation import evaluate
+
+    lmap, peer = _robot_map_and_peer()
+    md = evaluate(lmap, [peer], queries=["a cobot=robot arm", "forklift"]).to_markdown()
+    assert "| query | label | peer |" in md
+    assert "| a cobot | robot arm | " in md and "| forklift | forklift | " in md
+    # labels alone: no label column (the demo's tables are unchanged)
+    md = evaluate(lmap, [peer], queries=["robot arm", "forklift"]).to_markdown()
+    assert "| query | peer |" in md and "label |" not in md
+
+
+def test_with_only_absence_queries_the_means_are_na_and_the_absence_table_is_shown():
+    from quash_plugins.evaluation import evaluate
+
+    lmap, peer = _robot_map_and_peer()
+    rep = evaluate(lmap, [peer, peer], queries=["drone"], absent=["a giraffe"])
+    assert rep.queries == [] and rep.absent == ["drone", "a giraffe"]
+    md = rep.to_markdown()
+    row = next(ln for ln in md.splitlines() if ln.startswith("| peer |"))
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    assert cells[2:8] == ["n/a"] * 6  # F1 .. inv. rank: nothing to score, not 0.000
+    assert "**" not in row
+    assert "Items matched by absence queries" in md and "| drone | " in md
