@@ -6,6 +6,7 @@ table never breaks); Markdown is only what the commands write to files.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import re
@@ -47,6 +48,37 @@ def setup_logging(verbose: int, quiet: bool) -> None:
     root.handlers[:] = [handler]
     root.setLevel(level)
     root.propagate = False
+
+
+class _Once(logging.Filter):
+    """Drops a log record whose level and message were already shown."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.seen: set[tuple[int, str]] = set()
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        key = (record.levelno, record.getMessage())
+        if key in self.seen:
+            return False
+        self.seen.add(key)
+        return True
+
+
+@contextlib.contextmanager
+def each_log_line_once() -> Iterator[None]:
+    """Within the block, each distinct log line is shown once: several configs answering
+    the same queries (quash eval, quash bench) log the same resolution of a query once
+    per config, word for word."""
+    handlers = list(logging.getLogger("quash_plugins").handlers)
+    once = _Once()
+    for h in handlers:
+        h.addFilter(once)
+    try:
+        yield
+    finally:
+        for h in handlers:
+            h.removeFilter(once)
 
 
 class _EscapeControls(logging.Filter):

@@ -59,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.errors import UsageError
     from ..evaluation.ablations import TABLES, run_bench
     from ._backend_opts import backend_overrides
-    from ._output import console, print_markdown
+    from ._output import console, each_log_line_once, print_markdown
 
     tables = tuple(t.strip() for t in args.tables.split(",") if t.strip())
     bad = [t for t in tables if t not in TABLES]
@@ -73,18 +73,19 @@ def run(args: argparse.Namespace) -> int:
         overrides["cache"] = False
     split = lambda s: [t.strip() for t in (s or "").split(",") if t.strip()]  # noqa: E731
     out = console()
-    run_bench(
-        args.map,
-        str(Path(args.taxonomy).resolve()) if args.taxonomy else None,
-        args.out,
-        tables=tables,
-        encoder=args.encoder,
-        llm={"model": args.llm_model} if args.llm_model else None,
-        overrides=overrides,
-        queries=split(args.queries) or None,
-        absent=tuple(split(args.absent)),
-        on_table=lambda t: out.print(f"table {t}: done"),
-    )
+    with each_log_line_once():
+        run_bench(
+            args.map,
+            str(Path(args.taxonomy).resolve()) if args.taxonomy else None,
+            args.out,
+            tables=tables,
+            encoder=args.encoder,
+            llm={"model": args.llm_model} if args.llm_model else None,
+            overrides=overrides,
+            queries=split(args.queries) or None,
+            absent=tuple(split(args.absent)),
+            on_table=lambda t: out.print(f"table {t}: done"),
+        )
     print_markdown(out, (Path(args.out) / "bench.md").read_text(encoding="utf-8"))
     return 0
 

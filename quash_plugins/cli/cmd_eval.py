@@ -127,7 +127,7 @@ def run(args: argparse.Namespace) -> int:
         fair_default_configs,
         load_config,
     )
-    from ._output import console, print_markdown, safe_text
+    from ._output import console, each_log_line_once, print_markdown, safe_text
     from ._viewer_opts import open_viewer
 
     if args.configs:
@@ -140,7 +140,10 @@ def run(args: argparse.Namespace) -> int:
     overrides = backend_overrides(args)
     quashes = [Quash.from_config(apply_runtime_options(cfg, args), **overrides) for cfg in configs]
     lmap = quashes[0].read_map(args.map, adapter=args.adapter, **adapter_options(args))
-    with progress(len(quashes), f"evaluating {len(quashes)} config(s)") as advance:
+    with (
+        each_log_line_once(),
+        progress(len(quashes), f"evaluating {len(quashes)} config(s)") as advance,
+    ):
         report = evaluate(
             lmap,
             quashes,
