@@ -41,8 +41,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--tables", default=",".join(TABLES), help="Comma-separated subset of: %(default)s."
     )
     p.add_argument("--encoder", default="minilm", help="Encoder name (default: minilm).")
-    p.add_argument("--queries", metavar="A,B,...", default=None, help="Labels to score.")
-    p.add_argument("--absent", metavar="X,Y,...", default=None, help="Absence queries.")
+    p.add_argument(
+        "--queries",
+        metavar="A,B,...",
+        default=None,
+        help="Queries to score: labels, or TEXT=LABEL as in quash eval (default: every "
+        "label present in the map).",
+    )
+    p.add_argument(
+        "--absent",
+        metavar="X,Y,...",
+        default=None,
+        help="Absence queries: labels or free text that are not in the map.",
+    )
     p.add_argument("--llm-model", default=None, help="Model name of the cached llm query sets.")
     p.add_argument("--no-cache", action="store_true", help="Do not use the text-embedding cache.")
     p.add_argument(

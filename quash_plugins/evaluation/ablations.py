@@ -25,7 +25,7 @@ from ..core.errors import QuashError
 from ..core.shipped import LIST_PEERS, QUERY_PEERS, find_shipped
 from ..core.text import ZERO_TOKEN
 from .plot import plot_precision_recall
-from .report import evaluate, report_markdown
+from .report import evaluate, plan_queries, report_markdown
 
 log = logging.getLogger(__name__)
 
@@ -168,10 +168,11 @@ def run_bench(
     from ..engine.pipeline import Quash
 
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     all_cfgs = bench_configs(taxonomy, encoder, llm)
     overrides = dict(overrides or {})
     lmap = Quash.from_config(all_cfgs["prompt"][1], **overrides).read_map(source)
+    plan_queries(lmap, queries, absent=absent)  # a query list it cannot score: before any table
+    out.mkdir(parents=True, exist_ok=True)
     results: dict[str, Any] = {}
     md = ["# quash bench", "", f"Map: {lmap.describe()}", ""]
     titles = {

@@ -111,6 +111,42 @@ def missing_ground_truth(lmap: LatentMap) -> str:
     )
 
 
+def plan_queries(
+    lmap: LatentMap,
+    queries: Any = None,
+    exclude: Sequence[str] = DEFAULT_EXCLUDE,
+    absent: Sequence[str] = (),
+) -> tuple[np.ndarray, np.ndarray, dict[str, str], list[str], list[str]]:
+    """What :func:`evaluate` scores on ``lmap``: its labels, the valid items, each query's
+    label, the presence queries and the absence queries. Raises :class:`QuashError` for a
+    map without ground truth or a query list it cannot score (before any config runs)."""
+    if lmap.labels is None or not lmap.label_names:
+        raise QuashError(missing_ground_truth(lmap))
+    labels = np.asarray(lmap.labels)
+    names = list(lmap.label_names)
+    valid = valid_items(labels, names, exclude)
+    counts = (
+        np.bincount(labels[valid], minlength=len(names))
+        if valid.any()
+        else np.zeros(len(names), int)
+    )
+    if queries is None:
+        queries = [n for i, n in enumerate(names) if counts[i] > 0 and n not in set(exclude)]
+    gt_of = match_labels(parse_queries(queries), names)
+    index = {n: i for i, n in enumerate(names)}
+    unknown_here = [q for q, g in gt_of.items() if g not in index or counts[index[g]] == 0]
+    presence = [q for q in gt_of if q not in unknown_here]
+    _check_absent(absent, presence, {n: int(counts[i]) for i, n in enumerate(names)})
+    absence = list(dict.fromkeys([*unknown_here, *absent]))
+    if unknown_here:
+        log.info(
+            "labels absent from the map, scored as absence queries: %s", ", ".join(unknown_here)
+        )
+    if not presence and not absence:
+        raise QuashError("No query to evaluate: the map has no label left after --exclude.")
+    return labels, valid, gt_of, presence, absence
+
+
 def evaluate(
     source: Any,
     configs: Sequence[Any],
@@ -153,30 +189,8 @@ def evaluate(
         raise QuashError("evaluate needs at least one config.")
     quashes = [_as_quash(c, overrides) for c in configs]
     lmap = source if isinstance(source, LatentMap) else quashes[0].read_map(source)
-    if lmap.labels is None or not lmap.label_names:
-        raise QuashError(missing_ground_truth(lmap))
-    labels = np.asarray(lmap.labels)
-    names = list(lmap.label_names)
-    valid = valid_items(labels, names, exclude)
-    counts = (
-        np.bincount(labels[valid], minlength=len(names))
-        if valid.any()
-        else np.zeros(len(names), int)
-    )
-    if queries is None:
-        queries = [n for i, n in enumerate(names) if counts[i] > 0 and n not in set(exclude)]
-    gt_of = match_labels(parse_queries(queries), names)
-    index = {n: i for i, n in enumerate(names)}
-    unknown_here = [q for q, g in gt_of.items() if g not in index or counts[index[g]] == 0]
-    presence = [q for q in gt_of if q not in unknown_here]
-    _check_absent(absent, presence, {n: int(counts[i]) for i, n in enumerate(names)})
-    absence = list(dict.fromkeys([*unknown_here, *absent]))
-    if unknown_here:
-        log.info(
-            "labels absent from the map, scored as absence queries: %s", ", ".join(unknown_here)
-        )
-    if not presence and not absence:
-        raise QuashError("No query to evaluate: the map has no label left after --exclude.")
+    labels, valid, gt_of, presence, absence = plan_queries(lmap, queries, exclude, absent)
+    index = {n: i for i, n in enumerate(lmap.label_names)}
     from ..engine.topology import MapTopology
     from .ranking import average_precision, inverse_rank, label_segments
 
@@ -373,6 +387,7 @@ __all__ = [
     "given",
     "load_query_file",
     "parse_queries",
+    "plan_queries",
     "report_markdown",
 ]
 

@@ -191,3 +191,18 @@ def test_bench_usage_errors(scene, tmp_path, capsys, args, message):
     assert code == 2
     assert message in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize(
+    "args,message",
+    [
+        (["--absent", "Wall"], "Absence query 'Wall': "),
+        (["--queries", "bunk bed="], "write an open-vocabulary query as TEXT=LABEL"),
+    ],
+)
+def test_bench_refuses_a_query_list_before_any_table(scene, tmp_path, capsys, args, message):
+    # was: every row of every table 'skipped' with the same note, and exit status 0
+    code = main(["bench", str(scene / "scene.npz"), "--out", str(tmp_path / "o"), *args])
+    assert code != 0
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
