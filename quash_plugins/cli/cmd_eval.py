@@ -182,6 +182,8 @@ def _queries(args: argparse.Namespace) -> tuple[Any, list[str]]:
     from ..core.errors import UsageError
     from ..evaluation.report import load_query_file
 
+    if args.empty_tolerance < 0:
+        raise UsageError("--empty-tolerance takes N >= 0 (items an empty mask may have).")
     queries: Any = _split(args.queries) or None
     if args.queries is not None and not queries:
         raise UsageError(

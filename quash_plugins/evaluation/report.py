@@ -133,6 +133,12 @@ def plan_queries(
     if queries is None:
         queries = [n for i, n in enumerate(names) if counts[i] > 0 and n not in set(exclude)]
     gt_of = match_labels(parse_queries(queries), names)
+    for q, g in gt_of.items():
+        if g in set(exclude):
+            raise QuashError(
+                f"Query {q!r}: its label {g!r} is excluded (--exclude: neither TP nor FP, "
+                "never queried); remove it from the queries or from --exclude."
+            )
     index = {n: i for i, n in enumerate(names)}
     unknown_here = [q for q, g in gt_of.items() if g not in index or counts[index[g]] == 0]
     presence = [q for q in gt_of if q not in unknown_here]

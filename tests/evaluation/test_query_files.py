@@ -164,3 +164,15 @@ def test_with_only_absence_queries_the_means_are_na_and_the_absence_table_is_sho
     assert cells[2:8] == ["n/a"] * 6  # F1 .. inv. rank: nothing to score, not 0.000
     assert "**" not in row
     assert "Items matched by absence queries" in md and "| drone | " in md
+
+
+def test_a_query_of_an_excluded_label_and_a_negative_tolerance_are_refused(tmp_path, capsys):
+    from quash_plugins.evaluation import evaluate
+
+    lmap, peer = _robot_map_and_peer()
+    # was: scored as an absence query, 'labels absent from the map'
+    with pytest.raises(QuashError, match=r"Query 'forklift': its label 'forklift' is excluded"):
+        evaluate(lmap, [peer], queries=["forklift", "robot arm"], exclude=["forklift"])
+    missing_map = str(tmp_path / "no-map.npz")
+    assert main(["eval", missing_map, "--empty-tolerance", "-1"]) != 0
+    assert "--empty-tolerance takes N >= 0" in capsys.readouterr().err
