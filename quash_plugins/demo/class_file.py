@@ -43,7 +43,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from ..core.errors import ConfigError
+from ..core.errors import ConfigError, closest
 from .classes import SceneClass
 
 PLACES = ("structure", "floor", "wall", "top")
@@ -190,7 +190,9 @@ def parse_class_table(data: Any, where: str = "class table"):
         names = strings(field, value, allow_empty=True)
         for n in names:
             if n not in by_label:
-                raise fail(field, f"{n!r} is not a class label", "add the class or remove it")
+                guess = closest(n, by_label)
+                fix = f"did you mean {guess!r}? Else add" if guess else "add"
+                raise fail(field, f"{n!r} is not a class label", f"{fix} the class or remove it")
             if place and by_label[n].place != place:
                 raise fail(field, f"{n!r} has place {by_label[n].place}", f"it must be {place}")
         return names

@@ -111,6 +111,11 @@ def _broken(edit) -> dict:
         (lambda d: d["classes"].pop(0), "classes", "'floor'"),
         (lambda d: d["classes"][3].update(place="floor"), "classes (door).place", "wall"),
         (lambda d: d["room_types"]["office"].append("sofa"), "room_types.office", "not a class"),
+        (
+            lambda d: d["room_types"]["office"].append("printers"),
+            "room_types.office",
+            "not a class label; did you mean 'printer'?",
+        ),
         (lambda d: d.update(supports=["printer"]), "supports", "must be floor"),
         (
             lambda d: d["room_types"].update(office=["printer"]),
