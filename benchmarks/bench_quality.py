@@ -5,7 +5,8 @@ Re-run the reported tables with::
     .venv/bin/python benchmarks/bench_quality.py --out bench-quality/ --seeds 0,1,2,3,4
 
 (defaults: every generator and scenario below; ``--generators``, ``--scenarios`` and
-``--seeds`` pick a subset; finished scenes are reused, so an interrupted run resumes).
+``--seeds`` pick a subset; finished scenes are reused, so an interrupted run resumes;
+a scene built from a class-table file that has changed since is refused).
 The shipped defaults were chosen on seeds 100, 101 and 102 (``--seeds 100,101,102``);
 the reported tables use seeds 0-4, which the choice never saw.
 
@@ -113,11 +114,36 @@ def configs(scenario: str, taxonomy: Path) -> list[dict]:
 
 
 def scene(out: Path, generator: str, seed: int, encoder, cache) -> Path:
+    """The scene of a generator and seed: built once, then reused. A scene built from a
+    class-table file that has changed since is refused, not reused (its runs would report
+    the old table)."""
     path = out / "scenes" / f"{generator}-seed{seed}.npz"
-    if not path.exists():
+    if path.exists():
+        check_class_table(path, GENERATORS[generator].get("classes"))
+    else:
         opts = SceneOptions(seed=seed, **GENERATORS[generator])
         write_scene(make_scene(encoder, opts, cache), path, opts)
     return path
+
+
+def check_class_table(path: Path, classes: str | None) -> None:
+    """Refuse a finished scene that another version of its class-table file built."""
+    import hashlib
+
+    from quash_plugins.demo.class_file import is_class_file
+
+    if not classes or not is_class_file(classes):
+        return
+    info = Path(f"{path.with_suffix('')}.queries.yaml")
+    built = (yaml.safe_load(info.read_text(encoding="utf-8")) or {}) if info.exists() else {}
+    now = hashlib.sha256(Path(classes).read_bytes()).hexdigest()
+    if built.get("class_table_sha256") != now:
+        stem = path.with_suffix("").name
+        raise SystemExit(
+            f"{path} was built from another version of {classes} (the file has changed "
+            f"since): use another --out, or delete {path.parent}/{stem}.* and "
+            f"{path.parent.parent}/runs/{stem}-*.json to rebuild it."
+        )
 
 
 def queries(path: Path, scenario: str) -> tuple[dict[str, str], list[str]]:
@@ -134,6 +160,9 @@ def queries(path: Path, scenario: str) -> tuple[dict[str, str], list[str]]:
 def run_one(out: Path, generator: str, seed: int, scenario: str, encoder, cache) -> dict:
     """One scene and scenario through ``evaluate``; cached as JSON."""
     res = out / "runs" / f"{generator}-seed{seed}-{scenario}.json"
+    built = out / "scenes" / f"{generator}-seed{seed}.npz"
+    if built.exists():
+        check_class_table(built, GENERATORS[generator].get("classes"))
     if res.exists():
         return json.loads(res.read_text(encoding="utf-8"))
     path = scene(out, generator, seed, encoder, cache)
@@ -236,10 +265,18 @@ def verdict(agg: dict) -> list[str]:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", default="bench-quality")
-    ap.add_argument("--seeds", default="0,1,2,3,4")
-    ap.add_argument("--generators", default=None, help="default: all (with --classes: table A's)")
-    ap.add_argument("--scenarios", default=",".join(SCENARIOS))
+    ap.add_argument(
+        "--out",
+        default="bench-quality",
+        help="output folder; finished scenes and runs in it are reused (default: %(default)s)",
+    )
+    ap.add_argument("--seeds", default="0,1,2,3,4", help="scene seeds (default: %(default)s)")
+    ap.add_argument(
+        "--generators",
+        default=None,
+        help=f"of {', '.join(GENERATORS)} (default: all; with --classes: table A's)",
+    )
+    ap.add_argument("--scenarios", default=",".join(SCENARIOS), help="(default: %(default)s)")
     ap.add_argument(
         "--classes",
         default=None,
@@ -256,7 +293,10 @@ def main() -> None:
     scens = [s for s in args.scenarios.split(",") if s]
     bad = [g for g in gens if g not in GENERATORS] + [s for s in scens if s not in SCENARIOS]
     if bad:
-        raise SystemExit(f"unknown generator or scenario: {bad[0]}")
+        raise SystemExit(
+            f"unknown generator or scenario: {bad[0]} (generators: {', '.join(GENERATORS)}; "
+            f"scenarios: {', '.join(SCENARIOS)})"
+        )
     if args.classes:
         gens = with_classes(gens, Path(args.classes))
     encoder = registry.create("encoders", "minilm")

@@ -7,6 +7,7 @@ label list, and the verdict compares QuASH with the best *fair* peer of each sce
 
 from __future__ import annotations
 
+import hashlib
 import importlib.util
 from pathlib import Path
 
@@ -143,3 +144,25 @@ def test_classes_file_runs_table_a_generators_on_it(bq, tmp_path, monkeypatch):
     path.write_text("classes: []\n")
     with pytest.raises(Exception, match="mine.yaml: absent: missing"):
         bq.with_classes(["project"], path)
+
+
+def test_a_changed_class_table_file_is_not_reused(bq, tmp_path, monkeypatch):
+    # was: the scenes and runs of the file's first version were reused, and reported
+    table = tmp_path / "mine.yaml"
+    table.write_text("name: mine  # first version\n")
+    monkeypatch.setitem(bq.GENERATORS, "mine-project", {"classes": str(table)})
+    out = tmp_path / "out"
+    (out / "scenes").mkdir(parents=True)
+    (out / "runs").mkdir()
+    (out / "scenes" / "mine-project-seed0.npz").write_bytes(b"")
+    info = out / "scenes" / "mine-project-seed0.queries.yaml"
+    info.write_text(f"class_table_sha256: {hashlib.sha256(table.read_bytes()).hexdigest()}\n")
+    (out / "runs" / "mine-project-seed0-closed.json").write_text('{"configs": []}')
+    assert bq.run_one(out, "mine-project", 0, "closed", None, None) == {"configs": []}
+    table.write_text("name: mine  # edited\n")
+    for call in (
+        lambda: bq.run_one(out, "mine-project", 0, "closed", None, None),
+        lambda: bq.scene(out, "mine-project", 0, None, None),
+    ):
+        with pytest.raises(SystemExit, match=r"another version of .*mine\.yaml.*another --out"):
+            call()
