@@ -22,6 +22,7 @@ __all__ = [
     "detect_adapter",
     "masks_per_frame",
     "frames_from_npz",
+    "frames_from_zarr",
     "pixel_coordinates",
     "convert_map",
     "write_npz_map",
@@ -38,6 +39,7 @@ __all__ = [
 _LAZY = {
     "masks_per_frame": "._frames",
     "frames_from_npz": "._convert",
+    "frames_from_zarr": "._convert",
     "pixel_coordinates": "._frames",
     "convert_map": "._convert",
     "write_npz_map": "._npz",

@@ -7,7 +7,8 @@ block by block by :func:`write_npz_streaming`, so the map is never held whole.
 
 Pixel maps keep their frames as three extra arrays (``frame_ids (F,) str``,
 ``frame_hw (F, 2) int64``, ``frame_offsets (F,) int64``), which :func:`frames_from_npz`
-turns back into :class:`~quash_plugins.core.types.FrameInfo`.
+turns back into :class:`~quash_plugins.core.types.FrameInfo`; :func:`frames_from_zarr`
+reads them from a zarr result store (attributes of the same names) or zarr map.
 """
 
 from __future__ import annotations
@@ -34,6 +35,47 @@ def frames_from_npz(path: str | Path) -> list[FrameInfo] | None:
         if "frame_ids" not in z.files:
             return None
         ids, hw, off = z["frame_ids"], z["frame_hw"], z["frame_offsets"]
+    return [FrameInfo(str(i), int(h), int(w), int(o)) for i, (h, w), o in zip(ids, hw, off)]
+
+
+def frames_from_zarr(path: str | Path) -> list[FrameInfo] | None:
+    """The frames of a pixel map stored in the zarr store ``path``, or None: a
+    ``quash query --out RESULT.zarr`` store (``LazyQuery.to_zarr``, ``query_to_zarr``:
+    attributes ``frame_ids``, ``frame_hw``, ``frame_offsets``, as the NPZ result's
+    arrays) or a map ``quash convert`` wrote (its ``frames`` attribute), for
+    :func:`~quash_plugins.adapters.masks_per_frame`.
+
+    Examples
+    --------
+    >>> import zarr  # doctest: +SKIP
+    >>> from quash_plugins.adapters import masks_per_frame  # doctest: +SKIP
+    >>> store = "chair.zarr"  # quash query saved-feat chair --out chair.zarr  # doctest: +SKIP
+    >>> chair = zarr.open_group(store, mode="r")["masks"][0]  # doctest: +SKIP
+    >>> per_image = masks_per_frame(frames_from_zarr(store), chair)  # doctest: +SKIP
+    """
+    from ..core.errors import MapFormatError
+    from ..core.optional import require
+
+    zarr = require("zarr", "dask", "Reading zarr stores")
+    try:
+        attrs = dict(zarr.open_group(str(path), mode="r").attrs)
+    except Exception as exc:  # noqa: BLE001 - zarr raises many types for a bad store
+        raise MapFormatError(f"{path}: not a readable zarr store ({exc}).") from None
+    if attrs.get("frames"):  # a map store: FrameInfo fields (image paths kept)
+        return [FrameInfo(**f) for f in attrs["frames"]]
+    if "frame_ids" not in attrs:
+        return None
+    ids, hw, off = attrs["frame_ids"], attrs.get("frame_hw"), attrs.get("frame_offsets")
+    if not (
+        isinstance(hw, list)
+        and isinstance(off, list)
+        and len(hw) == len(off) == len(ids)
+        and all(isinstance(p, list) and len(p) == 2 for p in hw)
+    ):
+        raise MapFormatError(
+            f"{path}: attributes 'frame_hw' (F, 2) and 'frame_offsets' (F,) must match the "
+            f"{len(ids)} frame_ids."
+        )
     return [FrameInfo(str(i), int(h), int(w), int(o)) for i, (h, w), o in zip(ids, hw, off)]
 
 

@@ -18,9 +18,10 @@ from ..core.types import FrameInfo, LatentMap
 def masks_per_frame(lmap: LatentMap | Sequence[FrameInfo], mask: Any) -> dict[str, np.ndarray]:
     """Split an ``(N,)`` item mask of a pixel map into ``{frame_id: (H, W) bool}``.
 
-    ``lmap`` is the pixel map, or its frames: ``LatentMap.frames``, or
+    ``lmap`` is the pixel map, or its frames: ``LatentMap.frames``,
     ``frames_from_npz(path)`` of a ``quash query --out RESULT.npz`` file or of a map
-    ``quash convert`` wrote.
+    ``quash convert`` wrote, or ``frames_from_zarr(path)`` of a ``--out RESULT.zarr``
+    store or a zarr map.
 
     Examples
     --------
@@ -41,7 +42,8 @@ def masks_per_frame(lmap: LatentMap | Sequence[FrameInfo], mask: Any) -> dict[st
     if not frames:
         raise QuashError(
             f"{where} has no frames; per-image masks need a pixel map (e.g. read with the "
-            "'image-features' adapter) or its frames (frames_from_npz of a result file)."
+            "'image-features' adapter) or its frames (frames_from_npz or frames_from_zarr of a "
+            "result file)."
         )
     mask = np.asarray(mask)
     if mask.shape != (n,):

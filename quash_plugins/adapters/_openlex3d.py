@@ -13,6 +13,8 @@ The embeddings are memory-mapped. A dense map (``index == arange``) uses the mem
 directly; otherwise rows are gathered through the index block by block
 (:class:`~quash_plugins.adapters._rows.IndexedRows`). A negative index marks a point
 with no object: its row is zero, so it never matches. Rows are L2-normalised when read.
+The memory maps (and an int64 ``index.npy``, kept memory-mapped too) pickle as their
+file, offset, shape and dtype, so a Dask task graph does not carry the table.
 
 Pickles (ConceptGraphs ``*.pkl.gz``) are never unpickled unless ``allow_pickle=True``:
 unpickling runs code from the file. With the opt-in, ConceptGraphs' ``objects`` list is
@@ -169,7 +171,9 @@ class OpenLex3DAdapter(MapAdapter):
             raise MapFormatError(
                 f"{idx_label}: field 'index' must be 1-D (n_points,); got shape {index.shape}."
             )
-        index = self._check_index(np.asarray(index), idx_label, table.shape[0])
+        checked = self._check_index(np.asarray(index), idx_label, table.shape[0])
+        # an int64 index.npy stays memory-mapped (a Dask task reopens it by path)
+        index = index if checked.size and index.dtype == np.dtype("<i8") else checked
 
         positions, colors = self._read_cloud(cloud)
         if len(positions) != len(index):

@@ -44,7 +44,7 @@ import numpy as np
 from ..core.errors import MapFormatError, QuashError
 from ..core.interfaces import MapAdapter
 from ..core.types import LatentMap
-from ._rows import IndexedRows, colors_to_uint8, scan_finite, should_scan
+from ._rows import MaskedRows, colors_to_uint8, scan_finite, should_scan
 from ._vlmaps_common import check_labels, fit_label_names, load_label_names
 
 log = logging.getLogger(__name__)
@@ -275,9 +275,9 @@ class OpenSceneAdapter(MapAdapter):
         if should_scan(opts["check_finite"], m * d * feat.dtype.itemsize, opts["finite_check_mb"]):
             scan_finite(feat, str(path), "feat")
         if opts["all_points"]:
-            index = np.full(n, -1, dtype=np.int64)
-            index[mask] = np.arange(m, dtype=np.int64)
-            embeddings: Any = IndexedRows(feat, index)
+            # every point an item; a scene whose points all have a feature reads the
+            # table itself
+            embeddings: Any = feat if bool(np.all(mask)) else MaskedRows(feat, mask)
             keep = slice(None)
         else:
             embeddings = feat
@@ -335,7 +335,7 @@ class OpenSceneAdapter(MapAdapter):
             )
         if feat_np.shape[1] == 0:
             raise MapFormatError(f"{path}: field 'feat' has no feature dimension.")
-        return feat_np, mask
+        return _mapped(path, feat_np, mask)
 
     @staticmethod
     def _read_numpy_features(path: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -370,6 +370,24 @@ class OpenSceneAdapter(MapAdapter):
         pt.parent.mkdir(parents=True, exist_ok=True)
         torch.save({"feat": feat, "mask_full": mask}, pt)
         return pt
+
+
+def _mapped(path: Path, feat: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``feat`` and ``mask`` as memory maps of the ``.pt`` file itself where it stores
+    them as plain arrays (see :mod:`._torch_zip`), else as loaded.
+
+    A memory-mapped table pickles as its file, offset, shape and dtype, so a Dask task
+    reopens it on the worker instead of carrying the table in the task graph.
+    """
+    from ._torch_zip import tensor_memmaps
+
+    maps = tensor_memmaps(path)
+    table, flags = maps.get("feat"), maps.get("mask_full")
+    if table is not None and table.shape == feat.shape and table.dtype == feat.dtype:
+        feat = table
+    if flags is not None and flags.shape == mask.shape and flags.dtype == mask.dtype:
+        mask = flags
+    return feat, mask
 
 
 def _check_mask(mask: np.ndarray, path: Path) -> np.ndarray:

@@ -8,11 +8,17 @@ over data that is never gathered into one giant copy:
   loading at most a few images at a time.
 - :class:`IndexedRows` expands an object table through a point-to-object index
   (``rows[i] = table[index[i]]``, zero where ``index[i] < 0``), as OpenLex3D and
-  ConceptGraphs store object-level maps.
+  ConceptGraphs store object-level maps; :class:`MaskedRows` does the same through a
+  mask (OpenScene: the ``j``-th True point gets row ``j``).
 
-Both return numpy arrays in their stored dtype (float16 stays float16); the pipeline
+They return numpy arrays in their stored dtype (float16 stays float16); the pipeline
 converts each block to float32 when it uses it. ``np.asarray(x)`` still works (it reads
 everything), for small maps and tests.
+
+Each pickles (a Dask task sent to a worker) without the data it reads: ``ConcatRows``
+as its per-piece loaders (files reopened by path), the other two with their memory-mapped
+arrays as references (file, offset, shape, dtype) that the worker reopens. Only arrays
+that live in memory with no file behind them travel with their values.
 """
 
 from __future__ import annotations
@@ -25,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import MapFormatError
+from ..core.maps import memmap_ref, open_memmap_ref
 
 log = logging.getLogger(__name__)
 
@@ -199,6 +206,17 @@ class ConcatRows(_RowArray):
         )
 
 
+def _by_reference(array: Any) -> Any:
+    """What a row array pickles for ``array``: a memmap reference, else the array."""
+    ref = memmap_ref(array)
+    return ("memmap", ref) if ref is not None else ("array", array)
+
+
+def _from_reference(state: tuple[str, Any]) -> Any:
+    kind, value = state
+    return open_memmap_ref(value) if kind == "memmap" else value
+
+
 class IndexedRows(_RowArray):
     """``rows[i] = table[index[i]]``; rows with a negative index are zero (unobserved).
 
@@ -207,22 +225,108 @@ class IndexedRows(_RowArray):
     table
         ``(M, D)`` array-like (e.g. a memmap), one row per object.
     index
-        ``(N,)`` int, values in ``[-1, M)``.
+        ``(N,)`` int, values in ``[-1, M)`` (a memmap is kept as it is).
+
+    Pickles (a Dask task sent to a worker) a memory-mapped ``table`` or ``index`` as its
+    file, offset, shape and dtype (see :func:`~quash_plugins.core.maps.memmap_ref`): the
+    worker reopens the file by path, so the task graph does not grow with the table. An
+    in-memory array (one that no file backs) is pickled with its values.
     """
 
-    def __init__(self, table: Any, index: np.ndarray) -> None:
+    def __init__(self, table: Any, index: Any) -> None:
         self.table = table
-        self.index = np.asarray(index)
+        self.index = index if isinstance(index, np.memmap) else np.asarray(index)
         self.shape = (int(self.index.shape[0]), int(table.shape[1]))
         self.dtype = np.dtype(table.dtype)
 
+    def __getstate__(self) -> dict[str, Any]:
+        return {"table": _by_reference(self.table), "index": _by_reference(self.index)}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        IndexedRows.__init__(self, _from_reference(state["table"]), _from_reference(state["index"]))
+
     def _rows(self, start: int, stop: int) -> np.ndarray:
-        idx = self.index[start:stop]
+        idx = np.asarray(self.index[start:stop])
         out = np.zeros((len(idx), self.shape[1]), dtype=self.dtype)
         valid = idx >= 0
         if valid.any():
             uniq, inverse = np.unique(idx[valid], return_inverse=True)
             out[valid] = np.asarray(self.table[uniq])[inverse]
+        return out
+
+
+class MaskedRows(IndexedRows):
+    """``rows[i]`` is the next row of ``table`` where ``mask[i]``, zero elsewhere.
+
+    OpenScene's layout: row ``j`` of ``feat (M, D)`` belongs to the ``j``-th True entry of
+    ``mask_full (N,)``. The same rows as :class:`IndexedRows` with the index
+    ``-1 / 0, 1, ..., M - 1`` the mask implies, but read as one contiguous slice of the
+    table per block, and without the ``(N,)`` int64 index: :attr:`index` is built only
+    when asked for (an OpenLex3D export).
+
+    Pickles a memory-mapped ``table`` or ``mask`` by reference (path, offset, shape,
+    dtype), an in-memory mask as bits (N / 8 bytes), an in-memory table with its values.
+    """
+
+    #: Rows between the stored counts of True entries (one int64 per block).
+    MARK_ROWS = 1 << 16
+
+    def __init__(self, table: Any, mask: Any, marks: np.ndarray | None = None) -> None:
+        self.table = table
+        self.mask = mask if isinstance(mask, np.memmap) else np.asarray(mask, dtype=bool)
+        if self.mask.dtype != bool or self.mask.ndim != 1:
+            raise ValueError(f"mask must be (N,) bool; got {self.mask.shape} {self.mask.dtype}")
+        n = int(self.mask.shape[0])
+        self.shape = (n, int(table.shape[1]))
+        self.dtype = np.dtype(table.dtype)
+        if marks is None:
+            b = self.MARK_ROWS
+            counts = [int(np.count_nonzero(self.mask[a : a + b])) for a in range(0, n, b)]
+            marks = np.concatenate([[0], np.cumsum(counts, dtype=np.int64)]).astype(np.int64)
+        self._marks = marks
+        if int(self._marks[-1]) != int(table.shape[0]):
+            raise ValueError(
+                f"mask marks {int(self._marks[-1])} rows but the table has {table.shape[0]}"
+            )
+
+    @property
+    def index(self) -> np.ndarray:  # type: ignore[override]
+        """``(N,)`` int64: the table row of each item, -1 where the mask is False."""
+        mask = np.asarray(self.mask)
+        out = np.full(len(mask), -1, dtype=np.int64)
+        out[mask] = np.arange(int(self._marks[-1]), dtype=np.int64)
+        return out
+
+    def __getstate__(self) -> dict[str, Any]:
+        ref = memmap_ref(self.mask)
+        if ref is not None:
+            mask: tuple[str, Any] = ("memmap", ref)
+        else:
+            mask = ("bits", (np.packbits(self.mask), int(self.mask.shape[0])))
+        return {"table": _by_reference(self.table), "mask": mask, "marks": self._marks}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        kind, value = state["mask"]
+        if kind == "bits":
+            bits, n = value
+            mask = np.unpackbits(bits, count=n).astype(bool)
+        else:
+            mask = _from_reference(state["mask"])
+        MaskedRows.__init__(self, _from_reference(state["table"]), mask, state["marks"])
+
+    def _rank(self, start: int) -> int:
+        """True entries of the mask before item ``start``."""
+        b = start // self.MARK_ROWS
+        a = b * self.MARK_ROWS
+        return int(self._marks[b]) + int(np.count_nonzero(self.mask[a:start]))
+
+    def _rows(self, start: int, stop: int) -> np.ndarray:
+        m = np.asarray(self.mask[start:stop], dtype=bool)
+        out = np.zeros((len(m), self.shape[1]), dtype=self.dtype)
+        k = int(np.count_nonzero(m))
+        if k:
+            r0 = self._rank(start)
+            out[m] = np.asarray(self.table[r0 : r0 + k])
         return out
 
 

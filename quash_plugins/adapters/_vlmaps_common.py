@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import MapFormatError, QuashError
+from ..core.maps import memmap_ref, open_memmap_ref
 
 log = logging.getLogger(__name__)
 
@@ -359,18 +360,13 @@ class RowSubset:
 
     def __getstate__(self) -> dict[str, Any]:
         """Pickle a file-backed memory map by reference (for dask workers), not by value."""
-        base = self.base
-        if isinstance(base, np.memmap) and base.filename and base.flags.c_contiguous:
-            ref = (str(base.filename), int(base.offset), tuple(base.shape), base.dtype.str)
+        ref = memmap_ref(self.base)  # a reshaped grid too (with its own offset)
+        if ref is not None:
             return {"memmap": ref, "index": self.index}
-        return {"base": base, "index": self.index}
+        return {"base": self.base, "index": self.index}
 
     def __setstate__(self, state: dict[str, Any]) -> None:
-        if "memmap" in state:
-            filename, offset, shape, dtype = state["memmap"]
-            base: Any = np.memmap(filename, np.dtype(dtype), "r", offset=offset, shape=shape)
-        else:
-            base = state["base"]
+        base = open_memmap_ref(state["memmap"]) if "memmap" in state else state["base"]
         self.__init__(base, state["index"])  # type: ignore[misc]
 
     def __repr__(self) -> str:

@@ -55,10 +55,31 @@ class _CosineRule(Classifier):
         prep = (lambda a: np.asarray(a, dtype=np.float32)) if keep else unit_rows
         self.positives_ = prep(X[y == 1])
         self.negatives_ = prep(X[y == 0])
-        self.labels_ = np.concatenate([self.positives_, self.negatives_])
-        self.labels_t_ = np.ascontiguousarray(self.labels_.T)
+        self._stack_labels()
         self.working_set_width_ = len(self.labels_)
         return self
+
+    def _stack_labels(self) -> None:
+        self.labels_ = np.concatenate([self.positives_, self.negatives_])
+        self.labels_t_ = np.ascontiguousarray(self.labels_.T)
+
+    #: Fitted attributes rebuilt from ``positives_`` and ``negatives_``: never pickled.
+    _derived = ("labels_", "labels_t_")
+
+    def __getstate__(self) -> dict[str, Any]:
+        """Pickled without :attr:`_derived` (two more copies of the label vectors: a
+        Dask pass ships the classifier to every worker); they are rebuilt on first use."""
+        state = dict(super().__getstate__())
+        for key in self._derived:
+            state.pop(key, None)
+        return state
+
+    def __getattr__(self, name: str) -> Any:
+        # only reached for a missing attribute: the derived ones of an unpickled rule
+        if name in _CosineRule._derived and "negatives_" in self.__dict__:
+            self._stack_labels()
+            return self.__dict__[name]
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
 
     def cosines(self, E: Any) -> np.ndarray:
         """``(N, p + n)`` float32 cosines of map rows with ``[positives..., negatives...]``."""

@@ -89,11 +89,34 @@ class _FastSvm(Classifier):
     def _make_stack(self, part: KernelPart) -> None:
         backend, device = resolve_backend(self.backend, check_device(self.device))
         self.backend_, self.device_ = backend, device
-        self.stack_ = KernelStack(
-            [part], backend, device, int(self.working_set_mb * 2**20), self.block_rows
-        )
-        self.working_set_width_ = self.stack_.width
         self.kernel_part_ = part
+        self._stack_args = (int(self.working_set_mb * 2**20), self.block_rows)
+        self._build_stack()
+        self.working_set_width_ = self.stack_.width
+
+    def _build_stack(self) -> None:
+        budget, rows = self._stack_args
+        self.stack_ = KernelStack([self.kernel_part_], self.backend_, self.device_, budget, rows)
+
+    #: Fitted attributes that scoring a map never reads: a Dask pass ships the
+    #: classifier to its workers without them (see ``BlockScorer``); the classifier's
+    #: own pickle keeps them. ``svc_`` is scikit-learn's model (its support vectors in
+    #: float64), ``X_fit_`` a training set.
+    _unused_when_scoring = ("svc_", "X_fit_")
+
+    def __getstate__(self) -> dict[str, Any]:
+        """Pickled without ``stack_`` (the GEMM columns, one more copy of the support
+        vectors); it is rebuilt from ``kernel_part_`` on first use."""
+        state = dict(super().__getstate__())
+        state.pop("stack_", None)
+        return state
+
+    def __getattr__(self, name: str) -> Any:
+        # only reached for a missing attribute: the stack of an unpickled SVM
+        if name == "stack_" and "_stack_args" in self.__dict__:
+            self._build_stack()
+            return self.__dict__[name]
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
 
     def kernel_expansion(self) -> KernelExpansion | None:
         """The fitted decision function for stacking (the ``StackableClassifier`` protocol)."""

@@ -18,7 +18,8 @@ and grid_index where it has them (a pixel map: frame_ids, frame_hw and frame_off
 for masks_per_frame), and provenance (a JSON string: version, map, config,
 encoder fingerprint, each query's positives, negatives and presence decision). With --out RESULT.zarr the same masks and
 scores (the config's refine and presence applied) stream to a zarr store, without
-display_scores, for maps larger than memory: the embeddings are read in chunks; with
+display_scores (a pixel map's frame_ids, frame_hw and frame_offsets are attributes,
+for frames_from_zarr), for maps larger than memory: the embeddings are read in chunks; with
 refine or presence about 13 bytes per item are held per query of a group, queries
 answered in groups that fit chunk_mb (see docs/scale.md).
 With --format openlex3d, --out is a folder of per-query files aligned with the points

@@ -258,3 +258,63 @@ def _claim_for(source: Any, name: str) -> str | None:
     except Exception:  # noqa: BLE001 - sniff never raises, but a plugin's might
         pass
     return claim[1]
+
+
+# ---------------------------------------------------------------------------------------
+# File-backed arrays that travel by reference (a Dask task reopens them on the worker)
+
+#: ``(filename, offset, shape, dtype)`` of a memory-mapped array (see :func:`memmap_ref`).
+MemmapRef = tuple[str, int, tuple[int, ...], str]
+
+
+def memmap_ref(array: Any) -> MemmapRef | None:
+    """``(filename, offset, shape, dtype)`` of a C-ordered array whose bytes lie in a
+    file through a memory map (``np.load(mmap_mode="r")``, ``np.memmap(...)``, or a
+    contiguous view of one: a reshape, a range of rows, ``np.asarray`` of it), else None.
+
+    The offset is the view's own (a slice of a ``np.memmap`` keeps its parent's
+    ``offset`` attribute, which would be wrong). A copy-on-write map (mode ``"c"``) may
+    hold values its file does not, so it has no reference. :func:`open_memmap_ref` opens
+    the same values again, read-only: an array-like that pickles a reference instead of
+    its values keeps a Dask task graph small whatever the size of the file.
+
+    Examples
+    --------
+    >>> import numpy as np, os, tempfile
+    >>> path = os.path.join(tempfile.mkdtemp(), "a.npy")
+    >>> np.save(path, np.arange(6, dtype=np.float32).reshape(3, 2))
+    >>> mm = np.load(path, mmap_mode="r")
+    >>> ref = memmap_ref(mm)
+    >>> ref[1:], memmap_ref(mm[1:])[1]
+    ((128, (3, 2), '<f4'), 136)
+    >>> open_memmap_ref(memmap_ref(mm[1:]))[1].tolist(), memmap_ref(np.zeros(3))
+    ([4.0, 5.0], None)
+    """
+    import mmap
+
+    import numpy as np
+
+    if not isinstance(array, np.ndarray) or not array.flags.c_contiguous or array.size == 0:
+        return None
+    root: Any = array
+    while isinstance(root, np.ndarray) and not (
+        isinstance(root, np.memmap) and isinstance(root.base, mmap.mmap)
+    ):
+        root = root.base
+    if root is None or not isinstance(root, np.memmap) or not root.filename:
+        return None
+    if getattr(root, "mode", "r") == "c":
+        return None
+    delta = array.__array_interface__["data"][0] - root.__array_interface__["data"][0]
+    if delta < 0 or delta + array.nbytes > root.nbytes:
+        return None
+    shape = tuple(int(s) for s in array.shape)
+    return (str(root.filename), int(root.offset) + int(delta), shape, array.dtype.str)
+
+
+def open_memmap_ref(ref: MemmapRef) -> Any:
+    """The read-only :class:`numpy.memmap` a :func:`memmap_ref` describes."""
+    import numpy as np
+
+    filename, offset, shape, dtype = ref
+    return np.memmap(filename, np.dtype(dtype), "r", offset=int(offset), shape=tuple(shape))

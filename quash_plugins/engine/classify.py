@@ -105,6 +105,25 @@ def half_cast() -> Callable[[np.ndarray, np.ndarray], np.ndarray] | None:
     return cast
 
 
+def scoring_copy(clf: Any) -> Any:
+    """``clf`` as a pass needs it: a shallow copy without the fitted attributes its class
+    names in ``_unused_when_scoring`` (scikit-learn's own model, a training set), or
+    ``clf`` itself when there are none.
+
+    A pickled :class:`BlockScorer` (a Dask pass: one graph task that every worker
+    receives) holds these copies, so the graph carries what scoring reads (the support
+    vectors, the label vectors), not every array the classifier keeps. The copy scores
+    and postprocesses exactly as ``clf`` does; ``clf`` itself is unchanged.
+    """
+    state = getattr(clf, "__dict__", None)
+    drop = [k for k in getattr(type(clf), "_unused_when_scoring", ()) if state and k in state]
+    if not drop:
+        return clf
+    out = object.__new__(type(clf))
+    out.__dict__.update({k: v for k, v in state.items() if k not in drop})
+    return out
+
+
 class _Workspace:
     """One worker's reused buffers."""
 
@@ -137,8 +156,9 @@ class BlockScorer:
     others
         Indices of the classifiers called through ``decision_function``.
 
-    Pickles as its classifiers (Dask ships it to each worker once); the GEMM's columns
-    are rebuilt where it is unpickled.
+    Pickles as its classifiers (Dask ships it to each worker once), each without what
+    scoring never reads (:func:`scoring_copy`, and the classifiers' own derived arrays);
+    the GEMM's columns are rebuilt where it is unpickled.
     """
 
     def __init__(
@@ -153,7 +173,9 @@ class BlockScorer:
         self._build()
 
     def __getstate__(self) -> dict[str, Any]:
-        return {k: self.__dict__[k] for k in ("classifiers", "chunk_bytes", "block_rows")}
+        state = {k: self.__dict__[k] for k in ("classifiers", "chunk_bytes", "block_rows")}
+        state["classifiers"] = [scoring_copy(c) for c in self.classifiers]
+        return state
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__dict__.update(state)

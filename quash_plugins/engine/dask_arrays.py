@@ -10,19 +10,28 @@ Which reader a chunk task gets depends on what :attr:`LatentMap.embeddings` is:
   picklable reader holding only the file name and the dataset path. It opens the file
   read-only on the worker for every chunk, so the file must be reachable at the same
   path from every worker (a shared file system);
-- numpy memmap: an :class:`MemmapRows` reopening the file by name on the worker;
+- numpy memmap: an :class:`MemmapRows` reopening the file by name on the worker (a
+  tensor of a ``torch.save`` file, which stores it uncompressed, is one too: OpenScene's
+  ``feat``);
+- an adapter's lazy row array (``IndexedRows``, ``MaskedRows``: OpenLex3D, OpenScene,
+  ConceptGraphs; ``ConcatRows``: per-image features): held once in the graph, and
+  pickled without its data: memory-mapped tables and indices as (file, offset, shape,
+  dtype), frames as their files, each reopened on the worker. The graph does not grow
+  with the table. Only arrays that live in memory with no file behind them (a
+  ConceptGraphs table, a legacy ``.pt`` OpenScene file) travel with their values;
 - numpy array (or anything else with ``shape``/``dtype``/slicing): chunks are sliced on
-  the client and travel inside the graph, which suits maps that fit in memory.
+  the client and travel inside the graph, which suits maps that fit in memory (an NPZ
+  map is read into memory: its rows travel in the graph; a zarr store does not).
 """
 
 from __future__ import annotations
 
-import mmap
 import os
 from typing import Any
 
 import numpy as np
 
+from ..core.maps import memmap_ref
 from ..core.types import LatentMap, prepare_block
 from .dask_client import require_dask
 
@@ -107,11 +116,11 @@ def _reader(emb: Any) -> tuple[Any, str | None]:
         filename = emb.file.filename
         stamp = os.stat(filename).st_mtime_ns
         return H5Rows(filename, emb.name, emb.shape, emb.dtype), f"{filename}:{emb.name}:{stamp}"
-    is_file_map = isinstance(emb, np.memmap) and isinstance(emb.base, mmap.mmap)
-    if is_file_map and emb.filename and emb.flags.c_contiguous:
-        stamp = os.stat(emb.filename).st_mtime_ns
-        reader = MemmapRows(emb.filename, emb.offset, emb.shape, emb.dtype)
-        return reader, f"{emb.filename}:{emb.offset}:{stamp}"
+    ref = memmap_ref(emb)
+    if ref is not None:
+        filename, offset, shape, dtype = ref
+        stamp = os.stat(filename).st_mtime_ns
+        return MemmapRows(filename, offset, shape, dtype), f"{filename}:{offset}:{stamp}"
     return emb, None
 
 

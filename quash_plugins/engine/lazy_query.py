@@ -45,6 +45,22 @@ BYTES_PER_QUERY_ITEM = 13
 STEPS = ("refine", "presence")
 
 
+def frame_attrs(lmap: Any) -> dict[str, Any]:
+    """A pixel map's frames as a result store's attributes, named as in the NPZ result:
+    ``frame_ids`` (F,) str, ``frame_hw`` (F, 2) and ``frame_offsets`` (F,) int, so that
+    ``masks_per_frame(frames_from_zarr(path), masks[q])`` cuts a mask into per-image
+    masks without the map. ``{}`` for a map without frames (or frames that do not cover
+    its items)."""
+    frames = getattr(lmap, "frames", None)
+    if not frames or sum(f.size for f in frames) != lmap.n:
+        return {}
+    return {
+        "frame_ids": [str(f.frame_id) for f in frames],
+        "frame_hw": [[int(f.height), int(f.width)] for f in frames],
+        "frame_offsets": [int(f.offset) for f in frames],
+    }
+
+
 def group_size(n: int, budget_bytes: int) -> int:
     """Queries per group: as many as keep ``(group, n)`` vectors of
     :data:`BYTES_PER_QUERY_ITEM` bytes under ``budget_bytes``, and at least one."""
@@ -295,8 +311,8 @@ class LazyQuery:
 
     def _attrs(self, classifiers: Sequence[str]) -> dict[str, Any]:
         """The store's attributes: queries, threshold, query sets (with their provenance,
-        ``refine`` and ``presence`` included), the classifiers (described) and the map's
-        source."""
+        ``refine`` and ``presence`` included), the classifiers (described), the map's
+        source and, for a pixel map, its frames (:func:`frame_attrs`)."""
         return {
             "queries": self.queries,
             "threshold": self.threshold,
@@ -305,6 +321,7 @@ class LazyQuery:
             "map_source": {
                 k: v for k, v in self.lmap.source.items() if isinstance(v, (str, int, float))
             },
+            **frame_attrs(self.lmap),
         }
 
     def _write_answered(self, path: str | Path, overwrite: bool, group_mb: float | None) -> Path:

@@ -210,6 +210,63 @@ def test_cli_query_auto_input_unchanged(cf_feat):
         np.testing.assert_array_equal(from_file[stem], from_map[stem])
 
 
+@pytest.mark.parametrize("steps", ["", "presence: {min_component: 2}\n"])
+def test_zarr_result_keeps_the_frames(cf_feat, steps):
+    """``--out RESULT.zarr`` stores the frame layout as the NPZ result does (attributes
+    frame_ids, frame_hw, frame_offsets): the store alone gives per-image masks. Both
+    writers: the fully lazy one, and the one that answers queries with presence."""
+    pytest.importorskip("zarr")
+    pytest.importorskip("dask")
+    import zarr
+
+    from quash_plugins.adapters import frames_from_zarr
+
+    tmp, folder, _, boxes, table, _ = cf_feat
+    cfg = contrast_config(tmp, table)
+    cfg.write_text(cfg.read_text() + steps)
+    out = tmp / "r.zarr"
+    args = ["-q", "query", str(folder), "chair", "-c", str(cfg), "--out", str(out)]
+    assert main(args) == 0
+    store = zarr.open_group(str(out), mode="r")
+    mask = store["masks"][0]
+    assert mask.shape == (105,) and mask.any()
+    assert store.attrs["frame_ids"] == list(boxes)
+    assert store.attrs["frame_hw"] == [[5, 7]] * 3
+    assert store.attrs["frame_offsets"] == [0, 35, 70]
+    lmap = read_map(folder)
+    assert frames_from_zarr(out) == [replace(f, image_path=None) for f in lmap.frames]
+    from_store = masks_per_frame(frames_from_zarr(out), mask)
+    from_map = masks_per_frame(lmap, mask)
+    assert list(from_store) == list(boxes) == list(from_map)
+    for stem in boxes:
+        np.testing.assert_array_equal(from_store[stem], from_map[stem])
+    with np.load(_npz_result(tmp, folder, cfg)) as z:  # the same masks as --out RESULT.npz
+        np.testing.assert_array_equal(z["masks"][0], mask)
+
+
+def _npz_result(tmp, folder, cfg):
+    out = tmp / "r.npz"
+    assert main(["-q", "query", str(folder), "chair", "-c", str(cfg), "--out", str(out)]) == 0
+    return out
+
+
+def test_frames_from_zarr_of_maps_and_stores_without_frames(cf_feat, tmp_path):
+    pytest.importorskip("zarr")
+    from quash_plugins.adapters import frames_from_zarr, write_zarr_map
+
+    _, folder, _, _, _, _ = cf_feat
+    lmap = read_map(folder)
+    store = write_zarr_map(lmap, tmp_path / "map.zarr")
+    assert frames_from_zarr(store) == lmap.frames  # a zarr map keeps the image paths
+    voxels = write_zarr_map(
+        registry.create("adapters", "npz").read(
+            registry.create("adapters", "npz").write_example(tmp_path)
+        ),
+        tmp_path / "voxels.zarr",
+    )
+    assert frames_from_zarr(voxels) is None
+
+
 def test_docs_adapters_python_blocks_run(cf_feat, capsys, monkeypatch):
     import re
     from pathlib import Path
