@@ -415,8 +415,42 @@ def load_yaml_text(text: str, source: str = "<text>") -> Any:
     return _parse_yaml(text, source)[0]
 
 
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """PyYAML's safe loader, refusing a mapping that gives one key twice.
+
+    PyYAML keeps the last value of a repeated key without a word, so a config that sets
+    ``threshold:`` twice, or a query file with two ``present:`` sections, would lose one
+    silently. The keys compared are the constructed ones (``1`` and ``1.0`` are the same
+    key, as they would be in the loaded dict). Keys merged in with ``<<: *anchor`` may be
+    overridden, as YAML intends; only the keys written in the mapping itself are checked.
+    """
+
+    source = "<text>"
+
+    def construct_mapping(self, node, deep=False):
+        if isinstance(node, yaml.MappingNode):
+            seen: dict[Any, Any] = {}
+            for key_node, _ in node.value:
+                if key_node.tag == "tag:yaml.org,2002:merge":
+                    continue
+                key = self.construct_object(key_node, deep=True)
+                try:
+                    first = seen.get(key)
+                except TypeError:  # an unhashable key: PyYAML refuses it below
+                    continue
+                if first is not None:
+                    raise ConfigError(
+                        f"{self.source}:{key_node.start_mark.line + 1}: duplicate key "
+                        f"{key!r} (first given on line {first.start_mark.line + 1}); YAML "
+                        "keeps only the last one. Give each key once."
+                    )
+                seen[key] = key_node
+        return super().construct_mapping(node, deep=deep)
+
+
 def _parse_yaml(text: str, source: str) -> tuple[Any, Any]:
-    loader = yaml.SafeLoader(text)
+    loader = _UniqueKeyLoader(text)
+    loader.source = source
     try:
         node = loader.get_single_node()
         if node is None:

@@ -25,8 +25,6 @@ from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
-import yaml
-
 from .errors import ConfigError, closest
 
 #: A shipped config's name: ``group:name``.
@@ -95,13 +93,15 @@ def _is_method_config(data: object) -> bool:
 
 def shipped_configs() -> list[ShippedConfig]:
     """Every shipped method config, sorted by name."""
+    from .config import load_yaml_text
+
     out = []
     for path in sorted(config_dir().glob("*.yaml")):
         group, _, rest = path.stem.partition("-")
         if not rest:
             continue
         text = path.read_text(encoding="utf-8")
-        data = yaml.safe_load(text)
+        data = load_yaml_text(text, str(path))
         if not _is_method_config(data):
             continue
         description, needs = _comments(text)
