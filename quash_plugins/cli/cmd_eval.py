@@ -34,7 +34,9 @@ examples:
 A query file is {present: {text: label} or [labels], absent: [texts]}.
 The JSON holds {"configs": [{"name", "given", "mean": {precision, recall, f1, iou, ap,
 inv_rank}, "per_query": {query: {label, ...}}, "absence": {score, empty_tolerance,
-present_empty, per_query}}]}.
+present_empty, per_query}}], "provenance": {quash_plugins (the version), map: {path,
+adapter, ...}, query_file, queries: {text: label}, absent, configs: [{name, file,
+shipped, encoder}], exclude, empty_tolerance}}.
 Outputs never replace an input; an existing file is replaced only when it is a previous
 quash report, plot or quash recording, or with --force."""
 
@@ -152,6 +154,7 @@ def run(args: argparse.Namespace) -> int:
             absent=absent,
             empty_tolerance=args.empty_tolerance,
             on_query=lambda name, n: advance(1),
+            query_file=args.queries_file,
         )
     if args.json:
         atomic_write_text(args.json, json.dumps(report.to_json(), indent=2) + "\n")

@@ -49,15 +49,21 @@ DEFAULT_EXCLUDE = (
 
 @dataclass
 class EvalReport:
-    """Scores of several configs on one map. ``configs`` is the JSON payload's list."""
+    """Scores of several configs on one map. ``configs`` is the JSON payload's list;
+    ``provenance`` says what was scored (:func:`eval_provenance`)."""
 
     configs: list[dict[str, Any]]
     queries: list[str]
     absent: list[str]
     results: dict[str, list[Any]] = field(default_factory=dict, repr=False)
+    provenance: dict[str, Any] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
-        return {"configs": self.configs}
+        """``{"configs": [...], "provenance": {...}}`` (``provenance`` when known)."""
+        out: dict[str, Any] = {"configs": self.configs}
+        if self.provenance:
+            out["provenance"] = self.provenance
+        return out
 
     def to_markdown(self, per_query: bool = True) -> str:
         return report_markdown(self.configs, per_query=per_query)
@@ -163,6 +169,7 @@ def evaluate(
     overrides: dict[str, Any] | None = None,
     on_query: Callable[[str, int], None] | None = None,
     keep_results: bool = False,
+    query_file: str | Path | None = None,
 ) -> EvalReport:
     """Score each config once over all queries (one :meth:`Quash.query_many` pass each).
 
@@ -189,6 +196,9 @@ def evaluate(
         Keep each config's :class:`QueryResult` list in ``report.results``.
     on_query
         Called as ``on_query(config_name, n_queries)`` after each config's pass.
+    query_file
+        The query file ``queries`` and ``absent`` came from, recorded in
+        ``report.provenance`` (:func:`eval_provenance`); not read here.
     """
     overrides = dict(overrides or {})
     if not configs:
@@ -202,7 +212,7 @@ def evaluate(
 
     segments = label_segments(labels, MapTopology(lmap)) if presence else None
     used: dict[str, int] = {}
-    out, all_results = [], {}
+    out, all_results, names = [], {}, []
     for quash, config in zip(quashes, configs):
         name = quash.name
         if name in used:
@@ -210,6 +220,7 @@ def evaluate(
             stem = Path(str(config)).stem if isinstance(config, (str, Path)) else str(used[name])
             name = f"{name} ({stem})"
         used.setdefault(name, 0)
+        names.append(name)
         texts = [*presence, *absence]
         results = quash.query_many(lmap, texts)
         per_query = {}
@@ -237,7 +248,70 @@ def evaluate(
             all_results[name] = results
         if on_query is not None:
             on_query(name, len(texts))
-    return EvalReport(out, presence, absence, all_results)
+    prov = eval_provenance(
+        lmap,
+        list(zip(names, quashes)),
+        {q: gt_of[q] for q in presence},
+        absence,
+        query_file=query_file,
+        exclude=exclude,
+        empty_tolerance=empty_tolerance,
+    )
+    return EvalReport(out, presence, absence, all_results, prov)
+
+
+def eval_provenance(
+    lmap: LatentMap,
+    configs: Sequence[tuple[str, Any]],
+    queries: dict[str, str],
+    absent: Sequence[str],
+    query_file: str | Path | None = None,
+    exclude: Sequence[str] = DEFAULT_EXCLUDE,
+    empty_tolerance: int = 0,
+) -> dict[str, Any]:
+    """What an evaluation scored, as JSON-ready data (the ``provenance`` of its JSON).
+
+    ``quash_plugins``: the package version; ``map``: the map's source (its ``path`` and
+    ``adapter``, and what the file records of the encoder that built it); ``query_file``
+    (None without one); ``queries``: ``{text: label}`` of the presence queries;
+    ``absent``: the absence queries; ``configs``: per table row its ``name``, the
+    config ``file`` it was read from (None for the default config, a dict or an object),
+    the ``shipped`` name of a shipped config (else None) and its ``encoder``;
+    ``exclude`` and ``empty_tolerance``.
+    """
+    from .. import __version__
+
+    return {
+        "quash_plugins": __version__,
+        "map": {
+            k: v for k, v in dict(lmap.source).items() if isinstance(v, (str, int, float, bool))
+        },
+        "query_file": str(query_file) if query_file else None,
+        "queries": dict(queries),
+        "absent": list(absent),
+        "configs": [_config_provenance(name, quash) for name, quash in configs],
+        "exclude": list(exclude),
+        "empty_tolerance": empty_tolerance,
+    }
+
+
+def _config_provenance(name: str, quash: Any) -> dict[str, Any]:
+    """A row's config: its file (and shipped name, when the package ships it)."""
+    from ..core.shipped import config_dir, shipped_configs
+
+    file = getattr(quash, "config_source", None)
+    shipped = None
+    if file:
+        path = Path(file).resolve()
+        if path.parent == config_dir().resolve():
+            shipped = next((c.name for c in shipped_configs() if c.path.resolve() == path), None)
+    encoder = getattr(quash, "encoder", None)
+    return {
+        "name": name,
+        "file": str(file) if file else None,
+        "shipped": shipped,
+        "encoder": getattr(encoder, "name", None) if encoder is not None else None,
+    }
 
 
 def _check_absent(absent: Sequence[str], presence: Sequence[str], counts: dict[str, int]):
@@ -389,6 +463,7 @@ __all__ = [
     "METRICS",
     "RANKING",
     "EvalReport",
+    "eval_provenance",
     "evaluate",
     "given",
     "load_query_file",

@@ -96,7 +96,7 @@ def test_eval_json_markdown_and_plot(world, tmp_path):
     )
     assert rc == 0
     data = json.loads(out.read_text())
-    assert list(data) == ["configs"]
+    assert list(data) == ["configs", "provenance"]
     names = [c["name"] for c in data["configs"]]
     assert names == ["vlmaps", "quash-taxonomy"]
     for c in data["configs"]:
@@ -112,6 +112,71 @@ def test_eval_json_markdown_and_plot(world, tmp_path):
     md = (tmp_path / "r.md").read_text()
     assert "| vlmaps |" in md and "| quash-taxonomy |" in md
     assert (tmp_path / "r.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_eval_json_says_which_map_queries_and_configs_it_came_from(world, tmp_path):
+    from quash_plugins import __version__
+    from quash_plugins.evaluation.report import is_report_file, report_markdown
+
+    queries = tmp_path / "q.yaml"
+    queries.write_text("present:\n  couch: sofa\n  wall: wall\nabsent: [an elephant]\n")
+    out = tmp_path / "r.json"
+    args = ["eval", str(world / "scene.npz"), "-c", str(world / "base.yaml")]
+    args += ["-c", str(world / "quash.yaml"), "--queries-file", str(queries)]
+    assert main([*args, "--absent", "piano", "--json", str(out)]) == 0
+    data = json.loads(out.read_text())
+    prov = data["provenance"]
+    assert prov["quash_plugins"] == __version__
+    assert prov["map"]["path"] == str(world / "scene.npz")
+    assert prov["map"]["adapter"] == "npz"
+    assert prov["query_file"] == str(queries)
+    assert prov["queries"] == {"couch": "sofa", "wall": "wall"}
+    assert prov["absent"] == ["an elephant", "piano"]
+    assert prov["configs"] == [
+        {"name": "vlmaps", "file": str(world / "base.yaml"), "shipped": None, "encoder": "table"},
+        {
+            "name": "quash-taxonomy",
+            "file": str(world / "quash.yaml"),
+            "shipped": None,
+            "encoder": "table",
+        },
+    ]
+    assert prov["empty_tolerance"] == 0 and "void" in prov["exclude"]
+    # the readers of the existing keys are unaffected
+    assert [c["name"] for c in data["configs"]] == ["vlmaps", "quash-taxonomy"]
+    assert "| quash-taxonomy |" in report_markdown(data["configs"])
+    assert is_report_file(out)
+    # no query file: null
+    assert main([*args[:4], "--queries", "wall", "--json", str(out)]) == 0
+    assert json.loads(out.read_text())["provenance"]["query_file"] is None
+
+
+def test_eval_provenance_names_a_shipped_config_and_a_config_without_a_file(world):
+    import dataclasses
+
+    from quash_plugins import Quash, QuashConfig
+    from quash_plugins.core.config import PluginSpec
+    from quash_plugins.core.shipped import find_shipped
+    from quash_plugins.evaluation import evaluate
+
+    table = PluginSpec("table", {"file": str(world / "table.npz")})
+    shipped = QuashConfig.from_yaml("demo:openscene-labels")
+    shipped = dataclasses.replace(shipped, encoder=table, cache=False)
+    plain = {"name": "plain", "encoder": table.to_dict(), "classifier": "contrast"}
+    report = evaluate(
+        str(world / "scene.npz"), [Quash.from_config(shipped), plain], queries=["wall"]
+    )
+    assert report.provenance["configs"] == [
+        {
+            "name": "openscene-labels",
+            "file": str(find_shipped("demo:openscene-labels").path),
+            "shipped": "demo:openscene-labels",
+            "encoder": "table",
+        },
+        {"name": "plain", "file": None, "shipped": None, "encoder": "table"},
+    ]
+    assert report.provenance["query_file"] is None
+    assert report.to_json()["provenance"] == report.provenance
 
 
 def test_eval_scores_match_an_independent_query(world, tmp_path):
