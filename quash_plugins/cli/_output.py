@@ -1,7 +1,9 @@
 """Console output of the subcommands: logging, JSON and rich tables.
 
-Tables printed to the terminal are rich tables sized to its width (cells wrap, the
-table never breaks); Markdown is only what the commands write to files.
+Tables printed to the terminal are rich tables sized to its width: headers and text
+cells wrap at spaces only, numbers never fold, and a table whose columns cannot fit is
+shown in parts (each with the first column) under a note. A Markdown image line is
+printed as ``plot: PATH``. Markdown is only what the commands write to files.
 """
 
 from __future__ import annotations
@@ -168,45 +170,122 @@ def _blocks(md: str) -> Iterator[tuple[str, list[str]]]:
             i += 1
 
 
-def markdown_table(lines: list[str], width: int | None = None) -> Any:
-    """A rich :class:`~rich.table.Table` for the lines of one Markdown pipe table.
+#: Spaces between two columns of a terminal table (a one-space divider plus padding),
+#: from the most generous to the tightest.
+_GAPS = (3, 2, 1)
 
-    Columns aligned ``---:`` in the Markdown are right-aligned; the table shrinks to the
-    console's width by folding the other columns' cells (the first column, which names
-    the row, stays whole) rather than breaking lines.
-    """
-    from rich import box
-    from rich.table import Table
 
-    header, align, *body = (_split_row(ln) for ln in lines)
-    widths = [
-        max((len(_cell(r[i]).plain) for r in body if i < len(r)), default=0)
-        for i in range(len(header))
-    ]
-    # One space between columns instead of two when the cells (and the headers' longest
-    # words) would not fit otherwise.
-    need = sum(
-        max(w, *(len(word) for word in _cell(h).plain.split() or [""]))
-        for w, h in zip(widths, header)
-    )
-    tight = width is not None and need + 2 * (len(header) - 1) > width
-    table = Table(
-        box=box.SIMPLE_HEAD,
-        show_edge=False,
-        pad_edge=False,
-        padding=(0, 0, 0, 1) if tight else (0, 1),
-    )
+def _widths(header: list[str], body: list[list[str]], align: list[str]) -> list[tuple]:
+    """Per column ``(lo, hi, right)``: the narrowest width that breaks no word of its
+    header and no cell (a number or the first column is never wrapped; other text wraps
+    at spaces), the width that shows every cell and the header on one line, and whether
+    it is right-aligned (``---:`` in the Markdown)."""
+    from rich.cells import cell_len
+
+    out = []
     for i, name in enumerate(header):
         spec = align[i] if i < len(align) else ""
-        justify = "right" if spec.endswith(":") and not spec.startswith(":") else "left"
-        # A number is never folded: a right-aligned column is at least as wide as its
-        # widest cell (its header folds instead).
+        right = spec.endswith(":") and not spec.startswith(":")
+        cells = [_cell(r[i]).plain if i < len(r) else "" for r in body]
+        head = _cell(name).plain
+        full = max([cell_len(c) for c in cells], default=0)
+        words = [cell_len(w) for c in cells for w in c.split()]
+        head_words = max((cell_len(w) for w in head.split()), default=0)
+        if i == 0:  # names the row: on one line, header included
+            lo = max(full, cell_len(head))
+        elif right:  # a number is never folded
+            lo = max(full, head_words)
+        else:
+            lo = max(max(words, default=0), head_words)
+        out.append((lo, max(full, cell_len(head), lo), right))
+    return out
+
+
+def _layout(cols: list[tuple], width: int | None) -> tuple[int, list[int] | None] | None:
+    """``(gap, widths)`` for columns that fit in ``width``: ``widths`` None when every
+    header and cell fits on one line (rich sizes the columns), else fixed widths between
+    each column's ``lo`` and ``hi``; None when even the narrowest do not fit."""
+    gaps = len(cols) - 1
+    if width is None:
+        return _GAPS[0], None
+    for gap in _GAPS[:2]:
+        if sum(hi for _, hi, _ in cols) + gap * gaps <= width:
+            return gap, None
+    for gap in _GAPS[1:]:
+        spare = width - sum(lo for lo, _, _ in cols) - gap * gaps
+        if spare >= 0:
+            widths = [lo for lo, _, _ in cols]
+            want = [hi - lo for lo, hi, _ in cols]
+            total = sum(want)
+            for k, w in enumerate(want):  # the spare columns, in proportion to the want
+                widths[k] += spare * w // total if total else 0
+            return gap, widths
+    return None
+
+
+def _groups(cols: list[tuple], width: int) -> list[list[int]]:
+    """Column indices of the parts of a table too wide for ``width``: each part is the
+    first column and as many of the next ones as fit, with the tightest gap."""
+    parts: list[list[int]] = []
+    part, used = [0], cols[0][0]
+    for k in range(1, len(cols)):
+        if len(part) > 1 and used + _GAPS[-1] + cols[k][0] > width:
+            parts.append(part)
+            part, used = [0], cols[0][0]
+        part.append(k)
+        used += _GAPS[-1] + cols[k][0]
+    parts.append(part)
+    return parts
+
+
+def markdown_table(lines: list[str], width: int | None = None) -> Any:
+    """A rich renderable for the lines of one Markdown pipe table, at most ``width`` wide.
+
+    Columns aligned ``---:`` in the Markdown are right-aligned, and a number is never
+    folded. A header wraps only at its spaces, and a text cell too; the first column,
+    which names the row, stays on one line. When the columns do not fit even so (many
+    configs side by side on a narrow terminal), the table is printed in parts, each with
+    the first column and as many others as fit, under a note saying so.
+    """
+    from rich import box
+    from rich.console import Group
+    from rich.table import Table
+    from rich.text import Text
+
+    header, align, *body = (_split_row(ln) for ln in lines)
+    cols = _widths(header, body, align)
+    layout = _layout(cols, width)
+    if layout is None and width is not None and len(header) > 2:
+        parts = _groups(cols, width)
+        if len(parts) > 1:
+            note = Text(
+                f"(the table is too wide for {width} columns: it is shown in {len(parts)} "
+                "parts, each with the first column)",
+                style="dim",
+            )
+            tables: list[Any] = [note]
+            for n, part in enumerate(parts):
+                sub = [
+                    "| " + " | ".join(r[k] if k < len(r) else "" for k in part) + " |"
+                    for r in (header, *body)
+                ]
+                sub.insert(
+                    1, "|" + "|".join(align[k] if k < len(align) else "---" for k in part) + "|"
+                )
+                tables += [Text("")] if n else []
+                tables.append(markdown_table(sub, width))
+            return Group(*tables)
+    gap, fixed = layout if layout is not None else (_GAPS[-1], None)
+    pad = {3: (0, 1), 2: (0, 0, 0, 1), 1: (0, 0)}[gap]
+    table = Table(box=box.SIMPLE_HEAD, show_edge=False, pad_edge=False, padding=pad)
+    for i, name in enumerate(header):
         table.add_column(
             _cell(name),
-            justify=justify,
+            justify="right" if cols[i][2] else "left",
             overflow="fold",
             no_wrap=i == 0,
-            min_width=widths[i] if justify == "right" else None,
+            width=fixed[i] if fixed else None,
+            min_width=cols[i][0] if cols[i][2] or i == 0 else None,
         )
     for row in body:
         table.add_row(*[_cell(c) for c in row[: len(header)]])
@@ -230,10 +309,18 @@ def _split_given(lines: list[str]) -> list[list[str]]:
     return [numbers, given]
 
 
-def print_markdown(out: Any, md: str) -> None:
+#: A Markdown image line, ``![title](path)``: a plot a report links to.
+_IMAGE = re.compile(r"\s*!\[[^\]]*\]\((?P<path>[^)]*)\)\s*")
+
+
+def print_markdown(out: Any, md: str, base: Any = None) -> None:
     """Print our Markdown reports on ``out``: pipe tables as rich tables sized to the
-    terminal, ``#`` headings in bold, every other line as it is (never hard-wrapped).
-    Control characters are escaped and nothing is read as rich markup."""
+    terminal, ``#`` headings in bold, an image line ``![title](fair.png)`` as
+    ``plot: PATH`` (its path joined to ``base``, the report's folder), every other line
+    as it is (never hard-wrapped). Control characters are escaped and nothing is read as
+    rich markup."""
+    from pathlib import Path
+
     from rich.text import Text
 
     from ..core.types import escape_control
@@ -247,6 +334,12 @@ def print_markdown(out: Any, md: str) -> None:
                 out.print(markdown_table(part, out.width))
             continue
         line = lines[0]
+        image = _IMAGE.fullmatch(line)
+        if image:
+            path = image.group("path")
+            path = str(Path(base) / path) if base is not None and path else path
+            out.print(Text(f"plot: {path}"), soft_wrap=True)
+            continue
         heading = re.match(r"#+\s+(.*)", line)
         if heading:
             out.print(Text(heading.group(1), style="bold"), soft_wrap=True)

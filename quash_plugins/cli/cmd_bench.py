@@ -97,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
             absent=tuple(split(args.absent)),
             on_table=lambda t: out.print(f"table {t}: done"),
         )
-    print_markdown(out, (Path(args.out) / "bench.md").read_text(encoding="utf-8"))
+    print_markdown(out, (Path(args.out) / "bench.md").read_text(encoding="utf-8"), Path(args.out))
     return 0
 
 

@@ -79,7 +79,8 @@ def test_markdown_tables_print_as_tables_that_fit_the_terminal():
     assert not any("|" in ln for ln in lines), text  # no Markdown pipes on screen
     assert "---" not in text
     rows = [ln for ln in lines if ln.lstrip().startswith(("refrigerator", "chair"))]
-    assert len(rows) == 2  # each row on one line, the first column whole
+    # each row on one line, the first column whole, in each part of the too wide table
+    assert len(rows) == 4 and "too wide for 72 columns" in text
     assert "0.893" in rows[0] and "**" not in text
     assert lines[0] == "Report" and "Items matched by absence queries (0 = correct):" in text
 
@@ -129,3 +130,76 @@ def test_a_given_column_prints_as_its_own_table_and_numbers_never_fold():
     ]  # fmt: skip
     given = [ln for ln in lines if ln.startswith("quash-labels") and "the label list" in ln]
     assert len(given) == 1 and "0.748" not in given[0]
+
+
+SUMMARY = (
+    "| method | F1 | precision | recall | IoU | AP | inv. rank | absence | present -> empty |\n"
+    "|---|---:|---:|---:|---:|---:|---:|---:|---:|\n"
+    "| openscene-labels | 0.569 | 0.630 | 0.597 | 0.449 | 0.748 | 1.000 | n/a | 2/17 |\n"
+    "| quash-labels | **0.845** | 0.808 | 0.909 | 0.743 | 0.906 | 0.972 | 1.000 | 0/17 |\n"
+)
+HEADER_WORDS = ["method", "F1", "precision", "recall", "IoU", "AP", "inv.", "rank"]
+HEADER_WORDS += ["absence", "present", "->", "empty"]
+
+
+def _printed(md: str, width: int) -> list[str]:
+    console = Console(width=width, record=True, highlight=False)
+    print_markdown(console, md)
+    return console.export_text().splitlines()
+
+
+@pytest.mark.parametrize("width", [120, 100, 80, 72, 60, 40])
+def test_table_headers_wrap_only_at_spaces_and_no_column_is_cut(width):
+    """At 80 columns the summary read 'precisi / on' and 'presen / t -> empty'."""
+    lines = _printed(SUMMARY, width)
+    text = "\n".join(lines)
+    assert max(len(ln) for ln in lines) <= width, text
+    words = {w for ln in lines for w in ln.split()}
+    assert set(HEADER_WORDS) <= words, text  # every header word whole
+    for row in ("openscene-labels", "quash-labels"):
+        cells = [w for ln in lines if ln.startswith(row) for w in ln.split()[1:]]
+        expected = SUMMARY.split(f"| {row} | ")[1].split("\n")[0].replace("*", "")
+        assert cells == [c.strip() for c in expected.strip(" |").split("|")], text
+    if width >= 80:
+        assert "too wide" not in text  # fits whole, in one table
+    else:
+        assert f"too wide for {width} columns" in text
+
+
+def test_many_configs_side_by_side_print_in_parts_with_a_note():
+    lines = _printed(WIDE, 72)
+    text = "\n".join(lines)
+    assert max(len(ln) for ln in lines) <= 72
+    assert "too wide for 72 columns: it is shown in 2 parts" in text
+    names = ["vlmaps", "conceptfusion", "lerf", "quash-taxonomy", "quash-taxonomy-svm"]
+    assert set(names + ["quash-adjectives"]) <= {w for ln in lines for w in ln.split()}
+    rows = [ln.split() for ln in lines if ln.startswith("refrigerator")]
+    assert [c for r in rows for c in r[1:]] == [
+        "0.026",
+        "0.330",
+        "0.034",
+        "0.893",
+        "0.000",
+        "0.039",
+    ]
+
+
+def test_eval_at_80_columns_breaks_no_header_word(minilm_scene, monkeypatch, capsys):
+    """The walkthrough: COLUMNS=80 quash eval MAP -c demo:openscene-labels."""
+    monkeypatch.setenv("COLUMNS", "80")
+    args = ["eval", str(minilm_scene), "-c", "demo:openscene-labels", "--absent", "piano"]
+    assert main(args) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert max(len(ln) for ln in lines) <= 80
+    words = {w for ln in lines for w in ln.split()}
+    assert set(HEADER_WORDS) <= words
+    assert not {"precisi", "on", "presen", "t"} & words
+    (row,) = [ln.split() for ln in lines if ln.startswith("openscene-labels") and "0." in ln]
+    assert len(row) == 9 and "/" in row[-1]  # the last column, present -> empty, is there
+
+
+def test_a_markdown_image_prints_as_its_path():
+    console = Console(width=80, record=True, highlight=False)
+    print_markdown(console, "## Fair\n\n![The fair protocol](fair.png)\n", base="out/bench")
+    text = console.export_text()
+    assert "![" not in text and "plot: out/bench/fair.png" in text

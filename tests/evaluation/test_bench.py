@@ -101,6 +101,10 @@ def test_quash_bench_cli_writes_the_tables_it_was_asked_for(scene, tmp_path, cap
     assert "## Classifiers\n\n_skipped: needs --taxonomy_" in md
     assert "table antonyms: done" in printed and "\nAntonyms (baseline)\n" in printed
     assert "|---" not in printed  # rich tables on the console; the Markdown is in bench.md
+    # a plot is named on the console, not linked as Markdown; bench.md keeps the link
+    assert "![" not in printed and "](antonyms.png)" not in printed
+    assert f"plot: {out / 'antonyms.png'}" in printed
+    assert "![Antonyms (baseline)](antonyms.png)" in md
     assert (out / "antonyms.png").read_bytes()[:4] == b"\x89PNG"
     assert not (out / "classifiers.png").exists()
     rows = data["antonyms"]["configs"]
