@@ -351,6 +351,20 @@ def is_openlex3d_export(path: str | Path) -> bool:
     return p.is_dir() and (p / EXPORT_MARKER).is_file()
 
 
+def check_openlex3d_exportable(lmap: LatentMap, hint: str = "") -> None:
+    """Refuse (:class:`UsageError`) a map that OpenLex3D's folder cannot hold: one without
+    positions (a pixel map), since ``point_cloud.pcd`` needs one 3D point per item.
+    ``quash convert --format openlex3d`` and ``quash query --format openlex3d`` both ask
+    it, the latter before any query is answered; ``hint`` ends the message."""
+    from ..core.errors import UsageError
+
+    if lmap.positions is None:
+        raise UsageError(
+            f"{lmap.source.get('path', 'the map')} has no positions (a pixel map?); "
+            f"OpenLex3D's point_cloud.pcd needs one 3D point per item.{hint}"
+        )
+
+
 def write_openlex3d_map(lmap: LatentMap, folder: str | Path, chunk_rows: int = 65536) -> Path:
     """Write ``lmap`` as OpenLex3D's prediction folder, atomically.
 
@@ -369,14 +383,9 @@ def write_openlex3d_map(lmap: LatentMap, folder: str | Path, chunk_rows: int = 6
     import json
 
     from ..core.atomic import atomic_dir
-    from ..core.errors import UsageError
 
     folder = Path(folder).expanduser()
-    if lmap.positions is None:
-        raise UsageError(
-            f"{lmap.source.get('path', 'the map')} has no positions (a pixel map?); "
-            "OpenLex3D's point_cloud.pcd needs one 3D point per item."
-        )
+    check_openlex3d_exportable(lmap)
     n, d = lmap.n, lmap.dim
     rows, index = lmap.embeddings, np.arange(n, dtype=np.int64)
     dense = not isinstance(rows, IndexedRows)

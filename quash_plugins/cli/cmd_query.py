@@ -24,7 +24,8 @@ refine or presence about 13 bytes per item are held per query of a group, querie
 answered in groups that fit chunk_mb (see docs/scale.md).
 With --format openlex3d, --out is a folder of per-query files aligned with the points
 (point_cloud.pcd) of an OpenLex3D export of the map (quash convert MAP DIR --format
-openlex3d):
+openlex3d; a map without positions, a pixel map, has none and is refused before any
+query runs):
 query_scores.npy (N, Q) in [0, 1] (0.5 at the threshold), query_scores_raw.npy,
 query_masks.npy and queries.json (see docs/adapters.md#openlex3d).
 --out and --rrd never replace the map or any other input, and never name one file;
@@ -54,7 +55,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default="auto",
         choices=("auto", "npz", "zarr", "openlex3d"),
         help="Format of --out (default: auto, by its suffix, .npz or .zarr). openlex3d: a folder of "
-        "per-query scores and masks aligned with an OpenLex3D export of the map.",
+        "per-query scores and masks aligned with an OpenLex3D export of the map (a map "
+        "with positions; a pixel map is refused).",
     )
     p.add_argument(
         "--force",
@@ -83,6 +85,15 @@ def run(args: argparse.Namespace) -> int:
     if args.out and _out_format(args) == "zarr":
         return _query_to_zarr(args, quash)
     lmap = quash.read_map(args.map, adapter=args.adapter, **options)
+    if args.out and _out_format(args) == "openlex3d":  # refused before any query runs
+        from ..adapters._openlex3d import check_openlex3d_exportable
+
+        check_openlex3d_exportable(
+            lmap,
+            " Such a map has no OpenLex3D export to align --format openlex3d results with "
+            "(quash convert --format openlex3d refuses it too); write --out RESULT.npz "
+            "(masks_per_frame cuts its masks per frame).",
+        )
     passes = f" ({quash.passes} passes)" if quash.passes > 1 else ""
     with progress(lmap.n * quash.passes, f"classifying {lmap.n} items{passes}") as advance:
         results = quash.query_many(lmap, args.queries, progress=advance)

@@ -168,3 +168,35 @@ def test_convert_keeps_the_encoder_record(minilm_scene, tmp_path):
         assert back.source[key] == src.source[key]
     (out / "quash_export.json").write_text("{not json", encoding="utf-8")
     assert "encoder" not in read_map(out, adapter="openlex3d").source
+
+
+def test_query_of_a_pixel_map_refuses_openlex3d_output_before_any_query(
+    tmp_path, capsys, monkeypatch
+):
+    """A pixel map has no OpenLex3D export (convert refuses it), so --format openlex3d
+    results cannot be aligned with one: refused as convert does, before any work."""
+    from _cf_writers import save_feat_pt
+
+    from quash_plugins.engine.pipeline import Quash
+
+    table, vecs = text_table(tmp_path, dim=16)
+    feat = np.stack([np.stack([vecs["chair"]] * 4)] * 3).astype(np.float16)  # (3, 4, 16)
+    save_feat_pt(tmp_path / "feat", "a", feat)
+    cfg = contrast_config(tmp_path, table)
+    out = tmp_path / "results"
+    args = ["query", str(tmp_path / "feat"), "chair", "-c", str(cfg), "--out", str(out)]
+
+    def no_query(*a, **k):
+        raise AssertionError("a query ran before the refusal")
+
+    monkeypatch.setattr(Quash, "query_many", no_query)
+    assert main([*args, "--format", "openlex3d"]) == 2
+    err = capsys.readouterr().err
+    assert "has no positions (a pixel map?)" in err and "point_cloud.pcd" in err
+    assert "--out RESULT.npz" in err
+    assert not out.exists() and not list(tmp_path.glob(".*tmp*"))
+    # convert says the same of the same map
+    assert (
+        main(["convert", str(tmp_path / "feat"), str(tmp_path / "x"), "--format", "openlex3d"]) == 2
+    )
+    assert "has no positions (a pixel map?)" in capsys.readouterr().err
