@@ -126,6 +126,15 @@ class ImageFeaturesAdapter(MapAdapter):
         except (OSError, ValueError):
             return False
 
+    def unrecognised_hint(self, source: Any) -> str:
+        """For a folder of RGB images without features: pass the features' folder (what
+        :meth:`read` says when named)."""
+        try:
+            path = Path(source).expanduser() if isinstance(source, (str, Path)) else None
+            return images_only_hint(path).strip() if path is not None else ""
+        except OSError:
+            return ""
+
     def read(self, source: Any, **options: Any) -> LatentMap:
         opts = self.options(options)
         check_options(opts)

@@ -86,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
         return _query_to_zarr(args, quash)
     lmap = quash.read_map(args.map, adapter=args.adapter, **options)
     if args.out and _out_format(args) == "openlex3d":  # refused before any query runs
-        from ..adapters._openlex3d import check_openlex3d_exportable
+        from ..adapters import check_openlex3d_exportable
 
         check_openlex3d_exportable(
             lmap,

@@ -329,6 +329,13 @@ class MapAdapter(ABC):
     def read(self, source: Any, **options: Any) -> LatentMap:
         """Read ``source`` read-only and return a validated :class:`LatentMap`."""
 
+    def unrecognised_hint(self, source: Any) -> str:
+        """A sentence for a ``source`` that no adapter's :meth:`sniff` accepts but that a
+        user may have meant for this one (the RGB folder of a feature map), added to the
+        "No adapter recognises" error of ``adapter: auto``; ``""`` when there is nothing
+        to say (the default). Must be cheap and never raise."""
+        return ""
+
     def options(self, overrides: dict[str, Any]) -> dict[str, Any]:
         """The constructor's options, updated by per-call ``overrides`` from :meth:`read`.
 

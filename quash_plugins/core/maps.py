@@ -92,10 +92,26 @@ def detect_adapter(source: Any, *, claimed: bool = False) -> str:
             return claim[0]
     what = str(source) if isinstance(source, (str, Path)) else type(source).__name__
     raise MapFormatError(
-        f"No adapter recognises {what}. Known adapters: "
+        f"No adapter recognises {what}.{_hints(source)} Known adapters: "
         f"{', '.join(registry.available('adapters'))}. Pass --adapter NAME to choose one."
         f"{_maps_inside(source)}"
     )
+
+
+def _hints(source: Any) -> str:
+    """What the adapters say of a source none of them reads (``unrecognised_hint``): the
+    hint an adapter gives when it is named (``--adapter image-features`` on a folder of
+    RGB images), given under ``auto`` too; each as a sentence, or ``""``."""
+    said = []
+    for name, cls in _ordered_adapters():
+        try:
+            hint = str(cls().unrecognised_hint(source) or "").strip()
+        except Exception as exc:  # noqa: BLE001 - a faulty hint must not hide the error
+            log.debug("adapter %s failed to give a hint for %r: %s", name, source, exc)
+            continue
+        if hint and hint not in said:
+            said.append(hint)
+    return "".join(f" {h}" for h in said)
 
 
 def _maps_inside(source: Any, limit: int = 64) -> str:

@@ -203,6 +203,49 @@ def test_feat_images_folder_given_says_where_features_go(tmp_path):
     _check(tmp_path / "rgb", "no feature maps", "It holds images", adapter="image-features")
 
 
+@pytest.mark.parametrize("adapter", ["auto", None])
+def test_feat_images_folder_given_to_auto_says_where_features_go(tmp_path, capsys, adapter):
+    """The same hint under --adapter auto (the default), which named no adapter before."""
+    from _cf_writers import save_png
+
+    from quash_plugins.cli.main import main
+
+    save_png(tmp_path / "rgb" / "frame0.png", np.zeros((4, 4, 3), np.uint8))
+    msg = _check(tmp_path / "rgb", "No adapter recognises", "It holds images")
+    assert "pass the folder of their feature files" in msg and "-o images=DIR" in msg
+    args = ["query", str(tmp_path / "rgb"), "chair"]
+    assert main([*args, *(["--adapter", adapter] if adapter else [])]) == 1
+    err = capsys.readouterr().err
+    assert "It holds images: pass the folder of their feature files" in err
+    # a folder of anything else gets no such hint
+    (tmp_path / "other").mkdir()
+    (tmp_path / "other" / "notes.txt").write_text("x")
+    assert "It holds images" not in _check(tmp_path / "other", "No adapter recognises")
+
+
+def test_a_faulty_unrecognised_hint_does_not_hide_the_error(tmp_path):
+    from quash_plugins.core.interfaces import MapAdapter
+
+    class Faulty(MapAdapter):
+        name = "faulty-hint"
+
+        def sniff(self, source):
+            return False
+
+        def read(self, source, **options):
+            raise AssertionError
+
+        def unrecognised_hint(self, source):
+            raise RuntimeError("boom")
+
+    registry.register("adapters", "faulty-hint", Faulty, replace=True)
+    try:
+        (tmp_path / "x").mkdir()
+        _check(tmp_path / "x", "No adapter recognises")
+    finally:
+        registry.unregister("adapters", "faulty-hint")
+
+
 @pytest.mark.parametrize(
     ("option", "value"),
     [
