@@ -25,6 +25,11 @@ _HEADING = re.compile(
 )
 _BULLET = re.compile(r"^\s*(?:[-*+\u2022]|\(?\d{1,3}[.):]|[a-zA-Z][.)])\s+")
 _MAX_WORDS = 6
+#: List separators: comma, semicolon, and the full-width and ideographic ones (，；、).
+_SEPARATORS = re.compile(r"[,;\uff0c\uff1b\u3001]")
+#: Stripped from both ends of an item: quotes (straight, curly, CJK corner brackets),
+#: emphasis and sentence punctuation, ASCII and full-width.
+_STRIP = "\"'`*_.,;:!?\u2018\u2019\u201c\u201d\u201e\u00ab\u00bb\u300c\u300d\u300e\u300f\u3002\u3001\uff0c\uff1b\uff1a\uff01\uff1f"
 _MAX_CHARS = 60
 
 
@@ -170,7 +175,7 @@ def _is_heading(line: str, match: re.Match) -> bool:
 
 def _split_items(line: str) -> list[str]:
     line = _BULLET.sub("", line.strip())
-    parts = re.split(r"[,;\n]", line) if re.search(r"[,;]", line) else [line]
+    parts = re.split(r"[,;\n\uff0c\uff1b\u3001]", line) if _SEPARATORS.search(line) else [line]
     return [p for p in (x.strip() for x in parts) if p]
 
 
@@ -179,7 +184,7 @@ def _norm(item: str) -> str:
     s = _BULLET.sub("", str(item).strip())
     s = re.sub(r"\s*[\(\[].*?[\)\]]\s*", " ", s)  # "(optional)" notes
     s = re.sub(r"\s+[-\u2013\u2014:]\s+.*$", "", s)  # "seat - used for sitting"
-    s = s.strip().strip("\"'`*_.,;:!?").strip()
+    s = s.strip().strip(_STRIP).strip()
     return " ".join(s.lower().split())
 
 
@@ -190,7 +195,7 @@ def _dedupe(items: list[str]) -> list[str]:
         s = _norm(raw)
         if not s or s in seen or len(s) > _MAX_CHARS or len(s.split()) > _MAX_WORDS:
             continue
-        if not re.search(r"[a-z0-9]", s):
+        if not any(c.isalnum() for c in s):  # a letter or digit of any script
             continue
         seen.add(s)
         out.append(s)

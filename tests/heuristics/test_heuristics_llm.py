@@ -370,3 +370,24 @@ def test_quash_expand_cli(server, tmp_path, capsys):
     assert "seat" in out and "from cache" in out
     assert main(["expand", "sofa", "-c", str(offline)]) == 1
     assert "no cached query set for 'sofa'" in capsys.readouterr().err
+
+
+def test_items_in_any_script_are_kept(server, tmp_path):
+    """A reply in Russian, Chinese or Japanese keeps its words (every non-Latin item was
+    dropped: an item needed an ASCII letter or digit); curly and CJK quotes and full-width
+    punctuation are stripped like ASCII ones."""
+    server.default = json.dumps(
+        {
+            "synonyms": ["Стул", "кресло", "椅子", "スツール。", "“seat”", "Sessel"],
+            "antonyms": ["стол", "桌子", "「ランプ」", "---", "Tisch"],
+        }
+    )
+    qs = make(server, tmp_path).expand("стул")
+    assert qs.positives == ["стул", "кресло", "椅子", "スツール", "seat", "sessel"]
+    assert qs.negatives == ["стол", "桌子", "ランプ", "tisch"]
+
+
+def test_full_width_separators_split_a_list(server, tmp_path):
+    server.default = '{"synonyms": "椅子，凳子、座位", "antonyms": "桌子；灯"}'
+    qs = make(server, tmp_path).expand("chair")
+    assert qs.positives == ["chair", "椅子", "凳子", "座位"] and qs.negatives == ["桌子", "灯"]
