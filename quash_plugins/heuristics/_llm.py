@@ -330,13 +330,14 @@ class LLMHeuristic(Heuristic):
         headers = {"Content-Type": "application/json", "Accept": "application/json"}
         if self.api_key_env:
             key = os.environ.get(self.api_key_env)
-            if not key:
+            if key is None or not key.strip():
+                state = "is not set" if key is None else "is empty"
                 raise HeuristicError(
                     f"Heuristic 'llm': environment variable {self.api_key_env!r} (api_key_env) "
-                    "is not set. Export the API key there, or set api_key_env: null for a "
+                    f"{state}. Export the API key there, or set api_key_env: null for a "
                     "server without authentication."
                 )
-            headers["Authorization"] = f"Bearer {key}"
+            headers["Authorization"] = f"Bearer {_check_key(key, self.api_key_env)}"
         return headers
 
     def ask(self, query: str, seed: int | None = None) -> tuple[list[str], list[str]]:
@@ -349,7 +350,7 @@ class LLMHeuristic(Heuristic):
         body = self.request_body(query, seed)
         headers = self._headers()
         key = headers.get("Authorization", "").removeprefix("Bearer ")
-        last = "no attempt made"
+        last, why = "no attempt made", "connect"
         attempts = self.max_retries + 1
         with httpx.Client(timeout=httpx.Timeout(self.timeout)) as client:
             for attempt in range(attempts):
@@ -365,9 +366,9 @@ class LLMHeuristic(Heuristic):
                 try:
                     resp = client.post(self.endpoint, json=body, headers=headers)
                 except httpx.TimeoutException:
-                    last = f"timed out after {self.timeout:g} s"
+                    last, why = f"timed out after {self.timeout:g} s", "timeout"
                 except httpx.TransportError as exc:
-                    last = f"connection failed ({type(exc).__name__})"
+                    last, why = _connect_reason(exc, self.endpoint, key), "connect"
                 else:
                     status = resp.status_code
                     if status == 200:
@@ -381,9 +382,11 @@ class LLMHeuristic(Heuristic):
                             return clean_lists(query, syn, ant, self.n_synonyms, self.n_antonyms)
                         except ValueError as exc:
                             reason = redact(exc, [key])
-                            last = f"status 200 with an unusable reply ({reason})"
+                            last, why = f"status 200 with an unusable reply ({reason})", "reply"
                     elif status in RETRY_STATUSES:
-                        last = f"status {status}"
+                        last, why = f"status {status}", "rate" if status == 429 else "status"
+                        if resp.text.strip():
+                            last += f": {_snippet(resp.text, [key], 120)}"
                         wait = max(wait, _retry_after(resp))
                     else:
                         hint = {
@@ -391,6 +394,11 @@ class LLMHeuristic(Heuristic):
                             403: " Check the API key in api_key_env.",
                             404: " Check base_url (it usually ends in /v1) and the model name.",
                         }.get(status, "")
+                        if status in (400, 422) and self.json_mode:
+                            hint = (
+                                " json_mode: true sends response_format, which this server may "
+                                "not support: set json_mode: false (replies are parsed anyway)."
+                            )
                         raise HeuristicError(
                             f"Heuristic 'llm': {self.endpoint} answered status {status}: "
                             f"{_snippet(resp.text, [key])}.{hint}"
@@ -400,9 +408,59 @@ class LLMHeuristic(Heuristic):
                     time.sleep(min(wait, 60.0))
         raise HeuristicError(
             f"Heuristic 'llm': no usable reply from {self.endpoint} (model {self.model!r}) for "
-            f"{query!r} after {attempts} attempt(s); last: {last}. Check that the server is "
-            "running, raise max_retries or timeout, or use offline: true with a filled cache."
+            f"{query!r} after {attempts} attempt(s); last: {last}. {self._fix(why)}"
         )
+
+    def _fix(self, why: str) -> str:
+        """What to do about the last failure of :meth:`ask`."""
+        cached = "or use offline: true with a cache that holds the query sets."
+        if why == "connect":
+            return (
+                f"Start the server (Ollama: ollama serve; vLLM: vllm serve MODEL; llama.cpp: "
+                f"llama-server -m MODEL.gguf) or set base_url to where it listens, {cached}"
+            )
+        if why == "timeout":
+            return (
+                f"The server is slow to answer (a model still loading, a long reply): raise "
+                f"timeout (now {self.timeout:g} s) or max_retries, {cached}"
+            )
+        if why == "rate":
+            return f"The server is rate-limiting: raise max_retries or backoff, {cached}"
+        if why == "reply":
+            fix = "" if self.json_mode else "set json_mode: true (vLLM, llama.cpp, Ollama) or "
+            return (
+                "The model did not answer with the asked lists: "
+                f"{fix}use an instruction-tuned model, {cached}"
+            )
+        return f"The server failed: see its log, raise max_retries, {cached}"
+
+
+def _check_key(key: str, env: str) -> str:
+    """The key without surrounding white space; refused (never shown) when an HTTP header
+    cannot carry it: white space or a character outside printable ASCII inside it."""
+    key = key.strip()
+    for i, ch in enumerate(key):
+        if not ("!" <= ch <= "~"):
+            what = "white space" if ch.isspace() else f"the character U+{ord(ch):04X}"
+            raise HeuristicError(
+                f"Heuristic 'llm': the API key in {env!r} (api_key_env) holds {what} at "
+                f"position {i + 1}, which an HTTP header cannot carry. Copy the key again "
+                "(a quote or a line break pasted with it?) and export it."
+            )
+    return key
+
+
+def _connect_reason(exc: Any, endpoint: str, key: str = "") -> str:
+    """Why a connection failed, in words: refused, an unknown host, or httpx's reason."""
+    text = redact(str(exc), [key])
+    parts = urlsplit(endpoint)
+    low = text.lower()
+    if "refused" in low:
+        return f"connection refused (nothing listens on {parts.netloc})"
+    unknown = ("name or service not known", "nodename nor servname", "name resolution")
+    if any(w in low for w in unknown) or "getaddrinfo" in low:
+        return f"connection failed (host {parts.hostname!r} not found)"
+    return f"connection failed ({type(exc).__name__}{': ' + text if text else ''})"
 
 
 def _content(resp: Any, key: str = "") -> str:
@@ -416,7 +474,13 @@ def _content(resp: Any, key: str = "") -> str:
     except (KeyError, IndexError, TypeError):
         raise ValueError(f"no choices[0].message.content in {_snippet(resp.text, [key])}") from None
     if not isinstance(content, str):
-        raise ValueError("message content is not text")
+        finish = (data["choices"][0] or {}).get("finish_reason")
+        why = f"message content is {'empty' if content is None else type(content).__name__}"
+        if finish == "length":
+            why += " (finish_reason 'length': the model ran out of tokens)"
+        elif finish:
+            why += f" (finish_reason {finish!r})"
+        raise ValueError(why)
     return content
 
 

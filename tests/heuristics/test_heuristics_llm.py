@@ -295,8 +295,15 @@ def test_server_down_is_clear(tmp_path):
         backoff=0.01,
         cache_dir=str(tmp_path / "c"),
     )
-    with pytest.raises(HeuristicError, match="connection failed"):
+    with pytest.raises(HeuristicError) as err:
         h.expand("chair")
+    msg = str(err.value)
+    # the URL, what happened and the fix (was: "connection failed (ConnectError)" and
+    # "check that the server is running")
+    host = url.split("/")[2]
+    assert f"connection refused (nothing listens on {host})" in msg and url in msg
+    assert "Start the server (Ollama: ollama serve" in msg and "set base_url" in msg
+    assert "offline: true" in msg
 
 
 def test_default_cache_dir_honours_env(server, tmp_path):
@@ -391,3 +398,101 @@ def test_full_width_separators_split_a_list(server, tmp_path):
     server.default = '{"synonyms": "椅子，凳子、座位", "antonyms": "桌子；灯"}'
     qs = make(server, tmp_path).expand("chair")
     assert qs.positives == ["chair", "椅子", "凳子", "座位"] and qs.negatives == ["桌子", "灯"]
+
+
+def test_unknown_host_is_named():
+    import httpx
+
+    from quash_plugins.heuristics._llm import _connect_reason
+
+    exc = httpx.ConnectError("[Errno -2] Name or service not known")
+    assert _connect_reason(exc, "http://gpu-box.lan:8000/v1/chat/completions") == (
+        "connection failed (host 'gpu-box.lan' not found)"
+    )
+    other = httpx.RemoteProtocolError("Server disconnected without sending a response.")
+    assert _connect_reason(other, "http://h/v1/chat/completions") == (
+        "connection failed (RemoteProtocolError: Server disconnected without sending a response.)"
+    )
+
+
+def test_exhausted_retries_show_the_servers_words_and_the_fix(server, tmp_path):
+    """A retried status carries the server's own message; the closing hint fits the last
+    failure (was: the bare status and "check that the server is running" for all)."""
+    for _ in range(2):
+        server.play(500, raw=b'{"error": "CUDA out of memory"}')
+    with pytest.raises(HeuristicError) as err:
+        make(server, tmp_path, max_retries=1).expand("chair")
+    msg = str(err.value)
+    assert 'last: status 500: \'{"error": "CUDA out of memory"}\'' in msg
+    assert "The server failed: see its log" in msg
+    for _ in range(2):
+        server.play(429, raw=b'{"error": {"message": "Rate limit reached"}}')
+    with pytest.raises(HeuristicError) as err:
+        make(server, tmp_path, max_retries=1).expand("chair")
+    assert "Rate limit reached" in str(err.value) and "rate-limiting" in str(err.value)
+    server.play(delay=0.6)
+    server.play(delay=0.6)
+    with pytest.raises(HeuristicError) as err:
+        make(server, tmp_path, timeout=0.2, max_retries=1).expand("chair")
+    assert "timed out after 0.2 s" in str(err.value)
+    assert "raise timeout (now 0.2 s)" in str(err.value)
+
+
+def test_prose_reply_suggests_json_mode(server, tmp_path):
+    server.default = "A chair is something you sit on; people also sit on stools and benches."
+    with pytest.raises(HeuristicError) as err:
+        make(server, tmp_path, max_retries=0).expand("chair")
+    assert "unusable reply" in str(err.value) and "set json_mode: true" in str(err.value)
+
+
+def test_empty_content_says_the_model_ran_out_of_tokens(server, tmp_path):
+    body = {
+        "choices": [{"message": {"role": "assistant", "content": None}, "finish_reason": "length"}]
+    }
+    server.play(raw=json.dumps(body).encode())
+    with pytest.raises(HeuristicError) as err:
+        make(server, tmp_path, max_retries=0).expand("chair")
+    assert "message content is empty (finish_reason 'length': the model ran out of tokens)" in str(
+        err.value
+    )
+
+
+def test_json_mode_refused_by_the_server_says_to_turn_it_off(server, tmp_path):
+    server.play(400, raw=b'{"error": {"message": "response_format is not supported"}}')
+    with pytest.raises(HeuristicError) as err:
+        make(server, tmp_path, json_mode=True).expand("chair")
+    assert "response_format is not supported" in str(err.value)
+    assert "set json_mode: false" in str(err.value) and len(server.requests) == 1
+
+
+def test_a_key_with_a_trailing_newline_is_sent_stripped(server, tmp_path, monkeypatch):
+    monkeypatch.setenv("MY_LLM_KEY", SECRET + "\n")
+    make(server, tmp_path, api_key_env="MY_LLM_KEY").expand("chair")
+    assert server.requests[0]["headers"]["Authorization"] == f"Bearer {SECRET}"
+
+
+@pytest.mark.parametrize(
+    ("value", "what"),
+    [
+        (f"\u201c{SECRET}\u201d", "U+201C at position 1"),
+        (f"{SECRET[:9]} {SECRET[9:]}", "white space"),
+    ],
+)
+def test_a_key_no_header_can_carry_is_refused_unshown(server, tmp_path, monkeypatch, value, what):
+    """A key pasted with curly quotes or a space inside: one clear error that never shows
+    the key and sends nothing (was: "unexpected error: UnicodeEncodeError", or five
+    attempts ending in "connection failed (LocalProtocolError)")."""
+    monkeypatch.setenv("MY_LLM_KEY", value)
+    with pytest.raises(HeuristicError) as err:
+        make(server, tmp_path, api_key_env="MY_LLM_KEY").expand("chair")
+    msg = str(err.value)
+    assert "'MY_LLM_KEY'" in msg and what in msg and "Copy the key again" in msg
+    assert SECRET not in msg and SECRET[:9] not in msg and SECRET[9:] not in msg
+    assert not server.requests
+
+
+def test_an_empty_key_variable_says_empty(server, tmp_path, monkeypatch):
+    monkeypatch.setenv("MY_LLM_KEY", "  ")
+    with pytest.raises(HeuristicError, match="'MY_LLM_KEY' \\(api_key_env\\) is empty"):
+        make(server, tmp_path, api_key_env="MY_LLM_KEY").expand("chair")
+    assert not server.requests
