@@ -7,10 +7,12 @@ experiment can be re-run with ``offline: true`` and no server at all.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import logging
 import os
+import re
 import time
 from datetime import UTC, datetime
 from pathlib import Path
@@ -60,6 +62,66 @@ def default_cache_dir() -> Path:
     import platformdirs
 
     return Path(platformdirs.user_cache_dir("quash-plugins")) / "llm"
+
+
+#: The name of one cached query set: a hash of its key, ``.json``.
+CACHE_FILE_RE = re.compile(r"^[0-9a-f]{32}\.json$")
+
+
+def _cache_files(directory: Path) -> list[Path]:
+    """The query-set files of ``directory``: regular files named like one, never through a
+    symbolic link (a linked folder or file is left alone)."""
+    if directory.is_symlink() or not directory.is_dir():
+        return []
+    out = []
+    with os.scandir(directory) as entries:
+        for entry in entries:
+            if CACHE_FILE_RE.match(entry.name) and entry.is_file(follow_symlinks=False):
+                out.append(Path(entry.path))
+    return sorted(out)
+
+
+def llm_cache_info(directory: str | Path | None = None) -> dict[str, Any]:
+    """Where the LLM query sets are cached, how many, their size, and the sets per model
+    and endpoint (``quash cache info``). ``directory``: default :func:`default_cache_dir`."""
+    root = Path(directory).expanduser().absolute() if directory else default_cache_dir()
+    groups: dict[tuple[str, str], dict[str, Any]] = {}
+    total = 0
+    files = _cache_files(root)
+    for path in files:
+        with contextlib.suppress(OSError):
+            total += path.stat().st_size
+        try:
+            key = json.loads(path.read_text(encoding="utf-8")).get("key") or {}
+            model, endpoint = str(key.get("model", "?")), str(key.get("endpoint", "?"))
+        except (OSError, ValueError, AttributeError):
+            model, endpoint = "(unreadable)", ""
+        rec = groups.setdefault(
+            (model, endpoint), {"model": model, "endpoint": endpoint, "sets": 0}
+        )
+        rec["sets"] += 1
+    return {
+        "directory": str(root),
+        "sets": len(files),
+        "bytes": total,
+        "models": sorted(groups.values(), key=lambda r: (-r["sets"], r["model"])),
+    }
+
+
+def clear_llm_cache(directory: str | Path | None = None) -> tuple[int, int]:
+    """Delete the cached LLM query sets of ``directory`` (default :func:`default_cache_dir`):
+    only files named like one, never through a symbolic link. Returns (sets, bytes)."""
+    root = Path(directory).expanduser().absolute() if directory else default_cache_dir()
+    n = freed = 0
+    for path in _cache_files(root):
+        try:
+            size = path.stat().st_size
+            path.unlink()
+        except OSError as exc:
+            log.warning("llm: could not delete %s: %s", path, exc)
+            continue
+        n, freed = n + 1, freed + size
+    return n, freed
 
 
 def chat_endpoint(base_url: str) -> str:

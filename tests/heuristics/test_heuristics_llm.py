@@ -496,3 +496,53 @@ def test_an_empty_key_variable_says_empty(server, tmp_path, monkeypatch):
     with pytest.raises(HeuristicError, match="'MY_LLM_KEY' \\(api_key_env\\) is empty"):
         make(server, tmp_path, api_key_env="MY_LLM_KEY").expand("chair")
     assert not server.requests
+
+
+def test_quash_cache_shows_and_clears_the_llm_query_sets(server, tmp_path, capsys, monkeypatch):
+    """The second run asks no server; `quash cache info` lists the LLM query sets,
+    `quash cache clear` keeps them (and says so), `quash cache clear --llm` deletes them
+    and the next run asks again (the cache command knew only text embeddings: the LLM
+    sets could be found only through provenance and deleted only by hand)."""
+    from quash_plugins.cli.main import main
+
+    monkeypatch.setenv("COLUMNS", "400")  # one line each
+    cfg = tmp_path / "llm.yaml"
+    cfg.write_text(
+        "encoder: {name: table, table: {chair: [1, 0], other: [0, 1]}}\n"
+        f"heuristic: {{name: llm, model: test-model, base_url: '{server.base_url}', "
+        "backoff: 0.01}\n"
+    )
+    root = tmp_path / "quash-cache" / "llm"  # $QUASH_CACHE_DIR/llm (the autouse fixture)
+    root.mkdir(parents=True)
+    keep = tmp_path / "elsewhere.json"
+    keep.write_text("{}")
+    (root / ("0" * 32 + ".json")).symlink_to(keep)  # a planted link is never followed
+    (root / "notes.txt").write_text("mine")  # nor anything not named like a query set
+    for query in ("chair", "sofa", "chair"):
+        assert main(["expand", query, "-c", str(cfg)]) == 0
+    assert len(server.requests) == 2
+    capsys.readouterr()
+    assert main(["cache", "info"]) == 0
+    out = capsys.readouterr().out
+    assert f"LLM query sets: {root}: 2" in out
+    assert f"test-model at {server.base_url}/chat/completions: 2" in out
+    assert main(["cache", "info", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["llm"]["sets"] == 2
+    assert main(["cache", "clear"]) == 0
+    assert "kept 2 LLM query sets" in capsys.readouterr().out
+    assert main(["cache", "clear", "--llm"]) == 0
+    assert f"cleared 2 LLM query sets from {root}" in capsys.readouterr().out
+    assert keep.read_text() == "{}" and (root / "notes.txt").exists()
+    assert (root / ("0" * 32 + ".json")).is_symlink()
+    assert main(["expand", "chair", "-c", str(cfg)]) == 0
+    assert len(server.requests) == 3  # asked again
+    # a config's own cache_dir: --dir with --llm
+    own = tmp_path / "own"
+    cfg.write_text(cfg.read_text().replace("backoff: 0.01", "backoff: 0.01, cache_dir: own"))
+    assert main(["expand", "table", "-c", str(cfg)]) == 0
+    capsys.readouterr()
+    assert main(["cache", "info", "--llm", "--dir", str(own)]) == 0
+    assert f"LLM query sets: {own}: 1" in capsys.readouterr().out
+    assert main(["cache", "clear", "--llm", "--dir", str(own)]) == 0
+    assert not list(own.glob("*.json"))
+    assert main(["cache", "clear", "--llm", "--fingerprint", "x"]) == 2
