@@ -31,7 +31,9 @@ def run(args: argparse.Namespace) -> int:
     from ._output import console, print_json
 
     cfg = apply_runtime_options(load_config(args.config), args)
-    quash = Quash.from_config(cfg)
+    # An encoder whose weights are missing does not stop a heuristic that needs none
+    # (llm): the expansion goes on, with a warning; one that needs it stops with the error.
+    quash = Quash.from_config(cfg, defer_encoder_error=True)
     lmap = quash.read_map(args.map) if args.map else None
     qs = quash.expand(args.query, lmap)
     if args.json:

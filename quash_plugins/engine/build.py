@@ -7,6 +7,7 @@ ready objects and never imports a plugin or the cache.
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 from typing import Any
 
@@ -15,14 +16,48 @@ from ..core.config import PluginSpec, QuashConfig
 from ..core.errors import QuashError
 from .cache import open_cache
 
+log = logging.getLogger(__name__)
+
+
+class UnavailableEncoder:
+    """Stands in for an encoder that could not be built: any use raises why.
+
+    Examples
+    --------
+    >>> enc = UnavailableEncoder(QuashError("encoder: weights not on this machine"))
+    >>> enc.encode(["chair"])
+    Traceback (most recent call last):
+    ...
+    quash_plugins.core.errors.QuashError: encoder: weights not on this machine
+    """
+
+    def __init__(self, error: QuashError) -> None:
+        self.error = error
+
+    def __getattr__(self, name: str) -> Any:
+        if name.startswith("__") or name == "error":
+            raise AttributeError(name)
+        raise self.error
+
+    def __repr__(self) -> str:
+        return f"UnavailableEncoder({str(self.error)!r})"
+
 
 def build_quash(
-    config: str | Path | dict[str, Any] | QuashConfig, cls: Any = None, **overrides: Any
+    config: str | Path | dict[str, Any] | QuashConfig,
+    cls: Any = None,
+    *,
+    defer_encoder_error: bool = False,
+    **overrides: Any,
 ) -> Any:
     """Build a pipeline from a :class:`QuashConfig`, a dict or a YAML file.
 
     ``overrides`` replace constructor arguments (e.g. ``cache=None``, ``backend="dask"``).
     Errors name the config file and the section (``encoder``, ``heuristic``...).
+    ``defer_encoder_error``: an encoder that cannot be built (weights not on the machine)
+    becomes an :class:`UnavailableEncoder` that raises that error when it is used, with a
+    warning, so that a heuristic that needs no encoder (``llm``) can still expand a query
+    (``quash expand``).
 
     Examples
     --------
@@ -49,7 +84,18 @@ def build_quash(
             raise type(exc)(f"{where}{section}: {exc}") from exc.__cause__
 
     try:
-        encoder = build("encoders", cfg.encoder, "encoder")
+        try:
+            encoder = build("encoders", cfg.encoder, "encoder")
+        except QuashError as exc:
+            if not defer_encoder_error:
+                raise
+            encoder = UnavailableEncoder(
+                exc if str(exc).startswith(where) else type(exc)(f"{where}{exc}")
+            )
+            log.warning(
+                "%s (going on without the encoder; a step that needs it stops with this error)",
+                encoder.error,
+            )
         heuristic = build("heuristics", cfg.heuristic, "heuristic")
         classifier = build("classifiers", cfg.classifier, "classifier")
     except QuashError as exc:

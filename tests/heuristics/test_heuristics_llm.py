@@ -8,6 +8,7 @@ import threading
 import time
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
+import numpy as np
 import pytest
 
 from quash_plugins.core import registry
@@ -546,3 +547,32 @@ def test_quash_cache_shows_and_clears_the_llm_query_sets(server, tmp_path, capsy
     assert main(["cache", "clear", "--llm", "--dir", str(own)]) == 0
     assert not list(own.glob("*.json"))
     assert main(["cache", "clear", "--llm", "--fingerprint", "x"]) == 2
+
+
+def test_quash_expand_needs_no_encoder_weights_for_the_llm(server, tmp_path, capsys):
+    """`quash expand` with an llm config whose encoder's weights are not on the machine
+    shows the LLM's set, with a warning (it stopped at the encoder: a user checking the
+    LLM first had to fetch the OpenCLIP weights); a heuristic that embeds still stops
+    with the encoder's error, and `quash query` too."""
+    from quash_plugins.cli.main import main
+
+    missing = tmp_path / "no-such-ViT-B-32.pt"
+    cfg = tmp_path / "llm.yaml"
+    cfg.write_text(
+        f"encoder: {{name: open-clip, preset: lseg, checkpoint: '{missing}'}}\n"
+        f"heuristic: {{name: llm, model: test-model, base_url: '{server.base_url}', "
+        "backoff: 0.01}\n"
+    )
+    assert main(["expand", "chair", "-c", str(cfg), "--json"]) == 0
+    captured = capsys.readouterr()
+    assert json.loads(captured.out)["positives"][:2] == ["chair", "seat"]
+    err = " ".join(captured.err.split())
+    assert "does not exist" in err and "going on without the encoder" in err
+    vocab = tmp_path / "vocabulary.yaml"
+    vocab.write_text(cfg.read_text().split("heuristic")[0] + "heuristic: vocabulary\n")
+    assert main(["expand", "chair", "-c", str(vocab)]) == 1
+    assert "does not exist" in capsys.readouterr().err
+    lmap = tmp_path / "map.npz"
+    np.savez(lmap, embeddings=np.eye(4, 512, dtype=np.float32))
+    assert main(["query", str(lmap), "chair", "-c", str(cfg)]) == 1
+    assert "does not exist" in capsys.readouterr().err
