@@ -310,6 +310,8 @@ class Quash:
                 "count": len(self._templates or []),
                 "normalize": bool(self.prompt_templates.get("normalize", True)),
             }
+        if log.isEnabledFor(logging.DEBUG):  # -v: what the heuristic made of the query
+            log.debug("query set for %r: %s", text, _queryset_words(qs))
         # A weak reference to the map guards against a new map reusing a freed one's id.
         self._querysets[key] = (weakref.ref(lmap) if lmap is not None else _none_ref, qs)
         return qs
@@ -491,6 +493,24 @@ class Quash:
         from .lazy_query import query_lazy
 
         return query_lazy(self, source, texts, self.client, **read_options)
+
+
+def _queryset_words(qs: QuerySet, limit: int = 24) -> str:
+    """``heuristic (source); N positives: a, b, ...; M negatives: ...``, each list cut at
+    ``limit`` names (the log line of ``-v``)."""
+
+    def head(words: Sequence[str]) -> str:
+        shown = ", ".join(words[:limit])
+        return shown + (f", ... and {len(words) - limit} more" if len(words) > limit else "")
+
+    prov = qs.provenance or {}
+    how = str(prov.get("heuristic", "?"))
+    if prov.get("source"):  # llm: server or cache
+        how += f" from {prov['source']}"
+    return (
+        f"{how}; {len(qs.positives)} positives: {head(qs.positives)}; "
+        f"{len(qs.negatives)} negatives: {head(qs.negatives)}"
+    )
 
 
 def _none_ref() -> None:

@@ -576,3 +576,29 @@ def test_quash_expand_needs_no_encoder_weights_for_the_llm(server, tmp_path, cap
     np.savez(lmap, embeddings=np.eye(4, 512, dtype=np.float32))
     assert main(["query", str(lmap), "chair", "-c", str(cfg)]) == 1
     assert "does not exist" in capsys.readouterr().err
+
+
+def test_verbose_query_lists_the_llms_synonyms_and_antonyms(server, tmp_path, capsys):
+    """`quash -v query` shows what the LLM said for each query (was: only the counts in
+    the table), and whether the set came from the server or the cache."""
+    from quash_plugins.cli.main import main
+
+    table = {w: [1.0, 0.0] for w in ("chair", "seat", "armchair", "stool")}
+    table.update({w: [0.0, 1.0] for w in ("table", "lamp", "rug", "other", "background")})
+    table["nothing"] = [0.0, 1.0]
+    cfg = tmp_path / "llm.yaml"
+    cfg.write_text(
+        f"encoder: {{name: table, table: {json.dumps(table)}}}\n"
+        f"heuristic: {{name: llm, model: test-model, base_url: '{server.base_url}', "
+        "backoff: 0.01}\nrefine: null\npresence: null\ninstances: false\n"
+    )
+    lmap = tmp_path / "map.npz"
+    np.savez(lmap, embeddings=np.array([[1, 0], [0, 1], [1, 0.1]], dtype=np.float32))
+    for source in ("server", "cache"):
+        assert main(["-v", "query", str(lmap), "chair", "-c", str(cfg)]) == 0
+        err = " ".join(capsys.readouterr().err.split())
+        assert (
+            f"query set for 'chair': llm from {source}; 4 positives: chair, seat, armchair, "
+            "stool; 6 negatives: table, lamp, rug, other, background, nothing"
+        ) in err
+    assert len(server.requests) == 1
