@@ -39,7 +39,10 @@ def add_config_option(parser: argparse.ArgumentParser, multiple: bool = False) -
 
 def add_runtime_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "--no-cache", action="store_true", help="Do not read or write the text-embedding cache."
+        "--no-cache",
+        action="store_true",
+        help="Do not read or write the text-embedding cache (the llm heuristic's cached "
+        "query sets are still used: 'quash cache clear --llm' deletes them).",
     )
     parser.add_argument(
         "--device",

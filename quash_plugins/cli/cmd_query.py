@@ -16,7 +16,9 @@ The --out file holds queries (Q,) str, masks (Q, N) bool, scores (Q, N) float32 
 display_scores (Q, N) float32 in [0, 1] (row i: the map's item i), the map's positions
 and grid_index where it has them (a pixel map: frame_ids, frame_hw and frame_offsets,
 for masks_per_frame), and provenance (a JSON string: version, map, config,
-encoder fingerprint, each query's positives, negatives and presence decision). With --out RESULT.zarr the same masks and
+encoder fingerprint, each query's positives, negatives, heuristic with its parameters
+(an llm's model and endpoint, and whether the set came from the server or the cache)
+and presence decision). With --out RESULT.zarr the same masks and
 scores (the config's refine and presence applied) stream to a zarr store, without
 display_scores (a pixel map's frame_ids, frame_hw and frame_offsets are attributes,
 for frames_from_zarr), for maps larger than memory: the embeddings are read in chunks; with

@@ -53,7 +53,9 @@ def results_provenance(
 ) -> dict[str, Any]:
     """How ``results`` were made, as JSON-ready data: the package version, the map, the
     config (its name, and its file when it came from one) and its encoder, and per query
-    its positives, negatives, heuristic and the presence check's decision."""
+    its positives, negatives, heuristic (with its parameters: an LLM's model and endpoint,
+    and whether the set came from the server or the cache) and the presence check's
+    decision."""
     from .. import __version__
 
     first = results[0] if results else None
@@ -66,24 +68,32 @@ def results_provenance(
         },
         "config": first.config_name if first else "",
         "config_file": str(config_file) if config_file else None,
-        "queries": [
-            {
-                "query": r.query,
-                "positives": list(r.queryset.positives),
-                "negatives": list(r.queryset.negatives),
-                "heuristic": r.queryset.provenance.get("heuristic"),
-                "classifier": r.classifier,
-                "matched": r.n_matched,
-                "presence": r.presence,
-            }
-            for r in results
-        ],
+        "queries": [_query_record(r) for r in results],
     }
     if encoder is not None:
         out["encoder"] = {
             "name": getattr(encoder, "name", type(encoder).__name__),
             "fingerprint": encoder.fingerprint(),
         }
+    return out
+
+
+def _query_record(r: QueryResult) -> dict[str, Any]:
+    """One query of :func:`results_provenance`: its set, the heuristic with its parameters
+    and, for a set that can come from elsewhere (``llm``), where it came from (``source``:
+    server or cache), the classifier, the match count and the presence decision."""
+    prov = r.queryset.provenance or {}
+    out: dict[str, Any] = {
+        "query": r.query,
+        "positives": list(r.queryset.positives),
+        "negatives": list(r.queryset.negatives),
+        "heuristic": prov.get("heuristic"),
+    }
+    if prov.get("params"):
+        out["heuristic_params"] = prov["params"]
+    if prov.get("source"):
+        out["source"] = prov["source"]
+    out.update(classifier=r.classifier, matched=r.n_matched, presence=r.presence)
     return out
 
 

@@ -602,3 +602,33 @@ def test_verbose_query_lists_the_llms_synonyms_and_antonyms(server, tmp_path, ca
             "stool; 6 negatives: table, lamp, rug, other, background, nothing"
         ) in err
     assert len(server.requests) == 1
+
+
+def test_out_npz_records_the_llm_model_endpoint_and_source(server, tmp_path, monkeypatch):
+    """The --out NPZ says which model at which endpoint gave each query set, and whether
+    it came from the server or the cache (it said only 'llm'); never the key."""
+    from quash_plugins.cli.main import main
+
+    monkeypatch.setenv("MY_LLM_KEY", SECRET)
+    table = {w: [1.0, 0.0] for w in ("chair", "seat", "armchair", "stool")}
+    table.update({w: [0.0, 1.0] for w in ("table", "lamp", "rug", "other", "background")})
+    table["nothing"] = [0.0, 1.0]
+    cfg = tmp_path / "llm.yaml"
+    cfg.write_text(
+        f"encoder: {{name: table, table: {json.dumps(table)}}}\n"
+        f"heuristic: {{name: llm, model: test-model, base_url: '{server.base_url}', "
+        "api_key_env: MY_LLM_KEY, backoff: 0.01}\nrefine: null\npresence: null\n"
+    )
+    lmap = tmp_path / "map.npz"
+    np.savez(lmap, embeddings=np.array([[1, 0], [0, 1], [1, 0.1]], dtype=np.float32))
+    for source in ("server", "cache"):
+        out = tmp_path / f"{source}.npz"
+        assert main(["query", str(lmap), "chair", "-c", str(cfg), "--out", str(out)]) == 0
+        with np.load(out) as z:
+            text = str(z["provenance"])
+        record = json.loads(text)["queries"][0]
+        assert record["heuristic"] == "llm" and record["source"] == source
+        params = record["heuristic_params"]
+        assert params["model"] == "test-model"
+        assert params["endpoint"] == f"{server.base_url}/chat/completions"
+        assert params["api_key_env"] == "MY_LLM_KEY" and SECRET not in text
