@@ -317,9 +317,18 @@ class LLMHeuristic(Heuristic):
         except (OSError, ValueError) as exc:
             log.warning("ignoring unreadable LLM cache file %s: %s", path, exc)
             return None
-        if data.get("key") != self.cache_key(query):
+        if not isinstance(data, dict) or data.get("key") != self.cache_key(query):
             return None
-        return data
+        lists = [data.get(side) for side in ("synonyms", "antonyms")]
+        if not all(isinstance(v, list) and all(isinstance(w, str) for w in v) for v in lists):
+            log.warning(
+                "ignoring LLM cache file %s: 'synonyms' and 'antonyms' must be lists of strings",
+                path,
+            )
+            return None
+        # a file edited by hand is cleaned as a reply is (case, duplicates, the query, caps)
+        syn, ant = clean_lists(query, *lists, self.n_synonyms, self.n_antonyms)
+        return {**data, "synonyms": syn, "antonyms": ant}
 
     def _write_cache(self, query: str, synonyms: list[str], antonyms: list[str]) -> Path:
         from ..core.atomic import atomic_write_text

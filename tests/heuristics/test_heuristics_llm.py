@@ -632,3 +632,32 @@ def test_out_npz_records_the_llm_model_endpoint_and_source(server, tmp_path, mon
         assert params["model"] == "test-model"
         assert params["endpoint"] == f"{server.base_url}/chat/completions"
         assert params["api_key_env"] == "MY_LLM_KEY" and SECRET not in text
+
+
+@pytest.mark.parametrize(
+    ("edit", "served"),
+    [
+        ({"synonyms": "seat"}, None),  # was: positives chair, s, e, a, t
+        ({"synonyms": None}, None),  # was: unexpected error: KeyError ('synonyms' removed)
+        ({"antonyms": ["table", 5]}, None),
+        ({"synonyms": ["Seat ", "seat", "CHAIR", "stool"]}, ["chair", "seat", "stool"]),
+    ],
+)
+def test_a_damaged_or_hand_edited_cache_file(server, tmp_path, edit, served):
+    """A cache file whose lists are not lists of strings is ignored with a warning (and
+    asked again); one edited by hand is cleaned as a reply is."""
+    h = make(server, tmp_path)
+    h.expand("chair")
+    path = h.cache_path("chair")
+    data = json.loads(path.read_text())
+    data.update(edit)
+    data = {k: v for k, v in data.items() if v is not None}
+    path.write_text(json.dumps(data))
+    qs = make(server, tmp_path).expand("chair")
+    if served is None:
+        assert qs.provenance["source"] == "server" and len(server.requests) == 2
+        assert qs.positives == ["chair", "seat", "armchair", "stool"]
+    else:
+        assert qs.provenance["source"] == "cache" and qs.positives == served
+    path.write_text("[1, 2]")  # not an object: asked again (was: AttributeError)
+    assert make(server, tmp_path).expand("chair").provenance["source"] == "server"
