@@ -28,7 +28,11 @@ _TOKENS = re.compile(
     r"|\bhf_[A-Za-z0-9]{8,}"  # Hugging Face tokens
     r"|\bAIza[0-9A-Za-z_\-]{20,}"  # Google API keys
 )
-_BEARER = re.compile(r"(?i)\b(bearer|basic)\s+[A-Za-z0-9_\-.~+/=*]{6,}")
+# A token holds a digit, a capital or a symbol: "Basic dXNlcjpwYXNz" is one, "basic armchair"
+# (an object an LLM names, a query) is not.
+_BEARER = re.compile(
+    r"(?i)\b(bearer|basic)\s+(?-i:(?=[a-z]*[A-Z0-9_\-.~+/=*]))[A-Za-z0-9_\-.~+/=*]{6,}"
+)
 _NAMED = re.compile(
     r"(?i)\b((?:api[_-]?key|access[_-]?token|auth[_-]?token|token|secret|password|passwd)"
     r"[\"']?\s*[:=]\s*[\"']?)[^\s\"',;&}]{4,}"

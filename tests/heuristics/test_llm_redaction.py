@@ -159,3 +159,30 @@ def test_redact_patterns():
     assert redact("https://u:pw@host/v1") == "https://***@host/v1"
     assert redact("a desk-lamp, task-force, sk-8") == "a desk-lamp, task-force, sk-8"
     assert redact("value shortkey", ["abc"]) == "value shortkey"  # too short to redact
+
+
+def test_object_names_after_basic_or_bearer_are_not_credentials():
+    """ "basic armchair" is an object, not HTTP Basic credentials: it was redacted to
+    "basic ***" in every log line and error, and dropped from an LLM's lists."""
+    for text in ("basic armchair", "a basic kitchen table", "ring bearer pillow"):
+        assert redact(text) == text
+    assert redact("Authorization: Basic dXNlcjpwYXNz") == "Authorization: Basic ***"
+    assert redact("bearer abcdefgh-ijk and Bearer eyJhbGciOi") == "bearer *** and Bearer ***"
+
+
+def test_an_llm_item_named_basic_is_kept(tmp_path, monkeypatch):
+    from test_heuristics_llm import ChatServer
+
+    server = ChatServer()
+    try:
+        server.default = json.dumps(
+            {"synonyms": ["basic armchair", "seat"], "antonyms": ["ring bearer pillow"]}
+        )
+        h = registry.create(
+            "heuristics", "llm", model="m", base_url=server.base_url, cache_dir=str(tmp_path)
+        )
+        qs = h.expand("chair")
+    finally:
+        server.close()
+    assert qs.positives == ["chair", "basic armchair", "seat"]
+    assert qs.negatives == ["ring bearer pillow"]
