@@ -460,9 +460,15 @@ class LLMHeuristic(Heuristic):
                             last += f": {_snippet(resp.text, [key], 120)}"
                         wait = max(wait, _retry_after(resp))
                     else:
+                        key_hint = (
+                            f" Check the API key in {self.api_key_env!r} (api_key_env)."
+                            if self.api_key_env
+                            else " The server wants a key: set api_key_env to the name of "
+                            "the environment variable that holds it (no key was sent)."
+                        )
                         hint = {
-                            401: " Check the API key in api_key_env.",
-                            403: " Check the API key in api_key_env.",
+                            401: key_hint,
+                            403: key_hint,
                             404: " Check base_url (it usually ends in /v1) and the model name.",
                         }.get(status, "")
                         if status in (400, 422) and self.json_mode:

@@ -661,3 +661,17 @@ def test_a_damaged_or_hand_edited_cache_file(server, tmp_path, edit, served):
         assert qs.provenance["source"] == "cache" and qs.positives == served
     path.write_text("[1, 2]")  # not an object: asked again (was: AttributeError)
     assert make(server, tmp_path).expand("chair").provenance["source"] == "server"
+
+
+def test_401_without_api_key_env_says_to_set_it(server, tmp_path, monkeypatch):
+    """A hosted API asked without a key: the hint says to set api_key_env (it said to
+    check the key in api_key_env, which was not set); with one, it names the variable."""
+    server.play(401, raw=b'{"error": {"message": "You didn\'t provide an API key."}}')
+    with pytest.raises(HeuristicError) as err:
+        make(server, tmp_path).expand("chair")
+    assert "set api_key_env to the name of the environment variable" in str(err.value)
+    assert "Authorization" not in server.requests[0]["headers"]
+    monkeypatch.setenv("MY_LLM_KEY", SECRET)
+    server.play(401, raw=b'{"error": {"message": "Incorrect API key provided"}}')
+    with pytest.raises(HeuristicError, match="Check the API key in 'MY_LLM_KEY'"):
+        make(server, tmp_path, api_key_env="MY_LLM_KEY").expand("chair")
