@@ -54,8 +54,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
             "--dir",
             default=None,
             metavar="DIR",
-            help="Cache directory (default: see above); with --llm, the LLM query-set "
-            "folder (a config's heuristic cache_dir).",
+            help="Text-embedding cache directory (default: $QUASH_CACHE_DIR/text-embeddings, "
+            "else the user cache directory); with --llm, the LLM query-set folder (default: "
+            "$QUASH_CACHE_DIR/llm; a config's heuristic cache_dir).",
         )
 
 
