@@ -71,7 +71,7 @@ def _size(n: float) -> str:
 def run(args: argparse.Namespace) -> int:
     from ..core.errors import UsageError
     from ..engine.cache import TextEmbeddingCache
-    from ..heuristics._llm import llm_cache_info
+    from ..heuristics import llm_cache_info
     from ._output import console, print_json, safe_text
 
     action = getattr(args, "cache_command", None)
@@ -135,7 +135,7 @@ def _print_llm(llm: dict, out) -> None:
 
 def _run_llm(args: argparse.Namespace, action: str, out) -> int:
     from ..core.errors import UsageError
-    from ..heuristics._llm import clear_llm_cache, llm_cache_info
+    from ..heuristics import clear_llm_cache, llm_cache_info
     from ._output import print_json, safe_text
 
     if action == "clear":

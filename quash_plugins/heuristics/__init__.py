@@ -13,6 +13,8 @@ _EXPORTS = {
     "NoneHeuristic": "._basic",
     "StaticHeuristic": "._basic",
     "LLMHeuristic": "._llm",
+    "llm_cache_info": "._llm",
+    "clear_llm_cache": "._llm",
     "TaxonomyHeuristic": "._taxonomy",
     "LabelListHeuristic": "._taxonomy",
     "normalise_name": "._taxonomy",
