@@ -578,22 +578,30 @@ def test_quash_expand_needs_no_encoder_weights_for_the_llm(server, tmp_path, cap
     assert "does not exist" in capsys.readouterr().err
 
 
+def _llm_chair_map(server, tmp_path, extra: str = "", key_env: str = ""):
+    """A three-item map and an llm config on ``server`` whose table encoder puts the
+    server's chair synonyms on one axis and its antonyms on the other."""
+    table = {w: [1.0, 0.0] for w in ("chair", "seat", "armchair", "stool")}
+    table.update({w: [0.0, 1.0] for w in ("table", "lamp", "rug", "other", "background")})
+    table["nothing"] = [0.0, 1.0]
+    key = f"api_key_env: {key_env}, " if key_env else ""
+    cfg = tmp_path / "llm.yaml"
+    cfg.write_text(
+        f"encoder: {{name: table, table: {json.dumps(table)}}}\n"
+        f"heuristic: {{name: llm, model: test-model, base_url: '{server.base_url}', "
+        f"{key}backoff: 0.01}}\nrefine: null\npresence: null\n{extra}"
+    )
+    lmap = tmp_path / "map.npz"
+    np.savez(lmap, embeddings=np.array([[1, 0], [0, 1], [1, 0.1]], dtype=np.float32))
+    return lmap, cfg
+
+
 def test_verbose_query_lists_the_llms_synonyms_and_antonyms(server, tmp_path, capsys):
     """`quash -v query` shows what the LLM said for each query (was: only the counts in
     the table), and whether the set came from the server or the cache."""
     from quash_plugins.cli.main import main
 
-    table = {w: [1.0, 0.0] for w in ("chair", "seat", "armchair", "stool")}
-    table.update({w: [0.0, 1.0] for w in ("table", "lamp", "rug", "other", "background")})
-    table["nothing"] = [0.0, 1.0]
-    cfg = tmp_path / "llm.yaml"
-    cfg.write_text(
-        f"encoder: {{name: table, table: {json.dumps(table)}}}\n"
-        f"heuristic: {{name: llm, model: test-model, base_url: '{server.base_url}', "
-        "backoff: 0.01}\nrefine: null\npresence: null\ninstances: false\n"
-    )
-    lmap = tmp_path / "map.npz"
-    np.savez(lmap, embeddings=np.array([[1, 0], [0, 1], [1, 0.1]], dtype=np.float32))
+    lmap, cfg = _llm_chair_map(server, tmp_path, "instances: false\n")
     for source in ("server", "cache"):
         assert main(["-v", "query", str(lmap), "chair", "-c", str(cfg)]) == 0
         err = " ".join(capsys.readouterr().err.split())
@@ -610,17 +618,7 @@ def test_out_npz_records_the_llm_model_endpoint_and_source(server, tmp_path, mon
     from quash_plugins.cli.main import main
 
     monkeypatch.setenv("MY_LLM_KEY", SECRET)
-    table = {w: [1.0, 0.0] for w in ("chair", "seat", "armchair", "stool")}
-    table.update({w: [0.0, 1.0] for w in ("table", "lamp", "rug", "other", "background")})
-    table["nothing"] = [0.0, 1.0]
-    cfg = tmp_path / "llm.yaml"
-    cfg.write_text(
-        f"encoder: {{name: table, table: {json.dumps(table)}}}\n"
-        f"heuristic: {{name: llm, model: test-model, base_url: '{server.base_url}', "
-        "api_key_env: MY_LLM_KEY, backoff: 0.01}\nrefine: null\npresence: null\n"
-    )
-    lmap = tmp_path / "map.npz"
-    np.savez(lmap, embeddings=np.array([[1, 0], [0, 1], [1, 0.1]], dtype=np.float32))
+    lmap, cfg = _llm_chair_map(server, tmp_path, key_env="MY_LLM_KEY")
     for source in ("server", "cache"):
         out = tmp_path / f"{source}.npz"
         assert main(["query", str(lmap), "chair", "-c", str(cfg), "--out", str(out)]) == 0
