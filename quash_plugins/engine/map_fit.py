@@ -68,6 +68,9 @@ def warn_built_by(encoder: Any, lmap: LatentMap) -> None:
     if not isinstance(built, str) or not built:
         return
     ours = encoder.fingerprint()
+    earlier = getattr(encoder, "earlier_fingerprints", None)
+    if callable(earlier) and built in earlier():
+        return  # the same embedding function, named as an earlier version named it
     if built == ours or not first_time(("built-by", str(lmap.source.get("path")), built, ours)):
         return
     log.warning(

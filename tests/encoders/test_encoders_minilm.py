@@ -142,6 +142,25 @@ def test_same_weights_share_one_fingerprint(caplog):
     assert "was built with encoder 'minilm'" in caplog.text
 
 
+def test_a_map_recorded_under_the_earlier_name_is_not_warned_about(caplog):
+    """Maps made before the fingerprint named weights rather than the model string carry
+    the earlier name of the same embedding function: no warning for them."""
+    from quash_plugins.core.types import LatentMap
+    from quash_plugins.encoders._sentence_transformers import MiniLMEncoder
+    from quash_plugins.engine.map_fit import warn_built_by
+
+    mini = MiniLMEncoder(device="cpu")
+    [earlier] = mini.earlier_fingerprints()
+    assert earlier.startswith("minilm-") and earlier != mini.fingerprint()
+    lmap = LatentMap(
+        embeddings=np.eye(2, 384, dtype=np.float32),
+        source={"path": "old.npz", "encoder": "minilm", "encoder_fingerprint": earlier},
+    )
+    with caplog.at_level("WARNING"):
+        warn_built_by(mini, lmap)
+    assert "was built with encoder" not in caplog.text
+
+
 def test_sentence_transformers_missing_model_says_how_to_fix():
     from quash_plugins.encoders._sentence_transformers import SentenceTransformerEncoder
 
