@@ -135,14 +135,14 @@ def _print_llm(llm: dict, out) -> None:
 
 def _run_llm(args: argparse.Namespace, action: str, out) -> int:
     from ..core.errors import UsageError
-    from ..heuristics import clear_llm_cache, llm_cache_info
+    from ..heuristics import clear_llm_cache, llm_cache_info, llm_cache_root
     from ._output import print_json, safe_text
 
     if action == "clear":
         if args.fingerprint:
             raise UsageError("--fingerprint names a text-embedding encoder; not with --llm.")
         n, freed = clear_llm_cache(args.dir)
-        where = llm_cache_info(args.dir)["directory"]
+        where = llm_cache_root(args.dir)
         out.print(safe_text(f"cleared {_sets(n)} from {where} ({_size(freed)} freed)"))
         return 0
     llm = llm_cache_info(args.dir)

@@ -7,12 +7,9 @@ experiment can be re-run with ``offline: true`` and no server at all.
 
 from __future__ import annotations
 
-import contextlib
-import hashlib
 import json
 import logging
 import os
-import re
 import time
 from datetime import UTC, datetime
 from pathlib import Path
@@ -23,6 +20,7 @@ from ..core.errors import ConfigError, HeuristicError, QuashError
 from ..core.interfaces import ExpansionContext, Heuristic
 from ..core.redact import RedactingFilter, redact
 from ..core.types import QuerySet
+from ._llm_cache import cache_file_name, llm_cache_root
 from ._parse import clean_lists, parse_reply
 
 log = logging.getLogger(__name__)
@@ -52,76 +50,6 @@ Reply exactly in this form:
 
 #: HTTP statuses worth retrying.
 RETRY_STATUSES = frozenset({408, 409, 425, 429, 500, 502, 503, 504})
-
-
-def default_cache_dir() -> Path:
-    """``$QUASH_CACHE_DIR/llm``, else the user cache dir of quash-plugins, ``/llm``."""
-    root = os.environ.get("QUASH_CACHE_DIR")
-    if root:
-        return Path(root).expanduser() / "llm"
-    import platformdirs
-
-    return Path(platformdirs.user_cache_dir("quash-plugins")) / "llm"
-
-
-#: The name of one cached query set: a hash of its key, ``.json``.
-CACHE_FILE_RE = re.compile(r"^[0-9a-f]{32}\.json$")
-
-
-def _cache_files(directory: Path) -> list[Path]:
-    """The query-set files of ``directory``: regular files named like one, never through a
-    symbolic link (a linked folder or file is left alone)."""
-    if directory.is_symlink() or not directory.is_dir():
-        return []
-    out = []
-    with os.scandir(directory) as entries:
-        for entry in entries:
-            if CACHE_FILE_RE.match(entry.name) and entry.is_file(follow_symlinks=False):
-                out.append(Path(entry.path))
-    return sorted(out)
-
-
-def llm_cache_info(directory: str | Path | None = None) -> dict[str, Any]:
-    """Where the LLM query sets are cached, how many, their size, and the sets per model
-    and endpoint (``quash cache info``). ``directory``: default :func:`default_cache_dir`."""
-    root = Path(directory).expanduser().absolute() if directory else default_cache_dir()
-    groups: dict[tuple[str, str], dict[str, Any]] = {}
-    total = 0
-    files = _cache_files(root)
-    for path in files:
-        with contextlib.suppress(OSError):
-            total += path.stat().st_size
-        try:
-            key = json.loads(path.read_text(encoding="utf-8")).get("key") or {}
-            model, endpoint = str(key.get("model", "?")), str(key.get("endpoint", "?"))
-        except (OSError, ValueError, AttributeError):
-            model, endpoint = "(unreadable)", ""
-        rec = groups.setdefault(
-            (model, endpoint), {"model": model, "endpoint": endpoint, "sets": 0}
-        )
-        rec["sets"] += 1
-    return {
-        "directory": str(root),
-        "sets": len(files),
-        "bytes": total,
-        "models": sorted(groups.values(), key=lambda r: (-r["sets"], r["model"])),
-    }
-
-
-def clear_llm_cache(directory: str | Path | None = None) -> tuple[int, int]:
-    """Delete the cached LLM query sets of ``directory`` (default :func:`default_cache_dir`):
-    only files named like one, never through a symbolic link. Returns (sets, bytes)."""
-    root = Path(directory).expanduser().absolute() if directory else default_cache_dir()
-    n = freed = 0
-    for path in _cache_files(root):
-        try:
-            size = path.stat().st_size
-            path.unlink()
-        except OSError as exc:
-            log.warning("llm: could not delete %s: %s", path, exc)
-            continue
-        n, freed = n + 1, freed + size
-    return n, freed
 
 
 def chat_endpoint(base_url: str) -> str:
@@ -288,7 +216,7 @@ class LLMHeuristic(Heuristic):
 
     # ------------------------------------------------------------------ cache
     def _cache_root(self) -> Path:
-        return Path(self.cache_dir).expanduser() if self.cache_dir else default_cache_dir()
+        return llm_cache_root(self.cache_dir)
 
     def cache_key(self, query: str) -> dict[str, Any]:
         """What identifies a cached query set (no secrets)."""
@@ -302,8 +230,7 @@ class LLMHeuristic(Heuristic):
         }
 
     def cache_path(self, query: str) -> Path:
-        blob = json.dumps(self.cache_key(query), sort_keys=True).encode()
-        return self._cache_root() / f"{hashlib.sha256(blob).hexdigest()[:32]}.json"
+        return self._cache_root() / cache_file_name(self.cache_key(query))
 
     def _read_cache(self, query: str) -> dict[str, Any] | None:
         path = self.cache_path(query)
