@@ -391,17 +391,19 @@ def write_openlex3d_map(lmap: LatentMap, folder: str | Path, chunk_rows: int = 6
     dense = not isinstance(rows, IndexedRows)
     if not dense:
         rows, index = rows.table, np.asarray(rows.index, dtype=np.int64)
-        if (index < 0).any():  # no object: one zero row, never -1 (the last row upstream)
-            index = np.where(index < 0, int(rows.shape[0]), index)
-            rows = _ZeroRowAfter(rows)
-    m = int(rows.shape[0])
+    stored = int(rows.shape[0])
+    m = stored
+    if (index < 0).any():  # no object: one zero row after the table, never -1 (the last row)
+        index = np.where(index < 0, stored, index)
+        m += 1
     kind = f"OpenLex3D export of quash (with {EXPORT_MARKER})"
     with atomic_dir(folder, replaceable=is_openlex3d_export, kind=kind) as tmp:
         tmp.mkdir()
         out = np.lib.format.open_memmap(tmp / "embeddings.npy", "w+", np.float32, (m, d))
-        for start in range(0, m, chunk_rows):
-            stop = min(m, start + chunk_rows)
+        for start in range(0, stored, chunk_rows):
+            stop = min(stored, start + chunk_rows)
             out[start:stop] = np.asarray(rows[start:stop], dtype=np.float32)
+        out[stored:] = 0.0
         out.flush()
         del out
         np.save(tmp / "index.npy", index)
@@ -418,18 +420,3 @@ def write_openlex3d_map(lmap: LatentMap, folder: str | Path, chunk_rows: int = 6
         (tmp / EXPORT_MARKER).write_text(json.dumps(meta, indent=2) + "\n", encoding="utf-8")
     log.info("wrote OpenLex3D predictions %s: %d points, %d rows x %d", folder, n, m, d)
     return folder
-
-
-class _ZeroRowAfter:
-    """``table`` with one zero row appended (row ``M``), sliced without copying ``table``."""
-
-    def __init__(self, table: Any) -> None:
-        self.table = table
-        self.shape = (int(table.shape[0]) + 1, int(table.shape[1]))
-
-    def __getitem__(self, rows: slice) -> np.ndarray:
-        start, stop, _ = rows.indices(self.shape[0])
-        part = np.asarray(self.table[start : min(stop, self.shape[0] - 1)])
-        if stop == self.shape[0]:
-            part = np.concatenate([part, np.zeros((1, self.shape[1]), part.dtype)])
-        return part
