@@ -32,6 +32,7 @@ from .answer import _describe, classifier_words
 from .classify import BlockScorer
 from .dask_client import current_client, require_dask, require_zarr
 from .dask_executor import compute, scores_graph, ship
+from .results import frame_attrs
 
 log = logging.getLogger(__name__)
 
@@ -43,22 +44,6 @@ BYTES_PER_QUERY_ITEM = 13
 
 #: The config steps that only :meth:`LazyQuery.to_zarr` applies (see :func:`query_lazy`).
 STEPS = ("refine", "presence")
-
-
-def frame_attrs(lmap: Any) -> dict[str, Any]:
-    """A pixel map's frames as a result store's attributes, named as in the NPZ result:
-    ``frame_ids`` (F,) str, ``frame_hw`` (F, 2) and ``frame_offsets`` (F,) int, so that
-    ``masks_per_frame(frames_from_zarr(path), masks[q])`` cuts a mask into per-image
-    masks without the map. ``{}`` for a map without frames (or frames that do not cover
-    its items)."""
-    frames = getattr(lmap, "frames", None)
-    if not frames or sum(f.size for f in frames) != lmap.n:
-        return {}
-    return {
-        "frame_ids": [str(f.frame_id) for f in frames],
-        "frame_hw": [[int(f.height), int(f.width)] for f in frames],
-        "frame_offsets": [int(f.offset) for f in frames],
-    }
 
 
 def group_size(n: int, budget_bytes: int) -> int:

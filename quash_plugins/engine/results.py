@@ -97,6 +97,23 @@ def _query_record(r: QueryResult) -> dict[str, Any]:
     return out
 
 
+def frame_attrs(lmap: Any) -> dict[str, Any]:
+    """A pixel map's frame layout in a results file: ``frame_ids`` (F,) str, ``frame_hw``
+    (F, 2) and ``frame_offsets`` (F,) int, as plain lists (a zarr store's attributes;
+    :func:`write_results_npz` stores them as arrays), so that ``masks_per_frame(
+    frames_from_npz(path) or frames_from_zarr(path), masks[q])`` cuts a mask into
+    per-image masks without the map. ``{}`` for a map without frames (or frames that do
+    not cover its items)."""
+    frames = getattr(lmap, "frames", None)
+    if not frames or sum(f.size for f in frames) != lmap.n:
+        return {}
+    return {
+        "frame_ids": [str(f.frame_id) for f in frames],
+        "frame_hw": [[int(f.height), int(f.width)] for f in frames],
+        "frame_offsets": [int(f.offset) for f in frames],
+    }
+
+
 def write_results_npz(
     path: str | Path,
     results: Sequence[QueryResult],
@@ -132,11 +149,8 @@ def write_results_npz(
             value = getattr(lmap, key, None)
             if value is not None and len(value) == masks.shape[1]:
                 extra[key] = np.asarray(value)
-        frames = getattr(lmap, "frames", None)
-        if frames and sum(f.size for f in frames) == masks.shape[1]:
-            extra["frame_ids"] = np.asarray([f.frame_id for f in frames], dtype=str)
-            extra["frame_hw"] = np.asarray([(f.height, f.width) for f in frames], np.int64)
-            extra["frame_offsets"] = np.asarray([f.offset for f in frames], np.int64)
+        for key, value in frame_attrs(lmap).items():
+            extra[key] = np.asarray(value, dtype=str if key == "frame_ids" else np.int64)
     record = json.dumps(results_provenance(results, encoder, config_file), default=str)
     extra["provenance"] = np.asarray(record, dtype=str)
     with atomic_write(path, suffix=".npz") as tmp:
