@@ -201,9 +201,14 @@ def test_cli_query_auto_input_unchanged(cf_feat):
     # The result file alone cuts its masks into per-image masks, as the map does.
     from quash_plugins.adapters import frames_from_npz
 
-    lmap = read_map(folder)
-    assert frames_from_npz(out) == [replace(f, image_path=None) for f in lmap.frames]
-    from_file = masks_per_frame(frames_from_npz(out), mask)
+    _cuts_as_the_map_does(frames_from_npz(out), read_map(folder), mask, boxes)
+
+
+def _cuts_as_the_map_does(frames, lmap, mask, boxes) -> None:
+    """Frames read back from a result file are the map's (less image paths), and cut
+    ``mask`` into the same per-image masks as the map, one per frame in order."""
+    assert frames == [replace(f, image_path=None) for f in lmap.frames]
+    from_file = masks_per_frame(frames, mask)
     from_map = masks_per_frame(lmap, mask)
     assert list(from_file) == list(boxes) == list(from_map)
     for stem in boxes:
@@ -233,13 +238,7 @@ def test_zarr_result_keeps_the_frames(cf_feat, steps):
     assert store.attrs["frame_ids"] == list(boxes)
     assert store.attrs["frame_hw"] == [[5, 7]] * 3
     assert store.attrs["frame_offsets"] == [0, 35, 70]
-    lmap = read_map(folder)
-    assert frames_from_zarr(out) == [replace(f, image_path=None) for f in lmap.frames]
-    from_store = masks_per_frame(frames_from_zarr(out), mask)
-    from_map = masks_per_frame(lmap, mask)
-    assert list(from_store) == list(boxes) == list(from_map)
-    for stem in boxes:
-        np.testing.assert_array_equal(from_store[stem], from_map[stem])
+    _cuts_as_the_map_does(frames_from_zarr(out), read_map(folder), mask, boxes)
     with np.load(_npz_result(tmp, folder, cfg)) as z:  # the same masks as --out RESULT.npz
         np.testing.assert_array_equal(z["masks"][0], mask)
 
