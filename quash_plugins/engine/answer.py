@@ -234,16 +234,23 @@ def _moved_scores(
 ) -> np.ndarray:
     """A copy of ``raw`` with the presence check's changes to ``mask`` (now ``keep``).
 
-    Dropped items are moved below the threshold and below every kept item (their order
-    otherwise kept); items added by growth sit just above the threshold, below every
-    match of the last pass.
+    Dropped items sit just below the threshold, below every kept item and above the
+    items the last pass did not match, in the last pass's order: a rejected object still
+    ranks where its classifier put it among what is left. Items added by growth sit just
+    above the threshold, below every match of the last pass.
     """
     dropped = mask & ~keep
     added = keep & ~mask
     raw = raw.copy()
     if dropped.any():
-        span = float(raw[observed].max() - raw[observed].min()) + 1.0
-        raw[dropped] = np.minimum(raw[dropped] - span, threshold - 1e-3)
+        # the last pass's order in a band under the threshold; every unmatched item
+        # moves down by twice the band (their order kept), so none outranks a dropped one
+        lo, hi = float(raw[dropped].min()), float(raw[dropped].max())
+        band = 1e-3
+        raw[observed & ~mask & ~keep] -= 2 * band
+        value = threshold - band * (0.95 - 0.9 * (raw[dropped] - lo) / max(hi - lo, 1e-12))
+        ceil = np.nextafter(np.float32(threshold), np.float32(-np.inf))
+        raw[dropped] = np.minimum(value, ceil)
     if added.any():
         # just above the threshold, below every match of the last pass
         lo, hi = float(raw[added].min()), float(raw[added].max())

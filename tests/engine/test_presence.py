@@ -565,3 +565,24 @@ def test_grow_margin_auto_parses_and_refine_seeds_auto_resolves_by_label_groups(
     assert resolve_seeds("auto", qs.provenance) == "top"
     assert resolve_seeds("auto", {"heuristic": "vocabulary"}) == "matched"
     assert resolve_seeds("matched", qs.provenance) == "matched"
+
+
+def test_dropped_items_keep_the_last_pass_order_above_the_unmatched():
+    """The items the presence check drops sit just under the threshold in the last
+    pass's order, above every item the pass did not match: a rejected object still
+    ranks where its classifier put it (AP, inverse rank)."""
+    m = _object_map()
+    common = dict(heuristic=TaxonomyHeuristic(taxonomy=TAX, n_antonyms="all"), instances=False)
+    plain = Quash(_encoder(), **common).query(m, "chair")
+    threshold = float(np.median(plain.scores))  # half the map matches the absent chair
+    q = Quash(_encoder(), presence={}, threshold=threshold, **common)
+    first = Quash(_encoder(), threshold=threshold, **common).query(m, "chair")
+    chair = q.query(m, "chair")
+    assert first.mask.any() and not chair.mask.any()
+    assert (chair.scores <= threshold).all()
+    # the order of the last pass is kept over the whole map
+    order = np.argsort(-np.asarray(first.scores, np.float64), kind="stable")
+    assert np.all(np.diff(np.asarray(chair.scores, np.float64)[order]) <= 0)
+    # a kept object still ranks above what was dropped, as before
+    bed = q.query(m, "bed")
+    assert bed.scores[~bed.mask].max() < bed.scores[bed.mask].min()
