@@ -78,10 +78,11 @@ DEFAULT_CONFIG: dict[str, Any] = {
     "encoder": "minilm",
     "heuristic": {"name": "auto"},
     "classifier": DEFAULT_CLASSIFIER.to_dict(),
-    # auto: demo:quash-labels' settings (seeds: top, grow_margin: 0.0) for a query set
-    # from a label list, demo:quash-vocabulary's (matched, null) for one from the vocabulary
+    # auto: demo:quash-labels' settings (seeds: top, grow_margin: 0.0, keep_like: 0.6) for
+    # a query set from a label list, demo:quash-vocabulary's (matched, null, null) for one
+    # from the vocabulary
     "refine": {**CHOSEN_REFINE, "seeds": "auto"},
-    "presence": {**CHOSEN_PRESENCE, "grow_margin": "auto"},
+    "presence": {**CHOSEN_PRESENCE, "grow_margin": "auto", "keep_like": "auto"},
 }
 
 
@@ -185,7 +186,7 @@ class QuashConfig:
             "keep_margin: -0.02, core_margin: 0.12, core_keep_margin: 0.03, size_margin: 0.3, "
             "flat_margin: null, support_margin: 0.12, label_name: true, k: 2, mode: filter|gate, "
             "grow: -0.25, grow_steps: null, grow_margin: 0.0 (auto: 0.0 with a label list, "
-            "else null)}; "
+            "else null), keep_like: null (auto: 0.6 with a label list, else null)}; "
             "{} takes these defaults). Needs a voxel grid, positions or frames. null turns it off."
         },
     )

@@ -51,11 +51,11 @@ def test_the_default_is_one_config_in_core_and_the_chosen_method():
 
     shipped = QuashConfig.from_yaml(find_shipped("demo:quash-labels").path)
     assert shipped.classifier.to_dict() == cfg.classifier.to_dict()
-    # refinement's seeds and the growth check are "auto": the label list's settings for
+    # refinement's seeds, the growth check and keep_like are "auto": the label list's settings for
     # a query set with label groups (tested on maps below)
     assert shipped.refine == {**cfg.refine, "seeds": "top"}
     assert PresenceOptions.parse(shipped.presence) == PresenceOptions.parse(
-        {**cfg.presence, "grow_margin": 0.0}
+        {**cfg.presence, "grow_margin": 0.0, "keep_like": 0.6}
     )
     assert shipped.heuristic.name == "taxonomy" and shipped.heuristic.params["n_antonyms"] == "all"
     vocabulary = QuashConfig.from_yaml(find_shipped("demo:quash-vocabulary").path)
@@ -65,7 +65,7 @@ def test_the_default_is_one_config_in_core_and_the_chosen_method():
         {**cfg.refine, "seeds": "matched"}
     )
     assert PresenceOptions.parse(vocabulary.presence) == PresenceOptions.parse(
-        {**cfg.presence, "grow_margin": None}
+        {**cfg.presence, "grow_margin": None, "keep_like": None}
     )
 
 

@@ -567,6 +567,52 @@ def test_grow_margin_auto_parses_and_refine_seeds_auto_resolves_by_label_groups(
     assert resolve_seeds("matched", qs.provenance) == "matched"
 
 
+def _bed_and_a_sofa_block(seed=9):
+    """A 27-item bed block, a 27-item sofa block apart from it and a background wall far
+    away (so the map's mean is neither)."""
+    rng = np.random.default_rng(seed)
+    cube = [(x, y, z) for x in range(3) for y in range(3) for z in range(3)]
+    sofa = [(x + 10, y, z) for x, y, z in cube]
+    wall = [(30 + x, 0, z) for x in range(12) for z in range(12)]
+    E = np.concatenate(
+        [_rows("bed", 27, rng), _rows("sofa", 27, rng), _rows("background", len(wall), rng)]
+    ).astype(np.float32)
+    return LatentMap(E, kind="voxels", grid_index=np.asarray(cube + sofa + wall), voxel_size=0.1)
+
+
+def test_a_loosely_kept_component_must_look_like_the_strong_ones():
+    """keep_like: a component kept without being strong (here, with every keep margin
+    off, a sofa block for the bed query) stays only when the cosine of its centred mean
+    to the strong components' is at least keep_like; the strong bed is never dropped."""
+    m = _bed_and_a_sofa_block()
+    mask = np.zeros(m.n, bool)
+    mask[:54] = True
+    loose = dict(keep_margin=-9.0, core_keep_margin=-9.0)
+    keep, info = _check(m, mask, **loose)
+    assert info["present"] and keep[:54].all()  # the sofa is kept as a loose component
+    # the cosine of the centred means, from the definition
+    E = np.asarray(m.embeddings, np.float64)
+    E /= np.linalg.norm(E, axis=1, keepdims=True)
+
+    def centred(items):
+        v = E[items].mean(axis=0) - E.mean(axis=0)
+        return v / np.linalg.norm(v)
+
+    like = float(centred(np.arange(27, 54)) @ centred(np.arange(27)))
+    assert like < 0.6
+    keep, info = _check(m, mask, keep_like=like - 1e-3, **loose)
+    assert keep[:54].all() and info["kept"] == 2
+    for value in (like + 1e-3, 0.6):
+        keep, info = _check(m, mask, keep_like=value, **loose)
+        assert keep[:27].all() and not keep[27:].any() and info["kept"] == 1
+    # auto: 0.6 with label groups, as demo:quash-labels
+    assert not _check(m, mask, keep_like="auto", **loose)[0][27:].any()
+    assert PresenceOptions.parse({"keep_like": "auto"}).keep_like == "auto"
+    assert PresenceOptions.parse({"keep_like": 0.6}).keep_like == 0.6
+    with pytest.raises(ConfigError, match="numbers expected"):
+        PresenceOptions.parse({"keep_like": "like"})
+
+
 def test_dropped_items_keep_the_last_pass_order_above_the_unmatched():
     """The items the presence check drops sit just under the threshold in the last
     pass's order, above every item the pass did not match: a rejected object still
