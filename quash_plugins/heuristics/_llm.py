@@ -218,9 +218,16 @@ class LLMHeuristic(Heuristic):
     def _cache_root(self) -> Path:
         return llm_cache_root(self.cache_dir)
 
-    def cache_key(self, query: str) -> dict[str, Any]:
-        """What identifies a cached query set (no secrets)."""
-        return {
+    def cache_key(self, query: str, seed: int | None = None) -> dict[str, Any]:
+        """What identifies a cached query set (no secrets).
+
+        A sampled reply (``temperature > 0``) also depends on the temperature and on the
+        seed sent with the request, so both join the key then: another temperature or
+        seed asks the server again. At temperature 0 (greedy decoding, the default) the
+        seed changes nothing, and the key is the one it always was, so existing caches
+        keep serving. ``json_mode`` is not in the key: it changes how the reply is
+        wrapped, not what is asked, and replies are parsed alike either way."""
+        key: dict[str, Any] = {
             "endpoint": self.endpoint,
             "model": self.model,
             "prompt_version": PROMPT_VERSION,
@@ -228,12 +235,16 @@ class LLMHeuristic(Heuristic):
             "n_synonyms": self.n_synonyms,
             "n_antonyms": self.n_antonyms,
         }
+        if self.temperature > 0:
+            key["temperature"] = self.temperature
+            key["seed"] = int(seed) if self.send_seed and seed is not None else None
+        return key
 
-    def cache_path(self, query: str) -> Path:
-        return self._cache_root() / cache_file_name(self.cache_key(query))
+    def cache_path(self, query: str, seed: int | None = None) -> Path:
+        return self._cache_root() / cache_file_name(self.cache_key(query, seed))
 
-    def _read_cache(self, query: str) -> dict[str, Any] | None:
-        path = self.cache_path(query)
+    def _read_cache(self, query: str, seed: int | None = None) -> dict[str, Any] | None:
+        path = self.cache_path(query, seed)
         if not path.exists() and not path.is_symlink():
             return None
         if path.is_symlink() or not path.is_file():
@@ -244,7 +255,7 @@ class LLMHeuristic(Heuristic):
         except (OSError, ValueError) as exc:
             log.warning("ignoring unreadable LLM cache file %s: %s", path, exc)
             return None
-        if not isinstance(data, dict) or data.get("key") != self.cache_key(query):
+        if not isinstance(data, dict) or data.get("key") != self.cache_key(query, seed):
             return None
         lists = [data.get(side) for side in ("synonyms", "antonyms")]
         if not all(isinstance(v, list) and all(isinstance(w, str) for w in v) for v in lists):
@@ -257,12 +268,14 @@ class LLMHeuristic(Heuristic):
         syn, ant = clean_lists(query, *lists, self.n_synonyms, self.n_antonyms)
         return {**data, "synonyms": syn, "antonyms": ant}
 
-    def _write_cache(self, query: str, synonyms: list[str], antonyms: list[str]) -> Path:
+    def _write_cache(
+        self, query: str, synonyms: list[str], antonyms: list[str], seed: int | None = None
+    ) -> Path:
         from ..core.atomic import atomic_write_text
 
-        path = self.cache_path(query)
+        path = self.cache_path(query, seed)
         record = {
-            "key": self.cache_key(query),
+            "key": self.cache_key(query, seed),
             "synonyms": synonyms,
             "antonyms": antonyms,
             "temperature": self.temperature,
@@ -276,33 +289,39 @@ class LLMHeuristic(Heuristic):
 
     # ------------------------------------------------------------------ expansion
     def expand(self, query: str, context: ExpansionContext | None = None) -> QuerySet:
-        cached = self._read_cache(query) if self.cache else None
+        seed = context.seed if context is not None else None
+        cached = self._read_cache(query, seed) if self.cache else None
         source = "cache"
         if cached is not None:
             synonyms, antonyms = list(cached["synonyms"]), list(cached["antonyms"])
-            log.info("llm: %r served from cache %s", query, self.cache_path(query))
+            log.info("llm: %r served from cache %s", query, self.cache_path(query, seed))
         elif self.offline:
             where = self._cache_root() if self.cache else "(cache disabled)"
+            sampled = (
+                f", temperature {self.temperature}, seed {self.cache_key(query, seed)['seed']}"
+                if self.temperature > 0
+                else ""
+            )
             raise HeuristicError(
                 f"Heuristic 'llm' is offline and has no cached query set for {query!r} "
                 f"(model {self.model!r}, endpoint {self.endpoint}, prompt {PROMPT_VERSION}, "
-                f"n_synonyms {self.n_synonyms}, n_antonyms {self.n_antonyms}) in {where}. "
-                "Run once with offline: false, or point cache_dir at the cache that has it."
+                f"n_synonyms {self.n_synonyms}, n_antonyms {self.n_antonyms}{sampled}) in "
+                f"{where}. Run once with offline: false, or point cache_dir at the cache "
+                "that has it."
             )
         else:
-            seed = context.seed if context is not None else None
             synonyms, antonyms = self.ask(query, seed)
             source = "server"
             if self.cache:
                 if synonyms or antonyms:
-                    self._write_cache(query, synonyms, antonyms)
+                    self._write_cache(query, synonyms, antonyms, seed)
                 else:
                     log.warning("llm: empty reply for %r is not cached", query)
         if not synonyms and not antonyms:
             log.warning("llm: %s returned no synonyms and no antonyms for %r", self.model, query)
         extra: dict[str, Any] = {"source": source, "prompt_version": PROMPT_VERSION}
         if self.cache:
-            extra["cache_file"] = str(self.cache_path(query))
+            extra["cache_file"] = str(self.cache_path(query, seed))
         return QuerySet(query, [query, *synonyms], antonyms, self.provenance(context, **extra))
 
     def request_body(self, query: str, seed: int | None = None) -> dict[str, Any]:

@@ -274,6 +274,32 @@ def test_cache_and_offline(server, tmp_path):
     server.httpd = _Dummy()  # already closed
 
 
+def test_a_sampled_reply_is_cached_per_temperature_and_seed(server, tmp_path):
+    from quash_plugins.core.interfaces import ExpansionContext
+
+    # greedy decoding (temperature 0): the seed changes nothing, one cached set serves all
+    greedy = make(server, tmp_path)
+    greedy.expand("chair", ExpansionContext(seed=1))
+    make(server, tmp_path).expand("chair", ExpansionContext(seed=2))
+    make(server, tmp_path, json_mode=True).expand("chair")
+    assert len(server.requests) == 1
+    assert "temperature" not in greedy.cache_key("chair", 1)  # the key caches always had
+    # sampling: another temperature or another seed is another reply, asked for again
+    hot = make(server, tmp_path, temperature=0.7)
+    hot.expand("chair", ExpansionContext(seed=1))
+    assert len(server.requests) == 2 and server.requests[-1]["body"]["seed"] == 1
+    make(server, tmp_path, temperature=0.7).expand("chair", ExpansionContext(seed=1))
+    assert len(server.requests) == 2  # the same temperature and seed: served from cache
+    make(server, tmp_path, temperature=0.7).expand("chair", ExpansionContext(seed=2))
+    make(server, tmp_path, temperature=0.9).expand("chair", ExpansionContext(seed=1))
+    assert len(server.requests) == 4
+    assert hot.cache_path("chair", 1) != hot.cache_path("chair", 2) != greedy.cache_path("chair")
+    with pytest.raises(HeuristicError, match=r"offline.*temperature 0.7, seed 3\)"):
+        make(server, tmp_path, temperature=0.7, offline=True).expand(
+            "chair", ExpansionContext(seed=3)
+        )
+
+
 class _Dummy:
     def shutdown(self):
         pass
