@@ -33,7 +33,7 @@ examples:
   quash eval scene.npz -c quash-labels.yaml --queries-file scene.open-queries.yaml
 A query file is {present: {text: label} or [labels], absent: [texts]}.
 The JSON holds {"configs": [{"name", "given", "mean": {precision, recall, f1, iou, ap,
-inv_rank}, "per_query": {query: {label, ...}}, "absence": {score, empty_tolerance,
+inv_rank} (null with no present query), "per_query": {query: {label, ...}}, "absence": {score, empty_tolerance,
 present_empty, per_query}}], "provenance": {quash_plugins (the version), map: {path,
 adapter, ...}, query_file, queries: {text: label}, absent, configs: [{name, file,
 shipped, encoder}], exclude, empty_tolerance}}.
@@ -161,6 +161,9 @@ def run(args: argparse.Namespace) -> int:
     md = report.to_markdown()
     if args.markdown:
         atomic_write_text(args.markdown, f"# quash eval: {lmap.describe()}\n\n{md}")
+    if args.plot and not report.queries:
+        log.warning("--plot %s not written: no present query to score", args.plot)
+        args.plot = None
     if args.plot:
         plot_precision_recall(report.configs, args.plot, title=f"quash eval: {args.map}")
     viewer = open_viewer(args, app_id="quash-eval")

@@ -198,7 +198,7 @@ def run_bench(
                 notes.append(f"- {cfg['name']}: skipped ({str(exc).splitlines()[0]})")
                 log.warning("bench %s: %s skipped: %s", table, cfg["name"], exc)
         if table != "fair":  # the fair table keeps the peers first, as the docs list them
-            rows.sort(key=lambda c: -c["mean"]["f1"])
+            rows.sort(key=lambda c: -(c["mean"]["f1"] or 0.0))
         results[table] = {"configs": rows, "notes": notes}
         md += [f"## {titles[table]}", "", report_markdown(rows, per_query=False)]
         md += [*notes, ""] if notes else []

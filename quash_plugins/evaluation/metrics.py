@@ -74,14 +74,15 @@ def query_metrics(
     }
 
 
-def macro_mean(per_query: dict[str, dict[str, Any]]) -> dict[str, float]:
-    """The unweighted mean of each metric over queries (0 for all when there are none).
+def macro_mean(per_query: dict[str, dict[str, Any]]) -> dict[str, float | None]:
+    """The unweighted mean of each metric over queries (None for all when there are none:
+    nothing was scored, which a 0 would misreport as a method that found nothing).
 
     The ranking metrics (:data:`RANKING`) are averaged over the queries that have them
     (None: undefined, e.g. no neighbourhood for the inverse rank), when any has.
     """
     if not per_query:
-        return {k: 0.0 for k in METRICS}
+        return dict.fromkeys(METRICS)
     out = {k: float(np.mean([q[k] for q in per_query.values()])) for k in METRICS}
     for k in RANKING:
         vals = [q[k] for q in per_query.values() if q.get(k) is not None]

@@ -62,6 +62,8 @@ def plot_precision_recall(
             ax.scatter(
                 [q["recall"] for q in pq], [q["precision"] for q in pq], s=9, alpha=0.3, color=color
             )
+        if c["mean"]["f1"] is None:  # nothing scored (absence queries only): no mean to place
+            continue
         ax.scatter(
             [c["mean"]["recall"]],
             [c["mean"]["precision"]],
@@ -77,7 +79,8 @@ def plot_precision_recall(
         ok = (p > 0) & (p <= 1)
         ax.plot(r[ok], p[ok], color="grey", lw=0.6, ls=":")
     ax.set(xlim=(0, 1.02), ylim=(0, 1.02), xlabel="recall", ylabel="precision", title=title)
-    ax.legend(fontsize=7, loc="lower left")
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=7, loc="lower left")
     fig.tight_layout()
     path = Path(path)
     with atomic_write(path, suffix=".png") as tmp:

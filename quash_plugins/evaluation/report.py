@@ -69,7 +69,11 @@ class EvalReport:
         return report_markdown(self.configs, per_query=per_query)
 
     def best(self, metric: str = "f1") -> dict[str, Any]:
-        return max(self.configs, key=lambda c: c["mean"][metric])
+        """The config with the highest mean ``metric`` (a config with nothing scored, whose
+        means are None, ranks last)."""
+        return max(
+            self.configs, key=lambda c: (c["mean"][metric] is not None, c["mean"][metric] or 0)
+        )
 
 
 def _as_quash(config: Any, overrides: dict[str, Any]):

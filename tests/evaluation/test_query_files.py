@@ -3,6 +3,8 @@ file, the query and the fix, instead of silently turning a query into something 
 
 from __future__ import annotations
 
+import json
+
 import pytest
 
 from quash_plugins.cli.main import main
@@ -164,6 +166,39 @@ def test_with_only_absence_queries_the_means_are_na_and_the_absence_table_is_sho
     assert cells[2:8] == ["n/a"] * 6  # F1 .. inv. rank: nothing to score, not 0.000
     assert "**" not in row
     assert "Items matched by absence queries" in md and "| drone | " in md
+    # the JSON says the same: null means, not 0 (a method that found nothing)
+    assert set(rep.configs[0]["mean"].values()) == {None}
+    assert json.loads(json.dumps(rep.to_json()))["configs"][0]["mean"]["f1"] is None
+    assert rep.best()["name"] == "peer"
+
+
+def test_the_plot_of_a_report_with_only_absence_queries_is_not_written(tmp_path, capsys):
+    from quash_plugins.evaluation import evaluate
+    from quash_plugins.evaluation.plot import plot_precision_recall
+
+    lmap, peer = _robot_map_and_peer()
+    rep = evaluate(lmap, [peer], queries=["drone"])
+    # the library plots the configs that have a mean and skips the others (was: a TypeError)
+    assert plot_precision_recall(rep.configs, tmp_path / "pr.png").exists()
+    import yaml
+    from _eval_table import table_for
+
+    from quash_plugins.adapters._npz import write_npz_map
+
+    write_npz_map(tmp_path / "map.npz", lmap)
+    (tmp_path / "table.yaml").write_text(yaml.safe_dump(table_for(["drone", "other"])))
+    cfg = {
+        "encoder": {"name": "table", "file": str(tmp_path / "table.yaml")},
+        "heuristic": {"name": "none"},
+        "classifier": {"name": "label-argmax"},
+        "negatives": ["other"],
+        "instances": False,
+    }
+    (tmp_path / "peer.yaml").write_text(yaml.safe_dump(cfg))
+    code = main(["eval", str(tmp_path / "map.npz"), "-c", str(tmp_path / "peer.yaml"),
+                 "--queries", "drone", "--plot", str(tmp_path / "cli.png")])  # fmt: skip
+    assert code == 0 and not (tmp_path / "cli.png").exists()
+    assert "no present query to score" in capsys.readouterr().err
 
 
 def test_a_query_of_an_excluded_label_and_a_negative_tolerance_are_refused(tmp_path, capsys):
