@@ -145,6 +145,35 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _subparser(parser: argparse.ArgumentParser, command: str | None) -> argparse.ArgumentParser:
+    """The parser of ``command`` (``parser`` itself when there is none)."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            return action.choices.get(command, parser) if command else parser
+    return parser
+
+
+def _refuse_unknown(parser: argparse.ArgumentParser, command: str | None, extra: list[str]):
+    """An argument no parser took: the subcommand's usage and error (argparse gives the
+    top-level ones), with the nearest option of that subcommand when one is close."""
+    import difflib
+
+    target = _subparser(parser, command)
+    options = [o for a in target._actions for o in a.option_strings if o.startswith("--")]
+    hints = []
+    for arg in extra:
+        if arg.startswith("--"):
+            close = difflib.get_close_matches(arg.split("=", 1)[0], options, n=1, cutoff=0.75)
+            if close:
+                hints.append(f"{arg.split('=', 1)[0]}: did you mean {close[0]}?")
+    help_hint = f"'quash {command} --help'" if command else "'quash --help'"
+    target.error(
+        f"unrecognized arguments: {' '.join(extra)}"
+        + (f" ({'; '.join(hints)})" if hints else "")
+        + f"; {help_hint} lists the options."
+    )
+
+
 @contextlib.contextmanager
 def _dask_clients_closed() -> Iterator[None]:
     """Close the Dask clients a command started (``--backend dask``) when it ends."""
@@ -158,7 +187,9 @@ def _dask_clients_closed() -> Iterator[None]:
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if extra:
+        _refuse_unknown(parser, getattr(args, "command", None), extra)
     if not getattr(args, "command", None):
         parser.print_help()
         return 2

@@ -512,3 +512,27 @@ def test_make_scene_passes_encoder_options(tmp_path, capsys, monkeypatch):
     )
     assert code == 2 and "'bogus'" in err and "batch_size" in err
     assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    "argv, bad, usage, hint",
+    [
+        (["query", "m.npz", "chair", "--formt", "npz"], "--formt npz", "quash query", "--format"),
+        (["eval", "m.npz", "--queris", "bed"], "--queris bed", "quash eval", "--queries"),
+        (["query", "m.npz", "--bogus", "chair"], "--bogus", "quash query", None),
+        (["--bogus"], "--bogus", "quash", None),
+    ],
+)
+def test_an_unknown_option_shows_its_subcommands_usage_and_the_nearest_option(
+    argv, bad, usage, hint, capsys
+):
+    """argparse gave the top-level usage ('quash [-h] ... COMMAND ...') for a subcommand's
+    unknown option, which lists none of the options the user could have meant."""
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"usage: {usage} [")
+    assert f"{usage}: error: unrecognized arguments: {bad}" in err
+    assert f"'{usage} --help' lists the options" in err
+    assert (f"did you mean {hint}?" in err) if hint else ("did you mean" not in err)
