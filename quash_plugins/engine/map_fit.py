@@ -73,15 +73,23 @@ def warn_built_by(encoder: Any, lmap: LatentMap) -> None:
         return  # the same embedding function, named as an earlier version named it
     if built == ours or not first_time(("built-by", str(lmap.source.get("path")), built, ours)):
         return
+    name = getattr(encoder, "name", type(encoder).__name__)
+    built_name = lmap.source.get("encoder", "?")
+    if built_name == name:  # one plugin name, two embedding functions
+        differs = (
+            f"this config's {name!r} is another embedding function ({ours}): other weights, "
+            "another model or other settings (normalize, dim, templates) under the same "
+            "encoder name"
+        )
+    else:
+        differs = f"this config's encoder is {name!r} ({ours})"
     log.warning(
-        "%s was built with encoder %r (fingerprint %s), but this config's encoder is %r "
-        "(%s). Scores mean something only when both embed text into the same space: "
-        "query with the encoder that built the map.",
+        "%s was built with encoder %r (fingerprint %s), but %s. Scores mean something only "
+        "when both embed text into the same space: query with the encoder that built the map.",
         lmap.source.get("path", "the map"),
-        lmap.source.get("encoder", "?"),
+        built_name,
         built,
-        getattr(encoder, "name", type(encoder).__name__),
-        ours,
+        differs,
     )
 
 

@@ -8,7 +8,7 @@ import socket
 import numpy as np
 import pytest
 
-from quash_plugins.core import registry
+from quash_plugins.core import once, registry
 from quash_plugins.core.errors import ConfigError, EncoderError
 
 pytest.importorskip("sentence_transformers")
@@ -140,6 +140,17 @@ def test_same_weights_share_one_fingerprint(caplog):
     with caplog.at_level("WARNING"):
         warn_built_by(st, LatentMap(lmap.embeddings, positions=lmap.positions, source=other))
     assert "was built with encoder 'minilm'" in caplog.text
+    # one name, two embedding functions: said so, not "'minilm' ... but ... is 'minilm'"
+    assert "this config's encoder is 'minilm'" not in caplog.text
+    assert "this config's 'minilm' is another embedding function" not in caplog.text  # st's name
+    assert "this config's encoder is 'sentence-transformers'" in caplog.text
+    caplog.clear()
+    once.forget("built-by")  # the same map and fingerprints: warned once per process
+    with caplog.at_level("WARNING"):
+        warn_built_by(mini, LatentMap(lmap.embeddings, positions=lmap.positions, source=other))
+    assert f"this config's 'minilm' is another embedding function ({mini.fingerprint()})" in (
+        caplog.text
+    )
 
 
 def test_a_map_recorded_under_the_earlier_name_is_not_warned_about(caplog):
