@@ -153,3 +153,20 @@ def test_config_reference_is_current():
     assert config_reference() in text, (
         "regenerate docs/config.md: python -m quash_plugins.core.config"
     )
+
+
+def test_concepts_lists_every_built_in_plugin():
+    """docs/concepts.md's table of interfaces names each kind's built-ins, as `quash
+    plugins` lists them (it once missed `auto`, `label-list`, `map-negatives` and
+    `openscene`)."""
+    rows = {
+        m.group(1): set(re.findall(r"`([\w-]+)`", m.group(2)))
+        for m in re.finditer(
+            r"^\| `(\w+)` \| .+? \| (.+) \|$", (DOCS / "concepts.md").read_text(), re.M
+        )
+    }
+    kinds = {"Encoder": "encoders", "Heuristic": "heuristics", "Classifier": "classifiers"}
+    kinds["MapAdapter"] = "adapters"
+    for interface, kind in kinds.items():
+        built_in = {i.name for i in registry.plugins(kind) if i.dist == "quash-plugins"}
+        assert rows[interface] == built_in, (interface, rows[interface] ^ built_in)
