@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -127,3 +128,48 @@ def test_dimension_mismatch_names_dims_and_preset(tmp_path, capsys):
     assert rc == 1
     assert "384" in err and "512" in err and "lseg" in err
     assert "Traceback" not in err
+
+
+def _console_block(doc: str, command: str) -> list[str]:
+    """The lines a ```console block of ``doc`` shows under ``$ command``."""
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[2] / "docs" / doc).read_text(encoding="utf-8")
+    block = text[text.index(f"$ {command}") :].split("```")[0]
+    return block.splitlines()[1:]
+
+
+def _shape(line: str, directory: str) -> str:
+    """A line of `quash cache info` with its folder, numbers and table rules masked."""
+    line = line.replace(directory, "DIR")
+    line = re.sub(r"\d+(\.\d+)?( [KMG]iB| B)?", "9", line)
+    return re.sub(r"[\s─━┏┓┗┛┃│┡┩╇┳┴└┘]+", " ", line).strip()
+
+
+def test_cache_info_prints_what_the_docs_show(tmp_path, monkeypatch, capsys):
+    """docs/encoders.md's `quash cache info`, line by line, up to the folder and the
+    numbers (it once left out the table of fingerprints)."""
+    monkeypatch.setenv("COLUMNS", "200")
+    TextEmbeddingCache().store(
+        "sentence-transformers-9e78c519fe6e302d", {"chair": np.ones(4, np.float32)}
+    )
+    capsys.readouterr()
+    assert main(["cache", "info"]) == 0
+    root = str(default_cache_dir().parent)
+    printed = [_shape(ln, root) for ln in capsys.readouterr().out.splitlines()]
+    shown = _console_block("encoders.md", "quash cache info")
+    assert [_shape(ln, "/home/me/.cache/quash-plugins") for ln in shown] == printed
+
+
+def test_dimension_mismatch_is_the_message_the_docs_show(tmp_path, monkeypatch, capsys):
+    """docs/encoders.md quotes the error of `quash query lseg_map.npz chair` word for word."""
+    from quash_plugins.adapters import write_npz_map
+    from quash_plugins.core.types import LatentMap
+
+    E = np.random.default_rng(1).normal(size=(10, 512)).astype(np.float32)
+    write_npz_map(tmp_path / "lseg_map.npz", LatentMap(E))
+    monkeypatch.chdir(tmp_path)
+    assert main(["query", "lseg_map.npz", "chair", "--device", "cpu"]) == 1
+    printed = " ".join(capsys.readouterr().err.split())
+    shown = " ".join(" ".join(_console_block("encoders.md", "quash query lseg_map.npz")).split())
+    assert shown in printed, (shown, printed)
