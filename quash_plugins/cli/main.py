@@ -145,12 +145,12 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _subparser(parser: argparse.ArgumentParser, command: str | None) -> argparse.ArgumentParser:
-    """The parser of ``command`` (``parser`` itself when there is none)."""
+def subcommand_parsers(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
+    """``{name: parser}`` of ``parser``'s subcommands (``{}`` when it has none)."""
     for action in parser._actions:
         if isinstance(action, argparse._SubParsersAction):
-            return action.choices.get(command, parser) if command else parser
-    return parser
+            return dict(action.choices)
+    return {}
 
 
 def _refuse_unknown(parser: argparse.ArgumentParser, command: str | None, extra: list[str]):
@@ -158,7 +158,7 @@ def _refuse_unknown(parser: argparse.ArgumentParser, command: str | None, extra:
     top-level ones), with the nearest option of that subcommand when one is close."""
     import difflib
 
-    target = _subparser(parser, command)
+    target = subcommand_parsers(parser).get(command, parser) if command else parser
     options = [o for a in target._actions for o in a.option_strings if o.startswith("--")]
     hints = []
     for arg in extra:

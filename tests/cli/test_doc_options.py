@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from quash_plugins.cli.main import build_parser
+from quash_plugins.cli.main import build_parser, subcommand_parsers
 
 ROOT = Path(__file__).resolve().parents[2]
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
@@ -42,18 +42,14 @@ def _commands(text: str) -> list[tuple[int, str]]:
     return out
 
 
-def _subparsers(p: argparse.ArgumentParser) -> dict:
-    return next((a.choices for a in p._actions if isinstance(a, argparse._SubParsersAction)), {})
-
-
 def _unknown_options(cmd: str, parser: argparse.ArgumentParser) -> list[str]:
     """The options of ``cmd`` that its (sub)command does not take."""
     words, path = cmd.split()[1:], ["quash"]
     options = lambda p: {o for a in p._actions for o in a.option_strings}  # noqa: E731
     while words and words[0] in options(parser):  # quash -v query ...
         words = words[1:]
-    while words and words[0] in _subparsers(parser):
-        parser = _subparsers(parser)[words[0]]
+    while words and words[0] in subcommand_parsers(parser):
+        parser = subcommand_parsers(parser)[words[0]]
         path.append(words.pop(0))
     known = options(parser)
     flags = [w.strip("[](),;.|").split("=")[0] for w in words]
