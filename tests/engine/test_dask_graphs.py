@@ -35,25 +35,18 @@ from quash_plugins.encoders import TableEncoder  # noqa: E402
 from quash_plugins.engine import classify_dask, classify_local  # noqa: E402
 from quash_plugins.engine.classify import BlockScorer  # noqa: E402
 from quash_plugins.engine.dask_arrays import as_dask  # noqa: E402
+from quash_plugins.engine.dask_client import close_started_clients, local_cluster_client  # noqa: E402
 
 WORDS = ["chair", "sofa", "table", "other", "background", "nothing"]
 
 
 @pytest.fixture(scope="module")
 def client():
-    """One worker process: every task and the graph are really pickled and unpickled."""
-    cluster = distributed.LocalCluster(
-        n_workers=1,
-        threads_per_worker=2,
-        processes=True,
-        host="127.0.0.1",
-        dashboard_address=None,
-        memory_limit="2GiB",
-    )
-    c = distributed.Client(cluster)
+    """One worker process (the package's own LocalCluster, as ``--backend dask`` starts
+    it): every task and the graph are really pickled and unpickled."""
+    c = local_cluster_client(n_workers=1, threads_per_worker=2, memory_limit="2GiB")
     yield c
-    c.close()
-    cluster.close()
+    close_started_clients()
 
 
 def _words(d: int, seed: int = 3) -> dict[str, np.ndarray]:
