@@ -7,11 +7,11 @@ The method configs ship as package data (``quash_plugins/data/configs/demo-*.yam
 from __future__ import annotations
 
 import logging
-import os
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from ..core.cache_dirs import cache_dir
 from ..evaluation.report import EvalReport, evaluate
 from .scene import SceneOptions, make_scene, write_scene
 
@@ -49,12 +49,7 @@ TINY = SceneOptions(rooms=2, voxel_size=0.25, room_size=4.0, extra_objects=0)
 
 def cache_root() -> Path:
     """``$QUASH_CACHE_DIR/demo``, else ``<user cache dir>/quash-plugins/demo``."""
-    root = os.environ.get("QUASH_CACHE_DIR")
-    if root:
-        return Path(root).expanduser() / "demo"
-    import platformdirs
-
-    return Path(platformdirs.user_cache_dir("quash-plugins")) / "demo"
+    return cache_dir("demo")
 
 
 def demo_config_paths() -> list[Path]:

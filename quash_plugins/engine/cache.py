@@ -37,6 +37,7 @@ from typing import Any
 import numpy as np
 
 from ..core.atomic import atomic_write
+from ..core.cache_dirs import cache_dir
 
 log = logging.getLogger(__name__)
 
@@ -52,12 +53,7 @@ LOCK_TIMEOUT = 30.0
 
 def default_cache_dir() -> Path:
     """``$QUASH_CACHE_DIR/text-embeddings``, else ``<user cache dir>/quash-plugins/text-embeddings``."""
-    root = os.environ.get("QUASH_CACHE_DIR")
-    if root:
-        return Path(root).expanduser() / "text-embeddings"
-    import platformdirs
-
-    return Path(platformdirs.user_cache_dir("quash-plugins")) / "text-embeddings"
+    return cache_dir("text-embeddings")
 
 
 def _default_max_bytes() -> int:

@@ -17,6 +17,8 @@ import re
 from pathlib import Path
 from typing import Any
 
+from ..core.cache_dirs import cache_dir
+
 log = logging.getLogger(__name__)
 
 #: The name of one cached query set: a hash of its key, ``.json``.
@@ -25,12 +27,7 @@ CACHE_FILE_RE = re.compile(r"^[0-9a-f]{32}\.json$")
 
 def default_cache_dir() -> Path:
     """``$QUASH_CACHE_DIR/llm``, else the user cache dir of quash-plugins, ``/llm``."""
-    root = os.environ.get("QUASH_CACHE_DIR")
-    if root:
-        return Path(root).expanduser() / "llm"
-    import platformdirs
-
-    return Path(platformdirs.user_cache_dir("quash-plugins")) / "llm"
+    return cache_dir("llm")
 
 
 def llm_cache_root(directory: str | Path | None = None) -> Path:
