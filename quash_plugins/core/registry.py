@@ -279,7 +279,8 @@ def _same_dist(a: str, b: str) -> bool:
 
 
 _BASES: dict[str, tuple[str, ...]] = {
-    "encoders": ("encode_text", "dim"),
+    # fingerprint keys the text cache; a class that does not subclass Encoder lacks it.
+    "encoders": ("encode_text", "dim", "fingerprint"),
     "heuristics": ("expand",),
     "classifiers": ("fit", "decision_function", "get_params", "set_params"),
     "adapters": ("sniff", "read"),
@@ -293,13 +294,7 @@ def _validate(info: PluginInfo, obj: Any) -> None:
             f"points at {info.target}, which is not a class or factory."
         )
     if inspect.isclass(obj):
-        missing = [a for a in _BASES[info.kind] if not hasattr(obj, a)]
-        if missing:
-            raise PluginError(
-                f"{_TITLE[info.kind]} plugin {info.name!r} from distribution {info.dist!r} "
-                f"({info.target}) breaks the {info.kind[:-1]} interface: it lacks "
-                f"{', '.join(missing)}."
-            )
+        _check_interface(info, obj)
         # A subclass of Encoder & co. inherits the abstract methods, so hasattr passes;
         # it still cannot be built until it implements them.
         abstract = sorted(getattr(obj, "__abstractmethods__", ()) or ())
@@ -309,6 +304,23 @@ def _validate(info: PluginInfo, obj: Any) -> None:
                 f"({info.target}) breaks the {info.kind[:-1]} interface: it does not "
                 f"implement {', '.join(abstract)} (abstract in its base class)."
             )
+
+
+def _check_interface(info: PluginInfo, obj: Any) -> None:
+    """Raise naming what ``obj`` (a plugin class or a factory's instance) lacks."""
+    missing = [a for a in _BASES[info.kind] if not hasattr(obj, a)]
+    if not missing:
+        return
+    from . import interfaces
+
+    base = getattr(interfaces, "MapAdapter" if info.kind == "adapters" else _TITLE[info.kind])
+    of = obj if inspect.isclass(obj) else type(obj)
+    hint = "" if issubclass(of, base) else f" Subclass quash_plugins.{base.__name__}."
+    raise PluginError(
+        f"{_TITLE[info.kind]} plugin {info.name!r} from distribution {info.dist!r} "
+        f"({info.target}) breaks the {info.kind[:-1]} interface: it lacks "
+        f"{', '.join(missing)}.{hint}"
+    )
 
 
 def _import_hint(info: PluginInfo, exc: BaseException) -> str:
@@ -449,6 +461,8 @@ def create(kind: str, name: str, /, **params: Any) -> Any:
             f"{_TITLE[kind]} {entry.name!r} from distribution {entry.dist!r} cannot be "
             f"built: it {install_hint(missing, entry.dist)} ({type(exc).__name__}: {exc})"
         ) from exc
+    if not inspect.isclass(obj):  # a factory: its class was not checked when it loaded
+        _check_interface(entry, instance)
     if getattr(instance, "name", None) in (None, "encoder", "heuristic", "adapter"):
         with contextlib.suppress(AttributeError):
             instance.name = entry.name

@@ -2,6 +2,7 @@ from __future__ import annotations
 
 import pytest
 
+from quash_plugins import Encoder
 from quash_plugins.core import registry
 from quash_plugins.core.errors import ConfigError, PluginError
 
@@ -40,7 +41,7 @@ def test_create_passes_params():
     assert clf.C == 3.0
 
 
-class _Enc:
+class _Enc(Encoder):
     name = "mine"
     dim = 2
 
@@ -69,7 +70,7 @@ def test_register_rejects_interface_breakers():
     class NotAnEncoder:
         pass
 
-    with pytest.raises(PluginError, match="lacks encode_text, dim"):
+    with pytest.raises(PluginError, match="lacks encode_text, dim, fingerprint"):
         registry.register("encoders", "bad", NotAnEncoder)
 
 
@@ -88,3 +89,32 @@ def test_register_rejects_a_subclass_that_leaves_a_method_abstract():
     with pytest.raises(PluginError, match="does not implement encode_text"):
         registry.register("encoders", "half", HalfEncoder)
     assert "half" not in registry.available("encoders")
+
+
+class _DuckEncoder:
+    """Has dim and encode_text but does not subclass Encoder: no fingerprint()."""
+
+    dim = 4
+
+    def encode_text(self, texts):  # pragma: no cover - never built
+        raise AssertionError
+
+
+def test_an_encoder_that_does_not_subclass_encoder_is_refused_when_it_loads():
+    """The text cache and the map's provenance call fingerprint(): a duck-typed class
+    used to be listed as ok and then fail every query with an AttributeError."""
+    with pytest.raises(PluginError) as err:
+        registry.register("encoders", "duck", _DuckEncoder, dist="pkg-duck")
+    msg = str(err.value)
+    assert "'duck' from distribution 'pkg-duck'" in msg
+    assert "lacks fingerprint" in msg and "Subclass quash_plugins.Encoder" in msg
+    assert "duck" not in registry.available("encoders")
+
+
+def test_a_factory_whose_instance_breaks_the_interface_is_refused_when_built():
+    registry.register("encoders", "duck-factory", lambda: _DuckEncoder(), dist="pkg-duck")
+    try:
+        with pytest.raises(PluginError, match="'duck-factory'.*lacks fingerprint"):
+            registry.create("encoders", "duck-factory")
+    finally:
+        registry.unregister("encoders", "duck-factory", dist="pkg-duck")
