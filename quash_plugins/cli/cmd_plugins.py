@@ -95,6 +95,15 @@ def run(args: argparse.Namespace) -> int:
             "entry points to give it a name of its own.",
             highlight=False,
         )
+    # An entry point in a group we do not read is invisible otherwise.
+    wanted = {registry.GROUP_PREFIX + k for k in ([args.kind] if args.kind else kinds)}
+    for m in registry.misplaced_entry_points():
+        if m.meant is None or m.meant in wanted:
+            console().print(
+                f"[red]not read: {safe_text(m.name)}[/] ({safe_text(m.dist)}): "
+                f"{safe_text(m.message())}",
+                highlight=False,
+            )
     # The errors in full, after the table: in a table cell they would be cut to a few
     # words per line.
     for i in broken:

@@ -66,11 +66,12 @@ def check_options(section: str, options: Iterable[object], known: Iterable[str])
             )
 
 
-def unknown_name_message(what: str, name: str, known: Iterable[str]) -> str:
-    """Format "<what> 'x' is not registered. Known: a, b. Did you mean 'a'?"."""
+def unknown_name_message(what: str, name: str, known: Iterable[str], *, guess: bool = True) -> str:
+    """Format "<what> 'x' is not registered. Known: a, b. Did you mean 'a'?"
+    (``guess=False``: without the closest name)."""
     known = sorted(set(known))
     msg = f"{what} {name!r} is not registered. Known: {', '.join(known) or '(none)'}."
-    guess = closest(name, known)
+    guess = closest(name, known) if guess else None
     if guess is not None:
         msg += f" Did you mean {guess!r}?"
     return msg

@@ -164,6 +164,70 @@ def _scan(kind: str) -> list[PluginInfo]:
         return infos
 
 
+@dataclass
+class MisplacedEntryPoint:
+    """An entry point in a group quash-plugins does not read, but whose name says it
+    was meant for one (``quash_plugins.encoder``, ``quash-plugins.encoders``...)."""
+
+    group: str
+    name: str
+    target: str
+    dist: str
+    #: The group it was most likely meant for, else None.
+    meant: str | None
+
+    def message(self) -> str:
+        groups = (
+            repr(self.meant)
+            if self.meant
+            else "one of " + ", ".join(repr(GROUP_PREFIX + k) for k in KINDS)
+        )
+        return (
+            f"Distribution {self.dist!r} registers {self.name!r} ({self.target}) in the "
+            f"entry-point group {self.group!r}, which quash-plugins does not read: move it "
+            f"to {groups} in the pyproject.toml of {self.dist!r} and reinstall it."
+        )
+
+
+def misplaced_entry_points() -> list[MisplacedEntryPoint]:
+    """Entry points in a group named like quash-plugins' but not one of its groups.
+
+    Such a plugin is otherwise invisible: ``quash plugins`` does not list it and a
+    config that names it is told only that the name is not registered.
+    """
+    known = {GROUP_PREFIX + k for k in KINDS}
+    out: list[MisplacedEntryPoint] = []
+    seen: set[tuple[str, str, str]] = set()
+    for dist in metadata.distributions():
+        for ep in dist.entry_points:
+            group = ep.group
+            norm = group.lower().replace("-", "_").replace(" ", "")
+            if group in known or not norm.startswith(("quash_plugins", "quashplugins")):
+                continue
+            rest = norm.removeprefix("quash_plugins").removeprefix("quashplugins").strip("._:")
+            meant = next((GROUP_PREFIX + k for k in KINDS if rest and rest in (k, k[:-1])), None)
+            key = (group, ep.name, dist.metadata["Name"])
+            if key not in seen:
+                seen.add(key)
+                out.append(MisplacedEntryPoint(group, ep.name, ep.value, key[2], meant))
+    return out
+
+
+def _not_found(kind: str, name: str) -> str:
+    """The unknown-name error, plus where ``name`` is registered instead, if anywhere."""
+    short = name.split(":", 1)[-1]
+    hints = [
+        f"A plugin named {short!r} is registered as {k[:-1]} (in group "
+        f"{GROUP_PREFIX + k!r}), not as {kind[:-1]}."
+        for k in KINDS
+        if k != kind and any(i.name == short for i in _all(k))
+    ]
+    hints += [m.message() for m in misplaced_entry_points() if m.name == short]
+    # Where the name is registered answers the error; a similar name would mislead.
+    msg = unknown_name_message(_TITLE[kind], name, available(kind), guess=not hints)
+    return " ".join([msg, *hints])
+
+
 def refresh() -> None:
     """Forget scanned entry points (after installing a plugin at run time)."""
     with _lock:
@@ -247,10 +311,10 @@ def _resolve(kind: str, name: str) -> PluginInfo:
                 f"{_TITLE[kind]} {short!r} is not provided by distribution {dist!r}. "
                 f"It is provided by: {', '.join(claims)}."
             )
-        raise PluginError(unknown_name_message(_TITLE[kind], name, available(kind)))
+        raise PluginError(_not_found(kind, name))
     matches = [i for i in infos if i.name == name]
     if not matches:
-        raise PluginError(unknown_name_message(_TITLE[kind], name, available(kind)))
+        raise PluginError(_not_found(kind, name))
     dists = {i.dist for i in matches}
     if len(dists) > 1:
         builtin = [i for i in matches if _same_dist(i.dist, BUILTIN_DIST)]
