@@ -160,6 +160,73 @@ def check_encoder_fingerprint(enc: Any, tmp_path: Path) -> None:
     assert isinstance(enc.name, str) and enc.name, "name must be a non-empty string"
 
 
+#: Parameters documented not to change the output (docs/plugins.md): not varied.
+_OUTPUT_NEUTRAL = ("device", "batch_size")
+
+
+def _numeric_params(enc: Any) -> tuple[dict[str, Any], list[str]] | None:
+    """The constructor's parameters with the values ``enc`` holds (as ``p`` or ``_p``,
+    else the default), and the numeric ones to vary; None when they cannot be known."""
+    import inspect
+
+    try:
+        sig = inspect.signature(type(enc).__init__)
+    except (TypeError, ValueError):
+        return None
+    values: dict[str, Any] = {}
+    for name, param in list(sig.parameters.items())[1:]:
+        if param.kind not in (param.POSITIONAL_OR_KEYWORD, param.KEYWORD_ONLY):
+            continue
+        for attr in (name, "_" + name):
+            if attr in vars(enc):
+                values[name] = vars(enc)[attr]
+                break
+        else:
+            if param.default is param.empty:
+                return None
+            values[name] = param.default
+    numeric = [
+        n
+        for n, v in values.items()
+        if n not in _OUTPUT_NEUTRAL
+        and isinstance(v, (int, float, np.integer, np.floating))
+        and not isinstance(v, bool)
+    ]
+    return values, numeric
+
+
+def check_encoder_fingerprint_follows_params(enc: Any, tmp_path: Path) -> None:
+    """A parameter that changes the output must change the fingerprint, or the text
+    cache serves one setting's embeddings to the other (a stale cache)."""
+    found = _numeric_params(enc)
+    if found is None:
+        return
+    values, numeric = found
+    texts = ["chair", "kitchen sink"]
+    for name in numeric:
+        old = values[name]
+        new = old + 1 if isinstance(old, (int, np.integer)) else old * 1.5 + 0.5
+        try:
+            a = type(enc)(**values)
+            b = type(enc)(**{**values, name: new})
+            if a.fingerprint() != b.fingerprint():
+                continue
+            ea = np.asarray(a.encode_text(texts), dtype=np.float64)
+            eb = np.asarray(b.encode_text(texts), dtype=np.float64)
+            again = np.asarray(a.encode_text(texts), dtype=np.float64)
+        except Exception:  # noqa: BLE001 - a value it refuses, or weights it cannot load
+            continue
+        if not np.allclose(ea, again, atol=1e-5):
+            return  # not deterministic: check_encoder_deterministic says so
+        assert ea.shape == eb.shape and np.allclose(ea, eb, atol=1e-5), (
+            f"parameter {name!r} changes the output ({name}={old!r} and {name}={new!r} "
+            "embed the same texts differently) but not fingerprint(), which keys the "
+            f"text-embedding cache: embeddings cached with {name}={old!r} would be served "
+            f"to the encoder built with {name}={new!r}. Return {name!r} from config() "
+            "(or keep it in a public attribute)."
+        )
+
+
 # ---------------------------------------------------------------- heuristics
 def _context(seed: int = 0) -> ExpansionContext:
     return ExpansionContext(
@@ -410,6 +477,7 @@ _CHECKS: dict[str, list[Callable[[Any, Path], None]]] = {
         check_encoder_batch_independent,
         check_encoder_empty,
         check_encoder_fingerprint,
+        check_encoder_fingerprint_follows_params,
     ],
     "heuristics": [check_heuristic_queryset, check_heuristic_seeded],
     "classifiers": [

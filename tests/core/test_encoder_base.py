@@ -168,3 +168,44 @@ def test_the_kit_catches_a_fingerprint_that_drifts_with_use(tmp_path):
     with pytest.raises(AssertionError, match="fingerprint\\(\\) changed after encode_text"):
         check_encoder(_counting_encoder(), tmp_path)
     check_encoder(HashingEncoder(8), tmp_path / "ok")
+
+
+class _PrivateSeed(Encoder):
+    """Conformant but for one thing: its seed lives in ``_seed`` and its config() does
+    not name it, so two seeds share one fingerprint (and one cache)."""
+
+    name = "private-seed"
+
+    def __init__(self, dim: int = 8, seed: int = 0) -> None:
+        self._dim = dim
+        self._seed = seed
+
+    @property
+    def dim(self) -> int:
+        return self._dim
+
+    def encode_text(self, texts):
+        from quash_plugins.testing import HashingEncoder
+
+        return HashingEncoder(self._dim).encode_text([f"{self._seed} {t}" for t in texts])
+
+
+def test_the_kit_catches_a_parameter_the_fingerprint_misses(tmp_path):
+    """Before, the kit passed it, and the text cache served seed 0's embeddings to an
+    encoder built with seed 1."""
+    from quash_plugins.testing import check_encoder
+
+    a, b = _PrivateSeed(seed=0), _PrivateSeed(seed=1)
+    assert a.fingerprint() == b.fingerprint()
+    assert not np.allclose(a.encode_text(["chair"]), b.encode_text(["chair"]))
+    with pytest.raises(AssertionError) as err:
+        check_encoder(_PrivateSeed(seed=1), tmp_path)
+    msg = str(err.value)
+    assert msg.startswith("encoder 'private-seed': check_encoder_fingerprint_follows_params:")
+    assert "parameter 'seed'" in msg and "Return 'seed' from config()" in msg
+
+    class Fixed(_PrivateSeed):
+        def config(self):
+            return {"dim": self._dim, "seed": self._seed}
+
+    check_encoder(Fixed(seed=1), tmp_path / "ok")
