@@ -128,10 +128,27 @@ def check_text_embeddings(
     fails such an encoder. ``warn_norm=False``: rows off unit norm are expected (an
     encoder configured with ``normalize: false``) and renormalised without a warning.
     """
+    kind = f"{type(emb).__module__.partition('.')[0]}.{type(emb).__name__}"
+    if not isinstance(emb, np.ndarray) and callable(getattr(emb, "detach", None)):
+        # A torch tensor: np.asarray refuses one on a GPU or with gradients.
+        _contract_warning(who, "tensor", f"returns a {kind}, not a numpy array; converted to one")
+        try:
+            emb = emb.detach().float().cpu().numpy()
+        except Exception as exc:  # noqa: BLE001 - reported with the encoder's name
+            raise EncoderError(
+                f"Encoder {who!r} returned a {kind} that cannot be made a numpy array "
+                f"({type(exc).__name__}: {exc}); return .detach().float().cpu().numpy()."
+            ) from exc
     dtype = getattr(emb, "dtype", None)
     if dtype is not None and dtype != np.float32:
         _contract_warning(who, "dtype", f"returns {dtype} embeddings; converted to float32")
-    arr = np.asarray(emb, dtype=np.float32)
+    try:
+        arr = np.asarray(emb, dtype=np.float32)
+    except (TypeError, ValueError) as exc:
+        raise EncoderError(
+            f"Encoder {who!r} returned a {kind} that is not an array of numbers "
+            f"({exc}); return a (len(texts), {dim}) float32 numpy array."
+        ) from exc
     if arr.shape != (len(texts), dim):
         raise EncoderError(
             f"Encoder {who!r} returned shape {arr.shape} for {len(texts)} texts; "

@@ -111,7 +111,11 @@ def check_encoder_output(enc: Any, tmp_path: Path) -> None:
         f"dim must be a positive int; got {dim!r}"
     )
     texts = ["chair", "a red chair", "kitchen sink"]
-    e = np.asarray(enc.encode_text(texts))
+    e = enc.encode_text(texts)
+    assert isinstance(e, np.ndarray), (
+        f"encode_text must return a numpy array; got {type(e).__module__}.{type(e).__name__} "
+        "(a torch tensor: return .detach().float().cpu().numpy())"
+    )
     assert e.shape == (3, dim), f"encode_text shape {e.shape}, expected (3, {dim})"
     assert e.dtype == np.float32, f"encode_text dtype {e.dtype}, expected float32"
     assert np.isfinite(e).all(), "encode_text returned NaN/Inf"

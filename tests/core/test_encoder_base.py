@@ -209,3 +209,55 @@ def test_the_kit_catches_a_parameter_the_fingerprint_misses(tmp_path):
             return {"dim": self._dim, "seed": self._seed}
 
     check_encoder(Fixed(seed=1), tmp_path / "ok")
+
+
+class _TorchOut(_PrivateSeed):
+    """Returns the torch tensor its model computed, still carrying gradients (as a GPU
+    tensor, it could not be handed to numpy either)."""
+
+    name = "torch-out"
+
+    def config(self):
+        return {"dim": self._dim, "seed": self._seed}
+
+    def encode_text(self, texts):
+        import torch
+
+        rows = torch.from_numpy(super().encode_text(texts))
+        return rows * torch.ones(1, requires_grad=True)
+
+
+def test_a_torch_tensor_is_converted_with_a_warning_and_failed_by_the_kit(caplog, tmp_path):
+    """Before: every query failed with torch's 'Can't call numpy() on Tensor that
+    requires grad', naming no encoder, while the kit passed a CPU tensor."""
+    pytest.importorskip("torch")
+    from quash_plugins.core import once
+    from quash_plugins.core.text import encode_texts
+    from quash_plugins.testing import check_encoder
+
+    once.forget("encoder-contract")
+    enc = _TorchOut()
+    with caplog.at_level("WARNING", logger="quash_plugins.core.interfaces"):
+        got = encode_texts(enc, ["chair", "sofa"], None)
+    assert got.dtype == np.float32 and got.shape == (2, 8)
+    np.testing.assert_allclose(got, _PrivateSeed().encode_text(["chair", "sofa"]), atol=1e-6)
+    warned = [r.getMessage() for r in caplog.records]
+    assert any("'torch-out' returns a torch.Tensor, not a numpy array" in m for m in warned)
+    with pytest.raises(
+        AssertionError, match="check_encoder_output: encode_text must return a numpy"
+    ):
+        check_encoder(enc, tmp_path)
+
+
+def test_rows_that_are_not_an_array_name_the_encoder():
+    from quash_plugins.core.errors import EncoderError
+    from quash_plugins.core.text import encode_texts
+
+    class Ragged(_PrivateSeed):
+        name = "ragged"
+
+        def encode_text(self, texts):
+            return [[0.0, 1.0], [1.0]][: len(texts)]
+
+    with pytest.raises(EncoderError, match="Encoder 'ragged' returned a builtins.list that is not"):
+        encode_texts(Ragged(), ["chair", "sofa"], None)
