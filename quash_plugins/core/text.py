@@ -10,9 +10,10 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from .errors import ConfigError, EncoderError, install_hint, missing_module
+from .errors import ConfigError, EncoderError, QuashError, install_hint, missing_module
 from .interfaces import Encoder, check_text_embeddings
 from .once import first_time
+from .registry import distribution_of
 
 log = logging.getLogger(__name__)
 
@@ -52,13 +53,22 @@ def encode_texts(
         log.debug("encoding %d new strings with %s", len(missing), encoder.name)
         try:
             raw = encoder.encode_text(missing)
-        except ImportError as exc:  # a plugin importing its model library on first use
+        except QuashError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - named with the encoder that raised it
             module = missing_module(exc)
-            if module is None:
-                raise
+            if module is not None:  # a plugin importing its model library on first use
+                raise EncoderError(
+                    f"Encoder {encoder.name!r} ({type(encoder).__module__}) failed to encode "
+                    f"({type(exc).__name__}: {exc}): it {install_hint(module)}"
+                ) from exc
+            dist = distribution_of(type(encoder).__module__)
             raise EncoderError(
-                f"Encoder {encoder.name!r} ({type(encoder).__module__}) failed to encode "
-                f"({type(exc).__name__}: {exc}): it {install_hint(module)}"
+                f"Encoder {encoder.name!r} ({type(encoder).__module__}"
+                f"{f', distribution {dist}' if dist else ''}) failed to encode "
+                f"{len(missing)} strings: {type(exc).__name__}: {str(exc).rstrip('.')}. "
+                "Fix the encoder or its parameters (the config's 'encoder:' section); "
+                "--debug shows the traceback."
             ) from exc
         emb = check_text_embeddings(
             raw,

@@ -261,3 +261,23 @@ def test_rows_that_are_not_an_array_name_the_encoder():
 
     with pytest.raises(EncoderError, match="Encoder 'ragged' returned a builtins.list that is not"):
         encode_texts(Ragged(), ["chair", "sofa"], None)
+
+
+def test_an_error_inside_encode_text_names_the_encoder():
+    """Before: the plugin's own exception reached the command line as an 'unexpected
+    error' naming no encoder (a CUDA out-of-memory error, say)."""
+    from quash_plugins.core.errors import EncoderError
+    from quash_plugins.core.text import encode_texts
+
+    class OutOfMemory(_PrivateSeed):
+        name = "out-of-memory"
+
+        def encode_text(self, texts):
+            raise RuntimeError("CUDA out of memory")
+
+    with pytest.raises(EncoderError) as err:
+        encode_texts(OutOfMemory(), ["chair", "sofa"], None)
+    msg = str(err.value)
+    assert msg.startswith(f"Encoder 'out-of-memory' ({__name__}) failed to encode 2 strings")
+    assert "RuntimeError: CUDA out of memory" in msg and "'encoder:' section" in msg
+    assert isinstance(err.value.__cause__, RuntimeError)
