@@ -37,6 +37,7 @@ from typing import Any
 from .errors import (
     ConfigError,
     PluginError,
+    QuashError,
     closest,
     install_hint,
     missing_module,
@@ -517,13 +518,25 @@ def create(kind: str, name: str, /, **params: Any) -> Any:
             check()
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"{_TITLE[kind]} {entry.name!r}: {exc}") from exc
-    except ImportError as exc:  # a plugin that imports its dependencies when built
-        missing = missing_module(exc)
-        if missing is None:
+    except QuashError:
+        raise
+    except Exception as exc:
+        missing = missing_module(exc)  # a plugin that imports its dependencies when built
+        if missing is not None:
+            raise PluginError(
+                f"{_TITLE[kind]} {entry.name!r} from distribution {entry.dist!r} cannot be "
+                f"built: it {install_hint(missing, entry.dist)} ({type(exc).__name__}: {exc})"
+            ) from exc
+        if _same_dist(entry.dist, BUILTIN_DIST):
             raise
+        # A third-party plugin's own error (a weights file it cannot open...): say whose.
+        given = f" with {', '.join(params)}" if params else ""
         raise PluginError(
-            f"{_TITLE[kind]} {entry.name!r} from distribution {entry.dist!r} cannot be "
-            f"built: it {install_hint(missing, entry.dist)} ({type(exc).__name__}: {exc})"
+            f"{_TITLE[kind]} {entry.name!r} from distribution {entry.dist!r}"
+            f"{f' {entry.version}' if entry.version else ''} failed to build{given}: "
+            f"{type(exc).__name__}: "
+            f"{str(exc).rstrip('.')}. Check its parameters in the config, or fix or "
+            f"uninstall {entry.dist!r}; --debug shows the traceback."
         ) from exc
     if not inspect.isclass(obj):  # a factory: its class was not checked when it loaded
         _check_interface(entry, instance)

@@ -118,3 +118,28 @@ def test_a_factory_whose_instance_breaks_the_interface_is_refused_when_built():
             registry.create("encoders", "duck-factory")
     finally:
         registry.unregister("encoders", "duck-factory", dist="pkg-duck")
+
+
+class _NeedsWeights(_Enc):
+    """Opens its weights file when built, as a lab's own model would."""
+
+    def __init__(self, weights: str = "/nonexistent/lab-weights.pt") -> None:
+        open(weights, "rb")  # noqa: SIM115 - raises before anything is kept
+
+
+def test_a_plugin_that_raises_when_built_is_named_with_its_distribution():
+    """Before: the plugin's FileNotFoundError reached the command line as an
+    'unexpected error' naming neither the plugin nor its distribution."""
+    registry.register("encoders", "needs-weights", _NeedsWeights, dist="pkg-lab")
+    try:
+        with pytest.raises(PluginError) as err:
+            registry.create("encoders", "needs-weights", weights="/nonexistent/w.pt")
+    finally:
+        registry.unregister("encoders", "needs-weights", dist="pkg-lab")
+    msg = str(err.value)
+    assert msg.startswith(
+        "Encoder 'needs-weights' from distribution 'pkg-lab' failed to build with weights: "
+        "FileNotFoundError:"
+    )
+    assert "/nonexistent/w.pt" in msg and "fix or uninstall 'pkg-lab'" in msg
+    assert isinstance(err.value.__cause__, FileNotFoundError)
