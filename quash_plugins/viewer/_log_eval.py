@@ -103,8 +103,12 @@ class EvalLogging:
         ``configs`` is the report's JSON list (``[{"name", "per_query": {query: {...}}}]``,
         :class:`quash_plugins.evaluation.report.EvalReport`); query ``i`` of ``queries``
         goes to step ``i`` of the ``query`` timeline, where :meth:`log_result` puts its
-        result, so the plots line up with the queries shown in the 3D views.
+        result, so the plots line up with the queries shown in the 3D views. The
+        ``query_list`` names each step, also when no result was logged (``quash eval``).
         """
+        for i, q in enumerate(queries):
+            self.recording.set_time("query", sequence=i)
+            self._list_query(i, q)
         for c in configs:
             per_query = c.get("per_query") or {}
             for i, q in enumerate(queries):

@@ -384,6 +384,23 @@ def test_eval_legend_sits_beside_the_data(tmp_path):
     assert ("TextDocument", "summary") in blueprint_views(reader)
 
 
+def test_evaluation_alone_names_its_steps(tmp_path):
+    """`quash eval --rrd` logs no results, only the report: its plots' x axis is the query
+    step, so the query list must name the steps, as it does when results are logged."""
+    rec = rr.RecordingStream("quash-eval-test")
+    out = tmp_path / "e.rrd"
+    rec.save(out)
+    logger = RerunLogger(rec)
+    report = [{"name": "one", "per_query": {q: {"f1": 0.5} for q in ("chair", "sofa")}}]
+    logger.log_evaluation(report, ["chair", "sofa"], "| method | F1 |\n|---|---:|\n| one | 0.5 |")
+    logger.close()
+    rec.disconnect()
+    reader, by_path = read_rrd(out)
+    assert [t for t, _ in rows(by_path["eval/f1/one"], "Scalars:scalars")] == [0, 1]
+    assert rows(by_path["query_list"], "TextLog:text") == [(0, ["chair"]), (1, ["sofa"])]
+    assert ("TextLog", "query_list") in blueprint_views(reader)
+
+
 def test_never_touches_the_global_recording(tmp_path):
     assert rr.get_global_data_recording() is None
     lmap = voxel_map()
