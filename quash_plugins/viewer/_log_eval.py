@@ -54,13 +54,14 @@ class EvalLogging:
             number is logged, other values are skipped. Grouping by metric first gives
             one plot per metric that compares the configs.
         step_or_query
-            Position on the ``query`` timeline: an int, or a query string mapped to
-            0, 1, 2... in order of first appearance (the same query string gets the
-            same step for every config).
+            Position on the ``query`` timeline: an int, or a query string: the step
+            where :meth:`log_result` logged that query, else the first step no query is
+            at yet (0, 1, 2... in order of first appearance when no result was logged);
+            the same query string gets the same step for every config.
         """
         rr, rec = self.rr, self.recording
         if isinstance(step_or_query, str):
-            step = self._eval_steps.setdefault(step_or_query, len(self._eval_steps))
+            step = self._step_of(step_or_query)
         else:
             step = int(step_or_query)
         rec.set_time("query", sequence=step)
@@ -90,6 +91,17 @@ class EvalLogging:
             self._eval_metrics.setdefault(metric, None)
             self._eval_last = max(self._eval_last, step)
         self._layout_changed()
+
+    def _step_of(self, query: str) -> int:
+        """The step of a query string: where a result (or an earlier call) named it, else
+        the first step no query is named at."""
+        if query not in self._eval_steps:
+            named = [s for s, q in self._listed.items() if q == query]
+            taken = set(self._listed) | set(self._eval_steps.values())
+            self._eval_steps[query] = (
+                min(named) if named else next(s for s in range(len(taken) + 1) if s not in taken)
+            )
+        return self._eval_steps[query]
 
     def log_evaluation(
         self,

@@ -82,7 +82,7 @@ class ResultLogging:
         the list of queries by step, where clicking a row moves the timeline to it."""
         if step in self._listed:
             return
-        self._listed.add(step)
+        self._listed[step] = str(query)
         self.recording.log(QUERY_LIST, self.rr.TextLog(str(query)))
         self._layout_changed()
 

@@ -133,7 +133,7 @@ class RerunLogger(MapLogging, ResultLogging, EvalLogging):
         self._eval_colors: dict[str, tuple[int, int, int]] = {}
         self._eval_last = -1
         self._has_summary = False
-        self._listed: set[int] = set()
+        self._listed: dict[int, str] = {}  # step -> the query named there
 
     # ------------------------------------------------------------------ lifecycle
     def _layout_changed(self) -> None:

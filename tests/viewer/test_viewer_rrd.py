@@ -384,6 +384,28 @@ def test_eval_legend_sits_beside_the_data(tmp_path):
     assert ("TextDocument", "summary") in blueprint_views(reader)
 
 
+def test_eval_scalars_by_query_land_on_its_logged_step(tmp_path):
+    """A query string goes to the step where log_result logged that query, not to the
+    next number of its own count (sofa's F1 was plotted at chair's step)."""
+    lmap = voxel_map()
+    out = tmp_path / "e.rrd"
+    rec = rr.RecordingStream("quash-eval-test")
+    rec.save(out)
+    logger = RerunLogger(rec)
+    logger.log_map(lmap)
+    for i, r in enumerate(make_quash().query_many(lmap, ["chair", "sofa"])):
+        logger.log_result(lmap, r, index=i)
+    logger.log_eval_scalars("m", {"f1": 0.25}, "sofa")
+    logger.log_eval_scalars("m", {"f1": 0.75}, "lamp")  # not logged: the next free step
+    logger.log_eval_scalars("m", {"f1": 0.5}, "chair")
+    logger.close()
+    rec.disconnect()
+    _, by_path = read_rrd(out)
+    assert rows(by_path["eval/f1/m"], "Scalars:scalars") == [(0, [0.5]), (1, [0.25]), (2, [0.75])]
+    names = [(0, ["chair"]), (1, ["sofa"]), (2, ["lamp"])]
+    assert rows(by_path["query_list"], "TextLog:text") == names
+
+
 def test_evaluation_alone_names_its_steps(tmp_path):
     """`quash eval --rrd` logs no results, only the report: its plots' x axis is the query
     step, so the query list must name the steps, as it does when results are logged."""
