@@ -47,6 +47,12 @@ from ._vlmaps_common import (
 
 log = logging.getLogger(__name__)
 
+#: The fix for NaN/Inf rows of a live map (the live adapter has no check_finite option).
+LIVE_FINITE_FIX = (
+    "Set those rows to zero, e.g. vlmap.grid_feat[~np.isfinite(vlmap.grid_feat).all(axis=1)] "
+    "= 0: a zero row is an unobserved cell and never matches."
+)
+
 
 def _lookup(obj: Any, *names: str) -> Any:
     """``obj.a.b.c`` that also walks dicts; None when any step is missing."""
@@ -165,7 +171,7 @@ class VLMapsLiveAdapter(MapAdapter):
                 f"{where}: 'grid_feat' must be (N, D) with D > 0; got {feat.shape}."
             )
         n = int(feat.shape[0])
-        scan_finite(feat, where, "grid_feat")
+        scan_finite(feat, where, "grid_feat", fix=LIVE_FINITE_FIX)
         grid_pos = np.asarray(as_array(source.grid_pos))
         if n == 0 and grid_pos.size == 0:
             grid_pos = grid_pos.reshape(0, 3)

@@ -523,3 +523,17 @@ def test_a_scene_folder_whose_vlmap_folder_has_no_file_says_so(tmp_path, capsys)
     (tmp_path / "cam" / "vlmap_cam").mkdir(parents=True)
     with pytest.raises(MapFormatError, match=r"cam/vlmap_cam/ has no vlmaps_cam\.h5df"):
         read_map(tmp_path / "cam")
+
+
+def test_live_vlmap_nan_rows_get_a_fix_the_live_adapter_takes():
+    """The NaN error once advised check_finite=False, an option vlmaps-live refuses."""
+    arrays = mobile_map(n=15, d=D)
+    feat = arrays["grid_feat"].copy()
+    feat[4, 0] = np.nan
+    live = SimpleNamespace(grid_feat=feat, grid_pos=arrays["grid_pos"])
+    with pytest.raises(MapFormatError, match=r"'grid_feat'.*row 4") as err:
+        read_map(live, "vlmaps-live")
+    assert "check_finite" not in str(err.value)
+    assert "grid_feat[~np.isfinite(vlmap.grid_feat).all(axis=1)] = 0" in str(err.value)
+    feat[~np.isfinite(feat).all(axis=1)] = 0  # the fix the message gives
+    assert read_map(live, "vlmaps-live").n == 15
