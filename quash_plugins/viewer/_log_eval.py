@@ -67,7 +67,7 @@ class EvalLogging:
         rec.set_time("query", sequence=step)
         if isinstance(step_or_query, str):
             self._list_query(step, step_or_query)
-        cfg = slugify(str(config_name), "config")
+        cfg = self._config_slug(str(config_name))
         for key, value in metrics.items():
             try:
                 v = float(value)

@@ -13,7 +13,7 @@ import numpy as np
 from ..core.errors import QuashError
 from ..core.types import LatentMap, QueryResult
 from ._blueprint import QUERY_LIST
-from ._display import colormap, score_classes, slugify, thin
+from ._display import colormap, score_classes, thin
 from ._document import queryset_markdown
 from ._log_map import MATCH_COLOR
 
@@ -36,7 +36,7 @@ class ResultLogging:
 
     def focus(self, config_name: str) -> None:
         """Open the viewer on this config's tab (default: the first config logged)."""
-        self._focus = slugify(str(config_name), "config")
+        self._focus = self._config_slug(str(config_name))
         self._layout_changed()
 
     def log_result(self, lmap: LatentMap, result: QueryResult, index: int) -> None:
@@ -57,7 +57,7 @@ class ResultLogging:
             )
         index = int(index)
         name = str(result.config_name or "quash")
-        c = slugify(name, "config")
+        c = self._config_slug(name)
         state = self._configs.setdefault(c, _ConfigState(name))
         rec.set_time("query", sequence=index)
         self._list_query(index, result.query)

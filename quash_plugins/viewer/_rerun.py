@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import QuashError
-from ._display import UP_AXES
+from ._display import UP_AXES, slugify
 from ._log_eval import EvalLogging
 from ._log_map import MapLogging
 from ._log_result import ResultLogging, _ConfigState
@@ -134,6 +134,20 @@ class RerunLogger(MapLogging, ResultLogging, EvalLogging):
         self._eval_last = -1
         self._has_summary = False
         self._listed: dict[int, str] = {}  # step -> the query named there
+        self._config_slugs: dict[str, str] = {}  # config name -> its entity name
+
+    def _config_slug(self, name: str) -> str:
+        """The entity-safe name of config ``name``, one per name: a second name that
+        slugs alike (``my-method``, ``My Method``) gets ``_2``, then ``_3``..."""
+        slug = self._config_slugs.get(name)
+        if slug is None:
+            base = slug = slugify(name, "config")
+            taken = set(self._config_slugs.values())
+            k = 2
+            while slug in taken:
+                slug, k = f"{base}_{k}", k + 1
+            self._config_slugs[name] = slug
+        return slug
 
     # ------------------------------------------------------------------ lifecycle
     def _layout_changed(self) -> None:

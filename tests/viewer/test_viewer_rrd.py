@@ -384,6 +384,33 @@ def test_eval_legend_sits_beside_the_data(tmp_path):
     assert ("TextDocument", "summary") in blueprint_views(reader)
 
 
+def test_configs_whose_names_slug_alike_keep_their_own_entities(tmp_path):
+    """Names such as 'my-method' and 'My Method' (or two long names that share 64
+    characters) once became one entity path: one tab, one series, the second overwriting the first."""
+    lmap = voxel_map()
+    long = "quash-labels-" + "x" * 60
+    names = ["my-method", "My Method", long + "-a", long + "-b"]
+    out = tmp_path / "e.rrd"
+    rec = rr.RecordingStream("quash-eval-test")
+    rec.save(out)
+    logger = RerunLogger(rec)
+    for k, name in enumerate(names):
+        quash = make_quash()
+        quash.name = name
+        [r] = quash.query_many(lmap, ["chair"])
+        logger.log_result(lmap, r, index=0)
+        logger.log_eval_scalars(name, {"f1": k / 10}, "chair")
+    logger.close()
+    rec.disconnect()
+    reader, by_path = read_rrd(out)
+    slugs = sorted({p.split("/")[-1] for p in by_path if p.startswith("eval/f1/")})
+    assert len(slugs) == len(names)
+    f1 = sorted(rows(by_path[f"eval/f1/{s}"], "Scalars:scalars")[0][1][0] for s in slugs)
+    assert f1 == pytest.approx([0.0, 0.1, 0.2, 0.3])
+    assert all(f"world/matches/{s}" in by_path and f"queries/{s}" in by_path for s in slugs)
+    assert {f"{n}: map and matches" for n in names} <= view_names(reader)
+
+
 def test_eval_scalars_by_query_land_on_its_logged_step(tmp_path):
     """A query string goes to the step where log_result logged that query, not to the
     next number of its own count (sofa's F1 was plotted at chair's step)."""
