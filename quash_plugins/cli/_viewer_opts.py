@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import textwrap
 from typing import Any
 
 from ..viewer import (
@@ -37,8 +38,9 @@ LOGS_QUERIES = "Log the map and every query to Rerun (needs the [rerun] extra)."
 
 def add_viewer_arguments(parser: argparse.ArgumentParser, logs: str = LOGS_QUERIES) -> None:
     """Add ``--rrd``, ``--spawn``, ``--connect``, ``--serve-web``, ``--web-port``,
-    ``--grpc-port`` and ``--bind``; ``logs`` says what the command logs."""
-    g = parser.add_argument_group("Rerun viewer", logs)
+    ``--grpc-port`` and ``--bind``; ``logs`` says what the command logs (wrapped here, as
+    the commands' raw descriptions are, to 88 columns with the group's indent)."""
+    g = parser.add_argument_group("Rerun viewer", textwrap.fill(logs, width=86))
     g.add_argument(
         "--rrd",
         metavar="FILE.rrd",

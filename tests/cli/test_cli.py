@@ -406,6 +406,19 @@ def test_each_commands_rerun_options_say_what_it_logs(capsys):
     assert "Log the scene, every method's query results and the evaluation" in said["demo"]
 
 
+def test_rerun_options_paragraph_is_wrapped_like_the_rest_of_the_help(capsys):
+    """The group's paragraph (eval's was one 214-character line) is wrapped like the
+    descriptions, at 88 columns."""
+    for name in ("query", "eval", "demo"):
+        with pytest.raises(SystemExit):
+            main([name, "--help"])
+        out = capsys.readouterr().out
+        start = out.index("Rerun viewer:")
+        section = out[start : out.index("--rrd FILE.rrd", start)]
+        assert "Log the " in section
+        assert max(len(line) for line in section.splitlines()) <= 88, section
+
+
 def test_query_out_npz_records_where_items_are_and_how_it_was_made(tiny_world, tmp_path, capsys):
     """The results file alone can be plotted (the map's positions, row for row) and says
     how it was made: version, map, config, encoder fingerprint, each query's set and
