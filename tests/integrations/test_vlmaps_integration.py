@@ -91,6 +91,20 @@ def test_yaml_block_is_a_valid_config(tmp_path):
     assert cfg.adapter.params == {"cs": 0.05}
 
 
+def test_a_yaml_block_that_names_a_shipped_config_is_that_config():
+    """The baseline block was said to be demo-vlmaps.yaml, whose encoder is MiniLM."""
+    configs = Path(__file__).resolve().parents[2] / "quash_plugins" / "data" / "configs"
+    text = DOC.read_text(encoding="utf-8")
+    checked = 0
+    for m in re.finditer(r"```yaml\n(.*?)```", text, flags=re.S):
+        paragraph = text[: m.start()].rsplit("\n\n", 2)[-2]
+        for name in re.findall(r"quash_plugins/data/configs/([\w-]+\.yaml)", paragraph):
+            shipped = yaml.safe_load((configs / name).read_text(encoding="utf-8"))
+            assert yaml.safe_load(m.group(1)) == shipped, name
+            checked += 1
+    assert checked
+
+
 def test_python_blocks_run(project, capsys):
     vlmap = FakeVLMap()
     ns = {"vlmap": vlmap}
