@@ -346,6 +346,21 @@ def unlisted_param(spec: str | list[str] | None) -> Any:
 
 _ARTICLES = ("a ", "an ", "the ", "some ")
 
+# Plurals that dropping "s" or "es" gets wrong ("shelves" is not "shelve"). "-ves" stays
+# "-ve" otherwise ("stoves", "gloves", "sleeves"), and "-oes" stays "-oe" ("shoes").
+_IRREGULAR = {
+    "shelves": "shelf", "knives": "knife", "leaves": "leaf", "loaves": "loaf",
+    "halves": "half", "scarves": "scarf", "wolves": "wolf", "calves": "calf",
+    "hooves": "hoof", "thieves": "thief", "wives": "wife", "lives": "life",
+    "potatoes": "potato", "tomatoes": "tomato", "mangoes": "mango", "echoes": "echo",
+    "heroes": "hero", "volcanoes": "volcano", "dominoes": "domino", "mosquitoes": "mosquito",
+    "mice": "mouse", "geese": "goose", "feet": "foot", "teeth": "tooth",
+    "children": "child", "people": "person", "men": "man", "women": "woman",
+    "cacti": "cactus", "fungi": "fungus",
+}  # fmt: skip
+# Endings of compounds that take the same plural ("bookshelves", "penknives", "housewives").
+_IRREGULAR_ENDINGS = ("shelves", "knives", "wives")
+
 
 def head_noun(name: str) -> str:
     """The head noun of a normalised name ("chest" of "chest of drawers", "bed" of "bunk bed").
@@ -366,6 +381,8 @@ def normalise_name(text: str) -> str:
     ('bunk bed', 'bench', 'glass')
     >>> normalise_name("Chests of Drawers"), normalise_name("pile of clothes")
     ('chest of drawers', 'pile of clothes')
+    >>> normalise_name("bookshelves"), normalise_name("stoves"), normalise_name("potatoes")
+    ('bookshelf', 'stove', 'potato')
     """
     t = " ".join(text.lower().replace("-", " ").replace("_", " ").split())
     for a in _ARTICLES:
@@ -376,7 +393,12 @@ def normalise_name(text: str) -> str:
     if words:
         head = head_index(words)
         w = words[head]
-        if len(w) > 4 and w.endswith("ies"):
+        ending = next((e for e in _IRREGULAR_ENDINGS if w.endswith(e)), None)
+        if w in _IRREGULAR:
+            w = _IRREGULAR[w]
+        elif ending is not None:
+            w = w[: -len(ending)] + _IRREGULAR[ending]
+        elif len(w) > 4 and w.endswith("ies"):
             w = w[:-3] + "y"
         elif len(w) > 4 and w.endswith(("ches", "shes", "sses", "xes", "zes")):
             w = w[:-2]

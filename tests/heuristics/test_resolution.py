@@ -86,6 +86,42 @@ def test_normalise_name():
     assert head_noun("chest of drawers") == "chest" and head_noun("bunk bed") == "bed"
 
 
+@pytest.mark.parametrize(
+    ("plural", "singular"),
+    [
+        ("shelves", "shelf"),
+        ("wall shelves", "wall shelf"),
+        ("bookshelves", "bookshelf"),
+        ("kitchen knives", "kitchen knife"),
+        ("tomatoes", "tomato"),
+        ("computer mice", "computer mouse"),
+        ("cacti", "cactus"),
+        # regular "-ves" and "-oes" keep their "e"
+        ("wood stoves", "wood stove"),
+        ("gloves", "glove"),
+        ("shoes", "shoe"),
+        ("olives", "olive"),
+    ],
+)
+def test_irregular_plurals_singularise(plural, singular):
+    assert normalise_name(plural) == singular
+
+
+def test_an_irregular_plural_resolves_to_its_label():
+    tax = {"shelf": ["wall shelf", "bookshelf"], "stove": ["wood stove"]}
+    h = TaxonomyHeuristic(taxonomy=tax)
+    got = {
+        q: (r["to"], r["how"])
+        for q in ("shelves", "bookshelves", "wood stoves")
+        for r in [h.resolve_query(q, ExpansionContext())]
+    }
+    assert got == {
+        "shelves": ("shelf", "near-label"),
+        "bookshelves": ("shelf", "near-subclass"),
+        "wood stoves": ("stove", "near-subclass"),
+    }
+
+
 def test_a_plural_of_a_compound_resolves_to_its_subclass():
     tax = {"cabinet": ["cupboard", "chest of drawers"], "bed": ["bunk bed"]}
     r = TaxonomyHeuristic(taxonomy=tax).resolve_query("chests of drawers", ExpansionContext())
