@@ -2,7 +2,8 @@
 
 This is where a config's names become objects: the plugins through the registry, and
 the text-embedding cache from the ``cache`` setting. The pipeline itself is handed
-ready objects and never imports a plugin or the cache.
+ready objects and never imports a plugin or the cache; a plugin name given to its
+constructor (``Quash(enc, heuristic="none")``) is built here by :func:`build_plugin`.
 """
 
 from __future__ import annotations
@@ -72,16 +73,7 @@ def build_quash(
     where = f"{cfg.source}: " if cfg.source else ""
 
     def build(kind: str, spec: PluginSpec, section: str) -> Any:
-        params = dict(spec.params)
-        obj = registry.load(kind, spec.name) if spec.name else None
-        accepted = registry.accepted_params(obj) if obj is not None else None
-        if "device" not in params and accepted is not None and "device" in accepted:
-            params["device"] = cfg.device
-        try:
-            return registry.create(kind, spec.name, **params)
-        except QuashError as exc:
-            # Keep what caused it (a plugin's own import error) for --debug's traceback.
-            raise type(exc)(f"{where}{section}: {exc}") from exc.__cause__
+        return build_plugin(kind, spec, section, cfg.device, where)
 
     try:
         try:
@@ -121,3 +113,27 @@ def build_quash(
     quash = cls(encoder, heuristic, classifier, **kwargs)
     quash.config_source = cfg.source
     return quash
+
+
+def build_plugin(
+    kind: str, spec: PluginSpec, section: str, device: str = "auto", where: str = ""
+) -> Any:
+    """Build plugin ``spec`` of ``kind`` through the registry, as a config's ``section``
+    is built: a plugin that takes ``device`` and is not given one gets ``device``.
+    Errors read ``{where}{section}: ...``.
+
+    Examples
+    --------
+    >>> build_plugin("heuristics", PluginSpec("none"), "heuristic").expand("chair").positives
+    ['chair']
+    """
+    params = dict(spec.params)
+    try:
+        obj = registry.load(kind, spec.name) if spec.name else None
+        accepted = registry.accepted_params(obj) if obj is not None else None
+        if "device" not in params and accepted is not None and "device" in accepted:
+            params["device"] = device
+        return registry.create(kind, spec.name, **params)
+    except QuashError as exc:
+        # Keep what caused it (a plugin's own import error) for --debug's traceback.
+        raise type(exc)(f"{where}{section}: {exc}") from exc.__cause__

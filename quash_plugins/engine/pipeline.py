@@ -26,7 +26,7 @@ from __future__ import annotations
 import logging
 import time
 import weakref
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -69,6 +69,10 @@ class Quash:
     classifier
         Unfitted scikit-learn estimator; cloned and fitted per query. Default
         ``nearest-sample`` (k=2), chosen by the quality benchmark; the paper's is ``svm-rbf``.
+
+        Each of the three is a plugin object, or what a config gives: a registered name
+        (``"svm-rbf"``), ``{"name": ..., **params}`` or a ``PluginSpec``, built through
+        the registry. Anything else is refused here, naming the argument.
     negatives
         Generic negatives always added to the antonyms.
     threshold
@@ -128,18 +132,19 @@ class Quash:
         client: Any = None,
         device: str = "auto",
     ) -> None:
-        self.encoder = encoder
-        self.heuristic = (
-            heuristic
-            if heuristic is not None
-            else registry.create("heuristics", DEFAULT_HEURISTIC.name, **DEFAULT_HEURISTIC.params)
+        self.device = check_device(device, "Quash: 'device'")
+        self.encoder = _plugin("encoders", "encoder", encoder, self.device)
+        self.heuristic = _plugin(
+            "heuristics",
+            "heuristic",
+            DEFAULT_HEURISTIC if heuristic is None else heuristic,
+            self.device,
         )
-        self.classifier = (
-            classifier
-            if classifier is not None
-            else registry.create(
-                "classifiers", DEFAULT_CLASSIFIER.name, **DEFAULT_CLASSIFIER.params
-            )
+        self.classifier = _plugin(
+            "classifiers",
+            "classifier",
+            DEFAULT_CLASSIFIER if classifier is None else classifier,
+            self.device,
         )
         self.negatives = list(negatives)
         self.threshold = float(threshold)
@@ -195,7 +200,6 @@ class Quash:
         self.config_source: str | None = None
         self.backend = backend
         self.client = client
-        self.device = check_device(device, "Quash: 'device'")
         self._maps = MapCache()  # the maps read_map has read
         self._querysets: dict[tuple[str, int], tuple[Any, QuerySet]] = {}
 
@@ -493,6 +497,42 @@ class Quash:
         from .lazy_query import query_lazy
 
         return query_lazy(self, source, texts, self.client, **read_options)
+
+
+#: What a plugin argument of :class:`Quash` must have, when it is an object.
+_PLUGIN_METHODS = {
+    "encoders": ("encode_text",),
+    "heuristics": ("expand",),
+    "classifiers": ("fit", "get_params"),
+}
+
+
+def _plugin(kind: str, section: str, value: Any, device: str) -> Any:
+    """A plugin argument of :class:`Quash`: an object as it is; a registered name
+    (``"none"``), a ``{"name": ..., **params}`` mapping or a :class:`PluginSpec` built
+    through the registry as a config's ``section`` is. Anything else is refused here,
+    naming the argument, rather than failing at the first query."""
+    if isinstance(value, str):
+        value = PluginSpec(value)
+    elif isinstance(value, Mapping) and isinstance(value.get("name"), str):
+        value = PluginSpec(value["name"], {str(k): v for k, v in value.items() if k != "name"})
+    if isinstance(value, PluginSpec):
+        from .build import build_plugin
+
+        return build_plugin(kind, value, section, device, where="Quash: ")
+    need = _PLUGIN_METHODS[kind]
+    # An encoder that could not be built (build.UnavailableEncoder) raises on any
+    # attribute, so of encoders only None is refused.
+    if value is None or (kind != "encoders" and not all(hasattr(value, m) for m in need)):
+        raise ConfigError(
+            f"Quash: {section} must be an object with {', '.join(need)} or a "
+            f"registered name such as {_EXAMPLE[kind]!r}, not {type(value).__name__}; "
+            f"`quash plugins --kind {kind}` lists the names."
+        )
+    return value
+
+
+_EXAMPLE = {"encoders": "minilm", "heuristics": "none", "classifiers": "svm-rbf"}
 
 
 def _queryset_words(qs: QuerySet, limit: int = 24) -> str:

@@ -364,3 +364,36 @@ def test_default_display_scores_leave_their_input_alone():
     np.testing.assert_array_equal(s, before)
     np.testing.assert_allclose(d, _logistic(before.astype(np.float64), 0.5), atol=1e-6)
     assert d.dtype == np.float32 and d[np.argmin(np.abs(s - 0.5))] == pytest.approx(0.5, abs=0.01)
+
+
+def test_plugin_names_are_built_like_a_config_and_bad_arguments_refused_when_built():
+    """``Quash(enc, heuristic="none", classifier="contrast")`` builds the named plugins
+    through the registry (a name used to fail at the first query: "'str' object has no
+    attribute 'expand'"); ``{"name": ..., **params}`` too. A wrong name or a non-plugin
+    is refused by the constructor, naming the argument."""
+    from quash_plugins.core.errors import ConfigError, PluginError
+
+    table = {"chair": [1, 0, 0], "other": [0, 1, 0], "background": [0, 0, 1], "nothing": [0, 1, 1]}
+    enc = TableEncoder(table=table)
+    m = LatentMap(np.array([[1, 0.1, 0], [0, 1, 0.2]], dtype=np.float32))
+    by_name = Quash(enc, heuristic="none", classifier="contrast", instances=None)
+    by_object = Quash(
+        enc,
+        registry.create("heuristics", "none"),
+        registry.create("classifiers", "contrast"),
+        instances=None,
+    )
+    a, b = by_name.query(m, "chair"), by_object.query(m, "chair")
+    np.testing.assert_array_equal(a.mask, b.mask)
+    np.testing.assert_array_equal(a.scores, b.scores)
+    assert type(by_name.heuristic) is type(by_object.heuristic)
+    svm = Quash(enc, classifier={"name": "svm-rbf", "C": 2.0}).classifier
+    assert svm.get_params()["C"] == 2.0
+    with pytest.raises(PluginError, match="Quash: heuristic: .*'nonee'.*Did you mean 'none'"):
+        Quash(enc, heuristic="nonee")
+    with pytest.raises(ConfigError, match="Quash: classifier: .*'Cx'"):
+        Quash(enc, classifier={"name": "svm-rbf", "Cx": 2.0})
+    with pytest.raises(ConfigError, match="Quash: heuristic must be an object with expand"):
+        Quash(enc, heuristic=3)
+    with pytest.raises(ConfigError, match="Quash: encoder must be .* such as 'minilm'"):
+        Quash(None)
