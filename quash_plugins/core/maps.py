@@ -90,10 +90,12 @@ def detect_adapter(source: Any, *, claimed: bool = False) -> str:
         if claim is not None:
             log.debug("no adapter recognises %s, but %s: trying %s", source, claim[1], claim[0])
             return claim[0]
-    what = str(source) if isinstance(source, (str, Path)) else type(source).__name__
+    path = isinstance(source, (str, Path))
+    what = str(source) if path else type(source).__name__
+    choose = "--adapter NAME" if path else "adapter=NAME"
     raise MapFormatError(
         f"No adapter recognises {what}.{_hints(source)} Known adapters: "
-        f"{', '.join(registry.available('adapters'))}. Pass --adapter NAME to choose one."
+        f"{', '.join(registry.available('adapters'))}. Pass {choose} to choose one."
         f"{_maps_inside(source)}"
     )
 
@@ -219,6 +221,39 @@ def resolve_adapter(source: Any, adapter: str | None = "auto") -> tuple[Any, str
     return source, name
 
 
+def source_name(source: Any) -> str:
+    """How a message names ``source``: a path as it is, a live object by its type, never
+    by its ``repr`` (which may print whole arrays).
+
+    >>> from types import SimpleNamespace
+    >>> source_name("map.npz"), source_name(SimpleNamespace(grid_feat=[[0.0] * 512]))
+    ('map.npz', 'live SimpleNamespace object')
+    """
+    return (
+        str(source) if isinstance(source, (str, Path)) else f"live {type(source).__name__} object"
+    )
+
+
+def live_adapter(source: Any, configured: str) -> str | None:
+    """For a live object (not a path) that adapter ``configured`` does not recognise, the
+    adapter whose ``sniff`` does (``vlmaps-live`` for a VLMaps ``VLMap``); else None.
+
+    A config written for map files (``adapter: {name: vlmaps}``) then still reads the
+    live object that a program hands to ``Quash.query``. An unknown ``configured`` is
+    None here, and reported when the map is read.
+    """
+    if isinstance(source, (str, Path, LatentMap)):
+        return None
+    try:
+        if registry.load("adapters", configured)().sniff(source):
+            return None
+    except PluginError:
+        return None
+    except Exception as exc:  # noqa: BLE001 - a faulty sniff counts as a refusal
+        log.debug("adapter %s failed to sniff a %s: %s", configured, type(source).__name__, exc)
+    return _other_reader(source, configured)
+
+
 def read_map(source: Any, adapter: str = "auto", **options: Any) -> LatentMap:
     """Read ``source`` (path or live object) into a :class:`LatentMap`, read-only."""
     if isinstance(source, LatentMap):
@@ -229,20 +264,33 @@ def read_map(source: Any, adapter: str = "auto", **options: Any) -> LatentMap:
         lmap = reader.read(source)
     except QuashError as exc:
         other = _other_reader(source, name) if adapter not in (None, "auto") else None
+        if other is not None and not isinstance(source, (str, Path)):
+            raise _other_adapter_error(source, name, other) from exc
         if other is not None:
             raise type(exc)(
                 f"{exc} It looks like a {other!r} map, not a {name!r} one: choose the "
                 f"adapter {other!r} (--adapter {other}, or --adapter auto to detect it)."
             ) from exc
         claim = _claim_for(source, name)
+        shown = "" if isinstance(source, (str, Path)) else str(source)
+        if claim is None and len(shown) > 1 and shown in str(exc):  # never dump the arrays
+            raise type(exc)(str(exc).replace(shown, source_name(source))) from exc
         if claim is None:
             raise
         raise type(exc)(
             f"{source} looks like a {name!r} map ({claim}) but cannot be read: {exc}"
         ) from exc
     except Exception as exc:  # noqa: BLE001 - anything else is reported with the file's name
-        where = str(source) if isinstance(source, Path) else type(source).__name__
-        raise map_read_error(where, exc, name) from exc
+        if not isinstance(source, (str, Path)):
+            other = _other_reader(source, name) if adapter not in (None, "auto") else None
+            if other is not None:
+                raise _other_adapter_error(source, name, other) from exc
+            raise MapFormatError(
+                f"The {name!r} adapter cannot read this {source_name(source)} "
+                f"({type(exc).__name__}: {exc}). Pass a map file's path, a LatentMap, or "
+                "adapter=NAME naming an adapter that reads such objects."
+            ) from exc
+        raise map_read_error(str(source), exc, name) from exc
     if not isinstance(lmap, LatentMap):
         raise PluginError(f"Adapter {name!r} returned {type(lmap).__name__}, not a LatentMap.")
     lmap.source.setdefault("adapter", name)
@@ -250,6 +298,15 @@ def read_map(source: Any, adapter: str = "auto", **options: Any) -> LatentMap:
         lmap.source.setdefault("path", str(source))
     log.info("read %s", lmap.describe())
     return lmap
+
+
+def _other_adapter_error(source: Any, name: str, other: str) -> MapFormatError:
+    """Adapter ``name`` was asked to read a program's live object that ``other`` reads:
+    the fix as a program gives it (``adapter=...``), not a command line's ``--adapter``."""
+    return MapFormatError(
+        f"The {name!r} adapter cannot read this {source_name(source)}; it looks like a "
+        f"{other!r} map: read it with adapter={other!r} (or 'auto', which detects it)."
+    )
 
 
 def _other_reader(source: Any, name: str) -> str | None:

@@ -4,13 +4,18 @@
   and a map that records the encoder that built it (``quash make-scene``) warns once
   when another one queries it: a dimension check cannot tell two 384-d encoders apart.
 - :func:`warn_if_empty`: an empty map is a warning, not an error.
+- :func:`warn_unused_adapter_options`: a config's ``adapter:`` options that a live map
+  object (a VLMaps ``VLMap``), which takes its grid from itself, does not use.
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import warnings
 from typing import Any
+
+import numpy as np
 
 from ..core.errors import DimensionMismatchError, EmptyMapWarning
 from ..core.once import first_time
@@ -107,3 +112,45 @@ def warn_if_empty(lmap: LatentMap) -> None:
             EmptyMapWarning,
             stacklevel=3,
         )
+
+
+def warn_unused_adapter_options(
+    spec: Any, lmap: LatentMap, obj: Any, read_options: dict[str, Any]
+) -> None:
+    """Log once per live map object each option of the config's ``adapter:`` section
+    (``spec``, a ``PluginSpec``) that the object does not use and that disagrees with it:
+    a live map's values come from the object, and only ``read_options`` (given to the
+    query) override them."""
+    params = dict(getattr(spec, "params", None) or {})
+    warned = getattr(obj, "_quash_adapter_warned", set())
+    for key, value in params.items():
+        if key in read_options:
+            continue  # passed to the live map's adapter, so it does apply
+        live = lmap.source.get(key)
+        if live is not None and _same(value, live):
+            continue
+        tag = (key, repr(value))
+        if tag in warned:
+            continue
+        warned.add(tag)
+        has = f"the live map has {key} = {live!r}" if live is not None else "it is not used"
+        log.warning(
+            "the config's adapter section (%s: %r) does not apply to the live %s object; %s. A live "
+            "map's gs, cs and pose type come from the object itself (its grid and map "
+            "config); pass query(vlmap, ..., %s=...) to override, or drop it from the "
+            "config's adapter section.",
+            key,
+            value,
+            type(obj).__name__,
+            has,
+            key,
+        )
+    with contextlib.suppress(AttributeError):
+        obj._quash_adapter_warned = warned
+
+
+def _same(a: Any, b: Any) -> bool:
+    try:
+        return bool(np.isclose(float(a), float(b), rtol=1e-6, atol=0))
+    except (TypeError, ValueError):
+        return a == b

@@ -48,7 +48,7 @@ from ..core.types import DEFAULT_NEGATIVES, LatentMap, QueryResult, QuerySet, ch
 from .answer import Pending, answer, classifier_words
 from .classify import classify_local
 from .map_cache import MapCache
-from .map_fit import check_encoder_fits, warn_if_empty
+from .map_fit import check_encoder_fits, warn_if_empty, warn_unused_adapter_options
 from .training import CallCache, training_sets
 
 log = logging.getLogger(__name__)
@@ -228,12 +228,22 @@ class Quash:
         mapping process keeps rewriting); a live object (a ``VLMap``) when the arrays it
         holds were replaced or resized, or when the object is gone. The same options are
         required. At most :attr:`keep_maps` maps are kept; :meth:`forget_maps` drops them.
+
+        A live object that the config's adapter does not recognise (a ``VLMap`` given
+        to a config written for its files, ``adapter: {name: vlmaps}``) is read by the
+        adapter that does (``vlmaps-live``), with ``options`` only: the config's
+        ``adapter:`` options that disagree with the object are logged as a warning.
         """
-        from ..core.maps import read_map, resolve_adapter
+        from ..core.maps import live_adapter, read_map, resolve_adapter
 
         if isinstance(source, LatentMap):
             return source
         name = adapter or self.adapter.name
+        live = live_adapter(source, name) if adapter is None and name != "auto" else None
+        if live is not None:
+            lmap = self.read_map(source, live, **options)
+            warn_unused_adapter_options(self.adapter, lmap, source, options)
+            return lmap
         if name in (None, "auto"):
             # Resolve "auto" first, so the options the config gives for the adapter it
             # picks (or for "auto" itself) apply.

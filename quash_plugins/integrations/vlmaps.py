@@ -53,6 +53,7 @@ from sklearn.base import clone
 
 from ..core.errors import QuashError
 from ..core.types import LatentMap, QueryResult
+from ..engine.map_fit import warn_unused_adapter_options
 
 log = logging.getLogger(__name__)
 
@@ -152,7 +153,7 @@ def query(
     """
     q = resolve_quash(quash, vlmap)
     lmap = as_latent_map(vlmap, **read_options)
-    _warn_unused_adapter_options(q, lmap, vlmap, read_options)
+    warn_unused_adapter_options(getattr(q, "adapter", None), lmap, vlmap, read_options)
     extra, before = _other_categories(vlmap, language_desc) if with_init_cat else ([], 0)
     if extra:
         q = copy.copy(q)
@@ -163,46 +164,6 @@ def query(
             q.classifier = clone(q.classifier).set_params(query_column=before)
         q._querysets = {}  # the copy must not reuse query sets built without these negatives
     return q.query(lmap, language_desc)
-
-
-def _warn_unused_adapter_options(
-    q: Any, lmap: LatentMap, vlmap: Any, read_options: dict[str, Any]
-) -> None:
-    """Log once per VLMap each option of the config's ``adapter:`` section that a live map
-    does not use and that disagrees with it (the live map's values come from the VLMap)."""
-    spec = getattr(q, "adapter", None)
-    params = dict(getattr(spec, "params", None) or {})
-    warned = getattr(vlmap, "_quash_adapter_warned", set())
-    for key, value in params.items():
-        if key in read_options:
-            continue  # passed to the vlmaps-live adapter, so it does apply
-        live = lmap.source.get(key)
-        if live is not None and _same(value, live):
-            continue
-        tag = (key, repr(value))
-        if tag in warned:
-            continue
-        warned.add(tag)
-        has = f"the live map has {key} = {live!r}" if live is not None else "it is not used"
-        log.warning(
-            "the config's adapter section (%s: %r) does not apply to a live VLMap; %s. "
-            "A live map's gs, cs and pose type come from the VLMap itself (its grid and "
-            "map config); pass query(vlmap, ..., %s=...) to override, or drop it from "
-            "the config's adapter section.",
-            key,
-            value,
-            has,
-            key,
-        )
-    with contextlib.suppress(AttributeError):
-        vlmap._quash_adapter_warned = warned
-
-
-def _same(a: Any, b: Any) -> bool:
-    try:
-        return bool(np.isclose(float(a), float(b), rtol=1e-6, atol=0))
-    except (TypeError, ValueError):
-        return a == b
 
 
 def index_map(

@@ -180,3 +180,35 @@ def test_adapter_section_of_the_config_is_reported_for_a_live_map(project, caplo
         index_map(FakeVLMap(), "chair", quash="q-ok.yaml")
         index_map(FakeVLMap(), "chair", quash="q-cs.yaml", cs=0.1)  # an option: applied
     assert not [r for r in caplog.records if "(cs: " in r.getMessage()]
+
+
+def test_quash_query_reads_a_live_vlmap_under_a_config_written_for_files(project, caplog):
+    """``Quash.from_config(...).query(vlmap, ...)`` with ``adapter: {name: vlmaps}`` (the
+    section-1 config) reads the live object with ``vlmaps-live``, as ``index_map`` does;
+    it failed with "--adapter vlmaps-live" and printed the object's arrays. An adapter
+    named in the call that cannot read the object is an error worded for a program,
+    without the arrays."""
+    from types import SimpleNamespace
+
+    from quash_plugins import Quash
+    from quash_plugins.core.errors import MapFormatError
+
+    cfg = yaml.safe_load(Path("quash.yaml").read_text())
+    cfg["adapter"] = {"name": "vlmaps", "cs": 0.1}
+    Path("q-files.yaml").write_text(yaml.safe_dump(cfg))
+    vlmap = FakeVLMap(seed=4)
+    with caplog.at_level("WARNING"):
+        got = Quash.from_config("q-files.yaml").query(vlmap, "chair")
+        Quash.from_config("q-files.yaml").query(vlmap, "sofa")
+    want = index_map(vlmap, "chair", with_init_cat=False, quash="quash.yaml")
+    np.testing.assert_array_equal(got.mask, want)
+    assert got.map_source["adapter"] == "vlmaps-live" and got.map_source["cs"] == 0.05
+    msgs = [r.getMessage() for r in caplog.records if "adapter section" in r.getMessage()]
+    assert len(msgs) == 1 and "cs: 0.1" in msgs[0] and "cs = 0.05" in msgs[0], msgs
+    ns = SimpleNamespace(grid_feat=vlmap.grid_feat, grid_pos=vlmap.grid_pos)
+    assert Quash.from_config("q-files.yaml").query(ns, "chair", cs=0.1).map_source["cs"] == 0.1
+    with pytest.raises(MapFormatError) as err:
+        Quash.from_config("q-files.yaml").query(ns, "chair", adapter="vlmaps")
+    msg = str(err.value)
+    assert "adapter='vlmaps-live'" in msg and "live SimpleNamespace object" in msg
+    assert "--adapter" not in msg and "array(" not in msg and len(msg) < 300, msg
