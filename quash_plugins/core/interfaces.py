@@ -71,7 +71,10 @@ class Encoder(ABC):
 
         Hashes the class, ``name``, ``dim``, :meth:`config` and the name and version of
         the installed distribution that provides the class, so that upgrading a plugin
-        package never serves text embeddings cached by the version before.
+        package never serves text embeddings cached by the version before. When no
+        version names the code (a class in a script or a local module, or a package
+        installed with ``pip install -e``), the content of the class's module file is
+        hashed too (:func:`source_digest`), so that editing ``encode_text`` there does.
         """
         payload = {
             "class": f"{type(self).__module__}.{type(self).__qualname__}",
@@ -85,8 +88,48 @@ class Encoder(ABC):
         dist = distribution_of(type(self).__module__)
         if dist is not None:
             payload["distribution"] = dist
+        source = source_digest(type(self))
+        if source is not None:
+            payload["source"] = source
         blob = json.dumps(payload, sort_keys=True, default=str).encode()
         return f"{self.name}-{hashlib.sha256(blob).hexdigest()[:16]}"
+
+
+#: Module file -> (mtime_ns, size, digest of its content): read again when it changes.
+_SOURCE_DIGESTS: dict[str, tuple[int, int, str]] = {}
+
+
+def source_digest(cls: type) -> str | None:
+    """A digest of the source of ``cls``'s module, when a version does not name that code:
+    no distribution installed it (a script, a local module, a test file) or an editable
+    install did (:func:`~quash_plugins.core.registry.is_editable`). None for a released
+    install, whose version names its code, and when no source can be found.
+
+    The digest is of the file's content (its modification time only says when to read
+    it again); a class with no file (an interactive session) hashes its own source.
+    """
+    import inspect
+    import os
+    import sys
+
+    from .registry import distribution_of, is_editable
+
+    module = cls.__module__
+    if distribution_of(module) is not None and not is_editable(module):
+        return None
+    path = getattr(sys.modules.get(module), "__file__", None)
+    try:
+        if path:
+            st = os.stat(path)
+            kept = _SOURCE_DIGESTS.get(path)
+            if kept is not None and kept[:2] == (st.st_mtime_ns, st.st_size):
+                return kept[2]
+            digest = hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]
+            _SOURCE_DIGESTS[path] = (st.st_mtime_ns, st.st_size, digest)
+            return digest
+        return hashlib.sha256(inspect.getsource(cls).encode()).hexdigest()[:16]
+    except (OSError, TypeError):
+        return None
 
 
 def _plain(value: Any) -> bool:

@@ -136,6 +136,35 @@ def distribution_of(module: str) -> str | None:
     return _LOOKED_UP[top]
 
 
+_EDITABLE: dict[str, bool] = {}
+
+
+def is_editable(module: str) -> bool:
+    """True when the distribution providing ``module`` is an editable install
+    (``pip install -e``: PEP 610 ``direct_url.json`` with ``dir_info.editable`` true),
+    whose code changes without its version; False otherwise (and for no distribution).
+
+    Examples
+    --------
+    >>> is_editable("numpy")
+    False
+    """
+    import json
+    from importlib import metadata
+
+    dist = distribution_of(module)
+    if dist is None:
+        return False
+    if dist not in _EDITABLE:
+        try:
+            text = metadata.distribution(dist.partition("==")[0]).read_text("direct_url.json")
+            info = json.loads(text) if text else {}
+            _EDITABLE[dist] = bool(info.get("dir_info", {}).get("editable", False))
+        except Exception:  # noqa: BLE001 - missing or broken metadata: not editable
+            _EDITABLE[dist] = False
+    return _EDITABLE[dist]
+
+
 def normalize_kind(kind: str) -> str:
     """Accept ``"encoders"`` or ``"encoder"``; reject anything else with the known kinds."""
     k = str(kind).strip().lower()

@@ -281,3 +281,72 @@ def test_an_error_inside_encode_text_names_the_encoder():
     assert msg.startswith(f"Encoder 'out-of-memory' ({__name__}) failed to encode 2 strings")
     assert "RuntimeError: CUDA out of memory" in msg and "'encoder:' section" in msg
     assert isinstance(err.value.__cause__, RuntimeError)
+
+
+_PLUGIN_SOURCE = """
+import numpy as np
+from quash_plugins import Encoder
+
+
+class Edited(Encoder):
+    name = "edited"
+    dim = 2
+
+    def encode_text(self, texts):
+        return np.tile(np.array([[ROW]], dtype=np.float32), (len(texts), 1))
+"""
+
+
+def _load_plugin(folder, module, row):
+    """Write ``folder/module.py`` with ``encode_text`` returning ``row`` and import it
+    afresh, as a new process would after the edit."""
+    import importlib
+    import os
+    import sys
+
+    path = folder / module / "__init__.py"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    old = path.stat().st_mtime_ns if path.exists() else 0
+    path.write_text(_PLUGIN_SOURCE.replace("ROW", row))
+    os.utime(path, ns=(old + 10**9, old + 10**9))  # an edit within the same second
+    sys.modules.pop(module, None)
+    importlib.invalidate_caches()
+    return importlib.import_module(module).Edited()
+
+
+@pytest.mark.parametrize("install", ["none", "editable", "release"])
+def test_editing_encode_text_changes_the_fingerprint_unless_a_version_names_it(
+    tmp_path, monkeypatch, install
+):
+    """The text cache is keyed by the fingerprint. A researcher iterating on a plugin in
+    a script or a ``pip install -e`` checkout must not be served the rows cached before
+    the edit (it used to be name + version + config only); a released install keeps its
+    fingerprint, which its version names."""
+    from quash_plugins.core.text import encode_texts
+    from quash_plugins.engine import TextEmbeddingCache
+
+    module = f"qp_edited_{install}"
+    monkeypatch.syspath_prepend(str(tmp_path))
+    if install != "none":  # a dist-info as pip writes it (PEP 610 direct_url.json)
+        info = tmp_path / f"{module}-1.0.dist-info"
+        info.mkdir()
+        info.joinpath("METADATA").write_text(
+            f"Metadata-Version: 2.1\nName: {module}\nVersion: 1.0\n"
+        )
+        editable = "true" if install == "editable" else "false"
+        info.joinpath("direct_url.json").write_text(
+            f'{{"url": "file:///src", "dir_info": {{"editable": {editable}}}}}'
+        )
+    cache = TextEmbeddingCache(tmp_path / "cache")
+    before = _load_plugin(tmp_path, module, "1, 0")
+    assert registry.distribution_of(module) == (None if install == "none" else f"{module}==1.0")
+    fp = before.fingerprint()
+    np.testing.assert_array_equal(encode_texts(before, ["chair"], cache), [[1, 0]])
+    same = _load_plugin(tmp_path, module, "1, 0")  # rewritten, unchanged: same code
+    assert same.fingerprint() == fp
+    after = _load_plugin(tmp_path, module, "0, 1")
+    if install == "release":
+        assert after.fingerprint() == fp
+        return
+    assert after.fingerprint() != fp
+    np.testing.assert_array_equal(encode_texts(after, ["chair"], cache), [[0, 1]])
