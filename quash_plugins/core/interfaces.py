@@ -143,6 +143,16 @@ def _plain(value: Any) -> bool:
     return False
 
 
+def plugin_name(plugin: Any) -> str:
+    """The name a message calls ``plugin`` by: the one it was registered and built under
+    (what a config writes; a factory entry point may build an instance of a class with
+    another ``name``), else its ``name``, else its class's name."""
+    registered = getattr(plugin, "_quash_plugin_name", None)
+    if isinstance(registered, str) and registered:
+        return registered
+    return str(getattr(plugin, "name", None) or type(plugin).__name__)
+
+
 def _contract_warning(who: str, what: str, message: str) -> None:
     if not first_time(("encoder-contract", who, what)):
         return

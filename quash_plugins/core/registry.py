@@ -572,4 +572,6 @@ def create(kind: str, name: str, /, **params: Any) -> Any:
     if getattr(instance, "name", None) in (None, "encoder", "heuristic", "adapter"):
         with contextlib.suppress(AttributeError):
             instance.name = entry.name
+    with contextlib.suppress(AttributeError):  # what messages call it (interfaces.plugin_name)
+        instance._quash_plugin_name = entry.name
     return instance

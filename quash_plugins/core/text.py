@@ -11,7 +11,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from .errors import ConfigError, EncoderError, QuashError, install_hint, missing_module
-from .interfaces import Encoder, check_text_embeddings
+from .interfaces import Encoder, check_text_embeddings, plugin_name
 from .once import first_time
 from .registry import distribution_of
 
@@ -50,7 +50,7 @@ def encode_texts(
         found = cache.lookup(fp, texts)
     missing = list(dict.fromkeys(t for t in texts if t not in found))
     if missing:
-        log.debug("encoding %d new strings with %s", len(missing), encoder.name)
+        log.debug("encoding %d new strings with %s", len(missing), plugin_name(encoder))
         try:
             raw = encoder.encode_text(missing)
         except QuashError:
@@ -59,12 +59,12 @@ def encode_texts(
             module = missing_module(exc)
             if module is not None:  # a plugin importing its model library on first use
                 raise EncoderError(
-                    f"Encoder {encoder.name!r} ({type(encoder).__module__}) failed to encode "
+                    f"Encoder {plugin_name(encoder)!r} ({type(encoder).__module__}) failed to encode "
                     f"({type(exc).__name__}: {exc}): it {install_hint(module)}"
                 ) from exc
             dist = distribution_of(type(encoder).__module__)
             raise EncoderError(
-                f"Encoder {encoder.name!r} ({type(encoder).__module__}"
+                f"Encoder {plugin_name(encoder)!r} ({type(encoder).__module__}"
                 f"{f', distribution {dist}' if dist else ''}) failed to encode "
                 f"{len(missing)} strings: {type(exc).__name__}: {str(exc).rstrip('.')}. "
                 "Fix the encoder or its parameters (the config's 'encoder:' section); "
@@ -74,7 +74,7 @@ def encode_texts(
             raw,
             missing,
             dim,
-            encoder.name,
+            plugin_name(encoder),
             warn_norm=getattr(encoder, "normalize", True) is not False,
         )
         new = dict(zip(missing, emb))

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import DimensionMismatchError, EmptyMapWarning
+from ..core.interfaces import plugin_name
 from ..core.once import first_time
 from ..core.types import LatentMap
 
@@ -47,7 +48,7 @@ def check_encoder_fits(encoder: Any, lmap: LatentMap, config_source: Any = None)
     from ..core.registry import accepted_params
 
     where = lmap.source.get("path", "the map")
-    name = getattr(encoder, "name", type(encoder).__name__)
+    name = plugin_name(encoder)  # what the config's encoder section calls it
     section = f" (the 'encoder:' section of {config_source})" if config_source else ""
     fixes = []
     if "dim" in (accepted_params(type(encoder)) or []):

@@ -42,7 +42,7 @@ from ..core.config import (
     check_device,
 )
 from ..core.errors import ConfigError, QuashError
-from ..core.interfaces import Encoder, ExpansionContext, Heuristic
+from ..core.interfaces import Encoder, ExpansionContext, Heuristic, plugin_name
 from ..core.text import TextCache, encode_texts, load_templates
 from ..core.types import DEFAULT_NEGATIVES, LatentMap, QueryResult, QuerySet, check_query
 from .answer import Pending, answer, classifier_words
@@ -309,7 +309,7 @@ class Quash:
         qs = self.heuristic.expand(text, self.context(lmap, cache))
         if not isinstance(qs, QuerySet):
             raise QuashError(
-                f"Heuristic {getattr(self.heuristic, 'name', '?')!r} returned "
+                f"Heuristic {plugin_name(self.heuristic)!r} returned "
                 f"{type(qs).__name__}, not a QuerySet."
             )
         qs = qs.with_negatives(self.negatives)

@@ -350,3 +350,32 @@ def test_editing_encode_text_changes_the_fingerprint_unless_a_version_names_it(
         return
     assert after.fingerprint() != fp
     np.testing.assert_array_equal(encode_texts(after, ["chair"], cache), [[0, 1]])
+
+
+def test_messages_name_the_plugin_a_factory_entry_point_was_registered_under(caplog):
+    """A factory entry point (``fast-sloppy = pkg:make``) may build an instance of a class
+    with another ``name``; the contract warnings and encoder errors named the class's
+    ``'sloppy'``, a plugin the user never configured."""
+    from quash_plugins.core import once
+    from quash_plugins.core.errors import EncoderError
+    from quash_plugins.core.text import encode_texts
+
+    class _Failing(_Seeded):
+        def encode_text(self, texts):
+            raise RuntimeError("weights file unreadable")
+
+    once.forget("encoder-contract")
+    registry.register("encoders", "fast-sloppy", lambda: _Sloppy(), dist="tests")
+    registry.register("encoders", "fast-failing", lambda: _Failing(), dist="tests")
+    try:
+        enc = registry.create("encoders", "fast-sloppy")
+        assert enc.name == "sloppy"  # its own name still keys the cache
+        with caplog.at_level("WARNING", logger="quash_plugins.core.interfaces"):
+            encode_texts(enc, ["chair"], None)
+        warned = [r.getMessage() for r in caplog.records]
+        assert len(warned) == 2 and all("Encoder 'fast-sloppy' " in m for m in warned), warned
+        with pytest.raises(EncoderError, match="^Encoder 'fast-failing' .*weights file"):
+            encode_texts(registry.create("encoders", "fast-failing"), ["chair"], None)
+    finally:
+        registry.unregister("encoders", "fast-sloppy", dist="tests")
+        registry.unregister("encoders", "fast-failing", dist="tests")
