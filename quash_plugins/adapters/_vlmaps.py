@@ -6,7 +6,8 @@ VLMaps writes one HDF5 file per scene (``vlmap/vlmaps.h5df`` for mobile-base map
 
 ================== ================ ===================================================
 ``grid_feat``      (N, D) float     LSeg/CLIP features, arbitrary norms (required)
-``grid_pos``       (N, 3) int32     ``[row, col, height]`` cells (required)
+``grid_pos``       (N, 3) int32     ``[row, col, height]`` cells (required; camera-base:
+                                    ``[row, height, col]``, y up)
 ``grid_rgb``       (N, 3) uint8     colour (float 0-255 in some builds)
 ``weight``         (N,) float32     accumulated fusion weight
 ``occupied_ids``   (gs, gs, vh)     -1 where empty, else the row index (camera-base:
@@ -53,6 +54,7 @@ from ._npz import encoder_record
 from ._vlmaps_common import (
     DEFAULT_CS,
     POSE_TYPES,
+    UP_AXIS,
     camera_base_positions,
     check_against_stored,
     check_cells_in_grid,
@@ -279,6 +281,7 @@ class VLMapsAdapter(MapAdapter):
             "path": where,
             "format": "vlmaps-h5df",
             "pose_type": pose_type,
+            "up": UP_AXIS[pose_type],
             "encoder_hint": f"lseg CLIP ViT-B/32 {d}" if d == 512 else f"{d}-d features",
         }
         occupied = f["occupied_ids"].shape if "occupied_ids" in f else None

@@ -206,6 +206,7 @@ class VLMaps2DAdapter(MapAdapter):
             "adapter": self.name,
             "path": where,
             "format": "vlmaps-2d",
+            "up": "+z",  # the mobile-base frame, z = 0 (see the module's docstring)
             "gs": gs,
             "cs": cs,
             "observed_cells": int(observed.size),

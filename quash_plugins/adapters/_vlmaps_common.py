@@ -10,7 +10,10 @@ Grid conventions, from VLMaps' own ``vlmaps/utils/mapping_utils.py`` and its bui
   of the cell nearest the origin, not its centre.
 * camera-base 3D maps store ``pcd_min`` and ``cs``, and bin with
   ``grid_pos = round((p - pcd_min) / cs)`` per axis, so ``p = pcd_min + grid_pos * cs``
-  is both the exact inverse and the cell centre.
+  is both the exact inverse and the cell centre. ``p`` is in the camera poses' world
+  frame, and the cell is ``[row, height, col]`` (``occupied_ids[row, height, col]``): the
+  builder's top-down image keeps, per ``(row, col)``, the point of largest ``height``, so
+  axis 1 is the height axis and the map is y-up (:data:`UP_AXIS`).
 * 2023 top-down grids bin the first camera frame's ``(x, z)`` (x right, z forward) with
   ``col = int(gs/2 + int(x/cs))``, ``row = int(gs/2 - int(z/cs))``; upstream's inverse
   ``grid_id2pos`` again returns the face nearest the origin.
@@ -42,6 +45,10 @@ log = logging.getLogger(__name__)
 DEFAULT_GS = 1000
 DEFAULT_CS = 0.05
 POSE_TYPES = ("auto", "mobile_base", "camera_base")
+#: The up axis of each pose type's positions (``LatentMap.source["up"]``): mobile-base
+#: cells are ``[row, col, height]`` in the base frame (z up); camera-base cells are
+#: ``[row, height, col]`` in the camera poses' frame (y up).
+UP_AXIS = {"mobile_base": "+z", "camera_base": "+y"}
 #: How grid cells become metres: the cell's centre, or upstream's own inverse function.
 POSITIONS = ("centre", "upstream")
 

@@ -32,6 +32,7 @@ from ..core.types import LatentMap
 from ._vlmaps_common import (
     DEFAULT_CS,
     POSE_TYPES,
+    UP_AXIS,
     camera_base_positions,
     check_against_stored,
     check_cells_in_grid,
@@ -241,6 +242,7 @@ class VLMapsLiveAdapter(MapAdapter):
             source_meta["positions"] = opts["positions"]
         else:
             raise MapFormatError(f"{where}: unknown map_config.pose_info.pose_type {pose_type!r}.")
+        source_meta["up"] = UP_AXIS[pose_type]
         colors = None
         rgb = getattr(source, "grid_rgb", None)
         if rgb is not None:

@@ -406,6 +406,7 @@ def test_live_vlmap_mobile_and_camera(tmp_path):
     gp = arrays["grid_pos"].astype(np.float64)
     np.testing.assert_allclose(lmap.positions[:, 1], (30 - gp[:, 1]) * 0.1, atol=1e-5)
     np.testing.assert_array_equal(lmap.colors, arrays["grid_rgb"])
+    assert lmap.source["up"] == "+z"  # [row, col, height]: z up
     cam = SimpleNamespace(
         grid_feat=arrays["grid_feat"],
         grid_pos=arrays["grid_pos"],
@@ -415,6 +416,7 @@ def test_live_vlmap_mobile_and_camera(tmp_path):
     )
     lmap = read_map(cam)
     np.testing.assert_allclose(lmap.positions, [1, 2, 3] + gp * 0.03, atol=1e-5)
+    assert lmap.source["up"] == "+y"  # [row, height, col] in the camera poses' frame
     with pytest.raises(MapFormatError, match="grid_feat"):
         read_map(SimpleNamespace(grid_feat=None, grid_pos=arrays["grid_pos"]), "vlmaps-live")
     with pytest.raises(MapFormatError, match="pcd_min"):

@@ -66,6 +66,7 @@ def test_mobile_base_non_default_gs_read_from_file(tmp_path, gs):
     lmap = read_map(tmp_path)  # no options: gs comes from occupied_ids
     assert lmap.source["gs"] == gs and lmap.source["gs_from"] == "occupied_ids"
     assert lmap.n == len(arrays["grid_feat"]) and lmap.source["positions"] == "centre"
+    assert lmap.source["up"] == "+z"  # [row, col, height] in the base frame
     kept = row_of >= 0
     assert kept.sum() > 300
     cells = arrays["grid_pos"][row_of[kept]]
@@ -186,6 +187,9 @@ def test_camera_base_as_the_camera_builder_writes_it(tmp_path):
     centres = lmap.positions[row_of].astype(np.float64)
     assert np.all(np.abs(pts - centres) <= cs / 2 + 1e-5)
     np.testing.assert_array_equal(lmap.colors, np.clip(np.rint(arrays["grid_rgb"]), 0, 255))
+    # cells are [row, height, col]: the builder's top-down image keeps, per (row, col),
+    # the point of largest height, so the map is y-up, which the viewer is told
+    assert lmap.source["up"] == "+y"
     # "upstream" changes nothing: pcd_min + grid_pos * cs is exact for camera maps
     np.testing.assert_array_equal(read_map(path, positions="upstream").positions, lmap.positions)
     with pytest.raises(MapFormatError) as err:
@@ -269,6 +273,7 @@ def test_2023_grid_positions_both_signs(tmp_path, gs):
     assert origin.any(axis=0).all()
     assert within_cell(truth, lmap.positions[idx, :2].astype(np.float64), cs, origin).all()
     assert (lmap.positions[:, 2] == 0).all()
+    assert lmap.source["up"] == "+z"  # the mobile-base frame, one flat layer
     up = a2d.read(folder, positions="upstream")
     for (row, col, _), (x, y, _) in zip(up.grid_index, up.positions.astype(np.float64)):
         xx, zz = upstream_grid_id2pos(gs, cs, col, row)
