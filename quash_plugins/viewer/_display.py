@@ -66,6 +66,19 @@ UP_AXES = {
 }
 
 
+def map_up(up: str | None, source: dict | None) -> str | None:
+    """The up axis to draw a map with: ``up`` itself, or for ``"auto"`` the one the map's
+    adapter recorded (``source["up"]``: ``"+y"`` for VLMaps camera-base maps), else ``"+z"``.
+
+    >>> map_up("auto", {"up": "+y"}), map_up("auto", {}), map_up("-y", {"up": "+y"})
+    ('+y', '+z', '-y')
+    """
+    if up != "auto":
+        return up
+    recorded = (source or {}).get("up")
+    return recorded if recorded in UP_AXES else "+z"
+
+
 def ceiling_items(
     positions: np.ndarray,
     voxel_size: float | None,

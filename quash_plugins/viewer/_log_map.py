@@ -13,7 +13,15 @@ from typing import Any
 import numpy as np
 
 from ..core.types import LatentMap
-from ._display import UP_AXES, ceiling_items, colormap, display_indices, pca_colors, slugify
+from ._display import (
+    UP_AXES,
+    ceiling_items,
+    colormap,
+    display_indices,
+    map_up,
+    pca_colors,
+    slugify,
+)
 
 #: Colour of matched items (RGB): a magenta no map palette is likely to use.
 MATCH_COLOR = (255, 0, 200)
@@ -55,9 +63,10 @@ class MapLogging:
             else:
                 colors = pca_colors(lmap, display)
                 self._notes.append("The map has no RGB; it is coloured by a PCA of its embeddings.")
-            ceiling = ceiling_items(pos, self._voxel, self.up) if self.up else None
-            if self.up is not None:
-                rec.log("world", _view_coordinates(rr, self.up), static=True)
+            up = map_up(self.up, lmap.source)
+            ceiling = ceiling_items(pos, self._voxel, up) if up else None
+            if up is not None:
+                rec.log("world", _view_coordinates(rr, up), static=True)
             if ceiling is None:
                 self._layers = {"": idx}
                 rec.log("world/map", self._primitive(pos, 0.45, 0.5, colors=colors), static=True)
@@ -80,9 +89,9 @@ class MapLogging:
                     "blueprint panel."
                 )
             below = pos if ceiling is None else pos[~ceiling]
-            feet = _footprint(below, self.up)
+            feet = _footprint(below, up)
             self._wide = bool(feet and feet[0] >= WIDE_FOOTPRINT * max(feet[1], 1e-6))
-            self._eye = _top_down_eye(below, self.up, self._wide)
+            self._eye = _top_down_eye(below, up, self._wide)
             rec.log("world/scores", self._score_context(), static=True)
         if lmap.kind == "pixels" and lmap.frames:
             rec.log(

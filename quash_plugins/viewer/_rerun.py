@@ -65,9 +65,13 @@ class RerunLogger(MapLogging, ResultLogging, EvalLogging):
     colormap
         Colormap name for scores (matplotlib's names; a built-in table otherwise).
     up
-        The map's up axis (``"+z"``: VLMaps, the demo scene; ``"-y"``: camera frames...)
-        or None when unknown. It orients the views (top-down by default) and finds the
-        ceiling, which is logged apart and hidden so the rooms can be seen from above.
+        The map's up axis: ``"auto"`` (the default: the one the map's adapter recorded in
+        ``source["up"]``, ``"+y"`` for VLMaps camera-base maps and ``"+z"`` for
+        mobile-base ones; ``"+z"`` when the format does not say), one of ``"+z"``,
+        ``"-z"``, ``"+y"``, ``"-y"``, ``"+x"``, ``"-x"`` (for every map, over what it
+        records), or None for no orientation. It orients the views (top-down by default)
+        and finds the ceiling, which is logged apart and hidden so the rooms can be seen
+        from above.
     score_classes
         Number of colour steps of the score layers (class ids of one annotation context).
 
@@ -92,7 +96,7 @@ class RerunLogger(MapLogging, ResultLogging, EvalLogging):
         max_boxes: int = 50_000,
         max_frames: int = 8,
         colormap: str = "viridis",
-        up: str | None = "+z",
+        up: str | None = "auto",
         score_classes: int = 32,
     ) -> None:
         rr = import_rerun()
@@ -103,8 +107,10 @@ class RerunLogger(MapLogging, ResultLogging, EvalLogging):
             raise QuashError(
                 f"RerunLogger needs a rerun.RecordingStream; got {type(recording).__name__}."
             )
-        if up is not None and up not in UP_AXES:
-            raise QuashError(f"RerunLogger: up must be one of {', '.join(UP_AXES)} or None.")
+        if up is not None and up != "auto" and up not in UP_AXES:
+            raise QuashError(
+                f"RerunLogger: up must be 'auto', one of {', '.join(UP_AXES)} or None; got {up!r}."
+            )
         if not 2 <= int(score_classes) <= 65535:
             raise QuashError("RerunLogger: score_classes must be in [2, 65535].")
         self.recording = recording

@@ -11,6 +11,7 @@ import rerun as rr
 from _viewer_maps import make_quash, pixel_map, room_map, voxel_map, write_table_config
 from rerun.chunk import RrdReader
 
+from quash_plugins.core.errors import QuashError
 from quash_plugins.core.types import Instance, QueryResult
 from quash_plugins.viewer import MATCH_COLOR, RerunLogger
 from quash_plugins.viewer._display import score_classes
@@ -672,3 +673,39 @@ def test_items_the_presence_check_dropped_are_shown_grey(tmp_path):
     assert f"dropped {int(dropped.sum()):,} matched items (grey in the map view)" in texts[0]
     assert "dropped" not in texts[1]
     assert "+ world/rejected/quash" in blueprint_contents(reader)
+
+
+def _eye(reader):
+    return [blueprint_columns(reader, f"EyeControls3D:{k}")[0][0] for k in ("position", "eye_up")]
+
+
+def test_the_up_axis_comes_from_the_map_unless_given(tmp_path):
+    """A y-up map (a VLMaps camera-base map records ``source["up"] = "+y"``) is seen from
+    above along y, its ceiling found on y; an explicit ``up`` still wins."""
+    zup = room_map()
+    yup = room_map()
+    x, y, z = np.asarray(zup.positions, dtype=np.float32).T
+    yup.positions = np.column_stack([x, z, -y])  # the same room, rotated to y up
+    yup.source = {**yup.source, "up": "+y"}
+    top = float(yup.positions[:, 1].max())
+    results = make_quash().query_many(yup, ["chair"])
+
+    log_to_file(tmp_path / "auto.rrd", yup, results)  # up="auto", the default
+    reader, by_path = read_rrd(tmp_path / "auto.rrd")
+    [(_, ceiling)] = rows(by_path["world/ceiling"], "Boxes3D:centers")
+    np.testing.assert_allclose([c[1] for c in ceiling], top)
+    position, eye_up = _eye(reader)
+    assert eye_up == [0.0, 1.0, 0.0] and position[1] > top + 2.0
+    [(_, coords)] = rows(by_path["world"], "ViewCoordinates:xyz")
+    assert coords == rr.ViewCoordinates.RIGHT_HAND_Y_UP.as_arrow_array().to_pylist()
+
+    log_to_file(tmp_path / "z.rrd", yup, results, up="+z")  # the caller's axis wins
+    reader, by_path = read_rrd(tmp_path / "z.rrd")
+    assert _eye(reader)[1] == [0.0, 0.0, 1.0]
+    [(_, coords)] = rows(by_path["world"], "ViewCoordinates:xyz")
+    assert coords == rr.ViewCoordinates.RIGHT_HAND_Z_UP.as_arrow_array().to_pylist()
+
+    log_to_file(tmp_path / "plain.rrd", zup, results)  # a map that does not say: +z
+    assert _eye(read_rrd(tmp_path / "plain.rrd")[0])[1] == [0.0, 0.0, 1.0]
+    with pytest.raises(QuashError, match="'sideways'"):
+        RerunLogger(rr.RecordingStream("quash-test"), up="sideways")
