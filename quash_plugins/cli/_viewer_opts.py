@@ -36,10 +36,13 @@ def _arg_type(check: Any, what: str) -> Any:
 LOGS_QUERIES = "Log the map and every query to Rerun (needs the [rerun] extra)."
 
 
-def add_viewer_arguments(parser: argparse.ArgumentParser, logs: str = LOGS_QUERIES) -> None:
+def add_viewer_arguments(
+    parser: argparse.ArgumentParser, logs: str = LOGS_QUERIES, maps: bool = True
+) -> None:
     """Add ``--rrd``, ``--spawn``, ``--connect``, ``--serve-web``, ``--web-port``,
-    ``--grpc-port`` and ``--bind``; ``logs`` says what the command logs (wrapped here, as
-    the commands' raw descriptions are, to 88 columns with the group's indent)."""
+    ``--grpc-port``, ``--bind`` and, for a command that logs a map (``maps``), ``--up``;
+    ``logs`` says what the command logs (wrapped here, as the commands' raw descriptions
+    are, to 88 columns with the group's indent)."""
     g = parser.add_argument_group("Rerun viewer", textwrap.fill(logs, width=86))
     g.add_argument(
         "--rrd",
@@ -86,6 +89,18 @@ def add_viewer_arguments(parser: argparse.ArgumentParser, logs: str = LOGS_QUERI
         help=f"IP address --serve-web listens on (default: {DEFAULT_BIND}, this machine only; "
         "localhost means 127.0.0.1; 0.0.0.0 serves every network interface: only on a "
         "network you trust).",
+    )
+    if not maps:  # quash eval logs no map: an --up there would be ignored
+        return
+    g.add_argument(
+        "--up",
+        choices=("auto", "+z", "-z", "+y", "-y", "+x", "-x"),
+        default="auto",
+        help="The map's up axis, which the views look down along and the ceiling is found "
+        "on. auto (default): the one the map's format fixes (VLMaps camera-base maps: +y; "
+        "mobile-base maps and 2023 grids: +z), else +z. Give it for a map whose format does "
+        "not say, such as a ConceptFusion cloud in a y-up dataset frame; write a negative "
+        "axis as --up=-y.",
     )
 
 
@@ -149,4 +164,4 @@ def open_viewer(args: argparse.Namespace, app_id: str = "quash") -> Any:
     """A viewer logger for the options given, or None when none was asked for."""
     from ..viewer import open_viewer as open_sinks
 
-    return open_sinks(viewer_options(args), app_id=app_id)
+    return open_sinks(viewer_options(args), app_id=app_id, up=getattr(args, "up", "auto"))

@@ -109,6 +109,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "Log the evaluation to Rerun: each config's per-query F1, precision, recall and "
         "IoU as plots, and the comparison table (needs the [rerun] extra). The map and "
         "the masks are not logged: quash query --rrd logs those.",
+        maps=False,
     )
     add_backend_arguments(p)
 

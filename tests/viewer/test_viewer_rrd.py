@@ -709,3 +709,38 @@ def test_the_up_axis_comes_from_the_map_unless_given(tmp_path):
     assert _eye(read_rrd(tmp_path / "plain.rrd")[0])[1] == [0.0, 0.0, 1.0]
     with pytest.raises(QuashError, match="'sideways'"):
         RerunLogger(rr.RecordingStream("quash-test"), up="sideways")
+
+
+def test_cli_up_orients_a_map_whose_format_does_not_say(tmp_path, capsys):
+    """``--up`` (query, eval, demo): a y-up cloud in an NPZ, which records no up axis."""
+    from quash_plugins.adapters import write_npz_map
+    from quash_plugins.cli.main import build_parser, main, subcommand_parsers
+
+    lmap = room_map()
+    x, y, z = np.asarray(lmap.positions, dtype=np.float32).T
+    lmap.positions = np.column_stack([x, -z, y])  # y down, as camera frames are
+    map_path = write_npz_map(tmp_path / "map.npz", lmap)
+    cfg = write_table_config(tmp_path)
+    argv = ["-q", "query", str(map_path), "chair", "-c", str(cfg), "--rrd"]
+    for flags, eye_up in (([], [0.0, 0.0, 1.0]), (["--up=-y"], [0.0, -1.0, 0.0])):
+        out = tmp_path / f"up{len(flags)}.rrd"
+        assert main([*argv, str(out), *flags]) == 0
+        assert _eye(read_rrd(out)[0])[1] == eye_up
+    with pytest.raises(SystemExit) as exited:
+        main([*argv, str(tmp_path / "bad.rrd"), "--up", "sideways"])
+    assert exited.value.code == 2
+    assert "--up" in capsys.readouterr().err and not (tmp_path / "bad.rrd").exists()
+    parsers = subcommand_parsers(build_parser())
+    # quash eval logs no map (only metrics), so it has no --up to ignore
+    assert not [a for a in parsers["eval"]._actions if "--up" in a.option_strings]
+    for command in ("query", "demo"):
+        [up] = [a for a in parsers[command]._actions if "--up" in a.option_strings]
+        assert up.default == "auto" and set(up.choices) == {
+            "auto",
+            "+x",
+            "-x",
+            "+y",
+            "-y",
+            "+z",
+            "-z",
+        }
