@@ -7,9 +7,9 @@ the map config's ``pose_info.pose_type`` is ``camera_base``:
 ==================== ============== ================================================
 ``mapped_iter_list`` (F,) int32     frames fused (empty here: nothing was fused)
 ``grid_feat``        (N, D) float   the map's embeddings, as stored (not normalised)
-``grid_pos``         (N, 3) int32   cells, ``round((p - pcd_min) / cs)``
+``grid_pos``         (N, 3) int32   cells ``[row, height, col]``, ``round((p - pcd_min) / cs)``
 ``weight``           (N,) float32   fusion weight (1 per row here)
-``occupied_ids``     (nx, ny, nz)   -1 where empty, else the row index
+``occupied_ids``     (nr, nh, nc)   -1 where empty, else the row index (height on axis 1)
 ``grid_rgb``         (N, 3) uint8   colour (grey 128 when the map has none)
 ``pcd_min/pcd_max``  (3,) float64   the grid's bounds in metres
 ``cs``               scalar float64 cell size in metres
@@ -17,9 +17,18 @@ the map config's ``pose_info.pose_type`` is ``camera_base``:
 
 Camera-base rather than mobile-base because it is the layout that stores its own cell
 size and origin: positions read back as ``pcd_min + grid_pos * cs`` are the source's
-positions, in the source's frame. A mobile-base file stores neither; its positions are
-fixed by VLMaps' truncating bins around the grid centre, which a voxel grid from another
-frame does not land on.
+positions, rotated. A mobile-base file stores neither; its positions are fixed by
+VLMaps' truncating bins around the grid centre, which a voxel grid from another frame
+does not land on.
+
+The camera-base builder (``VLMapBuilderCam.create_camera_map``) bins the camera poses'
+world frame, which is y-up: a cell is ``[row, height, col]`` and its top-down image
+keeps, per ``(row, col)``, the point of largest height. So the map is turned rigidly
+to y-up first (:data:`TO_Y_UP`): a z-up map (the source's ``source["up"]``, or ``+z``
+when its format does not say, as for ``quash make-scene``) goes ``(x, y, z) -> (x, z,
+-y)``, a proper rotation. Cells are turned with it, so each keeps its neighbours, and
+rows keep their order: queries and instances are the same, in the rotated frame. The
+``vlmaps`` adapter reads the file back as y-up (``source["up"] == "+y"``).
 
 The encoder that built the map (``encoder``, ``encoder_fingerprint``), when the source
 records it, is kept as attributes of the file's root group: VLMaps reads datasets by
@@ -44,6 +53,17 @@ from ..core.types import LatentMap
 from ._npz import ENCODER_KEYS
 
 log = logging.getLogger(__name__)
+
+#: Per source up axis, the proper rotation to VLMaps' camera-base y-up frame, as
+#: (source axis, sign) of each output axis: ``+z`` is ``(x, y, z) -> (x, z, -y)``.
+TO_Y_UP = {
+    "+y": ((0, 1), (1, 1), (2, 1)),
+    "-y": ((0, 1), (1, -1), (2, -1)),
+    "+z": ((0, 1), (2, 1), (1, -1)),
+    "-z": ((0, 1), (2, -1), (1, 1)),
+    "+x": ((1, -1), (0, 1), (2, 1)),
+    "-x": ((1, 1), (0, -1), (2, 1)),
+}
 
 #: Where the file goes inside the destination folder (VLMaps' camera-base path).
 H5_NAME = Path("vlmap_cam") / "vlmaps_cam.h5df"
@@ -82,8 +102,14 @@ def write_vlmaps_map(lmap: LatentMap, folder: str | Path, chunk_rows: int = 6553
     cs = float(lmap.voxel_size)
     if float(np.float32(cs)) == cs:  # a float32 0.05 is stored as 0.05, not 0.0500000007
         cs = float(str(np.float32(cs)))
-    idx = np.asarray(lmap.grid_index, dtype=np.int64).reshape(n, 3)
-    pos = np.asarray(lmap.positions, dtype=np.float64).reshape(n, 3)
+    up = lmap.source.get("up", "+z")
+    if up not in TO_Y_UP:
+        raise UsageError(
+            f"{where}: the map's up axis (source['up']) is {up!r}, not one of "
+            f"{', '.join(TO_Y_UP)}; fix the adapter that read it."
+        )
+    idx = _to_y_up(np.asarray(lmap.grid_index, dtype=np.int64).reshape(n, 3), up)
+    pos = _to_y_up(np.asarray(lmap.positions, dtype=np.float64).reshape(n, 3), up)
     lo = idx.min(axis=0) if n else np.zeros(3, np.int64)
     grid_pos = (idx - lo).astype(np.int32)
     pcd_min = (pos - grid_pos * cs).mean(axis=0) if n else np.zeros(3)
@@ -142,5 +168,10 @@ def write_vlmaps_map(lmap: LatentMap, folder: str | Path, chunk_rows: int = 6553
         for key in ENCODER_KEYS:
             if isinstance(lmap.source.get(key), str):
                 f.attrs[key] = lmap.source[key]
-    log.info("wrote VLMaps map %s: %d cells x %d", h5_path, n, d)
+    log.info("wrote VLMaps map %s: %d cells x %d (%s up turned to +y)", h5_path, n, d, up)
     return h5_path
+
+
+def _to_y_up(a: np.ndarray, up: str) -> np.ndarray:
+    """``(N, 3)`` points or cells of a map whose up axis is ``up``, turned y-up."""
+    return np.stack([sign * a[:, axis] for axis, sign in TO_Y_UP[up]], axis=1)

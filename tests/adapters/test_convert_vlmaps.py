@@ -9,6 +9,7 @@ import pytest
 
 from quash_plugins.adapters import read_map
 from quash_plugins.cli.main import main
+from quash_plugins.core.errors import UsageError
 
 h5py = pytest.importorskip("h5py")
 
@@ -30,11 +31,18 @@ def _digest(path):
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
+def _y_up(points):
+    """A z-up map's points turned to VLMaps' camera-base y-up frame: (x, z, -y)."""
+    x, y, z = np.asarray(points, dtype=np.float64).T
+    return np.column_stack([x, z, -y])
+
+
 def test_make_scene_round_trips_through_vlmaps(minilm_scene, tmp_path):
     before = _digest(minilm_scene)
     vl = tmp_path / "vl"
     assert main(["-q", "convert", str(minilm_scene), str(vl), "--format", "vlmaps"]) == 0
     h5 = vl / "vlmap_cam" / "vlmaps_cam.h5df"
+    src = read_map(minilm_scene)
     with h5py.File(h5, "r") as f:
         assert set(f) >= UPSTREAM and set(f) - UPSTREAM == {"grid_semantic"}
         assert f["grid_pos"].dtype == np.int32 and f["grid_rgb"].dtype == np.uint8
@@ -44,17 +52,24 @@ def test_make_scene_round_trips_through_vlmaps(minilm_scene, tmp_path):
         n = len(grid_pos)
         assert (occupied[tuple(grid_pos.T)] == np.arange(n)).all()
         assert (occupied >= 0).sum() == n
-    src, back = read_map(minilm_scene), read_map(vl)
+    # VLMaps' camera-base layout: cells [row, height, col], height on axis 1, +y up
+    # (VLMapBuilderCam keeps, per (row, col), the point of largest height)
+    idx = np.asarray(src.grid_index)
+    assert occupied.shape == tuple(np.ptp(idx, axis=0)[[0, 2, 1]] + 1)
+    np.testing.assert_array_equal(grid_pos[:, 1], idx[:, 2] - idx[:, 2].min())
+    back = read_map(vl)
     assert back.source["adapter"] == "vlmaps" and back.source["pose_type"] == "camera_base"
+    assert back.source["up"] == "+y"
     np.testing.assert_array_equal(back.embeddings[()], np.asarray(src.embeddings))
-    np.testing.assert_allclose(back.positions, src.positions, atol=1e-5)
+    np.testing.assert_allclose(back.positions, _y_up(src.positions), atol=1e-5)
     np.testing.assert_array_equal(back.labels, src.labels)
     assert back.label_names == src.label_names
     np.testing.assert_array_equal(back.colors, src.colors)
     assert back.voxel_size == pytest.approx(src.voxel_size)
     # the origin reads back as the number it is, not 3e-9 of float rounding
     assert (np.asarray(src.grid_index).min(axis=0) == 0).all()
-    assert back.source["pcd_min"] == np.asarray(src.positions).min(axis=0).tolist()
+    # (float32's -4.4000001 is -4.4 to the micrometre)
+    assert back.source["pcd_min"] == np.round(_y_up(src.positions).min(axis=0), 6).tolist()
     # the encoder record survives, so a query with another encoder still warns
     assert src.source["encoder"] == "minilm"
     for key in ("encoder", "encoder_fingerprint"):
@@ -78,6 +93,16 @@ def test_make_scene_round_trips_through_vlmaps(minilm_scene, tmp_path):
         assert a["masks"].any()
         np.testing.assert_array_equal(a["masks"], b["masks"])
         np.testing.assert_allclose(a["scores"], b["scores"], atol=1e-3)  # rows re-normalised
+        mask, scores = a["masks"][0], a["scores"][0]
+    # cells keep their neighbours: the same mask groups into the same objects, turned
+    from quash_plugins.engine import find_instances
+
+    found = [find_instances(m, mask, scores, max_instances=None) for m in (src, back)]
+    assert len(found[0]) > 1
+    assert [i.size for i in found[0]] == [i.size for i in found[1]]
+    np.testing.assert_allclose(
+        [i.centroid for i in found[1]], _y_up([i.centroid for i in found[0]]), atol=1e-4
+    )
 
 
 def test_vlmaps_format_refuses_a_map_without_a_voxel_grid(tiny_world, capsys):
@@ -107,7 +132,7 @@ def test_vlmaps_format_keeps_float16_and_the_origin(tmp_path):
     back, orig = read_map(tmp_path / "vl"), read_map(src)
     assert back.embeddings.dtype == np.float16 and back.labels is None
     np.testing.assert_array_equal(back.embeddings[()], orig.embeddings)
-    np.testing.assert_allclose(back.positions, orig.positions, atol=1e-6)
+    np.testing.assert_allclose(back.positions, _y_up(orig.positions), atol=1e-6)
     assert not (tmp_path / "vl" / "vlmap_cam" / "obj2cls_dict.txt").exists()
 
 
@@ -128,3 +153,24 @@ def test_vlmaps_format_needs_force_and_never_writes_its_input(tmp_path, capsys):
     assert main(["-q", "convert", str(vl), str(tmp_path / "x.npz")]) == 0  # still readable
     # a .npz destination is not a scene folder
     assert main(["-q", "convert", str(src), str(tmp_path / "y.npz"), "--format", "vlmaps"]) == 2
+
+
+def test_vlmaps_format_turns_only_what_is_not_y_up(tmp_path):
+    """A map that is y-up already (a camera-base VLMaps map) is written as it is; one
+    whose up axis is not an axis is refused, naming the field."""
+    from quash_plugins.adapters._vlmaps_write import write_vlmaps_map
+
+    src = _grid_map(tmp_path / "g.npz")
+    assert main(["-q", "convert", str(src), str(tmp_path / "vl"), "--format", "vlmaps"]) == 0
+    first = read_map(tmp_path / "vl")
+    again = ["-q", "convert", str(tmp_path / "vl"), str(tmp_path / "vl2"), "--format", "vlmaps"]
+    assert main(again) == 0
+    second = read_map(tmp_path / "vl2")
+    assert second.source["up"] == "+y"
+    np.testing.assert_allclose(second.positions, first.positions, atol=1e-6)
+    np.testing.assert_array_equal(second.grid_index, first.grid_index)
+    odd = read_map(src)
+    odd.source["up"] = "sideways"
+    with pytest.raises(UsageError, match=r"g\.npz.*source\['up'\].*'sideways'"):
+        write_vlmaps_map(odd, tmp_path / "vl3")
+    assert not (tmp_path / "vl3").exists()
