@@ -2,8 +2,9 @@
 
 Arrays: ``embeddings (N, D)`` (required), ``positions (N, 3)`` metres, ``colors (N, 3)``
 uint8, ``labels (N,)`` int, ``label_names (L,)`` str, ``voxel_size`` scalar,
-``grid_index (N, 3)`` int, ``kind`` str, and for pixel maps ``frame_ids (F,)`` str,
-``frame_hw (F, 2)`` and ``frame_offsets (F,)`` int. Never unpickled.
+``grid_index (N, 3)`` int, ``kind`` str, ``up`` str (the up axis of the positions,
+``source["up"]``: ``"+y"`` for a VLMaps camera-base map), and for pixel maps
+``frame_ids (F,)`` str, ``frame_hw (F, 2)`` and ``frame_offsets (F,)`` int. Never unpickled.
 """
 
 from __future__ import annotations
@@ -32,7 +33,10 @@ OPTIONAL = (
     "frame_offsets",
     "encoder",
     "encoder_fingerprint",
+    "up",
 )
+#: The values of ``up``: the axis the positions' up points along.
+UP_AXES = ("+x", "-x", "+y", "-y", "+z", "-z")
 
 #: ``LatentMap.source`` keys stored as 0-d string arrays: the encoder that built the map.
 ENCODER_KEYS = ("encoder", "encoder_fingerprint")
@@ -144,6 +148,14 @@ class NpzAdapter(MapAdapter):
             except ValueError as exc:
                 raise MapFormatError(f"{path}: an array holds pickled objects ({exc}).") from None
         built_by = {k: str(data.pop(k)) for k in ENCODER_KEYS if k in data}
+        if "up" in data:
+            up = str(data.pop("up"))
+            if up not in UP_AXES:
+                raise MapFormatError(
+                    f"{path}: array 'up' is {up!r}, not an up axis; store one of "
+                    f"{', '.join(UP_AXES)} (or none: +z is assumed)."
+                )
+            built_by["up"] = up
         kind = str(data.pop("kind")) if "kind" in data else None
         voxel = float(data.pop("voxel_size")) if "voxel_size" in data else None
         normalize = bool(data.pop("normalize")) if "normalize" in data else False
@@ -203,6 +215,8 @@ def metadata_arrays(lmap: LatentMap) -> dict[str, Any]:
     for key in ENCODER_KEYS:
         if isinstance(lmap.source.get(key), str):
             arrays[key] = np.asarray(lmap.source[key], dtype=str)
+    if lmap.source.get("up") in UP_AXES:
+        arrays["up"] = np.asarray(lmap.source["up"], dtype=str)
     if lmap.frames:
         arrays["frame_ids"] = np.asarray([f.frame_id for f in lmap.frames], dtype=str)
         arrays["frame_hw"] = np.asarray([(f.height, f.width) for f in lmap.frames], np.int64)

@@ -9,7 +9,7 @@ import pytest
 
 from quash_plugins.adapters import read_map
 from quash_plugins.cli.main import main
-from quash_plugins.core.errors import UsageError
+from quash_plugins.core.errors import MapFormatError, UsageError
 
 h5py = pytest.importorskip("h5py")
 
@@ -169,8 +169,23 @@ def test_vlmaps_format_turns_only_what_is_not_y_up(tmp_path):
     assert second.source["up"] == "+y"
     np.testing.assert_allclose(second.positions, first.positions, atol=1e-6)
     np.testing.assert_array_equal(second.grid_index, first.grid_index)
+    # through the portable NPZ (and a Zarr store) the up axis goes along, so the map is
+    # not turned twice on the way back, and the viewer still sees it from above
+    assert main(["-q", "convert", str(tmp_path / "vl"), str(tmp_path / "y.npz")]) == 0
+    via_npz = read_map(tmp_path / "y.npz")
+    assert via_npz.source["up"] == "+y"
+    back = ["-q", "convert", str(tmp_path / "y.npz"), str(tmp_path / "vl4"), "--format", "vlmaps"]
+    assert main(back) == 0
+    np.testing.assert_allclose(read_map(tmp_path / "vl4").positions, first.positions, atol=1e-6)
     odd = read_map(src)
     odd.source["up"] = "sideways"
     with pytest.raises(UsageError, match=r"g\.npz.*source\['up'\].*'sideways'"):
         write_vlmaps_map(odd, tmp_path / "vl3")
     assert not (tmp_path / "vl3").exists()
+
+
+def test_npz_up_axis_that_is_not_an_axis_is_refused(tmp_path):
+    bad = tmp_path / "bad.npz"
+    np.savez(bad, embeddings=np.eye(3, dtype=np.float32), up=np.asarray("sideways"))
+    with pytest.raises(MapFormatError, match=r"bad\.npz.*'up'.*'sideways'.*\+z"):
+        read_map(bad)
