@@ -22,7 +22,7 @@ import numpy as np
 
 from ..core.errors import UsageError
 from ..core.types import FrameInfo, LatentMap
-from ._npz import metadata_arrays
+from ._npz import UP_AXES, metadata_arrays
 
 log = logging.getLogger(__name__)
 
@@ -118,6 +118,7 @@ def convert_map(
     adapter: str = "auto",
     compress: bool = False,
     format: str = "auto",
+    up: str = "auto",
     **options: Any,
 ) -> Path:
     """Read ``source`` with ``adapter`` and write it to ``destination``.
@@ -132,17 +133,24 @@ def convert_map(
     existing ``destination`` is replaced (a folder only when it is a zarr store, or a
     previous OpenLex3D export for ``"openlex3d"``).
 
+    ``up``: the source map's up axis (``"+z"``, ``"-z"``, ``"+y"``, ...) for a map whose
+    format does not record one (a ConceptFusion cloud in a y-up dataset frame); it is
+    recorded in the output (the NPZ's ``up``, a Zarr store's or an OpenLex3D export's
+    ``source``) and tells ``"vlmaps"`` how to turn the map y-up. ``"auto"`` (default):
+    the axis the map's adapter recorded (``source["up"]``), else ``+z``.
+
     Examples
     --------
     >>> convert_map("saved-map", "room0.npz")  # doctest: +SKIP
     PosixPath('room0.npz')
     """
     from ..core.atomic import check_not_input, refuse_own_input
-    from ..core.maps import read_map
 
     dst = Path(destination).expanduser()
     if format not in FORMATS:
         raise UsageError(f"Unknown output format {format!r}; use one of {', '.join(FORMATS)}.")
+    if up != "auto" and up not in UP_AXES:
+        raise UsageError(f"Unknown up axis {up!r}; use auto or one of {', '.join(UP_AXES)}.")
     sources = [source] if isinstance(source, (str, Path)) else []
     suffix = dst.suffix.lower()
     if format == "openlex3d":
@@ -154,7 +162,7 @@ def convert_map(
                 f"of OpenLex3D's predictions), not a {suffix} file."
             )
         check_not_input(dst, sources, what="Destination")
-        return write_openlex3d_map(read_map(source, adapter, **options), dst)
+        return write_openlex3d_map(_read(source, adapter, up, options), dst)
     if format == "vlmaps":
         from ._vlmaps_write import vlmaps_outputs, write_vlmaps_map
 
@@ -166,7 +174,7 @@ def convert_map(
         check_not_input(dst, sources, what="Destination")
         for out in vlmaps_outputs(dst):
             check_not_input(out, sources, what="Destination")
-        return write_vlmaps_map(read_map(source, adapter, **options), dst)
+        return write_vlmaps_map(_read(source, adapter, up, options), dst)
     if format == "auto" and suffix not in (".npz", ".zarr"):
         raise UsageError(
             f"Destination {dst} must end in .npz (portable map) or .zarr (Zarr store), or "
@@ -175,7 +183,7 @@ def convert_map(
     if format in ("npz", "zarr") and suffix != f".{format}":
         raise UsageError(f"Destination {dst} must end in .{format} for --format {format}.")
     refuse_own_input(dst, sources, folder=suffix == ".zarr")
-    lmap = read_map(source, adapter, **options)
+    lmap = _read(source, adapter, up, options)
     if suffix == ".zarr":
         from ._zarr_store import write_zarr_map
 
@@ -189,3 +197,27 @@ def convert_map(
             log.info("--compress is ignored for streamed maps (written uncompressed)")
         written = write_npz_streaming(dst, lmap)
     return written
+
+
+def _read(source: Any, adapter: str, up: str, options: dict[str, Any]) -> LatentMap:
+    """The map to convert, with ``up`` (unless ``"auto"``) as its up axis: a copy when
+    ``source`` is a caller's :class:`LatentMap`, whose own ``source`` is left as it is."""
+    import copy
+
+    from ..core.maps import read_map
+
+    lmap = read_map(source, adapter, **options)
+    if up == "auto":
+        return lmap
+    recorded = lmap.source.get("up")
+    if recorded is not None and recorded != up:
+        log.warning(
+            "%s: its format records %s as the up axis; --up %s overrides it",
+            lmap.source.get("path", "the map"),
+            recorded,
+            up,
+        )
+    if lmap is source:
+        lmap = copy.copy(lmap)
+    lmap.source = {**lmap.source, "up": up}
+    return lmap

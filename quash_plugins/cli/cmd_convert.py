@@ -32,6 +32,7 @@ examples:
   quash convert map.pkl.gz map.npz --allow-pickle   # ConceptGraphs, trusted files only
   quash convert saved-map room0.zarr                # chunked Zarr store (needs [dask])
   quash convert saved-map preds/quash/replica/room0 --format openlex3d
+  quash convert saved-map room0.npz --up +y         # a cloud in a y-up dataset frame
   quash make-scene scene.npz && quash convert scene.npz vl --format vlmaps
                                                     # try the VLMaps drop-in offline:
   quash query vl chair -c demo:quash-labels         # reads vl/vlmap_cam/vlmaps_cam.h5df"""
@@ -54,6 +55,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--adapter", default="auto", help="Adapter name, or 'auto' to sniff the format (default)."
+    )
+    p.add_argument(
+        "--up",
+        choices=("auto", "+z", "-z", "+y", "-y", "+x", "-x"),
+        default="auto",
+        help="The source map's up axis, for a map whose format does not say (a ConceptFusion "
+        "cloud in a y-up dataset frame): recorded in DST, and what --format vlmaps turns to "
+        "VLMaps' y-up. auto (default): the axis the map's format records (VLMaps camera-base "
+        "maps: +y), else +z. Write a negative axis as --up=-y.",
     )
     p.add_argument(
         "--allow-pickle",
@@ -106,6 +116,7 @@ def run(args: argparse.Namespace) -> int:
         name,
         compress=args.compress,
         format=args.format,
+        up=args.up,
         **options,
     )
     if args.json:

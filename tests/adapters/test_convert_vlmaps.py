@@ -189,3 +189,25 @@ def test_npz_up_axis_that_is_not_an_axis_is_refused(tmp_path):
     np.savez(bad, embeddings=np.eye(3, dtype=np.float32), up=np.asarray("sideways"))
     with pytest.raises(MapFormatError, match=r"bad\.npz.*'up'.*'sideways'.*\+z"):
         read_map(bad)
+
+
+def test_convert_up_names_the_axis_a_format_does_not_record(tmp_path):
+    """``--up``: a y-up map whose format records no axis (the portable NPZ without
+    ``up``) is written as VLMaps' y-up cells unturned, and the axis goes into an NPZ."""
+    from quash_plugins.adapters import convert_map
+
+    src = _grid_map(tmp_path / "g.npz")  # no 'up': +z would be assumed
+    orig = read_map(src)
+    vl = ["-q", "convert", str(src), str(tmp_path / "vl"), "--format", "vlmaps", "--up", "+y"]
+    assert main(vl) == 0
+    back = read_map(tmp_path / "vl")
+    assert back.source["up"] == "+y"
+    np.testing.assert_allclose(back.positions, orig.positions, atol=1e-6)
+    np.testing.assert_array_equal(back.grid_index, orig.grid_index - orig.grid_index.min(0))
+    assert main(["-q", "convert", str(src), str(tmp_path / "y.npz"), "--up=-y"]) == 0
+    assert read_map(tmp_path / "y.npz").source["up"] == "-y"
+    assert "up" not in orig.source  # a map given to convert_map keeps its own source
+    convert_map(orig, tmp_path / "x.npz", up="+x")
+    assert "up" not in orig.source and read_map(tmp_path / "x.npz").source["up"] == "+x"
+    with pytest.raises(UsageError, match=r"up axis 'y'.*\+y"):
+        convert_map(src, tmp_path / "z.npz", up="y")
