@@ -32,7 +32,7 @@ import numpy as np
 from ..core.errors import MapFormatError, QuashError
 from ..core.interfaces import MapAdapter
 from ..core.types import LatentMap
-from ._npz import encoder_record
+from ._npz import UP_AXES, encoder_record
 from ._rows import IndexedRows, colors_to_uint8, scan_finite, should_scan
 
 log = logging.getLogger(__name__)
@@ -199,7 +199,7 @@ class OpenLex3DAdapter(MapAdapter):
                 "cloud": cloud.name,
                 "objects": int(table.shape[0]),
                 "dense": bool(dense),
-                **_exported_encoder(folder),
+                **_exported_record(folder),
             },
         )
 
@@ -329,8 +329,9 @@ def write_pcd(
     return path
 
 
-def _exported_encoder(folder: Path) -> dict[str, str]:
-    """The encoder record of a quash export (``quash_export.json``'s ``source``), if any."""
+def _exported_record(folder: Path) -> dict[str, str]:
+    """What a quash export (``quash_export.json``) says of its map: the encoder record
+    of its ``source``, and its ``up`` axis (older exports: the ``source``'s), if any."""
     import json
 
     marker = folder / EXPORT_MARKER
@@ -341,8 +342,18 @@ def _exported_encoder(folder: Path) -> dict[str, str]:
     except (OSError, ValueError):
         log.warning("%s: not readable JSON; the map's encoder record is ignored", marker)
         return {}
-    recorded = meta.get("source") if isinstance(meta, dict) else None
-    return encoder_record(recorded if isinstance(recorded, dict) else {})
+    meta = meta if isinstance(meta, dict) else {}
+    recorded = meta.get("source") if isinstance(meta.get("source"), dict) else {}
+    out = encoder_record(recorded)
+    up = meta.get("up", recorded.get("up"))
+    if up is not None and up not in UP_AXES:
+        raise MapFormatError(
+            f"{marker}: field 'up' is {up!r}, not an up axis; write one of "
+            f"{', '.join(UP_AXES)} (or remove it: +z is assumed)."
+        )
+    if up is not None:
+        out["up"] = up
+    return out
 
 
 def is_openlex3d_export(path: str | Path) -> bool:
@@ -370,7 +381,8 @@ def write_openlex3d_map(lmap: LatentMap, folder: str | Path, chunk_rows: int = 6
 
     ``embeddings.npy`` float32 (values as stored, not normalised: OpenLex3D takes
     cosines), ``index.npy`` int64, ``point_cloud.pcd`` (the map's positions and colours)
-    and ``quash_export.json`` (provenance). A map of objects (rows gathered through an
+    and ``quash_export.json`` (provenance, and the map's ``up`` axis when its
+    ``source`` records one; the adapter reads it back). A map of objects (rows gathered through an
     index: ConceptGraphs, a sparse OpenLex3D folder, OpenScene's 2D-3D features) keeps
     its objects: ``embeddings.npy`` is its ``(M, D)`` table and ``index.npy`` its
     point-to-object index, so OpenLex3D ranks objects, not single points. Points of no
@@ -415,6 +427,7 @@ def write_openlex3d_map(lmap: LatentMap, folder: str | Path, chunk_rows: int = 6
             "n_rows": m,
             "dim": d,
             "dense": dense,
+            **({"up": lmap.source["up"]} if lmap.source.get("up") in UP_AXES else {}),
             "source": {k: v for k, v in lmap.source.items() if isinstance(v, (str, int, float))},
         }
         (tmp / EXPORT_MARKER).write_text(json.dumps(meta, indent=2) + "\n", encoding="utf-8")

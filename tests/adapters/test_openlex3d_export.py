@@ -200,3 +200,24 @@ def test_query_of_a_pixel_map_refuses_openlex3d_output_before_any_query(
         main(["convert", str(tmp_path / "feat"), str(tmp_path / "x"), "--format", "openlex3d"]) == 2
     )
     assert "has no positions (a pixel map?)" in capsys.readouterr().err
+
+
+def test_export_records_the_up_axis_and_reads_it_back(tmp_path):
+    """A cloud in a y-up frame (ConceptFusion records no axis) keeps the axis that
+    ``--up`` gave through the export: ``quash_export.json``'s ``up``, read back."""
+    from quash_plugins.core.errors import MapFormatError
+
+    src, _ = cf_map(tmp_path)
+    out = tmp_path / "preds"
+    assert main(["-q", "convert", str(src), str(out), "--format", "openlex3d", "--up", "+y"]) == 0
+    assert json.loads((out / "quash_export.json").read_text())["up"] == "+y"
+    assert read_map(out).source["up"] == "+y"
+    assert main(["-q", "convert", str(out), str(tmp_path / "m.npz")]) == 0
+    assert read_map(tmp_path / "m.npz").source["up"] == "+y"  # and on into the NPZ
+    assert main(["-q", "convert", str(src), str(tmp_path / "z"), "--format", "openlex3d"]) == 0
+    assert "up" not in json.loads((tmp_path / "z" / "quash_export.json").read_text())
+    assert "up" not in read_map(tmp_path / "z").source  # no axis recorded: +z assumed
+    meta = json.loads((out / "quash_export.json").read_text())
+    (out / "quash_export.json").write_text(json.dumps({**meta, "up": "y"}), encoding="utf-8")
+    with pytest.raises(MapFormatError, match=r"quash_export\.json.*'up'.*'y'.*\+y"):
+        read_map(out)
