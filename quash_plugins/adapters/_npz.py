@@ -17,7 +17,7 @@ import numpy as np
 
 from ..core.errors import MapFormatError
 from ..core.interfaces import MapAdapter
-from ..core.types import FrameInfo, LatentMap
+from ..core.types import UP_AXES, FrameInfo, LatentMap
 
 OPTIONAL = (
     "positions",
@@ -35,8 +35,6 @@ OPTIONAL = (
     "encoder_fingerprint",
     "up",
 )
-#: The values of ``up``: the axis the positions' up points along.
-UP_AXES = ("+x", "-x", "+y", "-y", "+z", "-z")
 
 #: ``LatentMap.source`` keys stored as 0-d string arrays: the encoder that built the map.
 ENCODER_KEYS = ("encoder", "encoder_fingerprint")

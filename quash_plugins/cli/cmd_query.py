@@ -15,7 +15,8 @@ examples:
 The --out file holds queries (Q,) str, masks (Q, N) bool, scores (Q, N) float32 and
 display_scores (Q, N) float32 in [0, 1] (row i: the map's item i), the map's positions
 and grid_index where it has them (a pixel map: frame_ids, frame_hw and frame_offsets,
-for masks_per_frame), and provenance (a JSON string: version, map, config,
+for masks_per_frame), the positions' up axis (up, a 0-d string: --up, else the one
+the map's format records, if any), and provenance (a JSON string: version, map, config,
 encoder fingerprint, each query's positives, negatives, heuristic with its parameters
 (an llm's model and endpoint, and whether the set came from the server or the cache)
 and presence decision). With --out RESULT.zarr the same masks and
@@ -99,13 +100,14 @@ def run(args: argparse.Namespace) -> int:
     passes = f" ({quash.passes} passes)" if quash.passes > 1 else ""
     with progress(lmap.n * quash.passes, f"classifying {lmap.n} items{passes}") as advance:
         results = quash.query_many(lmap, args.queries, progress=advance)
+    up = None if args.up == "auto" else args.up  # else the map's own, where it records one
     if args.out and _out_format(args) == "openlex3d":
         from ..engine.results import write_results_openlex3d
 
-        write_results_openlex3d(args.out, results, lmap.source)
+        write_results_openlex3d(args.out, results, {**lmap.source, **({"up": up} if up else {})})
     elif args.out:
         write_results_npz(
-            args.out, results, lmap=lmap, encoder=quash.encoder, config_file=cfg.source
+            args.out, results, lmap=lmap, encoder=quash.encoder, config_file=cfg.source, up=up
         )
     viewer = open_viewer(args, app_id="quash-query")
     if viewer is not None:

@@ -20,6 +20,8 @@ log = logging.getLogger(__name__)
 
 MapKind = Literal["voxels", "points", "pixels"]
 MAP_KINDS = ("voxels", "points", "pixels")
+#: The up axes a map's ``source["up"]`` may record: the axis its positions' up points along.
+UP_AXES = ("+x", "-x", "+y", "-y", "+z", "-z")
 
 #: Generic negatives the paper always adds to the antonyms.
 DEFAULT_NEGATIVES: tuple[str, ...] = ("other", "background", "nothing")

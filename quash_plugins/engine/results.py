@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from ..core.atomic import atomic_dir, atomic_write, is_store_dir, refuse_own_input
-from ..core.types import QueryResult
+from ..core.types import UP_AXES, QueryResult
 
 #: The arrays every results file has, as :func:`write_results_npz` writes them.
 RESULT_ARRAYS = ("queries", "masks", "scores", "display_scores")
@@ -22,6 +22,7 @@ OPTIONAL_RESULT_ARRAYS = (
     "frame_ids",
     "frame_hw",
     "frame_offsets",
+    "up",
     "provenance",
 )
 
@@ -120,6 +121,7 @@ def write_results_npz(
     lmap: Any = None,
     encoder: Any = None,
     config_file: Any = None,
+    up: str | None = None,
 ) -> Path:
     """Write ``queries (Q,) str``, ``masks (Q, N) bool``, ``scores (Q, N) float32`` and
     ``display_scores (Q, N) float32`` atomically; row ``i`` of a mask is item ``i`` of
@@ -130,7 +132,10 @@ def write_results_npz(
     has them, so the file alone can be plotted or put back on a grid; for a pixel map its
     frames (``frame_ids (F,)``, ``frame_hw (F, 2)``, ``frame_offsets (F,)``, as ``quash
     convert`` writes them), so each mask can be cut into per-image masks
-    (``masks_per_frame(frames_from_npz(path), masks[q])``).
+    (``masks_per_frame(frames_from_npz(path), masks[q])``). With the positions goes
+    their up axis, ``up`` (a 0-d string, ``"+y"``...), as the map's portable NPZ keeps
+    it: ``up`` when given (``quash query --up``), else the one the map's ``source``
+    records; none when neither says (``+z`` is then assumed).
 
     ``path`` may not be the map the results came from (their ``map_source``), through
     any link: that is refused with :class:`~quash_plugins.core.errors.UsageError`.
@@ -149,6 +154,9 @@ def write_results_npz(
             value = getattr(lmap, key, None)
             if value is not None and len(value) == masks.shape[1]:
                 extra[key] = np.asarray(value)
+        up = up if up is not None else getattr(lmap, "source", {}).get("up")
+        if "positions" in extra and up in UP_AXES:
+            extra["up"] = np.asarray(up, dtype=str)
         for key, value in frame_attrs(lmap).items():
             extra[key] = np.asarray(value, dtype=str if key == "frame_ids" else np.int64)
     record = json.dumps(results_provenance(results, encoder, config_file), default=str)

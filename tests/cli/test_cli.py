@@ -375,6 +375,28 @@ def test_out_suffix_and_format_must_agree(tiny_world, tmp_path, capsys):
     assert np.load(tmp_path / "R.NPZ")["masks"].shape[0] == 1
 
 
+def test_result_npz_records_the_up_axis(tiny_world, tmp_path, capsys):
+    """``--out RESULT.npz`` keeps its positions' up axis: ``--up`` when given, else the
+    one the map records (a y-up map read through the portable NPZ), else none."""
+    from quash_plugins.adapters import convert_map
+    from quash_plugins.engine.results import is_results_npz
+
+    r = tmp_path / "r.npz"
+    code, _, err = query_chair(tiny_world, "--out", r, capsys=capsys)
+    assert code == 0, err
+    assert "up" not in np.load(r).files  # the map records none: +z is assumed
+    code, _, err = query_chair(tiny_world, "--out", r, "--up=-y", capsys=capsys)
+    assert code == 0, err
+    assert str(np.load(r)["up"]) == "-y" and is_results_npz(r)
+    y_up = convert_map(tiny_world["map"], tmp_path / "y.npz", up="+y")
+    code, _, err = run_cli(
+        "query", y_up, "chair", "-c", tiny_world["config"], "--out", r, capsys=capsys
+    )
+    assert code == 0, err
+    assert str(np.load(r)["up"]) == "+y"
+    assert json.loads(str(np.load(r)["provenance"]))["map"]["up"] == "+y"
+
+
 def test_an_adapter_without_options_refuses_one_by_name(tiny_world, capsys):
     code, _, err = query_chair(tiny_world, "-o", "nosuch=1", capsys=capsys)
     assert code == 1
