@@ -111,18 +111,20 @@ class ImageFeaturesAdapter(MapAdapter):
                 return False
             p = Path(source)
             if p.is_file() and p.suffix == ".npy":  # one frame, by its header's shape
-                shape = np.load(p, mmap_mode="r", allow_pickle=False).shape
-                return not NOT_FRAMES.match(p.stem) and (
-                    len(shape) == 3 or (len(shape) == 4 and shape[0] == 1)
-                )
+                return _npy_frame(p)
             if p.is_file():
                 return p.suffix in (".pt", ".pth")
             if not p.is_dir() or (p / "pc_points.h5").exists():
                 return False
-            for q in p.iterdir():
-                if q.is_file() and q.suffix in FEATURE_SUFFIXES and not NOT_FRAMES.match(q.stem):
-                    return True
-            return False
+            # a .pt, or a .npy shaped as a frame: a folder holding only other arrays
+            # (labels.npy, poses.npy beside a saved-map/) is no feature folder
+            return any(
+                q.is_file()
+                and q.suffix in FEATURE_SUFFIXES
+                and not NOT_FRAMES.match(q.stem)
+                and (q.suffix != ".npy" or _npy_frame(q))
+                for q in p.iterdir()
+            )
         except (OSError, ValueError):
             return False
 
@@ -264,3 +266,15 @@ class ImageFeaturesAdapter(MapAdapter):
             except ImportError:  # pragma: no cover
                 pass
         return folder
+
+
+def _npy_frame(path: Path) -> bool:
+    """True when ``path`` is a ``.npy`` whose header is a frame's shape: ``(H, W, D)`` or
+    ``(1, D, h, w)`` (only the header is read); never for a name of :data:`NOT_FRAMES`."""
+    if NOT_FRAMES.match(path.stem):
+        return False
+    try:
+        shape = np.load(path, mmap_mode="r", allow_pickle=False).shape
+    except (OSError, ValueError):
+        return False
+    return len(shape) == 3 or (len(shape) == 4 and shape[0] == 1)

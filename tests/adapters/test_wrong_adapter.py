@@ -75,3 +75,22 @@ def test_a_project_folder_names_the_maps_inside_it(tmp_path):
     assert "No adapter recognises" in msg
     assert f"{tmp_path / 'saved-feat'} (image-features)" in msg
     assert f"{tmp_path / 'saved-map'} (conceptfusion)" in msg and "notes" not in msg
+
+
+def test_a_folder_of_other_arrays_is_no_feature_folder(tmp_path):
+    """A ConceptFusion run folder holds saved-map/ beside arrays that are no frames
+    (labels.npy, poses.npy): the image-features adapter does not claim it (its error
+    blamed labels.npy for not being a frame), so the error names the map inside."""
+    from _cf_writers import cf_arrays, save_pointclouds
+
+    save_pointclouds(tmp_path / "saved-map", **cf_arrays(n=6, d=4))
+    np.save(tmp_path / "labels.npy", np.zeros(6, np.int64))
+    with pytest.raises(MapFormatError) as info:
+        read_map(tmp_path)
+    msg = str(info.value)
+    assert "No adapter recognises" in msg and "labels.npy" not in msg
+    assert f"{tmp_path / 'saved-map'} (conceptfusion)" in msg
+    np.save(tmp_path / "frame0.npy", np.ones((2, 3, 4), np.float32))  # a frame: claimed
+    from quash_plugins.adapters import detect_adapter
+
+    assert detect_adapter(tmp_path) == "image-features"
