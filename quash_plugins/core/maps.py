@@ -117,13 +117,14 @@ def _hints(source: Any) -> str:
 
 
 def _maps_inside(source: Any, limit: int = 64) -> str:
-    """For a folder no adapter takes: the sub-folders one does (a project folder holding
-    a map folder and a feature folder, e.g.), as a sentence; else ``""``."""
+    """For a folder no adapter takes: the files and sub-folders one does (a project
+    folder holding a map folder and a feature folder, a folder of two ``.npz`` maps),
+    as a sentence; else ``""``."""
     if not isinstance(source, (str, Path)) or not Path(source).is_dir():
         return ""
     found = []
     try:
-        subs = sorted(p for p in Path(source).iterdir() if p.is_dir())[:limit]
+        subs = sorted(p for p in Path(source).iterdir() if not p.name.startswith("."))[:limit]
     except OSError:
         return ""
     for sub in subs:

@@ -94,3 +94,19 @@ def test_a_folder_of_other_arrays_is_no_feature_folder(tmp_path):
     from quash_plugins.adapters import detect_adapter
 
     assert detect_adapter(tmp_path) == "image-features"
+
+
+def test_a_folder_of_map_files_names_them(tmp_path):
+    """A folder holding two portable maps (room0.npz, scene.npz) is no map: the error
+    names the map files inside it, as it names map folders, so the user can pass one."""
+    from quash_plugins.adapters import write_npz_map
+    from quash_plugins.core.types import LatentMap
+
+    for stem in ("room0", "scene"):
+        write_npz_map(tmp_path / f"{stem}.npz", LatentMap(np.eye(3, dtype=np.float32)))
+    (tmp_path / "notes.txt").write_text("not a map", encoding="utf-8")
+    with pytest.raises(MapFormatError) as info:
+        read_map(tmp_path)
+    msg = str(info.value)
+    assert f"{tmp_path / 'room0.npz'} (npz), {tmp_path / 'scene.npz'} (npz)" in msg
+    assert "notes" not in msg
