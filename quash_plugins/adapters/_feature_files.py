@@ -55,6 +55,13 @@ def _load_tensor(path: Path) -> np.ndarray:
             obj = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # noqa: BLE001 - torch raises many types for bad files
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        if "maximum supported version" in msg:  # torch's own words for a newer archive
+            raise MapFormatError(
+                f"{path}: written by a newer torch than this one ({torch.__version__}): "
+                f"{msg} Upgrade torch here, or re-save each frame where it was written as "
+                f"numpy, which this adapter reads too: np.save('{path.stem}.npy', "
+                "t.cpu().numpy())."
+            ) from None
         raise MapFormatError(
             f"{path}: not a readable tensor file ({msg}). Only bare tensors saved with "
             "torch.save are read, with weights_only=True (no pickled objects)."

@@ -285,3 +285,26 @@ def test_docs_adapters_python_blocks_run(cf_feat, capsys, monkeypatch):
     out = capsys.readouterr().out
     assert "(6, 8)" in out
     assert all(f"'{stem}': ((5, 7), " in out for stem in boxes), out
+
+
+def test_a_pt_from_a_newer_torch_says_so_and_how_to_read_it(tmp_path):
+    """A frame saved by a newer torch (its archive's version record above what this
+    torch reads) is refused naming the file, this torch's version, and the fixes."""
+    import zipfile
+
+    from quash_plugins.core.errors import MapFormatError
+
+    torch = pytest.importorskip("torch")
+    old = tmp_path / "old.pt"
+    torch.save(torch.zeros(2, 3, 4, dtype=torch.float16), old)
+    feat = tmp_path / "feat"
+    feat.mkdir()
+    with zipfile.ZipFile(old) as zin, zipfile.ZipFile(feat / "frame0.pt", "w") as zout:
+        for info in zin.infolist():
+            data = zin.read(info)
+            zout.writestr(info, b"99\n" if info.filename.endswith("/version") else data)
+    with pytest.raises(MapFormatError) as info:
+        read_map(feat, adapter="image-features")
+    msg = str(info.value)
+    assert "frame0.pt" in msg and "newer torch" in msg and torch.__version__ in msg
+    assert "np.save('frame0.npy'" in msg
