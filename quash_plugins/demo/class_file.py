@@ -30,6 +30,10 @@ The format (every key required unless marked optional)::
     wall_top: [curtain]              # optional: wall objects at the top of the wall
                                      # (default: curtain, if the table has one)
 
+Appearance names differ from every label and language name; each label or language name
+belongs to one label (absent ones included, ignoring case); an absent free text names no
+class of the table ("a cycle" when a bicycle is in it).
+
 Examples
 --------
 >>> from quash_plugins.demo.class_file import class_table_data
@@ -40,6 +44,7 @@ Examples
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Any
 
@@ -238,6 +243,33 @@ def parse_class_table(data: Any, where: str = "class table"):
     wall_bottom = labels("wall_bottom", data.get("wall_bottom", default_bottom), "wall")
     wall_top = labels("wall_top", data.get("wall_top", default_top), "wall")
 
+    owner: dict[str, str] = {}  # each label and language name answers to one label
+    named = [(f"classes[{i}] ({c.label}).label", c.label, c.label) for i, c in enumerate(classes)]
+    named += [
+        (f"classes[{i}] ({c.label}).language", c.label, n)
+        for i, c in enumerate(classes)
+        for n in c.language
+    ]
+    named += [(f"absent.{a}", a, n) for a, subs in absent.items() for n in (a, *subs)]
+    for field, label, n in named:
+        if owner.setdefault(n.lower(), label) != label:
+            raise fail(
+                field,
+                f"{n!r} is also a name of {owner[n.lower()]!r}",
+                "give each label and language name to one label (a query has one answer)",
+            )
+    for field, texts in (
+        ("absent_free_text", absent_free_text),
+        ("absent_free_text_open", open_text),
+    ):
+        for t in texts:
+            bare = re.sub(r"^(an?|the)\s+", "", t.lower())
+            if bare in owner and owner[bare] in by_label:
+                raise fail(
+                    field,
+                    f"{t!r} names {owner[bare]!r}, a class of the table",
+                    "an absence query names nothing in the scene; remove it or reword it",
+                )
     both = shared_names(classes, absent)
     if both:
         name, label = both[0]

@@ -131,6 +131,26 @@ def _broken(edit) -> dict:
             "also a label or language name",
         ),
         (lambda d: d["classes"][6].update(label="desk"), "classes", "twice"),
+        # a name under two labels: its query would have two answers
+        (
+            lambda d: d["classes"][7].update(language=["cubby", "Workstation"]),
+            "classes[7] (locker).language",
+            "'Workstation' is also a name of 'desk'",
+        ),
+        (
+            lambda d: (
+                d["classes"][7].update(label="Desk"),
+                d["room_types"].update(store=["Desk"]),
+            ),
+            "classes[7] (Desk).label",
+            "also a name of 'desk'",
+        ),
+        (lambda d: d["absent"].update(piano=["copier"]), "absent.piano", "name of 'printer'"),
+        (
+            lambda d: d.update(absent_free_text=["an elephant", "a copier"]),
+            "absent_free_text",
+            "'a copier' names 'printer'",
+        ),
         (lambda d: d["free_text"].update(sofa="x"), "free_text.sofa", "not a class label"),
         (lambda d: d.update(wall_top=["desk"]), "wall_top", "must be wall"),
         (lambda d: d["classes"][6].update(appearance="paper tray"), "appearance", "list"),
