@@ -143,11 +143,13 @@ def load_query_file(path: str | Path) -> tuple[dict[str, str], list[str]]:
             f"{path}: a query file is a mapping {{present: {{text: label}} or [labels], "
             "absent: [texts]}; see docs/evaluation.md."
         )
-    if not isinstance(present, (dict, list)) or not isinstance(absent, list):
+    if not isinstance(present, (dict, list)):
         raise QuashError(
-            f"{path}: 'present' must be a list or a {{text: label}} mapping and 'absent' a "
-            "list of texts."
+            f"{path}: 'present' is {present!r}; write a list of labels ([chair, sofa]) or a "
+            "{text: label} mapping (bunk bed: bed)."
         )
+    if not isinstance(absent, list):
+        raise QuashError(f"{path}: 'absent' is {absent!r}; write a list of texts ([{absent}]).")
     return parse_queries(present, source=str(path)), [" ".join(str(a).split()) for a in absent]
 
 

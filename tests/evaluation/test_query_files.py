@@ -35,6 +35,12 @@ def test_a_query_given_twice_with_two_labels_is_refused():
             "presnt:\n  a cobot: robot arm\nabsent: [a giraffe]\n",
             r"q\.yaml: unknown key 'presnt'.*Did you mean 'present'\?",
         ),
+        # a wrong type names the section that has it, not both
+        (
+            "present: [chair]\nabsent: a giraffe\n",
+            r"q\.yaml: 'absent' is 'a giraffe'.*\[a giraffe\]",
+        ),
+        ("present: chair\nabsent: [a giraffe]\n", r"q\.yaml: 'present' is 'chair'; write a list"),
     ],
 )
 def test_query_file_mistakes_name_the_file_and_the_query(tmp_path, text, message):
