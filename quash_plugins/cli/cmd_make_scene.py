@@ -151,6 +151,9 @@ def _check_outputs(args: argparse.Namespace) -> None:
 
     if not str(args.out).endswith(".npz"):
         raise UsageError(f"{args.out}: the scene is written as our NPZ format; use a .npz name.")
-    inputs = (args.encoder_file,)
+    from ..demo.class_file import is_class_file
+
+    # the class table is read too: never replaced by an output named like it
+    inputs = (args.encoder_file, args.classes if is_class_file(args.classes) else None)
     for path in scene_paths(args.out).values():
         check_output(path, inputs, what="OUT", overwrite=args.force, replaceable=is_scene_file)

@@ -200,3 +200,17 @@ def test_cli_make_scene_with_a_bad_file_names_it(tmp_path, capsys):
     err = capsys.readouterr().err
     assert rc != 0 and f"{path}: room_types: missing" in err
     assert not (tmp_path / "s.npz").exists()
+
+
+@pytest.mark.parametrize("beside", ["taxonomy", "queries", "open-queries"])
+def test_cli_make_scene_never_writes_over_its_class_file(tmp_path, capsys, beside):
+    """A class file named like one of the scene's outputs is an input: --force or not,
+    make-scene refuses before any work instead of replacing the table with its output."""
+    path = tmp_path / f"s.{beside}.yaml"
+    path.write_text(yaml.safe_dump(_tiny(), sort_keys=False), encoding="utf-8")
+    before = path.read_bytes()
+    for force in ([], ["--force"]):
+        out = ["make-scene", str(tmp_path / "s.npz"), "--classes", str(path), *force]
+        assert main([*out, "--no-cache"]) == 2
+        assert "is the input" in capsys.readouterr().err
+    assert path.read_bytes() == before and not (tmp_path / "s.npz").exists()
