@@ -262,7 +262,10 @@ def _layout(opts: SceneOptions, rng: np.random.Generator, cs: ClassSet):
 
     def size_cells(c: SceneClass) -> tuple[int, int, int]:
         j = rng.uniform(0.8, 1.2, 3) * opts.size_scale
-        return tuple(max(1, int(round(s * f / vs))) for s, f in zip(c.size, j))  # type: ignore
+        sx, sy, sz = (max(1, int(round(s * f / vs))) for s, f in zip(c.size, j))
+        # an object longer than the room (a car in a 4.5 m room) is cut to fit inside its
+        # walls: its slices ran into the next room, or past the last one's end
+        return min(sx, n_room - 2), min(sy, n_room - 2), sz
 
     n_objects = 0
     for r, rtype in enumerate(room_types):

@@ -214,3 +214,21 @@ def test_cli_make_scene_never_writes_over_its_class_file(tmp_path, capsys, besid
         assert main([*out, "--no-cache"]) == 2
         assert "is the input" in capsys.readouterr().err
     assert path.read_bytes() == before and not (tmp_path / "s.npz").exists()
+
+
+def test_an_object_longer_than_the_room_is_cut_to_fit_inside_its_walls(tmp_path):
+    """A car of 6 m in a 4 m room: the layout ran past the last room's end (an IndexError)
+    or through the wall into the next room; now the object stays inside its own room."""
+    data = _tiny()
+    data["classes"][7]["size"] = [6.0, 6.0, 1.0]  # the locker, in the second room
+    data["classes"][5]["size"] = [6.0, 0.7, 0.75]  # the desk, in the first
+    path = tmp_path / "big.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False), encoding="utf-8")
+    enc = TableEncoder(table=table_for(_names(data)))
+    s = make_scene(enc, SceneOptions(**OPTS, classes=str(path)))
+    n_room = round(OPTS["room_size"] / OPTS["voxel_size"])
+    for label, room in (("locker", 1), ("desk", 0)):
+        cells = s.map.grid_index[s.map.labels == s.map.label_names.index(label)]
+        assert len(cells), label
+        x, y = cells[:, 0] - room * n_room, cells[:, 1]
+        assert x.min() > 0 and x.max() < n_room and y.min() > 0 and y.max() < n_room, label
