@@ -30,6 +30,7 @@ The format (every key required unless marked optional)::
     wall_top: [curtain]              # optional: wall objects at the top of the wall
                                      # (default: curtain, if the table has one)
 
+Every table has the labels floor, wall and ceiling (structure), door (wall) and window.
 Appearance names differ from every label and language name; each label or language name
 belongs to one label (absent ones included, ignoring case); an absent free text names no
 class of the table ("a cycle" when a bicycle is in it).
