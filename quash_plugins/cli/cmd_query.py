@@ -18,8 +18,8 @@ and grid_index where it has them (a pixel map: frame_ids, frame_hw and frame_off
 for masks_per_frame), the positions' up axis (up, a 0-d string: --up, else the one
 the map's format records, if any), and provenance (a JSON string: version, map, config,
 encoder fingerprint, each query's positives, negatives, heuristic with its parameters
-(an llm's model and endpoint, and whether the set came from the server or the cache)
-and presence decision). With --out RESULT.zarr the same masks and
+(an llm's model and endpoint, and whether the set came from the server or the cache;
+a label list's label, resolution and labels_from) and presence decision). With --out RESULT.zarr the same masks and
 scores (the config's refine and presence applied) stream to a zarr store, without
 display_scores (a pixel map's frame_ids, frame_hw and frame_offsets are attributes,
 for frames_from_zarr), for maps larger than memory: the embeddings are read in chunks; with

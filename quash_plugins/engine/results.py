@@ -82,7 +82,9 @@ def results_provenance(
 def _query_record(r: QueryResult) -> dict[str, Any]:
     """One query of :func:`results_provenance`: its set, the heuristic with its parameters
     and, for a set that can come from elsewhere (``llm``), where it came from (``source``:
-    server or cache), the classifier, the match count and the presence decision."""
+    server or cache); for a label-list heuristic the query's ``label``, the list's source
+    (``labels_from``) and how the query ``resolved`` to its label; the classifier, the
+    match count and the presence decision."""
     prov = r.queryset.provenance or {}
     out: dict[str, Any] = {
         "query": r.query,
@@ -94,6 +96,9 @@ def _query_record(r: QueryResult) -> dict[str, Any]:
         out["heuristic_params"] = prov["params"]
     if prov.get("source"):
         out["source"] = prov["source"]
+    for key in ("label", "labels_from", "resolved"):  # a label-list heuristic's answer
+        if key in prov:
+            out[key] = prov[key]
     out.update(classifier=r.classifier, matched=r.n_matched, presence=r.presence)
     return out
 

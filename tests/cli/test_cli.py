@@ -471,6 +471,30 @@ def test_query_out_npz_records_where_items_are_and_how_it_was_made(tiny_world, t
     assert code == 0, err
 
 
+def test_query_out_npz_records_the_label_list_each_query_was_answered_from(
+    tiny_world, tmp_path, capsys
+):
+    """A label-list method's results file says which list it was given (the map's label
+    names, with the taxonomy beside the map) and which label each query resolved to, as
+    quash eval's `given` column does: a held-out map's list, not the shipped one."""
+    (tiny_world["dir"] / "map.taxonomy.yaml").write_text("chair: [armchair]\nsofa: []\n")
+    cfg = tmp_path / "labels.yaml"
+    cfg.write_text(
+        f"encoder: {{name: table, file: {tiny_world['table']}}}\n"
+        "heuristic: {name: label-list}\nclassifier: label-argmax\n"
+    )
+    out = tmp_path / "r.npz"
+    code, _, err = run_cli(
+        "query", tiny_world["map"], "armchair", "-c", cfg, "--out", out, capsys=capsys
+    )
+    assert code == 0, err
+    with np.load(out) as z:
+        (armchair,) = json.loads(str(z["provenance"]))["queries"]
+    assert armchair["label"] == "chair"
+    assert armchair["labels_from"].endswith("map.taxonomy.yaml")
+    assert armchair["resolved"]["to"] == "chair"
+
+
 def test_query_and_eval_take_adapter_options(tmp_path, capsys):
     """-o KEY=VALUE reaches the adapter, as in quash convert: the cell size of a
     mobile-base VLMaps map (not stored in its file) scales the positions of the result;
