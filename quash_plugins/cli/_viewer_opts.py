@@ -6,6 +6,7 @@ import argparse
 import textwrap
 from typing import Any
 
+from ..core.types import UP_CHOICES
 from ..viewer import (
     DEFAULT_BIND,
     DEFAULT_GRPC_PORT,
@@ -94,7 +95,7 @@ def add_viewer_arguments(
         return
     g.add_argument(
         "--up",
-        choices=("auto", "+z", "-z", "+y", "-y", "+x", "-x"),
+        choices=UP_CHOICES,
         default="auto",
         help="The map's up axis, which the views look down along and the ceiling is found "
         "on. auto (default): the one the map's format fixes (VLMaps camera-base maps: +y; "

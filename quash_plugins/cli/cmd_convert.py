@@ -17,8 +17,9 @@ positions, colours, labels...), as a Zarr store when DST ends in .zarr, or, with
 point_cloud.pcd; a map of objects, such as ConceptGraphs', keeps one row per object).
 With --format vlmaps, a voxel map becomes VLMaps' own HDF5 save layout,
 DST/vlmap_cam/vlmaps_cam.h5df (the camera-base layout: it stores its cell size and
-origin, so positions read back unchanged; labels go to grid_semantic and
-vlmap_cam/obj2cls_dict.txt, which VLMaps itself ignores). The input is only read; the
+origin, and its cells are [row, height, col] with y up, so a z-up map is turned rigidly
+to y-up and reads back so; labels go to grid_semantic and vlmap_cam/obj2cls_dict.txt,
+which VLMaps itself ignores). The input is only read; the
 output appears atomically. Lazy maps (HDF5, per-image features) are streamed block by
 block, so the map is never held whole in memory. DST is never SRC (nor inside it); an
 existing DST is replaced only with --force (an OpenLex3D folder: only a previous export
@@ -39,6 +40,8 @@ examples:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    from ..core.types import UP_CHOICES
+
     p.add_argument("source", metavar="SRC", help="Map file or directory to read.")
     p.add_argument(
         "destination",
@@ -58,7 +61,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--up",
-        choices=("auto", "+z", "-z", "+y", "-y", "+x", "-x"),
+        choices=UP_CHOICES,
         default="auto",
         help="The source map's up axis, for a map whose format does not say (a ConceptFusion "
         "cloud in a y-up dataset frame): recorded in DST, and what --format vlmaps turns to "

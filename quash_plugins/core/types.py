@@ -22,6 +22,8 @@ MapKind = Literal["voxels", "points", "pixels"]
 MAP_KINDS = ("voxels", "points", "pixels")
 #: The up axes a map's ``source["up"]`` may record: the axis its positions' up points along.
 UP_AXES = ("+x", "-x", "+y", "-y", "+z", "-z")
+#: What an ``--up`` option takes: ``auto`` (the axis the map records, else ``+z``) or an axis.
+UP_CHOICES = ("auto", "+z", "-z", "+y", "-y", "+x", "-x")
 
 #: Generic negatives the paper always adds to the antonyms.
 DEFAULT_NEGATIVES: tuple[str, ...] = ("other", "background", "nothing")
