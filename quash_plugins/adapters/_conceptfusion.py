@@ -146,7 +146,8 @@ class ConceptFusionAdapter(MapAdapter):
         label_pts = f"{files['pc_points']} (dataset 'pc_points')"
         if points_ds.ndim != 2 or points_ds.shape[1] != 3:
             raise MapFormatError(
-                f"{label_pts}: field 'positions' must be (N, 3); got shape {points_ds.shape}."
+                f"{label_pts}: field 'positions' must be (N, 3); got shape "
+                f"{points_ds.shape}.{_batch_hint(points_ds.shape, 'points')}"
             )
         n = int(points_ds.shape[0])
 
@@ -155,6 +156,7 @@ class ConceptFusionAdapter(MapAdapter):
         if emb.ndim != 2:
             raise MapFormatError(
                 f"{label_emb}: field 'embeddings' must be 2-D (N, D); got shape {emb.shape}."
+                f"{_batch_hint(emb.shape, 'embeddings')}"
             )
         if emb.shape[1] == 0:
             raise MapFormatError(
@@ -245,3 +247,13 @@ def write_pointclouds(root: str | Path, arrays: dict[str, np.ndarray]) -> Path:
         with h5py.File(folder / f"{key}.h5", "w") as f:
             f.create_dataset(key, data=np.asarray(value))
     return folder
+
+
+def _batch_hint(shape: tuple[int, ...], name: str) -> str:
+    """The fix for a gradslam padded batch of one cloud, ``(1, N, ...)``, else ''."""
+    if len(shape) == 3 and shape[0] == 1:
+        return (
+            f" It is a batch of one cloud (gradslam's padded {name}, shape (1, N, ...)): "
+            f"save {name}[0] (the cloud's own (N, ...) rows) instead."
+        )
+    return ""

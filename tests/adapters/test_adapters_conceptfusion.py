@@ -14,6 +14,7 @@ from quash_plugins import Quash
 from quash_plugins.adapters import detect_adapter, read_map
 from quash_plugins.cli.main import main
 from quash_plugins.core import registry
+from quash_plugins.core.errors import MapFormatError
 
 
 @pytest.fixture
@@ -62,6 +63,16 @@ def test_float32_embeddings_and_only_required_files(tmp_path):
     lmap = read_map(tmp_path)
     assert lmap.embeddings.dtype == np.float32 and lmap.colors is None
     np.testing.assert_array_equal(np.asarray(lmap.embeddings[:]), arrays["pc_embeddings"])
+
+
+@pytest.mark.parametrize("field", ["pc_points", "pc_embeddings"])
+def test_a_padded_batch_of_one_cloud_says_to_save_its_first_entry(tmp_path, field):
+    arrays = cf_arrays()
+    arrays[field] = arrays[field][None]  # gradslam's padded (1, N, ...) layout
+    save_pointclouds(tmp_path, pc_points=arrays["pc_points"], pc_embeddings=arrays["pc_embeddings"])
+    name = "points" if field == "pc_points" else "embeddings"
+    with pytest.raises(MapFormatError, match=rf"{field}.*batch of one cloud.*save {name}\[0\]"):
+        read_map(tmp_path, "conceptfusion")
 
 
 def test_zero_rows_never_match_end_to_end(tmp_path):
@@ -125,7 +136,6 @@ def test_color_range_option(tmp_path, caplog):
 
 def test_color_range_0_1_refused_for_0_255_colours(tmp_path):
     """0-255 colours read as 0-1 would all be white: refused, naming the file and option."""
-    from quash_plugins.core.errors import MapFormatError
 
     save_pointclouds(tmp_path, **cf_arrays(n=10, d=4))
     with pytest.raises(MapFormatError) as info:
