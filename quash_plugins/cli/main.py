@@ -156,16 +156,16 @@ def subcommand_parsers(parser: argparse.ArgumentParser) -> dict[str, argparse.Ar
 def _refuse_unknown(parser: argparse.ArgumentParser, command: str | None, extra: list[str]):
     """An argument no parser took: the subcommand's usage and error (argparse gives the
     top-level ones), with the nearest option of that subcommand when one is close."""
-    import difflib
+    from ..core.errors import closest
 
     target = subcommand_parsers(parser).get(command, parser) if command else parser
     options = [o for a in target._actions for o in a.option_strings if o.startswith("--")]
     hints = []
     for arg in extra:
         if arg.startswith("--"):
-            close = difflib.get_close_matches(arg.split("=", 1)[0], options, n=1, cutoff=0.75)
+            close = closest(arg.split("=", 1)[0], options, cutoff=0.75)
             if close:
-                hints.append(f"{arg.split('=', 1)[0]}: did you mean {close[0]}?")
+                hints.append(f"{arg.split('=', 1)[0]}: did you mean {close}?")
     help_hint = f"'quash {command} --help'" if command else "'quash --help'"
     target.error(
         f"unrecognized arguments: {' '.join(extra)}"

@@ -47,9 +47,10 @@ class HeuristicError(QuashError):
     """A heuristic cannot expand a query (unknown label, unreachable LLM...)."""
 
 
-def closest(name: str, known: Iterable[str]) -> str | None:
-    """Return the known name closest to ``name``, or None when nothing is close."""
-    matches = difflib.get_close_matches(name, list(known), n=1, cutoff=0.5)
+def closest(name: str, known: Iterable[str], cutoff: float = 0.5) -> str | None:
+    """Return the known name closest to ``name``, or None when nothing is as close as
+    ``cutoff`` (difflib's similarity ratio)."""
+    matches = difflib.get_close_matches(name, list(known), n=1, cutoff=cutoff)
     return matches[0] if matches else None
 
 
