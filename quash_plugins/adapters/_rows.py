@@ -330,19 +330,38 @@ class MaskedRows(IndexedRows):
         return out
 
 
-def scan_finite(arr: Any, label: str, field: str, chunk_rows: int = 65536) -> None:
+def scan_finite(
+    arr: Any,
+    label: str,
+    field: str,
+    chunk_rows: int = 65536,
+    *,
+    fix: str = "Fix or drop those rows before querying.",
+    name_read_errors: bool = False,
+) -> None:
     """Read ``arr`` in row chunks; raise :class:`MapFormatError` at the first NaN or Inf.
 
-    ``label`` names the file (and dataset) in the message, ``field`` the map field.
+    ``label`` names the file (and dataset) in the message, ``field`` the map field, and
+    ``fix`` ends it. ``name_read_errors``: a block that cannot be read (a truncated HDF5
+    file) is a :class:`MapFormatError` naming the field and rows too; else the reader's
+    own error goes up (``read_map`` names the file).
     """
     n = int(arr.shape[0])
     for start in range(0, n, chunk_rows):
-        block = np.asarray(arr[start : min(n, start + chunk_rows)])
+        stop = min(n, start + chunk_rows)
+        try:
+            block = np.asarray(arr[start:stop])
+        except (OSError, ValueError, RuntimeError) as exc:
+            if not name_read_errors:
+                raise
+            raise MapFormatError(
+                f"{label}: cannot read field {field!r} rows {start}..{stop} ({exc}). The file "
+                "may be truncated or corrupt."
+            ) from None
         if block.dtype.kind == "f" and not np.isfinite(block).all():
             bad = int(np.argwhere(~np.isfinite(block))[0][0]) + start
             raise MapFormatError(
-                f"{label}: field {field!r} contains NaN or Inf (first at row {bad}). "
-                "Fix or drop those rows before querying."
+                f"{label}: field {field!r} contains NaN or Inf (first at row {bad}). {fix}"
             )
 
 

@@ -51,8 +51,10 @@ from ..core.errors import MapFormatError, QuashError
 from ..core.interfaces import MapAdapter
 from ..core.types import LatentMap
 from ._npz import encoder_record
+from ._rows import scan_finite
 from ._vlmaps_common import (
     DEFAULT_CS,
+    FINITE_FIX,
     POSE_TYPES,
     UP_AXIS,
     camera_base_positions,
@@ -66,7 +68,6 @@ from ._vlmaps_common import (
     mobile_base_positions,
     mobile_grid_size,
     rgb_to_uint8,
-    scan_finite,
 )
 
 log = logging.getLogger(__name__)
@@ -271,7 +272,8 @@ class VLMapsAdapter(MapAdapter):
         ):
             raise MapFormatError(f"{where}: field 'grid_pos' must hold finite cell indices.")
         if opts["check_finite"] and n:
-            scan_finite(feat, where, "grid_feat", rows=max(1, (64 * 2**20) // (4 * d)))
+            rows = max(1, (64 * 2**20) // (4 * d))
+            scan_finite(feat, where, "grid_feat", rows, fix=FINITE_FIX, name_read_errors=True)
 
         pose_type = opts["pose_type"]
         if pose_type == "auto":

@@ -310,32 +310,9 @@ def fit_label_names(names: list[str] | None, labels: np.ndarray | None) -> list[
     return names
 
 
-#: What to do about NaN/Inf rows in a map file (its adapter takes ``check_finite``).
+#: What to do about NaN/Inf rows in a map file (its adapter takes ``check_finite``): the
+#: ``fix`` of :func:`~quash_plugins.adapters._rows.scan_finite` for VLMaps' files.
 FINITE_FIX = "Fix or drop those rows, or pass check_finite=False to defer the check."
-
-
-def scan_finite(
-    data: Any, where: str, field: str, rows: int = 65536, fix: str = FINITE_FIX
-) -> None:
-    """Raise :class:`MapFormatError` naming ``field`` when ``data`` holds NaN/Inf.
-
-    Reads ``data`` (any sliceable ``(N, D)`` array) in row chunks; a read error (e.g. a
-    truncated HDF5 file) is reported the same way. ``fix`` ends the NaN/Inf message.
-    """
-    n = int(data.shape[0])
-    for start in range(0, n, rows):
-        try:
-            block = np.asarray(data[start : start + rows])
-        except (OSError, ValueError, RuntimeError) as exc:
-            raise MapFormatError(
-                f"{where}: cannot read field {field!r} rows {start}..{min(n, start + rows)} "
-                f"({exc}). The file may be truncated or corrupt."
-            ) from None
-        if block.dtype.kind == "f" and not np.isfinite(block).all():
-            bad = int(np.argwhere(~np.isfinite(block))[0][0]) + start
-            raise MapFormatError(
-                f"{where}: field {field!r} contains NaN or Inf (first at row {bad}). {fix}"
-            )
 
 
 class RowSubset:

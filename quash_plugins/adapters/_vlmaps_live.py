@@ -29,6 +29,7 @@ import numpy as np
 from ..core.errors import MapFormatError, QuashError
 from ..core.interfaces import MapAdapter
 from ..core.types import LatentMap
+from ._rows import scan_finite
 from ._vlmaps_common import (
     DEFAULT_CS,
     POSE_TYPES,
@@ -43,7 +44,6 @@ from ._vlmaps_common import (
     mobile_base_positions,
     mobile_grid_size,
     rgb_to_uint8,
-    scan_finite,
 )
 
 log = logging.getLogger(__name__)
@@ -172,7 +172,7 @@ class VLMapsLiveAdapter(MapAdapter):
                 f"{where}: 'grid_feat' must be (N, D) with D > 0; got {feat.shape}."
             )
         n = int(feat.shape[0])
-        scan_finite(feat, where, "grid_feat", fix=LIVE_FINITE_FIX)
+        scan_finite(feat, where, "grid_feat", fix=LIVE_FINITE_FIX, name_read_errors=True)
         grid_pos = np.asarray(as_array(source.grid_pos))
         if n == 0 and grid_pos.size == 0:
             grid_pos = grid_pos.reshape(0, 3)
