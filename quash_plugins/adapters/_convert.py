@@ -21,8 +21,8 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import UsageError
-from ..core.types import FrameInfo, LatentMap
-from ._npz import UP_AXES, metadata_arrays
+from ..core.types import UP_AXES, FrameInfo, LatentMap
+from ._npz import metadata_arrays
 
 log = logging.getLogger(__name__)
 

@@ -31,8 +31,8 @@ import numpy as np
 
 from ..core.errors import MapFormatError, QuashError
 from ..core.interfaces import MapAdapter
-from ..core.types import LatentMap
-from ._npz import UP_AXES, encoder_record
+from ..core.types import UP_AXES, LatentMap
+from ._npz import encoder_record
 from ._rows import IndexedRows, colors_to_uint8, scan_finite, should_scan
 
 log = logging.getLogger(__name__)

@@ -9,6 +9,7 @@ import re
 
 import numpy as np
 
+from ..core.types import UP_AXES as AXES
 from ..core.types import LatentMap
 
 #: Rows read per block when projecting embeddings for PCA colours.
@@ -55,15 +56,9 @@ def thin(indices: np.ndarray, limit: int) -> np.ndarray:
     return indices if keep is None else indices[keep]
 
 
-#: Up axes a map can declare, as (axis index, sign).
-UP_AXES = {
-    "+x": (0, 1.0),
-    "-x": (0, -1.0),
-    "+y": (1, 1.0),
-    "-y": (1, -1.0),
-    "+z": (2, 1.0),
-    "-z": (2, -1.0),
-}
+#: Up axes a map can declare (:data:`~quash_plugins.core.types.UP_AXES`), as (axis
+#: index, sign): ``"-y"`` is ``(1, -1.0)``.
+UP_AXES = {a: ("xyz".index(a[1]), 1.0 if a[0] == "+" else -1.0) for a in AXES}
 
 
 def map_up(up: str | None, source: dict | None) -> str | None:
