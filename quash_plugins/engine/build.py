@@ -3,18 +3,19 @@
 This is where a config's names become objects: the plugins through the registry, and
 the text-embedding cache from the ``cache`` setting. The pipeline itself is handed
 ready objects and never imports a plugin or the cache; a plugin name given to its
-constructor (``Quash(enc, heuristic="none")``) is built here by :func:`build_plugin`.
+constructor (``Quash(enc, heuristic="none")``) is built here by :func:`plugin_argument`.
 """
 
 from __future__ import annotations
 
 import logging
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 from ..core import registry
 from ..core.config import PluginSpec, QuashConfig
-from ..core.errors import QuashError
+from ..core.errors import ConfigError, QuashError
 from .cache import open_cache
 
 log = logging.getLogger(__name__)
@@ -137,3 +138,38 @@ def build_plugin(
     except QuashError as exc:
         # Keep what caused it (a plugin's own import error) for --debug's traceback.
         raise type(exc)(f"{where}{section}: {exc}") from exc.__cause__
+
+
+#: What a plugin argument of :class:`Quash` must have, when it is an object.
+_PLUGIN_METHODS = {
+    "encoders": ("encode_text",),
+    "heuristics": ("expand",),
+    "classifiers": ("fit", "get_params"),
+}
+
+
+def plugin_argument(kind: str, section: str, value: Any, device: str) -> Any:
+    """A plugin argument of :class:`~quash_plugins.engine.pipeline.Quash`: an object as
+    it is; a registered name (``"none"``), a ``{"name": ..., **params}`` mapping or a
+    :class:`PluginSpec` built through the registry as a config's ``section`` is (by
+    :func:`build_plugin`). Anything else is refused here, naming the argument, rather
+    than failing at the first query."""
+    if isinstance(value, str):
+        value = PluginSpec(value)
+    elif isinstance(value, Mapping) and isinstance(value.get("name"), str):
+        value = PluginSpec(value["name"], {str(k): v for k, v in value.items() if k != "name"})
+    if isinstance(value, PluginSpec):
+        return build_plugin(kind, value, section, device, where="Quash: ")
+    need = _PLUGIN_METHODS[kind]
+    # An encoder that could not be built (UnavailableEncoder) raises on any
+    # attribute, so of encoders only None is refused.
+    if value is None or (kind != "encoders" and not all(hasattr(value, m) for m in need)):
+        raise ConfigError(
+            f"Quash: {section} must be an object with {', '.join(need)} or a "
+            f"registered name such as {_EXAMPLE[kind]!r}, not {type(value).__name__}; "
+            f"`quash plugins --kind {kind}` lists the names."
+        )
+    return value
+
+
+_EXAMPLE = {"encoders": "minilm", "heuristics": "none", "classifiers": "svm-rbf"}

@@ -26,7 +26,7 @@ from __future__ import annotations
 import logging
 import time
 import weakref
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -46,6 +46,7 @@ from ..core.interfaces import Encoder, ExpansionContext, Heuristic, plugin_name
 from ..core.text import TextCache, encode_texts, load_templates
 from ..core.types import DEFAULT_NEGATIVES, LatentMap, QueryResult, QuerySet, check_query
 from .answer import Pending, answer, classifier_words
+from .build import plugin_argument
 from .classify import classify_local
 from .map_cache import MapCache
 from .map_fit import check_encoder_fits, warn_if_empty, warn_unused_adapter_options
@@ -133,14 +134,14 @@ class Quash:
         device: str = "auto",
     ) -> None:
         self.device = check_device(device, "Quash: 'device'")
-        self.encoder = _plugin("encoders", "encoder", encoder, self.device)
-        self.heuristic = _plugin(
+        self.encoder = plugin_argument("encoders", "encoder", encoder, self.device)
+        self.heuristic = plugin_argument(
             "heuristics",
             "heuristic",
             DEFAULT_HEURISTIC if heuristic is None else heuristic,
             self.device,
         )
-        self.classifier = _plugin(
+        self.classifier = plugin_argument(
             "classifiers",
             "classifier",
             DEFAULT_CLASSIFIER if classifier is None else classifier,
@@ -507,42 +508,6 @@ class Quash:
         from .lazy_query import query_lazy
 
         return query_lazy(self, source, texts, self.client, **read_options)
-
-
-#: What a plugin argument of :class:`Quash` must have, when it is an object.
-_PLUGIN_METHODS = {
-    "encoders": ("encode_text",),
-    "heuristics": ("expand",),
-    "classifiers": ("fit", "get_params"),
-}
-
-
-def _plugin(kind: str, section: str, value: Any, device: str) -> Any:
-    """A plugin argument of :class:`Quash`: an object as it is; a registered name
-    (``"none"``), a ``{"name": ..., **params}`` mapping or a :class:`PluginSpec` built
-    through the registry as a config's ``section`` is. Anything else is refused here,
-    naming the argument, rather than failing at the first query."""
-    if isinstance(value, str):
-        value = PluginSpec(value)
-    elif isinstance(value, Mapping) and isinstance(value.get("name"), str):
-        value = PluginSpec(value["name"], {str(k): v for k, v in value.items() if k != "name"})
-    if isinstance(value, PluginSpec):
-        from .build import build_plugin
-
-        return build_plugin(kind, value, section, device, where="Quash: ")
-    need = _PLUGIN_METHODS[kind]
-    # An encoder that could not be built (build.UnavailableEncoder) raises on any
-    # attribute, so of encoders only None is refused.
-    if value is None or (kind != "encoders" and not all(hasattr(value, m) for m in need)):
-        raise ConfigError(
-            f"Quash: {section} must be an object with {', '.join(need)} or a "
-            f"registered name such as {_EXAMPLE[kind]!r}, not {type(value).__name__}; "
-            f"`quash plugins --kind {kind}` lists the names."
-        )
-    return value
-
-
-_EXAMPLE = {"encoders": "minilm", "heuristics": "none", "classifiers": "svm-rbf"}
 
 
 def _queryset_words(qs: QuerySet, limit: int = 24) -> str:
