@@ -21,6 +21,18 @@ from ..core.interfaces import ExpansionContext, Heuristic
 from ..core.redact import RedactingFilter, redact
 from ..core.types import QuerySet
 from ._llm_cache import cache_file_name, llm_cache_root
+from ._llm_http import (
+    ReplyError,
+    check_key,
+    client_options,
+    connect_reason,
+    content_of,
+    known_models,
+    not_found_hint,
+    proxy_note,
+    retry_after,
+    snippet,
+)
 from ._parse import clean_lists, parse_reply
 
 log = logging.getLogger(__name__)
@@ -199,6 +211,9 @@ class LLMHeuristic(Heuristic):
         self.cache = bool(cache)
         self.json_mode = bool(json_mode)
         self.send_seed = bool(send_seed)
+        #: Query sets this object got from the server and cached (named when a later
+        #: query fails, so that a long run knows a re-run resumes).
+        self._cached_now = 0
 
     # ------------------------------------------------------------------ provenance
     def params(self) -> dict[str, Any]:
@@ -310,11 +325,32 @@ class LLMHeuristic(Heuristic):
                 "that has it."
             )
         else:
-            synonyms, antonyms = self.ask(query, seed)
+            try:
+                synonyms, antonyms = self.ask(query, seed)
+            except HeuristicError as exc:
+                if self.cache and self._cached_now:
+                    # a long run that stops at one query loses none of the answers before it
+                    raise HeuristicError(
+                        f"{exc} The {self._cached_now} query set(s) this run got from the "
+                        f"server before {query!r} are cached in {self._cache_root()}: a "
+                        "re-run asks only for the others."
+                    ) from None
+                raise
             source = "server"
+            if len(synonyms) < self.n_synonyms or len(antonyms) < self.n_antonyms:
+                log.info(
+                    "llm: %r: the model gave %d of %d synonyms and %d of %d antonyms (after "
+                    "dropping repeats, the query, over-long items and antonyms that are also synonyms)",
+                    query,
+                    len(synonyms),
+                    self.n_synonyms,
+                    len(antonyms),
+                    self.n_antonyms,
+                )
             if self.cache:
                 if synonyms or antonyms:
                     self._write_cache(query, synonyms, antonyms, seed)
+                    self._cached_now += 1
                 else:
                     log.warning("llm: empty reply for %r is not cached", query)
         if not synonyms and not antonyms:
@@ -354,7 +390,7 @@ class LLMHeuristic(Heuristic):
                     f"{state}. Export the API key there, or set api_key_env: null for a "
                     "server without authentication."
                 )
-            headers["Authorization"] = f"Bearer {_check_key(key, self.api_key_env)}"
+            headers["Authorization"] = f"Bearer {check_key(key, self.api_key_env)}"
         return headers
 
     def ask(self, query: str, seed: int | None = None) -> tuple[list[str], list[str]]:
@@ -369,7 +405,9 @@ class LLMHeuristic(Heuristic):
         key = headers.get("Authorization", "").removeprefix("Bearer ")
         last, why = "no attempt made", "connect"
         attempts = self.max_retries + 1
-        with httpx.Client(timeout=httpx.Timeout(self.timeout)) as client:
+        with httpx.Client(
+            timeout=httpx.Timeout(self.timeout), **client_options(self.endpoint)
+        ) as client:
             for attempt in range(attempts):
                 wait = self.backoff * (2**attempt)
                 log.info(
@@ -385,12 +423,13 @@ class LLMHeuristic(Heuristic):
                 except httpx.TimeoutException:
                     last, why = f"timed out after {self.timeout:g} s", "timeout"
                 except httpx.TransportError as exc:
-                    last, why = _connect_reason(exc, self.endpoint, key), "connect"
+                    last, why = connect_reason(exc, self.endpoint, key), "connect"
                 else:
                     status = resp.status_code
                     if status == 200:
+                        finish = None
                         try:
-                            content = _content(resp, key)
+                            content, finish = content_of(resp, key)
                             syn, ant = parse_reply(content)
                             # A reply that echoes a credential never reaches a query set,
                             # a cache file or a log line.
@@ -399,32 +438,21 @@ class LLMHeuristic(Heuristic):
                             return clean_lists(query, syn, ant, self.n_synonyms, self.n_antonyms)
                         except ValueError as exc:
                             reason = redact(exc, [key])
-                            last, why = f"status 200 with an unusable reply ({reason})", "reply"
+                            last = f"status 200 with an unusable reply ({reason})"
+                            why = exc.kind if isinstance(exc, ReplyError) else "reply"
+                            if finish == "length":  # a reply cut off at the token limit
+                                last += " (finish_reason 'length': the model ran out of tokens)"
+                                why = "length"
                     elif status in RETRY_STATUSES:
                         last, why = f"status {status}", "rate" if status == 429 else "status"
                         if resp.text.strip():
-                            last += f": {_snippet(resp.text, [key], 120)}"
-                        wait = max(wait, _retry_after(resp))
+                            last += f": {snippet(resp.text, [key], 120)}"
+                        wait = max(wait, retry_after(resp))
                     else:
-                        key_hint = (
-                            f" Check the API key in {self.api_key_env!r} (api_key_env)."
-                            if self.api_key_env
-                            else " The server wants a key: set api_key_env to the name of "
-                            "the environment variable that holds it (no key was sent)."
-                        )
-                        hint = {
-                            401: key_hint,
-                            403: key_hint,
-                            404: " Check base_url (it usually ends in /v1) and the model name.",
-                        }.get(status, "")
-                        if status in (400, 422) and self.json_mode:
-                            hint = (
-                                " json_mode: true sends response_format, which this server may "
-                                "not support: set json_mode: false (replies are parsed anyway)."
-                            )
                         raise HeuristicError(
                             f"Heuristic 'llm': {self.endpoint} answered status {status}: "
-                            f"{_snippet(resp.text, [key])}.{hint}"
+                            f"{snippet(resp.text, [key])}.{self._status_hint(status, client)}"
+                            f"{proxy_note(self.endpoint)}"
                         )
                 log.warning("llm: %s %s", self.endpoint, last)
                 if attempt + 1 < attempts:
@@ -432,7 +460,29 @@ class LLMHeuristic(Heuristic):
         raise HeuristicError(
             f"Heuristic 'llm': no usable reply from {self.endpoint} (model {self.model!r}) for "
             f"{query!r} after {attempts} attempt(s); last: {last}. {self._fix(why)}"
+            f"{proxy_note(self.endpoint) if why in ('connect', 'timeout', 'status', 'api') else ''}"
         )
+
+    def _status_hint(self, status: int, client: Any) -> str:
+        """What to do about a status that is not retried (401, 403, 404, 400...)."""
+        if status in (401, 403):
+            if self.api_key_env:
+                return f" Check the API key in {self.api_key_env!r} (api_key_env)."
+            return (
+                " The server wants a key: set api_key_env to the name of the environment "
+                "variable that holds it (no key was sent)."
+            )
+        if status == 404:
+            base, models = known_models(
+                client, self.endpoint, self._headers(), min(self.timeout, 5.0)
+            )
+            return not_found_hint(self.endpoint, self.model, base, models)
+        if status in (400, 422) and self.json_mode:
+            return (
+                " json_mode: true sends response_format, which this server may not support: "
+                "set json_mode: false (replies are parsed anyway)."
+            )
+        return ""
 
     def _fix(self, why: str) -> str:
         """What to do about the last failure of :meth:`ask`."""
@@ -449,6 +499,21 @@ class LLMHeuristic(Heuristic):
             )
         if why == "rate":
             return f"The server is rate-limiting: raise max_retries or backoff, {cached}"
+        if why == "api":
+            return (
+                "The body is not a chat completion: base_url leads to something other than "
+                "an OpenAI-compatible API (a web page, a login proxy, a chat UI such as Open "
+                "WebUI?). Set base_url to the server's API, e.g. http://127.0.0.1:11434/v1 "
+                f"(Ollama) or http://127.0.0.1:8000/v1 (vLLM), {cached}"
+            )
+        if why == "length":
+            return (
+                "The model stopped at its token limit before it finished the lists (a "
+                "reasoning model spends tokens thinking first): use an instruction-tuned "
+                "model without reasoning, raise the server's context size (Ollama: num_ctx; "
+                "llama.cpp: --ctx-size; vLLM: --max-model-len) or lower n_synonyms and "
+                f"n_antonyms, {cached}"
+            )
         if why == "reply":
             fix = "" if self.json_mode else "set json_mode: true (vLLM, llama.cpp, Ollama) or "
             return (
@@ -456,66 +521,3 @@ class LLMHeuristic(Heuristic):
                 f"{fix}use an instruction-tuned model, {cached}"
             )
         return f"The server failed: see its log, raise max_retries, {cached}"
-
-
-def _check_key(key: str, env: str) -> str:
-    """The key without surrounding white space; refused (never shown) when an HTTP header
-    cannot carry it: white space or a character outside printable ASCII inside it."""
-    key = key.strip()
-    for i, ch in enumerate(key):
-        if not ("!" <= ch <= "~"):
-            what = "white space" if ch.isspace() else f"the character U+{ord(ch):04X}"
-            raise HeuristicError(
-                f"Heuristic 'llm': the API key in {env!r} (api_key_env) holds {what} at "
-                f"position {i + 1}, which an HTTP header cannot carry. Copy the key again "
-                "(a quote or a line break pasted with it?) and export it."
-            )
-    return key
-
-
-def _connect_reason(exc: Any, endpoint: str, key: str = "") -> str:
-    """Why a connection failed, in words: refused, an unknown host, or httpx's reason."""
-    text = redact(str(exc), [key])
-    parts = urlsplit(endpoint)
-    low = text.lower()
-    if "refused" in low:
-        return f"connection refused (nothing listens on {parts.netloc})"
-    unknown = ("name or service not known", "nodename nor servname", "name resolution")
-    if any(w in low for w in unknown) or "getaddrinfo" in low:
-        return f"connection failed (host {parts.hostname!r} not found)"
-    return f"connection failed ({type(exc).__name__}{': ' + text if text else ''})"
-
-
-def _content(resp: Any, key: str = "") -> str:
-    """The assistant message of a chat-completions response; ValueError when malformed."""
-    try:
-        data = resp.json()
-    except ValueError:
-        raise ValueError(f"body is not JSON: {_snippet(resp.text, [key])}") from None
-    try:
-        content = data["choices"][0]["message"]["content"]
-    except (KeyError, IndexError, TypeError):
-        raise ValueError(f"no choices[0].message.content in {_snippet(resp.text, [key])}") from None
-    if not isinstance(content, str):
-        finish = (data["choices"][0] or {}).get("finish_reason")
-        why = f"message content is {'empty' if content is None else type(content).__name__}"
-        if finish == "length":
-            why += " (finish_reason 'length': the model ran out of tokens)"
-        elif finish:
-            why += f" (finish_reason {finish!r})"
-        raise ValueError(why)
-    return content
-
-
-def _retry_after(resp: Any) -> float:
-    value = resp.headers.get("retry-after")
-    try:
-        return max(0.0, float(value)) if value is not None else 0.0
-    except ValueError:
-        return 0.0
-
-
-def _snippet(text: str, secrets: list[str] | tuple[str, ...] = (), n: int = 160) -> str:
-    """The start of a server reply, credentials redacted before it is shortened."""
-    text = " ".join(redact(text, secrets).split())
-    return repr(text if len(text) <= n else text[:n] + "...")

@@ -1,5 +1,9 @@
 """Robust parsing of a language model's synonym/antonym reply.
 
+A reasoning model's thoughts (``<think>...</think>``, also ``<thinking>`` and
+``<reasoning>``, or a reply that starts inside them and holds only the closing tag) are
+removed first: a draft list in them is not the answer.
+
 Accepted forms, tried in order:
 
 1. A JSON object ``{"synonyms": [...], "antonyms": [...]}``, bare, inside a
@@ -31,6 +35,10 @@ _SEPARATORS = re.compile(r"[,;\uff0c\uff1b\u3001]")
 #: emphasis and sentence punctuation, ASCII and full-width.
 _STRIP = "\"'`*_.,;:!?\u2018\u2019\u201c\u201d\u201e\u00ab\u00bb\u300c\u300d\u300e\u300f\u3002\u3001\uff0c\uff1b\uff1a\uff01\uff1f"
 _MAX_CHARS = 60
+_THOUGHT_TAGS = "think|thinking|reasoning"
+_THOUGHTS = re.compile(rf"<({_THOUGHT_TAGS})>.*?</\1\s*>", re.S | re.I)
+_THOUGHTS_END = re.compile(rf"</(?:{_THOUGHT_TAGS})\s*>", re.I)
+_THOUGHTS_OPEN = re.compile(rf"<(?:{_THOUGHT_TAGS})>", re.I)
 
 
 def parse_reply(text: str) -> tuple[list[str], list[str]]:
@@ -45,6 +53,7 @@ def parse_reply(text: str) -> tuple[list[str], list[str]]:
     """
     if not isinstance(text, str) or not text.strip():
         raise ValueError("empty reply")
+    text = _drop_thoughts(text)
     for obj in _json_candidates(text):
         found = _from_json(obj)
         if found is not None:
@@ -70,6 +79,26 @@ def clean_lists(
     taken = {q, *syn}
     ant = [a for a in _dedupe(antonyms) if a not in taken][: max(0, n_ant)]
     return syn, ant
+
+
+def _drop_thoughts(text: str) -> str:
+    """``text`` without a reasoning model's thoughts; ValueError when nothing else is left.
+
+    >>> _drop_thoughts('<think>maybe {"synonyms": ["x"]}</think> {"synonyms": ["seat"]}')
+    ' {"synonyms": ["seat"]}'
+    """
+    out = _THOUGHTS.sub("", text)
+    ends = list(_THOUGHTS_END.finditer(out))
+    if ends:  # the opening tag was in the prompt's template: thoughts run up to the last end
+        out = out[ends[-1].end() :]
+    opened = _THOUGHTS_OPEN.search(out)
+    if opened:  # never closed: the model ran out of tokens while thinking
+        out = out[: opened.start()]
+    if not out.strip():
+        raise ValueError(
+            f"the reply holds only the model's reasoning ({_short(text)}), no answer after it"
+        )
+    return out
 
 
 # ---------------------------------------------------------------------- JSON

@@ -48,19 +48,34 @@ class ChatServer:
     """A tiny chat-completions server; ``script`` holds the replies to play, in order.
 
     Each entry is ``(status, body_bytes, headers, delay_s)``; when the script is empty the
-    server answers ``default`` with status 200.
+    server answers ``default`` with status 200. ``GET /v1/models`` lists ``models`` (404
+    while it is None, and on any other path); GET paths are kept in ``gets``.
     """
 
     def __init__(self) -> None:
         self.script: list[tuple[int, bytes, dict[str, str], float]] = []
         self.default = GOOD
-        self.requests: list[dict] = []
+        self.models: list[str] | None = None
+        self.requests: list[dict] = []  # the POSTs
+        self.gets: list[str] = []
         self.times: list[float] = []
         outer = self
 
         class Handler(BaseHTTPRequestHandler):
             def log_message(self, *args):  # keep test output clean
                 pass
+
+            def do_GET(self):  # noqa: N802 - http.server API
+                outer.gets.append(self.path)
+                if self.path == "/v1/models" and outer.models is not None:
+                    rows = [{"id": m, "object": "model"} for m in outer.models]
+                    status, payload = 200, json.dumps({"object": "list", "data": rows}).encode()
+                else:
+                    status, payload = 404, b"404 page not found"
+                self.send_response(status)
+                self.send_header("Content-Length", str(len(payload)))
+                self.end_headers()
+                self.wfile.write(payload)
 
             def do_POST(self):  # noqa: N802 - http.server API
                 length = int(self.headers.get("Content-Length", 0))
@@ -430,14 +445,14 @@ def test_full_width_separators_split_a_list(server, tmp_path):
 def test_unknown_host_is_named():
     import httpx
 
-    from quash_plugins.heuristics._llm import _connect_reason
+    from quash_plugins.heuristics._llm_http import connect_reason
 
     exc = httpx.ConnectError("[Errno -2] Name or service not known")
-    assert _connect_reason(exc, "http://gpu-box.lan:8000/v1/chat/completions") == (
+    assert connect_reason(exc, "http://gpu-box.lan:8000/v1/chat/completions") == (
         "connection failed (host 'gpu-box.lan' not found)"
     )
     other = httpx.RemoteProtocolError("Server disconnected without sending a response.")
-    assert _connect_reason(other, "http://h/v1/chat/completions") == (
+    assert connect_reason(other, "http://h/v1/chat/completions") == (
         "connection failed (RemoteProtocolError: Server disconnected without sending a response.)"
     )
 
