@@ -451,7 +451,7 @@ class LLMHeuristic(Heuristic):
                     else:
                         raise HeuristicError(
                             f"Heuristic 'llm': {self.endpoint} answered status {status}: "
-                            f"{snippet(resp.text, [key])}.{self._status_hint(status, client)}"
+                            f"{snippet(resp.text, [key])}.{redact(self._status_hint(status, client), [key])}"
                             f"{proxy_note(self.endpoint)}"
                         )
                 log.warning("llm: %s %s", self.endpoint, last)
