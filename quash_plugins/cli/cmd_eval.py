@@ -16,9 +16,10 @@ Scores each config's mask for every query against the map's ground truth
 mean, and from the scores the average precision (AP) and OpenLex3D's inverse rank.
 Open-vocabulary queries name their ground-truth label: --queries "bunk bed=bed,somewhere
 to sleep=bed" or --queries-file FILE.yaml. Unlabelled items (label < 0) and --exclude
-labels count neither as TP nor FP. Queries whose label no item carries, and every
---absent query, are absence queries: their score is the share that returns an empty
-mask (at most --empty-tolerance items). Each row says what the method was given (the
+labels count neither as TP nor FP. Every --absent query (and a query file's 'absent'),
+and a query of a label of the map that no item carries, is an absence query: its score
+is the share that returns an empty mask (at most --empty-tolerance items); a query label
+that is no label of the map is refused, with the closest names. Each row says what the method was given (the
 label list, or the query alone) and how many present queries it returned empty. With no
 -c it runs the fair comparison: the default config beside VLMaps' rule over its category
 list and OpenScene's label argmax, all given the same label list."""
@@ -139,7 +140,7 @@ def run(args: argparse.Namespace) -> int:
         configs = fair_default_configs()
         log.info("no -c: the default config and the fair peers (%s)", ", ".join(FAIR_PEERS))
     _check_outputs(args, configs)
-    queries, absent = _queries(args)  # a query file's mistakes before any work
+    queries, absent, absent_in_file = _queries(args)  # a query file's mistakes before any work
     overrides = backend_overrides(args)
     quashes = [Quash.from_config(apply_runtime_options(cfg, args), **overrides) for cfg in configs]
     lmap = quashes[0].read_map(args.map, adapter=args.adapter, **adapter_options(args))
@@ -156,6 +157,7 @@ def run(args: argparse.Namespace) -> int:
             empty_tolerance=args.empty_tolerance,
             on_query=lambda name, n: advance(1),
             query_file=args.queries_file,
+            absent_in_file=absent_in_file,
         )
     if args.json:
         atomic_write_text(args.json, json.dumps(report.to_json(), indent=2) + "\n")
@@ -184,8 +186,9 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _queries(args: argparse.Namespace) -> tuple[Any, list[str]]:
-    """The queries to score (None: every label) and the absence queries of the command line."""
+def _queries(args: argparse.Namespace) -> tuple[Any, list[str], list[str]]:
+    """The queries to score (None: every label), the absence queries, and those of them
+    that came from the query file (the others came from --absent)."""
     from ..core.errors import UsageError
     from ..evaluation.report import load_query_file
 
@@ -197,11 +200,11 @@ def _queries(args: argparse.Namespace) -> tuple[Any, list[str]]:
             "--queries is empty: give labels or TEXT=LABEL items, or leave it out to score "
             "every label of the map."
         )
-    absent = _split(args.absent)
+    absent, in_file = _split(args.absent), []
     if args.queries_file:
-        queries, more = load_query_file(args.queries_file)
-        absent = list(dict.fromkeys([*more, *absent]))
-    return queries, absent
+        queries, in_file = load_query_file(args.queries_file)
+        absent = list(dict.fromkeys([*in_file, *absent]))
+    return queries, absent, in_file
 
 
 def _check_outputs(args: argparse.Namespace, configs=()) -> None:

@@ -50,8 +50,18 @@ class HeuristicError(QuashError):
 def closest(name: str, known: Iterable[str], cutoff: float = 0.5) -> str | None:
     """Return the known name closest to ``name``, or None when nothing is as close as
     ``cutoff`` (difflib's similarity ratio)."""
-    matches = difflib.get_close_matches(name, list(known), n=1, cutoff=cutoff)
+    matches = close_names(name, known, n=1, cutoff=cutoff)
     return matches[0] if matches else None
+
+
+def close_names(name: str, known: Iterable[str], n: int = 3, cutoff: float = 0.5) -> list[str]:
+    """The (at most ``n``) known names closest to ``name``, closest first; those at least
+    ``cutoff`` alike (difflib's similarity ratio).
+
+    >>> close_names("bedd", ["bed", "shed", "desk", "beds"])
+    ['bed', 'beds', 'shed']
+    """
+    return difflib.get_close_matches(name, list(known), n=n, cutoff=cutoff)
 
 
 def check_options(section: str, options: Iterable[object], known: Iterable[str]) -> None:

@@ -5,8 +5,9 @@ Rules
 - Ground truth of a query label is ``labels == label_id``.
 - **Unlabelled items** (``labels < 0``) and items whose label is **excluded** (``exclude``
   names such as ``void``, ``unlabeled``) are ignored: they count neither as TP nor FP.
-- **A label absent from the map** (no item carries it) is not a presence query: it is
-  scored as an absence query instead, and never enters the precision/recall/F1/IoU means.
+- **A label of the map that no item carries** is not a presence query: it is scored as
+  an absence query instead, and never enters the precision/recall/F1/IoU means (a label
+  that is no name of the map is refused: ``evaluation.queries.match_labels``).
 - Empty denominators: precision with no prediction is 0 (or 1 when there is also no
   ground truth); recall with no ground truth is 1 only when nothing was predicted.
 - **Absence queries** score 1 when the mask is "empty": at most ``empty_tolerance``

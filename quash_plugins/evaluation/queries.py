@@ -63,24 +63,32 @@ def _fold(name: str) -> str:
     return " ".join(str(name).replace("_", " ").split()).casefold()
 
 
-def match_labels(gt_of: dict[str, str], names: Sequence[str]) -> dict[str, str]:
+def match_labels(
+    gt_of: dict[str, str],
+    names: Sequence[str],
+    absent: Sequence[str] = (),
+    source: str | Path | None = None,
+) -> dict[str, str]:
     """Each query's label as the map spells it.
 
     A label that is not one of the map's ``names`` but is one when case, spacing and
-    underscores are ignored ("Robot Arm", "robot_arm") becomes that name. A ``TEXT=LABEL``
-    query whose label is still no name of the map is warned about, with the closest
-    name: it is scored as an absence query, so a misspelt label would score an object
-    that is there as absent.
+    underscores are ignored ("Robot Arm", "robot_arm") becomes that name. A label that is
+    still no name of the map is refused, naming the query, the closest names and
+    ``source`` (the query file it came from), unless it is among the ``absent`` queries:
+    then the query is an absence query. A misspelt label (``bunk bed: bedd``) would
+    otherwise score an object that is there as absent. (A label of the map that no item
+    carries is an absence query: :func:`~quash_plugins.evaluation.report.plan_queries`.)
 
     >>> match_labels({"a cobot": "Robot Arm", "Forklift": "Forklift"}, ["robot arm", "forklift"])
     {'a cobot': 'robot arm', 'Forklift': 'forklift'}
+    >>> match_labels({"a grand piano": "piano"}, ["chair"], absent=["piano"])
+    {'a grand piano': 'piano'}
     """
-    from ..core.errors import closest
-
     exact = set(names)
     folded: dict[str, list[str]] = {}
     for n in names:
         folded.setdefault(_fold(n), []).append(n)
+    listed_absent = {_fold(a) for a in absent}
     out: dict[str, str] = {}
     for text, label in gt_of.items():
         if label not in exact:
@@ -88,17 +96,32 @@ def match_labels(gt_of: dict[str, str], names: Sequence[str]) -> dict[str, str]:
             if len(same) == 1:
                 log.info("query %r: label %r is the map's label %r", text, label, same[0])
                 label = same[0]
-            elif text != label:
-                guess = closest(label, names)
-                log.warning(
-                    "query %r: its label %r is not a label of the map, so it is scored as an "
-                    "absence query.%s",
-                    text,
-                    label,
-                    f" Did you mean {guess!r}?" if guess else "",
-                )
+            elif _fold(label) not in listed_absent:
+                raise QuashError(_unknown_label_message(text, label, names, source))
         out[text] = label
     return out
+
+
+def _unknown_label_message(
+    text: str, label: str, names: Sequence[str], source: str | Path | None
+) -> str:
+    """Why the query ``text`` cannot be scored: its ``label`` is no name of the map."""
+    from ..core.errors import close_names
+
+    by_fold = {_fold(n): n for n in names}
+    near = [by_fold[f] for f in close_names(_fold(label), by_fold)]
+    what = f"{source}: query {text!r}" if source else f"Query {text!r}"
+    what += f": its label {label!r}" if text != label else ""
+    if near:
+        hint = f" Did you mean {' or '.join(repr(n) for n in near)}?"
+    else:
+        shown = ", ".join(names[:12]) + (f", ... ({len(names)} labels)" if len(names) > 12 else "")
+        hint = f" The map's labels: {shown}."
+    where = f"under 'absent' in {source}" if source else "to --absent"
+    return (
+        f"{what} is not a label of the map.{hint} Write one of the map's label names; "
+        f"for an object the map does not have, move the query {where} (an absence query)."
+    )
 
 
 #: Keys a query file may hold besides ``present`` and ``absent``: what ``quash make-scene``

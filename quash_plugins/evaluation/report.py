@@ -19,7 +19,7 @@ Examples
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -126,10 +126,16 @@ def plan_queries(
     queries: Any = None,
     exclude: Sequence[str] = DEFAULT_EXCLUDE,
     absent: Sequence[str] = (),
+    query_file: str | Path | None = None,
+    absent_in_file: Collection[str] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, dict[str, str], list[str], list[str]]:
     """What :func:`evaluate` scores on ``lmap``: its labels, the valid items, each query's
     label, the presence queries and the absence queries. Raises :class:`QuashError` for a
-    map without ground truth or a query list it cannot score (before any config runs)."""
+    map without ground truth or a query list it cannot score (before any config runs).
+
+    ``query_file`` is the file ``queries`` came from and ``absent_in_file`` the absence
+    queries that came from it (None: all of ``absent``, when there is a file); an error
+    names the file and its section."""
     if lmap.labels is None or not lmap.label_names:
         raise QuashError(missing_ground_truth(lmap))
     labels = np.asarray(lmap.labels)
@@ -142,21 +148,25 @@ def plan_queries(
     )
     if queries is None:
         queries = [n for i, n in enumerate(names) if counts[i] > 0 and n not in set(exclude)]
-    gt_of = match_labels(parse_queries(queries), names)
+    gt_of = match_labels(parse_queries(queries), names, absent=absent, source=query_file)
     for q, g in gt_of.items():
         if g in set(exclude):
             raise QuashError(
-                f"Query {q!r}: its label {g!r} is excluded (--exclude: neither TP nor FP, "
+                f"{f'{query_file}: query' if query_file else 'Query'} {q!r}: its label "
+                f"{g!r} is excluded (--exclude: neither TP nor FP, "
                 "never queried); remove it from the queries or from --exclude."
             )
     index = {n: i for i, n in enumerate(names)}
     unknown_here = [q for q, g in gt_of.items() if g not in index or counts[index[g]] == 0]
     presence = [q for q in gt_of if q not in unknown_here]
-    _check_absent(absent, presence, {n: int(counts[i]) for i, n in enumerate(names)})
+    in_file = set(absent if absent_in_file is None else absent_in_file) if query_file else set()
+    counts_of = {n: int(counts[i]) for i, n in enumerate(names)}
+    _check_absent(absent, presence, counts_of, query_file=query_file, in_file=in_file)
     absence = list(dict.fromkeys([*unknown_here, *absent]))
     if unknown_here:
         log.info(
-            "labels absent from the map, scored as absence queries: %s", ", ".join(unknown_here)
+            "queries of labels no item of the map carries, scored as absence queries: %s",
+            ", ".join(unknown_here),
         )
     if not presence and not absence:
         raise QuashError("No query to evaluate: the map has no label left after --exclude.")
@@ -174,6 +184,7 @@ def evaluate(
     on_query: Callable[[str, int], None] | None = None,
     keep_results: bool = False,
     query_file: str | Path | None = None,
+    absent_in_file: Collection[str] | None = None,
 ) -> EvalReport:
     """Score each config once over all queries (one :meth:`Quash.query_many` pass each).
 
@@ -187,7 +198,9 @@ def evaluate(
         What to score: label names, ``"text=label"`` items or a ``{text: label}``
         mapping (open-vocabulary queries: the text is the query, the label its ground
         truth; see :func:`parse_queries`). None scores every label present in the map
-        (minus ``exclude``). A query whose label no item carries becomes an absence query.
+        (minus ``exclude``). A query of a label of the map that no item carries becomes
+        an absence query; a label that is no name of the map is refused (unless it is
+        among ``absent``: see :func:`~quash_plugins.evaluation.queries.match_labels`).
     exclude
         Label names whose items are ignored (neither TP nor FP) and never queried.
     absent
@@ -202,14 +215,19 @@ def evaluate(
         Called as ``on_query(config_name, n_queries)`` after each config's pass.
     query_file
         The query file ``queries`` and ``absent`` came from, recorded in
-        ``report.provenance`` (:func:`eval_provenance`); not read here.
+        ``report.provenance`` (:func:`eval_provenance`) and named in errors; not read here.
+    absent_in_file
+        The absence queries that came from ``query_file`` (None: all of ``absent``), so
+        that an error names the file or ``--absent``, wherever the query came from.
     """
     overrides = dict(overrides or {})
     if not configs:
         raise QuashError("evaluate needs at least one config.")
     quashes = [_as_quash(c, overrides) for c in configs]
     lmap = source if isinstance(source, LatentMap) else quashes[0].read_map(source)
-    labels, valid, gt_of, presence, absence = plan_queries(lmap, queries, exclude, absent)
+    labels, valid, gt_of, presence, absence = plan_queries(
+        lmap, queries, exclude, absent, query_file=query_file, absent_in_file=absent_in_file
+    )
     index = {n: i for i, n in enumerate(lmap.label_names)}
     from ..engine.topology import MapTopology
     from .ranking import average_precision, inverse_rank, label_segments
@@ -318,22 +336,34 @@ def _config_provenance(name: str, quash: Any) -> dict[str, Any]:
     }
 
 
-def _check_absent(absent: Sequence[str], presence: Sequence[str], counts: dict[str, int]):
+def _check_absent(
+    absent: Sequence[str],
+    presence: Sequence[str],
+    counts: dict[str, int],
+    query_file: str | Path | None = None,
+    in_file: Collection[str] = (),
+):
     """Refuse an absence query that is a present query, or a label the map's items carry:
-    its score would count a method that finds the object as wrong."""
+    its score would count a method that finds the object as wrong. An absence query in
+    ``in_file`` came from ``query_file``'s ``absent`` (the present queries, when there is
+    a file, from the file too): the message names the file and the section."""
     have = {" ".join(n.replace("_", " ").split()).casefold(): n for n, c in counts.items() if c}
     for a in absent:
+        here = f"under 'absent' in {query_file}" if a in in_file else "--absent"
         if a in presence:
+            there = f"in {query_file}" if query_file else "the queries"
             raise QuashError(
-                f"{a!r} is both a present query and an absence query (--absent or the query "
-                "file's 'absent'): remove it from one of them."
+                f"{a!r} is both a present query ({there}) and an absence query ({here}): "
+                "remove it from one of them."
             )
         name = have.get(" ".join(a.replace("_", " ").split()).casefold())
         if name is not None:
+            what = f"{query_file}: absence query {a!r} (under 'absent')"
+            what = what if a in in_file else f"Absence query {a!r} (--absent)"
             raise QuashError(
-                f"Absence query {a!r}: {counts[name]} items of the map carry the label "
+                f"{what}: {counts[name]} items of the map carry the label "
                 f"{name!r}, so it is not absent. Absence queries name objects the map does "
-                "not have; remove it from --absent or the query file's 'absent'."
+                f"not have; remove it from {here.removeprefix('under ')}."
             )
 
 

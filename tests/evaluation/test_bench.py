@@ -200,7 +200,7 @@ def test_bench_usage_errors(scene, tmp_path, capsys, args, message):
 @pytest.mark.parametrize(
     "args,message",
     [
-        (["--absent", "Wall"], "Absence query 'Wall': "),
+        (["--absent", "Wall"], "Absence query 'Wall' (--absent): "),
         (["--queries", "bunk bed="], "write an open-vocabulary query as TEXT=LABEL"),
     ],
 )

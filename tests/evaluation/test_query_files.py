@@ -121,31 +121,101 @@ def test_a_label_spelt_in_another_case_is_the_maps_label():
     assert pq["Forklift"]["n_true"] == 8 and pq["Forklift"]["recall"] == 1.0
 
 
-def test_a_misspelt_label_is_warned_about_with_the_closest_name(caplog):
-    import logging
-
+def test_a_misspelt_label_is_refused_with_the_closest_names():
     from quash_plugins.evaluation import evaluate
 
     lmap, peer = _robot_map_and_peer()
-    with caplog.at_level(logging.WARNING):
-        rep = evaluate(lmap, [peer], queries=["a cobot=robot amr", "Forklift"])
-    assert rep.absent == ["a cobot"]  # as documented: scored as an absence query...
-    warned = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
-    assert any("'robot amr' is not a label of the map" in m for m in warned)  # ...said loudly
-    assert any("Did you mean 'robot arm'?" in m for m in warned)
+    # was: warned about, then scored as an absence query (the robot arm counted as absent)
+    with pytest.raises(QuashError) as err:
+        evaluate(lmap, [peer], queries=["a cobot=robot amr", "Forklift"])
+    msg = str(err.value)
+    assert msg.startswith("Query 'a cobot': its label 'robot amr' is not a label of the map.")
+    assert "Did you mean 'robot arm'?" in msg and "move the query to --absent" in msg
+    # a plain label that the map does not name: nothing close, so the map's labels
+    with pytest.raises(QuashError, match=r"Query 'drone' is not a label.*labels: robot arm, fork"):
+        evaluate(lmap, [peer], queries=["drone"])
+
+
+def test_a_misspelt_label_in_a_query_file_names_the_file(tmp_path, capsys):
+    from quash_plugins.adapters._npz import write_npz_map
+
+    lmap, _ = _robot_map_and_peer()
+    write_npz_map(tmp_path / "map.npz", lmap)
+    q = tmp_path / "q.yaml"
+    q.write_text("present:\n  a cobot: robbot arm\n  forklift: forklift\nabsent: [a giraffe]\n")
+    assert main(["eval", str(tmp_path / "map.npz"), "--queries-file", str(q)]) == 1
+    err = capsys.readouterr().err
+    assert f"{q}: query 'a cobot': its label 'robbot arm' is not a label of the map." in err
+    assert "Did you mean 'robot arm'?" in err and f"under 'absent' in {q}" in err
+
+
+def test_a_query_whose_label_is_listed_absent_or_carried_by_no_item_is_an_absence_query(caplog):
+    import logging
+
+    import numpy as np
+
+    from quash_plugins import LatentMap
+    from quash_plugins.evaluation import evaluate
+
+    lmap, peer = _robot_map_and_peer()
+    # the label is among the absence queries: the query is one too
+    rep = evaluate(lmap, [peer], queries=["forklift", "quadcopter=Drone"], absent=["drone"])
+    assert rep.queries == ["forklift"] and rep.absent == ["quadcopter", "drone"]
+    # a label of the map that no item carries: an absence query, as before, said in the log
+    three = LatentMap(
+        lmap.embeddings,
+        kind="voxels",
+        grid_index=lmap.grid_index,
+        voxel_size=0.1,
+        labels=np.asarray(lmap.labels),
+        label_names=["robot arm", "forklift", "drone"],
+    )
+    with caplog.at_level(logging.INFO, logger="quash_plugins.evaluation.report"):
+        rep = evaluate(three, [peer], queries=["forklift", "quadcopter=drone"])
+    assert rep.queries == ["forklift"] and rep.absent == ["quadcopter"]
+    assert any("scored as absence queries: quadcopter" in r.getMessage() for r in caplog.records)
 
 
 def test_an_absence_query_that_the_map_has_is_refused():
     from quash_plugins.evaluation import evaluate
 
     lmap, peer = _robot_map_and_peer()
-    with pytest.raises(QuashError, match=r"'forklift' is both a present query and an absence"):
+    with pytest.raises(
+        QuashError, match=r"'forklift' is both a present query \(the queries\) and an absence"
+    ):
         evaluate(lmap, [peer], queries=["forklift"], absent=["forklift"])
-    with pytest.raises(QuashError, match=r"Absence query 'Forklift': 8 items of the map carry"):
+    with pytest.raises(
+        QuashError, match=r"Absence query 'Forklift' \(--absent\): 8 items of the map carry"
+    ):
         evaluate(lmap, [peer], queries=["robot arm"], absent=["Forklift"])
     # an absent label of the list, or free text, is an absence query as before
     rep = evaluate(lmap, [peer], queries=["robot arm"], absent=["drone", "a giraffe"])
     assert rep.absent == ["drone", "a giraffe"]
+
+
+def test_an_absence_query_from_a_query_file_that_the_map_has_names_the_file(tmp_path, capsys):
+    from quash_plugins.adapters._npz import write_npz_map
+
+    lmap, _ = _robot_map_and_peer()
+    write_npz_map(tmp_path / "map.npz", lmap)
+    q = tmp_path / "q.yaml"
+    q.write_text("present: [robot arm]\nabsent: [a giraffe, Forklift]\n")
+    run = ["eval", str(tmp_path / "map.npz"), "--queries-file", str(q)]
+    assert main(run) == 1
+    err = capsys.readouterr().err
+    assert f"{q}: absence query 'Forklift' (under 'absent'): 8 items of the map carry" in err
+    assert f"remove it from 'absent' in {q}." in err
+    # the same query from the command line names --absent, not the file
+    q.write_text("present: [robot arm]\nabsent: [a giraffe]\n")
+    assert main([*run, "--absent", "Forklift"]) == 1
+    err = capsys.readouterr().err
+    assert "Absence query 'Forklift' (--absent): 8 items" in err and str(q) not in err
+    # present and absent in the same file: both sections of the file are named
+    q.write_text("present: [robot arm]\nabsent: [robot arm]\n")
+    assert main(run) == 1
+    err = capsys.readouterr().err
+    assert f"'robot arm' is both a present query (in {q}) and an absence query " in err
+    assert f"(under 'absent' in {q})" in err
 
 
 def test_the_per_query_table_shows_each_open_vocabulary_querys_label():
@@ -164,7 +234,7 @@ def test_with_only_absence_queries_the_means_are_na_and_the_absence_table_is_sho
     from quash_plugins.evaluation import evaluate
 
     lmap, peer = _robot_map_and_peer()
-    rep = evaluate(lmap, [peer, peer], queries=["drone"], absent=["a giraffe"])
+    rep = evaluate(lmap, [peer, peer], queries=["drone"], absent=["drone", "a giraffe"])
     assert rep.queries == [] and rep.absent == ["drone", "a giraffe"]
     md = rep.to_markdown()
     row = next(ln for ln in md.splitlines() if ln.startswith("| peer |"))
@@ -183,7 +253,7 @@ def test_the_plot_of_a_report_with_only_absence_queries_is_not_written(tmp_path,
     from quash_plugins.evaluation.plot import plot_precision_recall
 
     lmap, peer = _robot_map_and_peer()
-    rep = evaluate(lmap, [peer], queries=["drone"])
+    rep = evaluate(lmap, [peer], queries=[], absent=["drone"])
     # the library plots the configs that have a mean and skips the others (was: a TypeError)
     assert plot_precision_recall(rep.configs, tmp_path / "pr.png").exists()
     import yaml
@@ -201,8 +271,10 @@ def test_the_plot_of_a_report_with_only_absence_queries_is_not_written(tmp_path,
         "instances": False,
     }
     (tmp_path / "peer.yaml").write_text(yaml.safe_dump(cfg))
+    (tmp_path / "q.yaml").write_text("absent: [drone]\n")
     code = main(["eval", str(tmp_path / "map.npz"), "-c", str(tmp_path / "peer.yaml"),
-                 "--queries", "drone", "--plot", str(tmp_path / "cli.png")])  # fmt: skip
+                 "--queries-file", str(tmp_path / "q.yaml"),
+                 "--plot", str(tmp_path / "cli.png")])  # fmt: skip
     assert code == 0 and not (tmp_path / "cli.png").exists()
     assert "no present query to score" in capsys.readouterr().err
 

@@ -141,9 +141,11 @@ def test_eval_scores_open_vocabulary_queries_against_their_label():
     assert set(c["mean"]) >= {"precision", "recall", "f1", "iou", "ap", "inv_rank"}
     assert c["given"] == "the label list (the taxonomy given in memory)"
     assert c["absence"]["present_empty"] == 0
-    # a query whose label is not in the map is an absence query
-    rep2 = evaluate(m, [_peer()], queries=["bunk bed=bed", "armchair=chair"])
-    assert rep2.queries == ["bunk bed"] and rep2.absent == ["armchair"]
+    # a query whose label is not in the map is refused, unless the label is listed absent
+    with pytest.raises(QuashError, match=r"Query 'armchair': its label 'chair' is not a label"):
+        evaluate(m, [_peer()], queries=["bunk bed=bed", "armchair=chair"])
+    rep2 = evaluate(m, [_peer()], queries=["bunk bed=bed", "armchair=chair"], absent=["chair"])
+    assert rep2.queries == ["bunk bed"] and rep2.absent == ["armchair", "chair"]
 
 
 def test_cli_eval_takes_text_label_queries_and_a_query_file(tmp_path, capsys, monkeypatch):
