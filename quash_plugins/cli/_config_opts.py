@@ -63,8 +63,33 @@ def fair_default_configs() -> list[QuashConfig]:
     import dataclasses
 
     default = QuashConfig.default()
-    peers = [load_config(name) for name in FAIR_PEERS]
+    peers = [_with_installed_templates(load_config(name), name) for name in FAIR_PEERS]
     return [dataclasses.replace(p, encoder=default.encoder) for p in peers] + [default]
+
+
+def _with_installed_templates(cfg: QuashConfig, ref: str) -> QuashConfig:
+    """The peer ``ref`` that asks for VLMaps' prompt templates (``templates: vlmaps``), with our
+    default templates in their place when no VLMaps is installed, said at INFO.
+
+    The user did not choose the peer, and the stand-in is what a config naming
+    ``templates: vlmaps`` gets anyway (with a warning, since there the user asked for
+    VLMaps' own list): so a plain ``quash eval MAP`` warns only when something is wrong.
+    """
+    import dataclasses
+    import logging
+
+    from ..core.text import VLMAPS_TEMPLATES, vlmaps_templates_file
+
+    pt = cfg.prompt_templates
+    if not pt or pt.get("templates") != VLMAPS_TEMPLATES or vlmaps_templates_file():
+        return cfg
+    logging.getLogger(__name__).info(
+        "%s: no VLMaps is installed, so its prompt templates are our default ones, not "
+        "VLMaps' own (-c %s asks for VLMaps' and warns without them)",
+        cfg.name,
+        ref,
+    )
+    return dataclasses.replace(cfg, prompt_templates={**pt, "templates": "default"})
 
 
 def _default_summary() -> str:

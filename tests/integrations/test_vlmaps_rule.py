@@ -267,3 +267,46 @@ def test_label_argmax_parameters():
     assert fitted.decision_function(E)[0] > 0
     unit_rule = registry.create("classifiers", "label-argmax").fit(X, [1, 0])
     assert unit_rule.decision_function(E)[0] < 0
+
+
+def test_eval_without_configs_warns_about_vlmaps_templates_only_when_asked(monkeypatch, caplog):
+    """``quash eval MAP`` (no -c) runs the VLMaps peer the user did not choose: without an
+    installed VLMaps it takes the default templates, said at INFO, not a warning; a config
+    that names ``templates: vlmaps`` itself is still warned about."""
+    import importlib.util
+    import logging
+
+    from quash_plugins.cli._config_opts import fair_default_configs, load_config
+    from quash_plugins.core import once
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(
+        importlib.util, "find_spec", lambda name, *a: None if name == "vlmaps" else real(name, *a)
+    )
+    once.forget("no-vlmaps")
+    with caplog.at_level(logging.INFO):
+        configs = fair_default_configs()
+        quashes = [Quash.from_config(c) for c in configs]
+    assert not [r for r in caplog.records if r.levelno >= logging.WARNING]
+    peer = next(c for c in configs if c.name == "vlmaps-labels")
+    assert peer.prompt_templates == {"mode": "mean", "templates": "default", "normalize": False}
+    assert quashes[configs.index(peer)]._templates == load_templates("default")
+    assert any(
+        "vlmaps-labels: no VLMaps is installed" in r.getMessage()
+        and "-c demo:vlmaps-labels" in r.getMessage()
+        for r in caplog.records
+    )
+    caplog.clear()
+    with caplog.at_level(logging.INFO):
+        Quash.from_config(load_config("demo:vlmaps-labels"))  # asked for: warned
+    said = [r for r in caplog.records if "not VLMaps' exactly" in r.getMessage()]
+    assert [r.levelname for r in said] == ["WARNING"]
+
+
+def test_eval_without_configs_uses_installed_vlmaps_templates(fake_vlmaps):
+    from quash_plugins.cli._config_opts import fair_default_configs
+
+    configs = fair_default_configs()
+    peer = next(c for c in configs if c.name == "vlmaps-labels")
+    assert peer.prompt_templates["templates"] == "vlmaps"
+    assert Quash.from_config(peer)._templates == TEST_TEMPLATES
