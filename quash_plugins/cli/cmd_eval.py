@@ -137,8 +137,8 @@ def run(args: argparse.Namespace) -> int:
     if args.configs:
         configs = [load_config(c) for c in args.configs]
     else:
-        configs = fair_default_configs()
         log.info("no -c: the default config and the fair peers (%s)", ", ".join(FAIR_PEERS))
+        configs = fair_default_configs()
     _check_outputs(args, configs)
     queries, absent, absent_in_file = _queries(args)  # a query file's mistakes before any work
     overrides = backend_overrides(args)
