@@ -16,10 +16,10 @@ Scores each config's mask for every query against the map's ground truth
 mean, and from the scores the average precision (AP) and OpenLex3D's inverse rank.
 Open-vocabulary queries name their ground-truth label: --queries "bunk bed=bed,somewhere
 to sleep=bed" or --queries-file FILE.yaml. Unlabelled items (label < 0) and --exclude
-labels count neither as TP nor FP. Every --absent query (and a query file's 'absent'),
-and a query of a label of the map that no item carries, is an absence query: its score
-is the share that returns an empty mask (at most --empty-tolerance items); a query label
-that is no label of the map is refused, with the closest names. Each row says what the method was given (the
+labels count neither as TP nor FP. Queries whose label no item carries, and every
+--absent query, are absence queries: their score is the share that returns an empty
+mask (at most --empty-tolerance items); a label that is a near miss of one of the map's
+names ('bedd') is refused as a typo. Each row says what the method was given (the
 label list, or the query alone) and how many present queries it returned empty. With no
 -c it runs the fair comparison: the default config beside VLMaps' rule over its category
 list and OpenScene's label argmax, all given the same label list."""

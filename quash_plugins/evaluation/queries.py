@@ -73,15 +73,18 @@ def match_labels(
 
     A label that is not one of the map's ``names`` but is one when case, spacing and
     underscores are ignored ("Robot Arm", "robot_arm") becomes that name. A label that is
-    still no name of the map is refused, naming the query, the closest names and
-    ``source`` (the query file it came from), unless it is among the ``absent`` queries:
-    then the query is an absence query. A misspelt label (``bunk bed: bedd``) would
-    otherwise score an object that is there as absent. (A label of the map that no item
-    carries is an absence query: :func:`~quash_plugins.evaluation.report.plan_queries`.)
+    still no name of the map is an object the map does not have, so its query is an
+    absence query (a ``TEXT=LABEL`` query is warned about), except when the label is a
+    near miss of a name of the map (difflib ratio at least :data:`TYPO_CUTOFF`: "bedd"
+    for "bed", "chiar" for "chair"): that is refused, naming the query, the close names
+    and ``source`` (the query file it came from), since a misspelt label would score an
+    object that is there as absent. A label listed among the ``absent`` queries is taken
+    as written. (A label of the map that no item carries is an absence query too:
+    :func:`~quash_plugins.evaluation.report.plan_queries`.)
 
     >>> match_labels({"a cobot": "Robot Arm", "Forklift": "Forklift"}, ["robot arm", "forklift"])
     {'a cobot': 'robot arm', 'Forklift': 'forklift'}
-    >>> match_labels({"a grand piano": "piano"}, ["chair"], absent=["piano"])
+    >>> match_labels({"a grand piano": "piano"}, ["chair"])
     {'a grand piano': 'piano'}
     """
     exact = set(names)
@@ -97,30 +100,42 @@ def match_labels(
                 log.info("query %r: label %r is the map's label %r", text, label, same[0])
                 label = same[0]
             elif _fold(label) not in listed_absent:
-                raise QuashError(_unknown_label_message(text, label, names, source))
+                near = _near_names(label, names)
+                if near:
+                    raise QuashError(_typo_message(text, label, near, source))
+                if text != label:
+                    log.warning(
+                        "query %r: its label %r is not a label of the map, so it is scored "
+                        "as an absence query (list it under 'absent' or --absent to say so).",
+                        text,
+                        label,
+                    )
         out[text] = label
     return out
 
 
-def _unknown_label_message(
-    text: str, label: str, names: Sequence[str], source: str | Path | None
-) -> str:
-    """Why the query ``text`` cannot be scored: its ``label`` is no name of the map."""
+#: How alike (difflib's ratio, on names folded for case and spacing) a query's label and a
+#: label of the map must be for the label to be taken as a misspelling of it and refused.
+TYPO_CUTOFF = 0.8
+
+
+def _near_names(label: str, names: Sequence[str]) -> list[str]:
+    """The map's label names that ``label`` is a near miss of (closest first)."""
     from ..core.errors import close_names
 
     by_fold = {_fold(n): n for n in names}
-    near = [by_fold[f] for f in close_names(_fold(label), by_fold)]
+    return [by_fold[f] for f in close_names(_fold(label), by_fold, cutoff=TYPO_CUTOFF)]
+
+
+def _typo_message(text: str, label: str, near: list[str], source: str | Path | None) -> str:
+    """Why the query ``text`` is refused: its ``label`` is a near miss of ``near``."""
     what = f"{source}: query {text!r}" if source else f"Query {text!r}"
     what += f": its label {label!r}" if text != label else ""
-    if near:
-        hint = f" Did you mean {' or '.join(repr(n) for n in near)}?"
-    else:
-        shown = ", ".join(names[:12]) + (f", ... ({len(names)} labels)" if len(names) > 12 else "")
-        hint = f" The map's labels: {shown}."
     where = f"under 'absent' in {source}" if source else "to --absent"
     return (
-        f"{what} is not a label of the map.{hint} Write one of the map's label names; "
-        f"for an object the map does not have, move the query {where} (an absence query)."
+        f"{what} is not a label of the map. Did you mean "
+        f"{' or '.join(repr(n) for n in near)}? Write the map's label name; if the object "
+        f"is really not in the map, move the query {where} (an absence query)."
     )
 
 

@@ -190,9 +190,7 @@ def test_eval_scores_match_an_independent_query(world, tmp_path):
                 "-c",
                 str(world / "base.yaml"),
                 "--queries",
-                "wall,floor",
-                "--absent",
-                "piano",
+                "wall,floor,piano",
                 "--json",
                 str(out),
             ]
@@ -201,7 +199,7 @@ def test_eval_scores_match_an_independent_query(world, tmp_path):
     )
     data = json.loads(out.read_text())["configs"][0]
     assert set(data["per_query"]) == {"wall", "floor"}
-    assert "piano" in data["absence"]["per_query"]  # an object absent from the map
+    assert "piano" in data["absence"]["per_query"]  # a label absent from the map
     assert (
         main(
             [

@@ -121,7 +121,9 @@ def test_a_label_spelt_in_another_case_is_the_maps_label():
     assert pq["Forklift"]["n_true"] == 8 and pq["Forklift"]["recall"] == 1.0
 
 
-def test_a_misspelt_label_is_refused_with_the_closest_names():
+def test_a_misspelt_label_is_refused_with_the_closest_names(caplog):
+    import logging
+
     from quash_plugins.evaluation import evaluate
 
     lmap, peer = _robot_map_and_peer()
@@ -131,9 +133,16 @@ def test_a_misspelt_label_is_refused_with_the_closest_names():
     msg = str(err.value)
     assert msg.startswith("Query 'a cobot': its label 'robot amr' is not a label of the map.")
     assert "Did you mean 'robot arm'?" in msg and "move the query to --absent" in msg
-    # a plain label that the map does not name: nothing close, so the map's labels
-    with pytest.raises(QuashError, match=r"Query 'drone' is not a label.*labels: robot arm, fork"):
-        evaluate(lmap, [peer], queries=["drone"])
+    with pytest.raises(QuashError, match=r"Query 'forklfit' is not a label.*'forklift'\?"):
+        evaluate(lmap, [peer], queries=["forklfit"])
+    # a label that is no near miss of the map's names is an object the map does not have:
+    # an absence query (a TEXT=LABEL one with a warning), as a user of `--queries` expects
+    with caplog.at_level(logging.WARNING, logger="quash_plugins.evaluation.queries"):
+        rep = evaluate(lmap, [peer], queries=["forklift", "drone", "quadcopter=drone"])
+    assert rep.queries == ["forklift"] and rep.absent == ["drone", "quadcopter"]
+    warned = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    assert any("'quadcopter': its label 'drone' is not a label" in m for m in warned)
+    assert not any("'drone' is not" in m and "quadcopter" not in m for m in warned)
 
 
 def test_a_misspelt_label_in_a_query_file_names_the_file(tmp_path, capsys):

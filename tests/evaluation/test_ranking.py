@@ -141,9 +141,12 @@ def test_eval_scores_open_vocabulary_queries_against_their_label():
     assert set(c["mean"]) >= {"precision", "recall", "f1", "iou", "ap", "inv_rank"}
     assert c["given"] == "the label list (the taxonomy given in memory)"
     assert c["absence"]["present_empty"] == 0
-    # a query whose label is not in the map is refused, unless the label is listed absent
-    with pytest.raises(QuashError, match=r"Query 'armchair': its label 'chair' is not a label"):
-        evaluate(m, [_peer()], queries=["bunk bed=bed", "armchair=chair"])
+    # a query whose label is a near miss of the map's is refused; a label that the map
+    # does not name (listed absent or not) makes an absence query
+    with pytest.raises(QuashError, match=r"Query 'a cot': its label 'bedd' is not a label"):
+        evaluate(m, [_peer()], queries=["bunk bed=bed", "a cot=bedd"])
+    rep1 = evaluate(m, [_peer()], queries=["bunk bed=bed", "armchair=chair"])
+    assert rep1.queries == ["bunk bed"] and rep1.absent == ["armchair"]
     rep2 = evaluate(m, [_peer()], queries=["bunk bed=bed", "armchair=chair"], absent=["chair"])
     assert rep2.queries == ["bunk bed"] and rep2.absent == ["armchair", "chair"]
 
