@@ -47,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
     out.print(f"[bold red]negatives[/] ({len(qs.negatives)}): " + escape(", ".join(qs.negatives)))
     out.print(f"[bold]heuristic[/]: {escape(_summary(qs.provenance))}")
     out.print("[dim]provenance:[/]")
-    out.print(f"[dim]{escape(_provenance_yaml(qs))}[/]")
+    out.print(f"[dim]{escape(_provenance_yaml(qs, out.width - 2))}[/]")
     return 0
 
 
@@ -81,11 +81,28 @@ def _summary(prov: dict) -> str:
     return name + (f" ({'; '.join(bits)})" if bits else "")
 
 
-def _provenance_yaml(qs) -> str:
+def _provenance_yaml(qs, width: int = 100) -> str:
     import yaml
 
+    class _Dumper(yaml.SafeDumper):
+        pass
+
+    def _list(dumper, items):
+        # a list of numbers (negative_groups: one size per label) on one line, not one
+        # line per label
+        flow = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in items)
+        return dumper.represent_sequence("tag:yaml.org,2002:seq", items, flow_style=flow)
+
+    _Dumper.add_representer(list, _list)
     data = qs.to_dict()["provenance"]
-    text = yaml.safe_dump(data, sort_keys=False, allow_unicode=True, width=100)
+    text = yaml.dump(
+        data,
+        Dumper=_Dumper,
+        sort_keys=False,
+        allow_unicode=True,
+        width=max(40, width - 6),  # YAML may pass its width by a token
+        default_flow_style=False,
+    )
     return "\n".join("  " + line for line in text.rstrip().splitlines())
 
 

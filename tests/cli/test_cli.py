@@ -595,3 +595,22 @@ def test_an_unknown_option_shows_its_subcommands_usage_and_the_nearest_option(
     assert f"{usage}: error: unrecognized arguments: {bad}" in err
     assert f"'{usage} --help' lists the options" in err
     assert (f"did you mean {hint}?" in err) if hint else ("did you mean" not in err)
+
+
+def test_expand_prints_number_lists_on_a_line_within_the_width():
+    """`quash expand --map` shows negative_groups (one size per label) as a flow list that
+    fits the terminal, not one line per label; the YAML still reads back the same."""
+    import yaml
+
+    from quash_plugins.cli.cmd_expand import _provenance_yaml
+    from quash_plugins.core.types import QuerySet
+
+    groups = [6] * 34 + [5, 5, 5, 4, 5]
+    prov = {"label": "office chair", "negative_groups": groups, "used": {"labels": ["a", "b"]}}
+    qs = QuerySet("chair", ["chair"], ["floor"], provenance=prov)
+    text = _provenance_yaml(qs, width=78)
+    lines = text.splitlines()
+    assert max(len(line) for line in lines) <= 78
+    assert sum("6, 6" in line for line in lines) >= 1 and len(lines) < 12
+    assert "- a" in text  # a list of names stays a block list
+    assert yaml.safe_load("\n".join(line[2:] for line in lines)) == qs.to_dict()["provenance"]
