@@ -20,7 +20,12 @@ MIN_INTERVAL = 2.0
 @contextlib.contextmanager
 def progress(total: int, description: str) -> Iterator[Callable[[int], None]]:
     """Yield ``advance(n)``; shows a bar on a TTY, or logs every ~10% otherwise (at most
-    one line per :data:`MIN_INTERVAL` seconds, and none for work done sooner)."""
+    one line per :data:`MIN_INTERVAL` seconds, and none for work done sooner).
+
+    ``advance(0)`` before any work is counted marks where the counted work starts: the
+    logged times count from there, not from the ``with`` (a bar around
+    :meth:`~quash_plugins.engine.Quash.query_many` counts map rows, and the text side
+    before them is not classification time)."""
     if QUIET or total <= 0:
         yield lambda n: None
         return
@@ -44,9 +49,12 @@ def progress(total: int, description: str) -> Iterator[Callable[[int], None]]:
             yield lambda n: bar.advance(task, n)
         return
     t0 = time.perf_counter()
-    state = {"done": 0, "next": max(1, total // 10), "last": t0, "said": False}
+    state = {"done": 0, "next": max(1, total // 10), "t0": t0, "last": t0, "said": False}
 
     def advance(n: int) -> None:
+        if n == 0 and state["done"] == 0:  # the counted work starts now
+            state["t0"] = state["last"] = time.perf_counter()
+            return
         state["done"] += n
         done = state["done"]
         if done < state["next"] and done < total:
@@ -58,7 +66,12 @@ def progress(total: int, description: str) -> Iterator[Callable[[int], None]]:
             return
         state["last"], state["said"] = now, True
         log.info(
-            "%s: %d/%d (%.0f%%, %.1fs)", description, done, total, 100.0 * done / total, now - t0
+            "%s: %d/%d (%.0f%%, %.1fs)",
+            description,
+            done,
+            total,
+            100.0 * done / total,
+            now - state["t0"],
         )
 
     yield advance

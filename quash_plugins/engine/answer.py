@@ -66,6 +66,8 @@ def answer(
     ``client`` runs the passes on that Dask client (see ``Quash._classify``).
     """
     t = time.perf_counter()
+    if progress is not None:
+        progress(0)  # the map pass starts: the text side is done
     scores, observed = quash._classify(lmap, [p.clf for p in pending], progress, client)
     warn_unobserved(lmap, observed)
     t_cls = (time.perf_counter() - t) / max(1, len(pending))

@@ -54,3 +54,33 @@ def test_the_interval_is_a_setting(clock, caplog, monkeypatch):
         for _ in range(20):
             advance(1)
     assert len(_lines(caplog)) == 10
+
+
+def test_times_count_from_the_start_mark(clock, caplog):
+    """advance(0) before any counted work marks its start: 20 s of text side before the
+    map pass are not reported as classification time."""
+    caplog.set_level(logging.INFO, logger="quash_plugins.progress")
+    with prog.progress(10, "classifying 10 items") as advance:
+        clock[0] += 20.0  # expand, encode, fit: not counted
+        advance(0)
+        for _ in range(10):
+            clock[0] += 0.5
+            advance(1)
+    lines = _lines(caplog)
+    assert lines[-1] == "classifying 10 items: 10/10 (100%, 5.0s)"
+    # without the mark the clock runs from the `with`
+    caplog.clear()
+    with prog.progress(10, "classifying 10 items") as advance:
+        clock[0] += 20.0
+        for _ in range(10):
+            clock[0] += 0.5
+            advance(1)
+    assert _lines(caplog)[-1] == "classifying 10 items: 10/10 (100%, 25.0s)"
+    # a zero advance after counted work is no mark
+    caplog.clear()
+    with prog.progress(4, "x") as advance:
+        for _ in range(4):
+            clock[0] += 1.0
+            advance(1)
+            advance(0)
+    assert _lines(caplog)[-1] == "x: 4/4 (100%, 4.0s)"
