@@ -8,7 +8,9 @@ block by block by :func:`write_npz_streaming`, so the map is never held whole.
 Pixel maps keep their frames as three extra arrays (``frame_ids (F,) str``,
 ``frame_hw (F, 2) int64``, ``frame_offsets (F,) int64``), which :func:`frames_from_npz`
 turns back into :class:`~quash_plugins.core.types.FrameInfo`; :func:`frames_from_zarr`
-reads them from a zarr result store (attributes of the same names) or zarr map.
+reads them from a zarr result store (attributes of the same names) or zarr map;
+:func:`up_from_npz` and :func:`up_from_zarr` read the up axis of their positions. Their
+layout is defined once, in :mod:`quash_plugins.core.layout`.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import UsageError
+from ..core.layout import read_frames, read_up
 from ..core.types import UP_AXES, FrameInfo, LatentMap
 from ._npz import metadata_arrays
 
@@ -32,10 +35,27 @@ def frames_from_npz(path: str | Path) -> list[FrameInfo] | None:
     wrote (:func:`write_npz_streaming`) or a ``quash query --out RESULT.npz`` file, for
     :func:`~quash_plugins.adapters.masks_per_frame`."""
     with np.load(path, allow_pickle=False) as z:
-        if "frame_ids" not in z.files:
-            return None
-        ids, hw, off = z["frame_ids"], z["frame_hw"], z["frame_offsets"]
-    return [FrameInfo(str(i), int(h), int(w), int(o)) for i, (h, w), o in zip(ids, hw, off)]
+        return read_frames(z, str(path))
+
+
+def up_from_npz(path: str | Path) -> str | None:
+    """The up axis (``+z``, ``+y``...) of the positions in ``path``, or None when it
+    records none (``+z`` is then assumed): a ``quash query --out RESULT.npz`` file (the
+    axis ``--up`` gave, else the map's) or a map ``quash convert`` wrote."""
+    with np.load(path, allow_pickle=False) as z:
+        return read_up(z, str(path))
+
+
+def _zarr_attrs(path: str | Path) -> dict[str, Any]:
+    """The root attributes of the zarr store ``path``."""
+    from ..core.errors import MapFormatError
+    from ..core.optional import require
+
+    zarr = require("zarr", "dask", "Reading zarr stores")
+    try:
+        return dict(zarr.open_group(str(path), mode="r").attrs)
+    except Exception as exc:  # noqa: BLE001 - zarr raises many types for a bad store
+        raise MapFormatError(f"{path}: not a readable zarr store ({exc}).") from None
 
 
 def frames_from_zarr(path: str | Path) -> list[FrameInfo] | None:
@@ -53,30 +73,21 @@ def frames_from_zarr(path: str | Path) -> list[FrameInfo] | None:
     >>> chair = zarr.open_group(store, mode="r")["masks"][0]  # doctest: +SKIP
     >>> per_image = masks_per_frame(frames_from_zarr(store), chair)  # doctest: +SKIP
     """
-    from ..core.errors import MapFormatError
-    from ..core.optional import require
-
-    zarr = require("zarr", "dask", "Reading zarr stores")
-    try:
-        attrs = dict(zarr.open_group(str(path), mode="r").attrs)
-    except Exception as exc:  # noqa: BLE001 - zarr raises many types for a bad store
-        raise MapFormatError(f"{path}: not a readable zarr store ({exc}).") from None
+    attrs = _zarr_attrs(path)
     if attrs.get("frames"):  # a map store: FrameInfo fields (image paths kept)
         return [FrameInfo(**f) for f in attrs["frames"]]
-    if "frame_ids" not in attrs:
-        return None
-    ids, hw, off = attrs["frame_ids"], attrs.get("frame_hw"), attrs.get("frame_offsets")
-    if not (
-        isinstance(hw, list)
-        and isinstance(off, list)
-        and len(hw) == len(off) == len(ids)
-        and all(isinstance(p, list) and len(p) == 2 for p in hw)
-    ):
-        raise MapFormatError(
-            f"{path}: attributes 'frame_hw' (F, 2) and 'frame_offsets' (F,) must match the "
-            f"{len(ids)} frame_ids."
-        )
-    return [FrameInfo(str(i), int(h), int(w), int(o)) for i, (h, w), o in zip(ids, hw, off)]
+    return read_frames(attrs, str(path), what="attribute")
+
+
+def up_from_zarr(path: str | Path) -> str | None:
+    """The up axis of the positions of the zarr store ``path``, or None when it records
+    none (``+z`` is then assumed): a ``quash query --out RESULT.zarr`` store (attribute
+    ``up``: the axis ``--up`` gave, else the map's, as the NPZ result's ``up``) or a map
+    ``quash convert`` wrote (the ``up`` its ``source`` attribute records)."""
+    attrs = _zarr_attrs(path)
+    if "up" not in attrs and isinstance(attrs.get("source"), dict):
+        attrs = attrs["source"]  # a map store
+    return read_up(attrs, str(path), what="attribute")
 
 
 def write_npz_streaming(path: str | Path, lmap: LatentMap, chunk_rows: int = 65536) -> Path:

@@ -17,7 +17,8 @@ import numpy as np
 
 from ..core.errors import MapFormatError
 from ..core.interfaces import MapAdapter
-from ..core.types import UP_AXES, FrameInfo, LatentMap
+from ..core.layout import layout_arrays, map_layout, read_frames, read_up
+from ..core.types import LatentMap
 
 OPTIONAL = (
     "positions",
@@ -146,29 +147,14 @@ class NpzAdapter(MapAdapter):
             except ValueError as exc:
                 raise MapFormatError(f"{path}: an array holds pickled objects ({exc}).") from None
         built_by = {k: str(data.pop(k)) for k in ENCODER_KEYS if k in data}
-        if "up" in data:
-            up = str(data.pop("up"))
-            if up not in UP_AXES:
-                raise MapFormatError(
-                    f"{path}: array 'up' is {up!r}, not an up axis; store one of "
-                    f"{', '.join(UP_AXES)} (or none: +z is assumed)."
-                )
+        up = read_up(data, str(path))
+        if up is not None:
             built_by["up"] = up
+        frames = read_frames(data, str(path))
         kind = str(data.pop("kind")) if "kind" in data else None
         voxel = float(data.pop("voxel_size")) if "voxel_size" in data else None
         normalize = bool(data.pop("normalize")) if "normalize" in data else False
         names = data.pop("label_names", None)
-        frames = None
-        if "frame_ids" in data:
-            ids, hw, off = data.pop("frame_ids"), data.pop("frame_hw"), data.pop("frame_offsets")
-            if hw.shape != (len(ids), 2) or off.shape != (len(ids),):
-                raise MapFormatError(
-                    f"{path}: 'frame_hw' must be (F, 2) and 'frame_offsets' (F,) for F = "
-                    f"{len(ids)} frame_ids; got {hw.shape} and {off.shape}."
-                )
-            frames = [
-                FrameInfo(str(i), int(h), int(w), int(o)) for i, (h, w), o in zip(ids, hw, off)
-            ]
         if kind is None:
             kind = "voxels" if voxel else "points"
         return LatentMap(
@@ -213,12 +199,7 @@ def metadata_arrays(lmap: LatentMap) -> dict[str, Any]:
     for key in ENCODER_KEYS:
         if isinstance(lmap.source.get(key), str):
             arrays[key] = np.asarray(lmap.source[key], dtype=str)
-    if lmap.source.get("up") in UP_AXES:
-        arrays["up"] = np.asarray(lmap.source["up"], dtype=str)
-    if lmap.frames:
-        arrays["frame_ids"] = np.asarray([f.frame_id for f in lmap.frames], dtype=str)
-        arrays["frame_hw"] = np.asarray([(f.height, f.width) for f in lmap.frames], np.int64)
-        arrays["frame_offsets"] = np.asarray([f.offset for f in lmap.frames], np.int64)
+    arrays.update(layout_arrays(map_layout(lmap)))  # up axis and frames (core.layout)
     return arrays
 
 

@@ -22,7 +22,7 @@ encoder fingerprint, each query's positives, negatives, heuristic with its param
 a label list's label, resolution and labels_from) and presence decision). With --out RESULT.zarr the same masks and
 scores (the config's refine and presence applied) stream to a zarr store, without
 display_scores (a pixel map's frame_ids, frame_hw and frame_offsets are attributes,
-for frames_from_zarr), for maps larger than memory: the embeddings are read in chunks; with
+for frames_from_zarr, and so is up, as in the NPZ, for up_from_zarr), for maps larger than memory: the embeddings are read in chunks; with
 refine or presence about 13 bytes per item are held per query of a group, queries
 answered in groups that fit chunk_mb (see docs/scale.md).
 With --format openlex3d, --out is a folder of per-query files aligned with the points
@@ -199,7 +199,7 @@ def _query_to_zarr(args, quash) -> int:
     lazy = quash.query_many_lazy(
         args.map, args.queries, adapter=args.adapter, **adapter_options(args)
     )
-    path = lazy.to_zarr(args.out)
+    path = lazy.to_zarr(args.out, up=None if args.up == "auto" else args.up)
     import dask.array as da
     import zarr
 

@@ -27,12 +27,12 @@ from typing import Any
 import numpy as np
 
 from ..core.atomic import atomic_dir, refuse_own_input
+from ..core.layout import map_layout
 from ..core.types import QuerySet, check_query
 from .answer import _describe, classifier_words
 from .classify import BlockScorer
 from .dask_client import current_client, require_dask, require_zarr
 from .dask_executor import compute, scores_graph, ship
-from .results import frame_attrs
 
 log = logging.getLogger(__name__)
 
@@ -252,7 +252,11 @@ class LazyQuery:
         return tuple(np.asarray(x) for x in compute(self.client, scores, masks, self.observed))
 
     def to_zarr(
-        self, path: str | Path, overwrite: bool = True, group_mb: float | None = None
+        self,
+        path: str | Path,
+        overwrite: bool = True,
+        group_mb: float | None = None,
+        up: str | None = None,
     ) -> Path:
         """Write ``scores``, ``masks`` and ``observed`` to a zarr store, atomically.
 
@@ -263,9 +267,14 @@ class LazyQuery:
         the final arrays. With either step: see :meth:`_write_answered`; ``group_mb``
         bounds the ``(group, N)`` vectors held at once (default: the Quash's
         ``chunk_mb``).
+
+        The store's attributes (:meth:`_attrs`) include the up axis of the map's
+        positions, ``up``: ``up`` when given (``quash query --up``), else the one the
+        map's ``source`` records; none when neither says (``+z`` is then assumed), as
+        ``write_results_npz`` records it.
         """
         if self.skipped and self._pending:
-            return self._write_answered(path, overwrite, group_mb)
+            return self._write_answered(path, overwrite, group_mb, up)
         zarr = require_zarr()
         da = require_dask()
         path = Path(path).expanduser()
@@ -290,14 +299,18 @@ class LazyQuery:
             )
             compute(self.client, store)
             del group["_raw"]
-            group.attrs.update(self._attrs([_describe(c) for c in self.classifiers]))
+            group.attrs.update(self._attrs([_describe(c) for c in self.classifiers], up))
         log.info("wrote %s: %d queries x %d items", path, q, n)
         return path
 
-    def _attrs(self, classifiers: Sequence[str]) -> dict[str, Any]:
+    def _attrs(self, classifiers: Sequence[str], up: str | None = None) -> dict[str, Any]:
         """The store's attributes: queries, threshold, query sets (with their provenance,
         ``refine`` and ``presence`` included), the classifiers (described), the map's
-        source and, for a pixel map, its frames (:func:`frame_attrs`)."""
+        source and its layout (:func:`~quash_plugins.core.layout.map_layout`): for a
+        pixel map its frames, for a map with positions their up axis ``up``."""
+        layout = map_layout(self.lmap, up)
+        if self.lmap.positions is None:
+            layout.pop("up", None)  # as a results NPZ: the up axis goes with positions
         return {
             "queries": self.queries,
             "threshold": self.threshold,
@@ -306,10 +319,12 @@ class LazyQuery:
             "map_source": {
                 k: v for k, v in self.lmap.source.items() if isinstance(v, (str, int, float))
             },
-            **frame_attrs(self.lmap),
+            **layout,
         }
 
-    def _write_answered(self, path: str | Path, overwrite: bool, group_mb: float | None) -> Path:
+    def _write_answered(
+        self, path: str | Path, overwrite: bool, group_mb: float | None, up: str | None = None
+    ) -> Path:
         """The store of a config with ``refine`` or ``presence``: the queries answered in
         groups by :meth:`Quash._answer` (the code of :meth:`Quash.query_many`).
 
@@ -366,7 +381,7 @@ class LazyQuery:
                         time.perf_counter() - t0,
                     )
                     del part, observed
-            group.attrs.update(self._attrs(described))
+            group.attrs.update(self._attrs(described, up))
         log.info("wrote %s: %d queries x %d items", path, q, n)
         return path
 
@@ -447,6 +462,7 @@ def query_to_zarr(
     out_path: str | Path,
     client: Any = None,
     group_mb: float | None = None,
+    up: str | None = None,
     **read_options: Any,
 ) -> Path:
     """Answer ``texts`` on ``source`` and write the results to the zarr store ``out_path``.
@@ -457,7 +473,8 @@ def query_to_zarr(
     the config's ``refine`` and ``presence`` steps included (see
     :meth:`LazyQuery.to_zarr`; ``group_mb`` bounds the vectors held for them). Without
     those steps, and a distributed client, the workers write the chunks, so ``out_path``
-    must be on storage they share.
+    must be on storage they share. ``up``: the up axis of the map's positions, recorded
+    in the store (else the map's own; see :meth:`LazyQuery.to_zarr`).
     """
     lazy = query_lazy(quash, source, texts, client, **read_options)
-    return lazy.to_zarr(out_path, group_mb=group_mb)
+    return lazy.to_zarr(out_path, group_mb=group_mb, up=up)

@@ -10,7 +10,8 @@ from typing import Any
 import numpy as np
 
 from ..core.atomic import atomic_dir, atomic_write, is_store_dir, refuse_own_input
-from ..core.types import UP_AXES, QueryResult
+from ..core.layout import layout_arrays, map_layout
+from ..core.types import QueryResult
 
 #: The arrays every results file has, as :func:`write_results_npz` writes them.
 RESULT_ARRAYS = ("queries", "masks", "scores", "display_scores")
@@ -103,23 +104,6 @@ def _query_record(r: QueryResult) -> dict[str, Any]:
     return out
 
 
-def frame_attrs(lmap: Any) -> dict[str, Any]:
-    """A pixel map's frame layout in a results file: ``frame_ids`` (F,) str, ``frame_hw``
-    (F, 2) and ``frame_offsets`` (F,) int, as plain lists (a zarr store's attributes;
-    :func:`write_results_npz` stores them as arrays), so that ``masks_per_frame(
-    frames_from_npz(path) or frames_from_zarr(path), masks[q])`` cuts a mask into
-    per-image masks without the map. ``{}`` for a map without frames (or frames that do
-    not cover its items)."""
-    frames = getattr(lmap, "frames", None)
-    if not frames or sum(f.size for f in frames) != lmap.n:
-        return {}
-    return {
-        "frame_ids": [str(f.frame_id) for f in frames],
-        "frame_hw": [[int(f.height), int(f.width)] for f in frames],
-        "frame_offsets": [int(f.offset) for f in frames],
-    }
-
-
 def write_results_npz(
     path: str | Path,
     results: Sequence[QueryResult],
@@ -159,11 +143,10 @@ def write_results_npz(
             value = getattr(lmap, key, None)
             if value is not None and len(value) == masks.shape[1]:
                 extra[key] = np.asarray(value)
-        up = up if up is not None else getattr(lmap, "source", {}).get("up")
-        if "positions" in extra and up in UP_AXES:
-            extra["up"] = np.asarray(up, dtype=str)
-        for key, value in frame_attrs(lmap).items():
-            extra[key] = np.asarray(value, dtype=str if key == "frame_ids" else np.int64)
+        layout = map_layout(lmap, up)  # the frames; the up axis goes with the positions
+        if "positions" not in extra:
+            layout.pop("up", None)
+        extra.update(layout_arrays(layout))
     record = json.dumps(results_provenance(results, encoder, config_file), default=str)
     extra["provenance"] = np.asarray(record, dtype=str)
     with atomic_write(path, suffix=".npz") as tmp:

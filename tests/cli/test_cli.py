@@ -397,6 +397,46 @@ def test_result_npz_records_the_up_axis(tiny_world, tmp_path, capsys):
     assert json.loads(str(np.load(r)["provenance"]))["map"]["up"] == "+y"
 
 
+@pytest.mark.parametrize("suffix", ["npz", "zarr"])
+def test_results_record_the_up_axis_and_read_it_back(tiny_world, tmp_path, capsys, suffix):
+    """A results NPZ and a results Zarr store record the up axis the same way (``--up``,
+    else the map's, else none) and ``up_from_npz`` / ``up_from_zarr`` read it back."""
+    if suffix == "zarr":
+        pytest.importorskip("zarr")
+        pytest.importorskip("dask")
+    from quash_plugins.adapters import convert_map, up_from_npz, up_from_zarr
+
+    read_up = up_from_npz if suffix == "npz" else up_from_zarr
+    r = tmp_path / f"r.{suffix}"
+    code, _, err = query_chair(tiny_world, "--out", r, capsys=capsys)
+    assert code == 0, err
+    assert read_up(r) is None  # the map records none: +z is assumed
+    code, _, err = query_chair(tiny_world, "--out", r, "--up=-x", capsys=capsys)
+    assert code == 0, err
+    assert read_up(r) == "-x"
+    y_up = convert_map(tiny_world["map"], tmp_path / f"y.{suffix}", up="+y")
+    assert read_up(y_up) == "+y"  # the converted map itself
+    code, _, err = run_cli(
+        "query", y_up, "chair", "-c", tiny_world["config"], "--out", r, capsys=capsys
+    )
+    assert code == 0, err
+    assert read_up(r) == "+y"
+    code, _, err = run_cli(
+        "query",
+        y_up,
+        "chair",
+        "-c",
+        tiny_world["config"],
+        "--out",
+        r,
+        "--up",
+        "+z",
+        capsys=capsys,
+    )
+    assert code == 0, err
+    assert read_up(r) == "+z"  # --up overrides the map's
+
+
 def test_an_adapter_without_options_refuses_one_by_name(tiny_world, capsys):
     code, _, err = query_chair(tiny_world, "-o", "nosuch=1", capsys=capsys)
     assert code == 1
