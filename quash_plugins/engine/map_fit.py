@@ -79,9 +79,10 @@ def warn_built_by(encoder: Any, lmap: LatentMap) -> None:
         return  # the same embedding function, named as an earlier version named it
     if built == ours or not first_time(("built-by", str(lmap.source.get("path")), built, ours)):
         return
-    name = getattr(encoder, "name", type(encoder).__name__)
+    name = plugin_name(encoder)  # what the config's encoder section calls it
     built_name = lmap.source.get("encoder", "?")
-    if built_name == name:  # one plugin name, two embedding functions
+    # A map may record either name: the registered one, or the instance's ``name``.
+    if built_name in (name, getattr(encoder, "name", None)):  # one name, two functions
         differs = (
             f"this config's {name!r} is another embedding function ({ours}): other weights, "
             "another model or other settings (normalize, dim, templates) under the same "

@@ -64,3 +64,25 @@ def test_a_map_without_the_record_is_not_warned_about(tmp_path, caplog):
     with caplog.at_level("WARNING", logger="quash_plugins.engine.map_fit"):
         _quash(_OtherHashing(32)).query(str(path), "chair")
     assert not [r for r in caplog.records if "was built with encoder" in r.getMessage()]
+
+
+def test_the_warning_names_the_encoder_as_the_config_does(tmp_path, caplog):
+    """An encoder built by a factory entry point under another name than its class's
+    ``name`` is named by its registered name, as the config writes it (and as the
+    dimension error names it), not by the instance's ``name``."""
+    from quash_plugins.core import registry
+
+    paths = write_scene(make_scene(HashingEncoder(32), SceneOptions(**OPTS)), tmp_path / "s.npz")
+    registry.register("encoders", "reversed-words", lambda: _OtherHashing(32), dist="pkg-rev")
+    try:
+        encoder = registry.create("encoders", "reversed-words")
+    finally:
+        registry.unregister("encoders", "reversed-words", dist="pkg-rev")
+    assert encoder.name == "other-hashing"  # the instance's own name differs
+    once.forget("built-by")
+    with caplog.at_level("WARNING", logger="quash_plugins.engine.map_fit"):
+        _quash(encoder).query(str(paths["map"]), "chair")
+    warned = [r.getMessage() for r in caplog.records if "was built with encoder" in r.getMessage()]
+    assert len(warned) == 1, warned
+    assert "this config's encoder is 'reversed-words'" in warned[0]
+    assert "'other-hashing'" not in warned[0]  # (its fingerprint may spell it, unquoted)
