@@ -78,13 +78,20 @@ def detect_adapter(source: Any, *, claimed: bool = False) -> str:
     Adapters are tried in order of their ``priority`` attribute (highest first), then name.
     With ``claimed``, when none accepts it, the adapter whose ``suffixes``/``magic`` match
     is returned instead (reading with it reports why the file is not a valid map).
+
+    A folder that one adapter reads but that also directly holds a map file another
+    adapter reads (a ConceptFusion ``pointclouds/`` beside a portable ``map.npz``) is
+    refused: which of the two is meant is the user's choice (:func:`check_no_other_maps`).
     """
     for name, cls in _ordered_adapters():
         try:
-            if cls().sniff(source):
-                return name
+            found = cls().sniff(source)
         except Exception as exc:  # noqa: BLE001 - a faulty sniff must not break detection
             log.debug("adapter %s failed to sniff %r: %s", name, source, exc)
+            continue
+        if found:
+            check_no_other_maps(source, name)
+            return name
     if claimed:
         claim = claimed_by(source)
         if claim is not None:
@@ -98,6 +105,66 @@ def detect_adapter(source: Any, *, claimed: bool = False) -> str:
         f"{', '.join(registry.available('adapters'))}. Pass {choose} to choose one."
         f"{_maps_inside(source)}"
     )
+
+
+def check_no_other_maps(source: Any, chosen: str, limit: int = 256) -> None:
+    """Refuse a folder that ``chosen`` reads when it also holds, directly, a map file of
+    another format: a file whose name ends in a suffix another adapter declares
+    (``suffixes``: ``.npz``, ``.zarr``...) and which that adapter's ``sniff`` accepts
+    (a results file or an unrelated archive is no map). ``chosen``'s own files (a frame
+    it reads) do not count. The message names the folder, both candidates and how to
+    choose: ``--adapter NAME`` for the folder, or the file's path. At most ``limit``
+    entries of the folder are looked at (a debug line says when more are skipped).
+    """
+    if not isinstance(source, (str, Path)) or not Path(source).is_dir():
+        return
+    folder = Path(source)
+    adapters = _ordered_adapters()
+    by_suffix = [
+        (str(suffix).lower(), name, cls)
+        for name, cls in adapters
+        if name != chosen
+        for suffix in getattr(cls, "suffixes", ()) or ()
+    ]
+    if not by_suffix:
+        return
+    chosen_cls = dict(adapters).get(chosen)
+    try:
+        entries = sorted(p for p in folder.iterdir() if not p.name.startswith("."))
+    except OSError:
+        return
+    if len(entries) > limit:
+        log.debug(
+            "%s: %d entries; looking at the first %d for other maps", folder, len(entries), limit
+        )
+    others = []
+    for entry in entries[:limit]:
+        lower = entry.name.lower()
+        for suffix, name, cls in by_suffix:
+            if not lower.endswith(suffix) or not _sniffs(cls, entry):
+                continue
+            if chosen_cls is None or not _sniffs(chosen_cls, entry):
+                others.append((entry, name))
+            break
+    if not others:
+        return
+    listed = ", ".join(f"{path} ({name})" for path, name in others)
+    first = others[0][0]
+    raise MapFormatError(
+        f"{folder} is a {chosen} map folder, but it also holds "
+        f"{'another map' if len(others) == 1 else 'other maps'}: {listed}. Which one is "
+        f"meant is ambiguous: pass --adapter {chosen} (adapter={chosen!r} in Python) to read "
+        f"the folder as {chosen}, or pass the file itself (e.g. {first}) to read it."
+    )
+
+
+def _sniffs(cls: Any, source: Any) -> bool:
+    """``cls().sniff(source)``; False when the sniff itself fails."""
+    try:
+        return bool(cls().sniff(source))
+    except Exception as exc:  # noqa: BLE001 - a faulty sniff must not break detection
+        log.debug("adapter %s failed to sniff %r: %s", getattr(cls, "name", cls), source, exc)
+        return False
 
 
 def _hints(source: Any) -> str:

@@ -161,3 +161,34 @@ def test_docs_conceptfusion_yaml_is_the_default_config_with_its_encoder():
     assert cfg.encoder.name == "open-clip" and cfg.encoder.params == {"preset": "conceptfusion"}
     default = QuashConfig.default()
     assert replace(cfg, name=default.name, encoder=default.encoder) == default
+
+
+def test_a_folder_that_also_holds_another_map_is_refused_with_the_choices(cf_map, capsys):
+    """``saved-map/`` with ``pointclouds/`` and a portable ``other.npz`` map beside it:
+    ``auto`` does not pick one silently; the error names the folder, both candidates and
+    how to choose, and each choice reads what it names."""
+    from quash_plugins.adapters import write_npz_map
+    from quash_plugins.core.types import LatentMap
+
+    root, arrays = cf_map
+    emb = np.random.default_rng(1).normal(size=(7, 16)).astype(np.float32)
+    other = write_npz_map(root / "other.npz", LatentMap(emb, kind="points"))
+    with pytest.raises(MapFormatError) as exc:
+        read_map(root)
+    msg = str(exc.value)
+    assert str(root) in msg and f"{other} (npz)" in msg
+    assert "--adapter conceptfusion" in msg and "pass the file itself" in msg
+    assert read_map(root, adapter="conceptfusion").n == len(arrays["pc_points"])
+    assert read_map(other).n == 7
+    assert detect_adapter(root / "pointclouds") == "conceptfusion"  # the map's own folder
+    code = main(["query", str(root), "chair", "-c", "demo:quash-labels"])
+    assert code != 0 and "--adapter conceptfusion" in capsys.readouterr().err
+
+
+def test_an_npz_that_is_no_map_beside_pointclouds_changes_nothing(cf_map):
+    """An unrelated ``.npz`` (a results file, any archive without ``embeddings``) is no
+    second map: the folder is still read as ConceptFusion."""
+    root, arrays = cf_map
+    np.savez(root / "poses.npz", poses=np.eye(4)[None].repeat(3, axis=0))
+    assert detect_adapter(root) == "conceptfusion"
+    assert read_map(root).n == len(arrays["pc_points"])
