@@ -8,9 +8,11 @@ checked by :mod:`quash_plugins.testing`.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import logging
+import weakref
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -25,6 +27,8 @@ from .errors import EncoderError
 from .kernels import CosineExpansion, KernelExpansion
 from .once import first_time
 from .types import DEFAULT_NEGATIVES, LatentMap, QuerySet
+
+log = logging.getLogger(__name__)
 
 
 class Encoder(ABC):
@@ -73,8 +77,10 @@ class Encoder(ABC):
         the installed distribution that provides the class, so that upgrading a plugin
         package never serves text embeddings cached by the version before. When no
         version names the code (a class in a script or a local module, or a package
-        installed with ``pip install -e``), the content of the class's module file is
-        hashed too (:func:`source_digest`), so that editing ``encode_text`` there does.
+        installed with ``pip install -e``), the source is hashed too
+        (:func:`source_digest`: every ``.py`` file of the class's top-level package, or
+        the module file of a class outside a package), so that editing ``encode_text``,
+        or a helper module it calls, does.
         """
         payload = {
             "class": f"{type(self).__module__}.{type(self).__qualname__}",
@@ -95,21 +101,40 @@ class Encoder(ABC):
         return f"{self.name}-{hashlib.sha256(blob).hexdigest()[:16]}"
 
 
-#: Module file -> (mtime_ns, size, digest of its content): read again when it changes.
-_SOURCE_DIGESTS: dict[str, tuple[int, int, str]] = {}
+#: Class -> its source digest (or None): computed once per class (an edited module
+#: imported again is a new class, and is hashed again).
+_SOURCE_DIGESTS: weakref.WeakKeyDictionary[type, str | None] = weakref.WeakKeyDictionary()
+#: Bounds of a package's digest: beyond them only the class's module file is hashed.
+PACKAGE_DIGEST_MAX_FILES = 1000
+PACKAGE_DIGEST_MAX_BYTES = 32 * 2**20
 
 
 def source_digest(cls: type) -> str | None:
-    """A digest of the source of ``cls``'s module, when a version does not name that code:
+    """A digest of the source of ``cls``'s code, when a version does not name that code:
     no distribution installed it (a script, a local module, a test file) or an editable
     install did (:func:`~quash_plugins.core.registry.is_editable`). None for a released
     install, whose version names its code, and when no source can be found.
 
-    The digest is of the file's content (its modification time only says when to read
-    it again); a class with no file (an interactive session) hashes its own source.
+    For a class in a package, every ``.py`` file of its top-level package is hashed
+    (their paths within it and their content), so that editing a helper module the
+    encoder imports changes the digest too; a package of more than
+    :data:`PACKAGE_DIGEST_MAX_FILES` files or :data:`PACKAGE_DIGEST_MAX_BYTES` bytes
+    hashes the class's module file only (a debug line says so). A class in a single-file
+    module (a script) hashes that file, and a class with no file (an interactive
+    session) its own source. Computed once per class.
     """
+    try:
+        return _SOURCE_DIGESTS[cls]
+    except (KeyError, TypeError):
+        pass
+    digest = _compute_source_digest(cls)
+    with contextlib.suppress(TypeError):  # a class that cannot be weakly referenced
+        _SOURCE_DIGESTS[cls] = digest
+    return digest
+
+
+def _compute_source_digest(cls: type) -> str | None:
     import inspect
-    import os
     import sys
 
     from .registry import distribution_of, is_editable
@@ -119,17 +144,55 @@ def source_digest(cls: type) -> str | None:
         return None
     path = getattr(sys.modules.get(module), "__file__", None)
     try:
-        if path:
-            st = os.stat(path)
-            kept = _SOURCE_DIGESTS.get(path)
-            if kept is not None and kept[:2] == (st.st_mtime_ns, st.st_size):
-                return kept[2]
-            digest = hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]
-            _SOURCE_DIGESTS[path] = (st.st_mtime_ns, st.st_size, digest)
-            return digest
-        return hashlib.sha256(inspect.getsource(cls).encode()).hexdigest()[:16]
+        if not path:
+            return hashlib.sha256(inspect.getsource(cls).encode()).hexdigest()[:16]
+        package = _package_digest(module.partition(".")[0])
+        if package is not None:
+            return package
+        return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]
     except (OSError, TypeError):
         return None
+
+
+def _package_digest(top: str) -> str | None:
+    """A digest of every ``.py`` file under the top-level package ``top`` (paths relative
+    to its folder, in order, and contents), or None: ``top`` is no package (a single-file
+    module) or exceeds the bounds."""
+    import sys
+
+    roots = list(getattr(sys.modules.get(top), "__path__", None) or [])
+    if not roots:
+        return None
+    files: list[tuple[str, Path]] = []
+    for root in roots:
+        for path in Path(root).rglob("*.py"):
+            rel = path.relative_to(root)
+            if any(part.startswith(".") for part in rel.parts):
+                continue
+            files.append((rel.as_posix(), path))
+            if len(files) > PACKAGE_DIGEST_MAX_FILES:
+                log.debug(
+                    "package %s has over %d .py files: its fingerprint hashes only the "
+                    "encoder's module file",
+                    top,
+                    PACKAGE_DIGEST_MAX_FILES,
+                )
+                return None
+    sha = hashlib.sha256()
+    total = 0
+    for rel, path in sorted(files):
+        data = path.read_bytes()
+        total += len(data)
+        if total > PACKAGE_DIGEST_MAX_BYTES:
+            log.debug(
+                "package %s has over %d bytes of .py files: its fingerprint hashes only "
+                "the encoder's module file",
+                top,
+                PACKAGE_DIGEST_MAX_BYTES,
+            )
+            return None
+        sha.update(rel.encode() + b"\0" + hashlib.sha256(data).digest())
+    return sha.hexdigest()[:16]
 
 
 def _plain(value: Any) -> bool:

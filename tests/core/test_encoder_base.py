@@ -352,6 +352,69 @@ def test_editing_encode_text_changes_the_fingerprint_unless_a_version_names_it(
     np.testing.assert_array_equal(encode_texts(after, ["chair"], cache), [[0, 1]])
 
 
+_HELPER_PLUGIN = """
+import numpy as np
+from quash_plugins import Encoder
+
+from .helpers import row
+
+
+class Edited(Encoder):
+    name = "edited-helper"
+    dim = 2
+
+    def encode_text(self, texts):
+        return np.tile(np.array([row()], dtype=np.float32), (len(texts), 1))
+"""
+
+
+def _load_helper_plugin(folder, module, row):
+    """A package ``module`` whose encoder takes its row from ``module/helpers.py``
+    (written to return ``row``), imported afresh."""
+    import importlib
+    import sys
+
+    pkg = folder / module
+    pkg.mkdir(parents=True, exist_ok=True)
+    (pkg / "__init__.py").write_text(_HELPER_PLUGIN)
+    (pkg / "helpers.py").write_text(f"def row():\n    return [{row}]\n")
+    for name in (module, f"{module}.helpers"):
+        sys.modules.pop(name, None)
+    importlib.invalidate_caches()
+    return importlib.import_module(module).Edited()
+
+
+@pytest.mark.parametrize("bounded", [False, True])
+def test_editing_a_helper_module_of_the_package_changes_the_fingerprint(
+    tmp_path, monkeypatch, bounded
+):
+    """The encoder's own module is unchanged; the helper it imports changes what it
+    returns. The package's every .py file is hashed, so the cache does not serve the
+    rows of before the edit; a package over the bounds hashes the module file alone."""
+    from quash_plugins.core import interfaces
+    from quash_plugins.core.text import encode_texts
+    from quash_plugins.engine import TextEmbeddingCache
+
+    if bounded:
+        monkeypatch.setattr(interfaces, "PACKAGE_DIGEST_MAX_FILES", 1)
+    module = f"qp_helper_{int(bounded)}"
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert registry.distribution_of(module) is None  # a local package, no version
+    cache = TextEmbeddingCache(tmp_path / "cache")
+    before = _load_helper_plugin(tmp_path, module, "1, 0")
+    fp = before.fingerprint()
+    assert fp == before.fingerprint()  # computed once, the same each time
+    np.testing.assert_array_equal(encode_texts(before, ["chair"], cache), [[1, 0]])
+    assert _load_helper_plugin(tmp_path, module, "1, 0").fingerprint() == fp  # same code
+    after = _load_helper_plugin(tmp_path, module, "0, 1")
+    np.testing.assert_array_equal(after.encode_text(["chair"]), [[0, 1]])
+    if bounded:  # only __init__.py is hashed: the edit is not seen
+        assert after.fingerprint() == fp
+        return
+    assert after.fingerprint() != fp
+    np.testing.assert_array_equal(encode_texts(after, ["chair"], cache), [[0, 1]])
+
+
 def test_messages_name_the_plugin_a_factory_entry_point_was_registered_under(caplog):
     """A factory entry point (``fast-sloppy = pkg:make``) may build an instance of a class
     with another ``name``; the contract warnings and encoder errors named the class's
