@@ -28,12 +28,25 @@ import contextlib
 import inspect
 import logging
 import sys
-import threading
-from collections.abc import Callable
-from dataclasses import dataclass, field
-from importlib import metadata
 from typing import Any
 
+from ._distributions import (  # noqa: F401 - re-exported: the public names
+    _DISTRIBUTIONS,
+    distribution_of,
+    is_editable,
+    note_distribution,
+)
+from ._entry_points import (  # noqa: F401 - re-exported: the public names
+    BUILTIN_DIST,
+    GROUP_PREFIX,
+    KINDS,
+    MisplacedEntryPoint,
+    PluginInfo,
+    _lock,
+    _scanned,
+    misplaced_entry_points,
+    scan,
+)
 from .errors import (
     ConfigError,
     PluginError,
@@ -47,10 +60,6 @@ from .once import first_time
 
 log = logging.getLogger(__name__)
 
-KINDS: tuple[str, ...] = ("encoders", "heuristics", "classifiers", "adapters")
-#: The distribution of the built-in plugins; they keep their bare names.
-BUILTIN_DIST = "quash-plugins"
-GROUP_PREFIX = "quash_plugins."
 _SINGULAR = {k[:-1]: k for k in KINDS}
 _TITLE = {
     "encoders": "Encoder",
@@ -60,109 +69,7 @@ _TITLE = {
 }
 
 
-@dataclass
-class PluginInfo:
-    """One registered plugin, as listed by ``quash plugins``."""
-
-    kind: str
-    name: str
-    target: str
-    dist: str
-    version: str
-    status: str = "not loaded"
-    error: str | None = None
-    _loader: Callable[[], Any] | None = field(default=None, repr=False)
-    _obj: Any = field(default=None, repr=False)
-    #: The exception raised while importing or validating the plugin (for ``--debug``).
-    exception: BaseException | None = field(default=None, repr=False)
-
-    @property
-    def qualified(self) -> str:
-        return f"{self.dist}:{self.name}"
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "kind": self.kind,
-            "name": self.name,
-            "target": self.target,
-            "distribution": self.dist,
-            "version": self.version,
-            "status": self.status,
-            "error": self.error,
-        }
-
-
-_lock = threading.RLock()
-_scanned: dict[str, list[PluginInfo]] = {}
 _manual: dict[str, list[PluginInfo]] = {k: [] for k in KINDS}
-
-
-#: Top-level module -> ``"name==version"``, noted by the registry from the entry points
-#: it scans (a distribution's import name need not be its name).
-_DISTRIBUTIONS: dict[str, str] = {}
-
-
-def note_distribution(module: str, dist: str, version: str) -> None:
-    """Record that ``module``'s top-level package comes from ``dist`` at ``version``."""
-    _DISTRIBUTIONS[module.partition(".")[0]] = f"{dist}=={version}"
-
-
-_LOOKED_UP: dict[str, str | None] = {}
-
-
-def distribution_of(module: str) -> str | None:
-    """``"name==version"`` of the installed distribution providing ``module``, else None.
-
-    Known from the plugin entry points the registry scanned, else looked up by the
-    top-level package's name; None for a module that no distribution installed (a
-    script, a test file).
-
-    Examples
-    --------
-    >>> distribution_of("numpy").startswith("numpy==")
-    True
-    """
-    from importlib import metadata
-
-    top = module.partition(".")[0]
-    if top in _DISTRIBUTIONS:
-        return _DISTRIBUTIONS[top]
-    if top not in _LOOKED_UP:
-        try:
-            dist = metadata.distribution(top)
-            _LOOKED_UP[top] = f"{dist.metadata['Name']}=={dist.version}"
-        except Exception:  # not installed, or broken metadata: never fail a query
-            _LOOKED_UP[top] = None
-    return _LOOKED_UP[top]
-
-
-_EDITABLE: dict[str, bool] = {}
-
-
-def is_editable(module: str) -> bool:
-    """True when the distribution providing ``module`` is an editable install
-    (``pip install -e``: PEP 610 ``direct_url.json`` with ``dir_info.editable`` true),
-    whose code changes without its version; False otherwise (and for no distribution).
-
-    Examples
-    --------
-    >>> is_editable("numpy")
-    False
-    """
-    import json
-    from importlib import metadata
-
-    dist = distribution_of(module)
-    if dist is None:
-        return False
-    if dist not in _EDITABLE:
-        try:
-            text = metadata.distribution(dist.partition("==")[0]).read_text("direct_url.json")
-            info = json.loads(text) if text else {}
-            _EDITABLE[dist] = bool(info.get("dir_info", {}).get("editable", False))
-        except Exception:  # noqa: BLE001 - missing or broken metadata: not editable
-            _EDITABLE[dist] = False
-    return _EDITABLE[dist]
 
 
 def normalize_kind(kind: str) -> str:
@@ -172,75 +79,6 @@ def normalize_kind(kind: str) -> str:
     if k not in KINDS:
         raise PluginError(f"Unknown plugin kind {kind!r}. Known: {', '.join(KINDS)}.")
     return k
-
-
-def _scan(kind: str) -> list[PluginInfo]:
-    with _lock:
-        if kind in _scanned:
-            return _scanned[kind]
-        infos: list[PluginInfo] = []
-        for ep in metadata.entry_points(group=GROUP_PREFIX + kind):
-            dist = getattr(ep, "dist", None)
-            dist_name = dist.metadata["Name"] if dist is not None else "<unknown>"
-            version = dist.version if dist is not None else "?"
-            # The same distribution can be visible twice on sys.path (e.g. an editable
-            # install plus a source checkout): keep one entry per (dist, name).
-            if any(i.name == ep.name and i.dist == dist_name for i in infos):
-                continue
-            infos.append(PluginInfo(kind, ep.name, ep.value, dist_name, version, _loader=ep.load))
-            if dist is not None:
-                note_distribution(ep.value, dist_name, version)
-        _scanned[kind] = infos
-        return infos
-
-
-@dataclass
-class MisplacedEntryPoint:
-    """An entry point in a group quash-plugins does not read, but whose name says it
-    was meant for one (``quash_plugins.encoder``, ``quash-plugins.encoders``...)."""
-
-    group: str
-    name: str
-    target: str
-    dist: str
-    #: The group it was most likely meant for, else None.
-    meant: str | None
-
-    def message(self) -> str:
-        groups = (
-            repr(self.meant)
-            if self.meant
-            else "one of " + ", ".join(repr(GROUP_PREFIX + k) for k in KINDS)
-        )
-        return (
-            f"Distribution {self.dist!r} registers {self.name!r} ({self.target}) in the "
-            f"entry-point group {self.group!r}, which quash-plugins does not read: move it "
-            f"to {groups} in the pyproject.toml of {self.dist!r} and reinstall it."
-        )
-
-
-def misplaced_entry_points() -> list[MisplacedEntryPoint]:
-    """Entry points in a group named like quash-plugins' but not one of its groups.
-
-    Such a plugin is otherwise invisible: ``quash plugins`` does not list it and a
-    config that names it is told only that the name is not registered.
-    """
-    known = {GROUP_PREFIX + k for k in KINDS}
-    out: list[MisplacedEntryPoint] = []
-    seen: set[tuple[str, str, str]] = set()
-    for dist in metadata.distributions():
-        for ep in dist.entry_points:
-            group = ep.group
-            norm = group.lower().replace("-", "_").replace(" ", "")
-            if group in known or not norm.startswith(("quash_plugins", "quashplugins")):
-                continue
-            rest = norm.removeprefix("quash_plugins").removeprefix("quashplugins").strip("._:")
-            meant = next((GROUP_PREFIX + k for k in KINDS if rest and rest in (k, k[:-1])), None)
-            key = (group, ep.name, dist.metadata["Name"])
-            if key not in seen:
-                seen.add(key)
-                out.append(MisplacedEntryPoint(group, ep.name, ep.value, key[2], meant))
-    return out
 
 
 def _not_found(kind: str, name: str) -> str:
@@ -265,7 +103,7 @@ def refresh() -> None:
 
 
 def _all(kind: str) -> list[PluginInfo]:
-    return [*_scan(kind), *_manual[kind]]
+    return [*scan(kind), *_manual[kind]]
 
 
 def register(

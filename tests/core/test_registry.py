@@ -143,3 +143,38 @@ def test_a_plugin_that_raises_when_built_is_named_with_its_distribution():
     )
     assert "/nonexistent/w.pt" in msg and "fix or uninstall 'pkg-lab'" in msg
     assert isinstance(err.value.__cause__, FileNotFoundError)
+
+
+def test_the_split_keeps_the_public_import_paths_and_one_discovery_cache():
+    """Discovery (core._entry_points) and distributions (core._distributions) moved out
+    of registry.py: their public names are still imported from the registry, as the
+    same objects, and registry.refresh() still empties the one cache scan() fills."""
+    from quash_plugins.core import _distributions, _entry_points
+    from quash_plugins.core.registry import (  # the paths plugins and the CLI use
+        BUILTIN_DIST,
+        GROUP_PREFIX,
+        KINDS,
+        MisplacedEntryPoint,
+        PluginInfo,
+        distribution_of,
+        is_editable,
+        misplaced_entry_points,
+        note_distribution,
+    )
+
+    assert PluginInfo is _entry_points.PluginInfo
+    assert MisplacedEntryPoint is _entry_points.MisplacedEntryPoint
+    assert misplaced_entry_points is _entry_points.misplaced_entry_points
+    assert (KINDS, BUILTIN_DIST, GROUP_PREFIX) == (
+        ("encoders", "heuristics", "classifiers", "adapters"),
+        "quash-plugins",
+        "quash_plugins.",
+    )
+    assert distribution_of is _distributions.distribution_of
+    assert is_editable is _distributions.is_editable
+    assert note_distribution is _distributions.note_distribution
+    registry.available("classifiers")
+    assert "classifiers" in _entry_points._scanned
+    registry.refresh()
+    assert "classifiers" not in _entry_points._scanned
+    assert "svm-rbf" in registry.available("classifiers")  # scanned again

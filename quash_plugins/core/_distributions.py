@@ -1,0 +1,75 @@
+"""Which installed distribution provides a module, and whether it is an editable install.
+
+Private to :mod:`quash_plugins.core`; the public names are re-exported by
+:mod:`quash_plugins.core.registry` (``distribution_of``, ``is_editable``,
+``note_distribution``), whose plugin provenance and encoder fingerprints use them.
+"""
+
+from __future__ import annotations
+
+#: Top-level module -> ``"name==version"``, noted by the registry from the entry points
+#: it scans (a distribution's import name need not be its name).
+_DISTRIBUTIONS: dict[str, str] = {}
+
+
+def note_distribution(module: str, dist: str, version: str) -> None:
+    """Record that ``module``'s top-level package comes from ``dist`` at ``version``."""
+    _DISTRIBUTIONS[module.partition(".")[0]] = f"{dist}=={version}"
+
+
+_LOOKED_UP: dict[str, str | None] = {}
+
+
+def distribution_of(module: str) -> str | None:
+    """``"name==version"`` of the installed distribution providing ``module``, else None.
+
+    Known from the plugin entry points the registry scanned, else looked up by the
+    top-level package's name; None for a module that no distribution installed (a
+    script, a test file).
+
+    Examples
+    --------
+    >>> distribution_of("numpy").startswith("numpy==")
+    True
+    """
+    from importlib import metadata
+
+    top = module.partition(".")[0]
+    if top in _DISTRIBUTIONS:
+        return _DISTRIBUTIONS[top]
+    if top not in _LOOKED_UP:
+        try:
+            dist = metadata.distribution(top)
+            _LOOKED_UP[top] = f"{dist.metadata['Name']}=={dist.version}"
+        except Exception:  # not installed, or broken metadata: never fail a query
+            _LOOKED_UP[top] = None
+    return _LOOKED_UP[top]
+
+
+_EDITABLE: dict[str, bool] = {}
+
+
+def is_editable(module: str) -> bool:
+    """True when the distribution providing ``module`` is an editable install
+    (``pip install -e``: PEP 610 ``direct_url.json`` with ``dir_info.editable`` true),
+    whose code changes without its version; False otherwise (and for no distribution).
+
+    Examples
+    --------
+    >>> is_editable("numpy")
+    False
+    """
+    import json
+    from importlib import metadata
+
+    dist = distribution_of(module)
+    if dist is None:
+        return False
+    if dist not in _EDITABLE:
+        try:
+            text = metadata.distribution(dist.partition("==")[0]).read_text("direct_url.json")
+            info = json.loads(text) if text else {}
+            _EDITABLE[dist] = bool(info.get("dir_info", {}).get("editable", False))
+        except Exception:  # noqa: BLE001 - missing or broken metadata: not editable
+            _EDITABLE[dist] = False
+    return _EDITABLE[dist]
