@@ -80,8 +80,103 @@ def local_cluster_client(
     return client
 
 
+#: Seconds :func:`check_scheduler_address` waits for a TCP connection to the scheduler.
+PROBE_TIMEOUT_S = 5.0
+
+_START_HINT = (
+    "Start one with `dask scheduler` and workers with `dask worker ADDRESS`, or leave out "
+    "--scheduler to run a local cluster (see docs/scale.md)."
+)
+
+
+def check_scheduler_address(address: str, timeout: float = PROBE_TIMEOUT_S) -> None:
+    """Fail fast when nothing can answer at a scheduler ``address``.
+
+    An unknown scheme or a missing port is a :class:`UsageError`; a host that does not
+    resolve, a refused connection or no answer within ``timeout`` seconds (TCP and TLS
+    addresses) is a :class:`QuashError` with the fix, instead of Dask's retries until its
+    connect timeout (30 s by default).
+    """
+    import socket
+
+    from ..core.errors import UsageError
+
+    _require_distributed()
+    from distributed.comm import parse_address
+    from distributed.comm.addressing import get_address_host_port
+
+    try:
+        scheme, _ = parse_address(address)
+        host, port = get_address_host_port(address)
+    except ValueError as exc:
+        raise UsageError(
+            f"--scheduler {address!r} is not a Dask scheduler address ({exc}). Give the "
+            "scheduler's address as `dask scheduler` prints it: tcp://HOST:8786."
+        ) from None
+    if scheme not in ("tcp", "tls"):
+        return  # ws://, ucx://: left to Dask
+    where = f"{host}:{port}"
+    try:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
+    except socket.gaierror as exc:
+        raise QuashError(
+            f"Cannot reach the Dask scheduler at {address}: the host {host!r} is not known "
+            f"({exc.strerror or exc}). Check the host name. {_START_HINT}"
+        ) from None
+    last: OSError | None = None
+    for family, kind, proto, _, sockaddr in infos:
+        try:
+            with socket.socket(family, kind, proto) as sock:
+                sock.settimeout(timeout)
+                sock.connect(sockaddr)
+                if scheme == "tcp":
+                    _expect_dask_greeting(sock, address, timeout)
+            return
+        except QuashError:
+            raise
+        except OSError as exc:
+            last = exc
+    if isinstance(last, ConnectionRefusedError):
+        why = f"nothing listens at {where} (connection refused)"
+    elif isinstance(last, TimeoutError):
+        why = f"no answer from {where} within {timeout:g} s (a firewall, or the host is down)"
+    else:
+        why = f"cannot connect to {where} ({last})"
+    raise QuashError(f"Cannot reach the Dask scheduler at {address}: {why}. {_START_HINT}")
+
+
+def _expect_dask_greeting(sock: Any, address: str, timeout: float) -> None:
+    """A Dask scheduler writes its handshake as soon as a connection opens (over plain
+    TCP); a web server or any other service waits for a request. Without this check,
+    ``Client`` would wait on such a peer forever."""
+
+    try:
+        first = sock.recv(8)
+    except TimeoutError:
+        first = None
+    except OSError:
+        first = b""
+    if first and not first.startswith(b"HTTP"):
+        return
+    what = (
+        "a web server answered (the dashboard?)"
+        if first
+        else f"it accepted the connection but sent no Dask handshake within {timeout:g} s"
+        if first is None
+        else "it closed the connection at once"
+    )
+    raise QuashError(
+        f"{address} is not a Dask scheduler: {what}. Check the port: the scheduler listens "
+        "on 8786 by default (`dask scheduler` prints its address), its dashboard on 8787."
+    )
+
+
 def client_from_cli(address: str | None) -> Any:
     """The ``Client`` for ``--scheduler ADDRESS``; without an address, a local cluster.
+
+    The address is probed first (:func:`check_scheduler_address`), so a scheduler that
+    is not there fails within seconds; something that answers there but is not a Dask
+    scheduler (a web server, the dashboard's port 8787) is a :class:`QuashError` too.
 
     Examples
     --------
@@ -90,6 +185,7 @@ def client_from_cli(address: str | None) -> Any:
     if address is None:
         return local_cluster_client()
     distributed = _require_distributed()
+    check_scheduler_address(address)
     try:
         import dask
 
@@ -97,9 +193,13 @@ def client_from_cli(address: str | None) -> Any:
         client = distributed.Client(address, timeout=timeout)
     except (OSError, TimeoutError) as exc:
         raise QuashError(
-            f"Cannot reach the Dask scheduler at {address} ({exc}). Start one with "
-            "`dask scheduler` and workers with `dask worker ADDRESS`, or leave out --scheduler "
-            "to run a local cluster (see docs/scale.md)."
+            f"Cannot reach the Dask scheduler at {address} ({exc}). {_START_HINT}"
+        ) from None
+    except Exception as exc:  # noqa: BLE001 - a peer that is not Dask fails in many ways
+        raise QuashError(
+            f"{address} answered, but not as a Dask scheduler ({type(exc).__name__}: "
+            f"{str(exc)[:200]}). Check the port: the scheduler listens on 8786 by default, "
+            "its dashboard (a web page, not the scheduler) on 8787."
         ) from None
     atexit.register(client.close)
     _STARTED.append(client.close)
