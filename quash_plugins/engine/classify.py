@@ -51,6 +51,7 @@ from ..core.kernels import CosineExpansion, KernelExpansion, KernelStack, StackE
 from ..core.maps import map_read_error
 from ..core.once import first_time
 from ..core.types import LatentMap
+from .stored_chunks import warn_stored_chunks
 
 log = logging.getLogger(__name__)
 
@@ -420,6 +421,7 @@ def classify_local(
     if isinstance(E, np.ndarray):
         scorer.run(E, outs, observed, chunk_rows=rows, progress=progress, **opts)
         return outs, observed
+    warn_stored_chunks(lmap, rows, chunk_bytes)
     for start, stop, chunk in read_blocks(lmap, rows):
         part = [o[start:stop] for o in outs]
         scorer.run(chunk, part, observed[start:stop], offset=start, progress=progress, **opts)
