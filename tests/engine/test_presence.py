@@ -632,3 +632,39 @@ def test_dropped_items_keep_the_last_pass_order_above_the_unmatched():
     # a kept object still ranks above what was dropped, as before
     bed = q.query(m, "bed")
     assert bed.scores[~bed.mask].max() < bed.scores[bed.mask].min()
+
+
+@pytest.mark.parametrize("dim", [1, 2, 16, 384])
+def test_map_mean_reads_bounded_blocks_with_the_same_bits(dim):
+    """map_mean reads READ_ROWS rows at a time (a zarr map stays within memory), and its
+    result is bit for bit that of summing each 65,536-row block in one read, as before;
+    region_means does not depend on its block at all."""
+    from quash_plugins.engine import presence as pr
+
+    rng = np.random.default_rng(dim)
+    n = 150_000
+    E = rng.normal(size=(n, dim)).astype(np.float32)
+    E[rng.random(n) < 0.1] = 0  # unobserved rows
+    m = LatentMap(E)
+    widest = []
+
+    def rows_of(i):
+        widest.append(len(i))
+        return E[i]
+
+    # the rule before: one read per 65,536-row block, its float32 sum into a float64 total
+    acc, count = np.zeros(dim, np.float64), 0
+    for start in range(0, n, 65536):
+        rows = pr._unit(E[start : start + 65536])
+        live = np.any(rows != 0, axis=1)
+        acc += rows[live].sum(axis=0)
+        count += int(live.sum())
+    expected = (acc / count).astype(np.float32)
+    got = map_mean(m, rows_of)
+    assert got.tobytes() == expected.tobytes()
+    if dim >= 2:
+        assert max(widest) == pr.READ_ROWS
+    regions = [rng.choice(n, size=k, replace=False) for k in (5, 40_000, 120_000)]
+    one = pr.region_means(regions, lambda i: E[i], block=10**6)
+    assert pr.region_means(regions, lambda i: E[i]).tobytes() == one.tobytes()
+    assert np.allclose(one[1], pr._unit(E[np.sort(regions[1])]).mean(axis=0), atol=1e-6)
