@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from typing import Any
 
 NAME = "convert"
 HELP = (
@@ -19,7 +20,9 @@ With --format vlmaps, a voxel map becomes VLMaps' own HDF5 save layout,
 DST/vlmap_cam/vlmaps_cam.h5df (the camera-base layout: it stores its cell size and
 origin, and its cells are [row, height, col] with y up, so a z-up map is turned rigidly
 to y-up and reads back so; labels go to grid_semantic and vlmap_cam/obj2cls_dict.txt,
-which VLMaps itself ignores). The input is only read; the
+which VLMaps itself ignores). A taxonomy beside SRC (SRC.taxonomy.yaml, as make-scene
+writes it) is copied to DST.taxonomy.yaml for a .npz or .zarr DST, never over a file, so
+the converted map answers as SRC does. The input is only read; the
 output appears atomically. Lazy maps (HDF5, per-image features) are streamed block by
 block, so the map is never held whole in memory. DST is never SRC (nor inside it); an
 existing DST is replaced only with --force (an OpenLex3D folder: only a previous export
@@ -122,11 +125,60 @@ def run(args: argparse.Namespace) -> int:
         up=args.up,
         **options,
     )
+    taxonomy = _carry_taxonomy(args.source, written)
     if args.json:
-        print_json({"source": args.source, "adapter": name, "destination": str(written)})
+        print_json(
+            {
+                "source": args.source,
+                "adapter": name,
+                "destination": str(written),
+                **({"taxonomy": str(taxonomy)} if taxonomy else {}),
+            }
+        )
     else:
         console().print(safe_text(f"wrote {written} (read with adapter {name!r})"))
+        if taxonomy:
+            console().print(safe_text(f"wrote {taxonomy} (the map's taxonomy, copied)"))
     return 0
+
+
+def _carry_taxonomy(source: str, written: Any) -> Any:
+    """Copy ``SRC.taxonomy.yaml`` (what ``quash make-scene`` writes beside its map, and
+    what the taxonomy heuristics read beside a map) to ``DST.taxonomy.yaml``, so that the
+    converted map answers as its source does. Never replaces a file: an existing one is
+    kept with a warning when it differs. Returns the path written, or None."""
+    import logging
+
+    from ..core.atomic import atomic_write_text
+    from ..heuristics import taxonomy_path_beside
+
+    log = logging.getLogger(__name__)
+    src = taxonomy_path_beside(source)
+    if src is None or not src.is_file():
+        return None
+    dst = taxonomy_path_beside(written)
+    if dst is None:  # a folder (openlex3d, vlmaps): nothing is read beside it
+        log.info(
+            "%s is not carried to %s: give it to a taxonomy config as heuristic file: %s",
+            src,
+            written,
+            src,
+        )
+        return None
+    text = src.read_text(encoding="utf-8")
+    if dst.exists():
+        if not dst.is_file() or dst.read_text(encoding="utf-8", errors="replace") != text:
+            log.warning(
+                "%s is kept as it is, and differs from the source map's %s: the taxonomy "
+                "heuristics read %s beside the converted map; replace it yourself if the "
+                "source's is the one you want.",
+                dst,
+                src,
+                dst,
+            )
+        return None
+    atomic_write_text(dst, text)
+    return dst
 
 
 def _check_destination(args: argparse.Namespace) -> None:

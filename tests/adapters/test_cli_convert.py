@@ -115,3 +115,33 @@ def test_help_lists_convert(name, capsys):
     with pytest.raises(SystemExit):
         main(["--help"])
     assert name in capsys.readouterr().out
+
+
+def test_convert_carries_the_taxonomy_beside_the_map(tiny_world, tmp_path, capsys):
+    """A map's SRC.taxonomy.yaml (make-scene writes one) goes to DST.taxonomy.yaml, so the
+    converted map finds the same sub-classes; an existing one is never replaced."""
+    from quash_plugins.heuristics import taxonomy_beside
+
+    src = tiny_world["map"]
+    tax = src.with_name("map.taxonomy.yaml")
+    tax.write_text("chair: [armchair, stool]\nsofa: [couch]\ntable: [desk]\n")
+    out = tmp_path / "copy.zarr"
+    assert main(["convert", str(src), str(out)]) == 0
+    assert "copy.taxonomy.yaml" in capsys.readouterr().out
+    carried = tmp_path / "copy.taxonomy.yaml"
+    assert carried.read_bytes() == tax.read_bytes()
+    assert taxonomy_beside(read_map(out))[1] == {
+        "chair": ["armchair", "stool"],
+        "sofa": ["couch"],
+        "table": ["desk"],
+    }
+    # an existing, different taxonomy beside the destination is kept, with a warning
+    mine = tmp_path / "mine.taxonomy.yaml"
+    mine.write_text("chair: [throne]\n")
+    assert main(["convert", str(src), str(tmp_path / "mine.npz")]) == 0
+    assert mine.read_text() == "chair: [throne]\n"
+    assert "mine.taxonomy.yaml is kept as it is" in " ".join(capsys.readouterr().err.split())
+    # no taxonomy beside the source: nothing written
+    tax.unlink()
+    assert main(["convert", str(src), str(tmp_path / "bare.npz")]) == 0
+    assert not (tmp_path / "bare.taxonomy.yaml").exists()
