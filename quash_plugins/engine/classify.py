@@ -51,7 +51,7 @@ from ..core.kernels import CosineExpansion, KernelExpansion, KernelStack, StackE
 from ..core.maps import map_read_error
 from ..core.once import first_time
 from ..core.types import LatentMap
-from .stored_chunks import warn_stored_chunks
+from .stored_chunks import warn_small_chunks, warn_stored_chunks
 
 log = logging.getLogger(__name__)
 
@@ -411,6 +411,7 @@ def classify_local(
     """
     n = lmap.n
     rows = lmap.chunk_rows(chunk_bytes, extra_bytes_per_row(classifiers))
+    warn_small_chunks(lmap, rows, chunk_bytes)
     scorer = BlockScorer(classifiers, chunk_bytes, block_rows)
     q = len(scorer)
     out = np.empty((q, n), dtype=np.float32)  # one contiguous row per query

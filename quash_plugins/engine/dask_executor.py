@@ -14,7 +14,7 @@ from ..core.types import LatentMap
 from .classify import BlockScorer, extra_bytes_per_row
 from .dask_arrays import as_dask
 from .dask_client import current_client, require_dask
-from .stored_chunks import warn_stored_chunks
+from .stored_chunks import warn_small_chunks, warn_stored_chunks
 
 log = logging.getLogger(__name__)
 
@@ -70,6 +70,7 @@ def scores_graph(
     """
     require_dask()
     rows = lmap.chunk_rows(int(chunk_bytes), extra_bytes_per_row(classifiers))
+    warn_small_chunks(lmap, rows, int(chunk_bytes))
     warn_stored_chunks(lmap, rows, int(chunk_bytes))
     emb = as_dask(lmap, rows)
     if held is None:

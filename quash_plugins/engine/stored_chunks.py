@@ -95,3 +95,32 @@ def warn_stored_chunks(lmap: LatentMap, rows: int, chunk_bytes: int) -> None:
         over,
         fix,
     )
+
+
+#: Rows per pass chunk under which :func:`warn_small_chunks` warns (when there are many).
+SMALL_ROWS = 256
+#: ... and only when the pass then has more chunks than this.
+SMALL_MANY = 64
+
+
+def warn_small_chunks(lmap: LatentMap, rows: int, chunk_bytes: int) -> None:
+    """Warn once per chunk size when ``chunk_mb`` cuts the map into many chunks of fewer
+    than :data:`SMALL_ROWS` rows: every chunk pays a fixed cost (a task, a read, a
+    BLAS call), so a ``chunk_mb`` such as ``1e-6`` runs for hours on a map that the
+    default answers in seconds."""
+    n = lmap.n
+    if rows >= SMALL_ROWS or rows >= n or -(-n // max(1, rows)) <= SMALL_MANY:
+        return
+    if not first_time(("small-chunks", int(rows), int(chunk_bytes))):
+        return
+    log.warning(
+        "chunk_mb %.3g holds only %d rows of this map (%d rows x %d): the pass runs %d "
+        "chunks of %d rows, each with a fixed cost, far slower than chunks of thousands; "
+        "raise chunk_mb (a chunk's memory is about chunk_mb; the default is 256).",
+        chunk_bytes / 2**20,
+        rows,
+        n,
+        lmap.dim,
+        -(-n // rows),
+        rows,
+    )

@@ -70,3 +70,31 @@ def test_convert_store_read_in_larger_chunks_is_quiet(tmp_path, caplog) -> None:
         classify_local(lmap, [_clf()], chunk_bytes=30 * 4 * D)  # a chunk read ~4 times
     (msg,) = [r.getMessage() for r in caplog.records if "stored in chunks" in r.getMessage()]
     assert "raise chunk_mb" in msg and "quash convert" not in msg  # convert's own chunks
+
+
+def test_a_tiny_chunk_mb_is_warned_about_once_with_the_same_scores(caplog) -> None:
+    """chunk_mb so small that the pass runs hundreds of chunks of a few rows (a typo such
+    as 1e-6 runs for hours on a real map) is warned about once, naming the rows."""
+    forget("small-chunks")
+    emb = _emb().astype(np.float32)
+    lmap = LatentMap(emb)
+    clf = _clf()
+    ref, _ = classify_local(lmap, [clf])
+    tiny = 2 * 4 * D  # bytes: two rows per chunk
+    with caplog.at_level(logging.WARNING, logger="quash_plugins.engine.stored_chunks"):
+        got, _ = classify_local(lmap, [clf], chunk_bytes=tiny)
+        classify_local(lmap, [clf], chunk_bytes=tiny)
+    from quash_plugins.engine.classify import extra_bytes_per_row
+
+    rows = lmap.chunk_rows(tiny, extra_bytes_per_row([clf]))
+    assert rows < 256
+    said = [r.getMessage() for r in caplog.records if "holds only" in r.getMessage()]
+    assert len(said) == 1 and f"only {rows} rows" in said[0]
+    assert f"{-(-N // rows)} chunks" in said[0]
+    np.testing.assert_allclose(got[0], ref[0], rtol=1e-5, atol=1e-6)
+    # chunks of a few hundred rows, or few chunks: no warning
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="quash_plugins.engine.stored_chunks"):
+        classify_local(lmap, [clf], chunk_bytes=300 * 2**10)
+        classify_local(LatentMap(emb[:100]), [clf], chunk_bytes=tiny)
+    assert not [r for r in caplog.records if "holds only" in r.getMessage()]
