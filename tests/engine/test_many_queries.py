@@ -73,12 +73,15 @@ def test_one_encoder_call_for_all_query_sets_and_one_expansion_per_query(setup):
     assert len(embedded) == len(set(embedded))  # each distinct string once
     assert set(embedded) == {f"word{i}" for i in range(50)} | {"other", "background", "nothing"}
     assert sorted(heur.calls) == sorted(set(texts))  # one heuristic call per query
-    # the same answers as one query at a time
+    # the same answers as one query at a time: the same masks, and the same scores up to
+    # float32 rounding (the fused GEMM is wider for 42 queries than for one, and BLAS
+    # libraries may pick another kernel for another width: OpenBLAS 0.3.31 differs in
+    # the last bit on 17 % of these scores)
     for text, r in zip(texts, results):
         single, _, _ = build()
         one = single.query(lmap, text)
         np.testing.assert_array_equal(r.mask, one.mask)
-        np.testing.assert_array_equal(r.scores, one.scores)
+        np.testing.assert_allclose(r.scores, one.scores, rtol=1e-5, atol=1e-6)
 
 
 def test_templates_and_the_per_call_bound(setup, monkeypatch):
