@@ -19,6 +19,7 @@ any other store gets a warning with the share of rows that will read as zeros.
 from __future__ import annotations
 
 import logging
+import warnings
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -178,8 +179,21 @@ def read_zarr_map(path: str | Path, *, dask: bool = False, chunk_rows: int | Non
     if isinstance(node, zarr.Array):
         emb = node
     else:
-        if "embeddings" not in node:
+        with warnings.catch_warnings():
+            # zarr warns of a folder without metadata; the error below says it in words
+            warnings.simplefilter("ignore", UserWarning)
+            has_embeddings = "embeddings" in node
             found = ", ".join(sorted(node.keys())) or "nothing"
+        if not has_embeddings:
+            folder = path / "embeddings"
+            if folder.is_dir():  # the array's data is there, its metadata is not
+                meta = ", ".join(sorted(p.name for p in folder.iterdir() if p.is_file()))
+                raise MapFormatError(
+                    f"{path}: the folder 'embeddings' holds no zarr array metadata "
+                    f"(embeddings/zarr.json for zarr 3, embeddings/.zarray for zarr 2; it has "
+                    f"{meta or 'no files'}): the store is incomplete or damaged. Write it "
+                    "again with `quash convert SRC DST.zarr`."
+                )
             raise MapFormatError(
                 f"{path}: missing array 'embeddings' (N, D). Found: {found}. Write maps with "
                 "`quash convert SRC DST.zarr`."

@@ -167,3 +167,22 @@ def test_backend_options_validate_without_starting_a_cluster():
         pytest.raises(QuashError, match="Cannot reach the Dask scheduler"),
     ):
         backend_overrides(p.parse_args(["--scheduler", "tcp://127.0.0.1:1"]))
+
+
+def test_an_embeddings_folder_without_its_metadata_is_named(tmp_path):
+    """A store whose embeddings/zarr.json is gone (a partial copy) says so, rather than
+    'missing array' beside a folder that is plainly there."""
+    import warnings
+
+    from quash_plugins.adapters import write_zarr_map
+    from quash_plugins.core.types import LatentMap
+
+    store = tmp_path / "m.zarr"
+    write_zarr_map(LatentMap(np.eye(6, 4, dtype=np.float32)), store)
+    meta = store / "embeddings" / "zarr.json"
+    assert meta.is_file()
+    meta.unlink()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # zarr's own warning is folded into the error
+        with pytest.raises(MapFormatError, match=r"'embeddings' holds no zarr array metadata"):
+            read_map(store, adapter="zarr")
