@@ -10,19 +10,24 @@ HELP = (
     "classifiers) and the fair protocol (every peer with the label list QuASH gets)."
 )
 ORDER = 34
+#: The llm heuristic's own default base_url (heuristics/_llm.py), named in --help.
+LLM_DEFAULT_BASE_URL = "http://127.0.0.1:8000/v1"
 DESCRIPTION = """\
 Runs each ablation table with `quash eval`'s metrics and writes bench.md, bench.json and
 one precision-vs-recall plot per table into --out. Every table says what each method
 was given (the label list, or the query alone); the fair table runs the shipped peers'
 rules and QuASH configs, the label-list ones on the same list (--taxonomy, else the map's
 label names with the taxonomy beside the map). The llm source reads only its cache
-(offline: true); an empty cache skips those rows with a note. Files in --out are
+(offline: true), the sets cached for --llm-model at --llm-base-url; a query missing from
+it skips that row with a note naming the endpoint and model. Files in --out are
 replaced only when they are previous bench outputs, or with --force."""
 EPILOG = """\
 examples:
   quash make-scene scene.npz --seed 1
   quash bench scene.npz --taxonomy scene.taxonomy.yaml --out bench/
-  quash bench scene.npz --taxonomy scene.taxonomy.yaml --tables antonyms,classifiers"""
+  quash bench scene.npz --taxonomy scene.taxonomy.yaml --tables antonyms,classifiers
+  quash bench scene.npz --taxonomy scene.taxonomy.yaml --tables sources \
+      --llm-model llama3.1:8b --llm-base-url http://127.0.0.1:11434/v1"""
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -34,9 +39,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--taxonomy",
         metavar="FILE",
         default=None,
-        help="Taxonomy YAML {label: [sub-class, ...]} (make-scene writes one).",
+        help="Taxonomy YAML {label: [sub-class, ...]} (make-scene writes one). Needed by the "
+        "taxonomy rows of the prompt and sources tables and by the classifiers table, which "
+        "are skipped without it; the fair table then uses the map's label names with "
+        "MAP.taxonomy.yaml beside the map.",
     )
-    p.add_argument("--out", metavar="DIR", default="quash-bench", help="Output folder.")
+    p.add_argument(
+        "--out", metavar="DIR", default="quash-bench", help="Output folder (default: %(default)s)."
+    )
     p.add_argument(
         "--tables", default=",".join(TABLES), help="Comma-separated subset of: %(default)s."
     )
@@ -54,7 +64,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=None,
         help="Absence queries: labels or free text that are not in the map.",
     )
-    p.add_argument("--llm-model", default=None, help="Model name of the cached llm query sets.")
+    p.add_argument(
+        "--llm-model",
+        default=None,
+        help="Model name of the cached llm query sets (the llm rows of the sources table; "
+        "read from the cache only, never from a server).",
+    )
+    p.add_argument(
+        "--llm-base-url",
+        metavar="URL",
+        default=None,
+        help="The base_url the llm cache was filled from: cached sets are keyed by endpoint "
+        f"and model (default: {LLM_DEFAULT_BASE_URL}; lseg:quash-llm and "
+        "conceptfusion:quash-llm ask http://127.0.0.1:11434/v1).",
+    )
     p.add_argument("--no-cache", action="store_true", help="Do not use the text-embedding cache.")
     p.add_argument(
         "--force",
@@ -78,6 +101,15 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"Unknown table {bad[0]!r}; known: {', '.join(TABLES)}.")
     if args.taxonomy and not Path(args.taxonomy).exists():
         raise UsageError(f"Taxonomy file not found: {args.taxonomy}")
+    if args.llm_base_url and not args.llm_model:
+        raise UsageError(
+            "--llm-base-url needs --llm-model (the model whose cached query sets to read)."
+        )
+    llm = None
+    if args.llm_model:
+        llm = {"model": args.llm_model}
+        if args.llm_base_url:
+            llm["base_url"] = args.llm_base_url
     _check_outputs(args, Path(args.out), tables)
     overrides = backend_overrides(args)
     if args.no_cache:
@@ -91,7 +123,7 @@ def run(args: argparse.Namespace) -> int:
             args.out,
             tables=tables,
             encoder=args.encoder,
-            llm={"model": args.llm_model} if args.llm_model else None,
+            llm=llm,
             overrides=overrides,
             queries=split(args.queries) or None,
             absent=tuple(split(args.absent)),

@@ -6,6 +6,7 @@ registered for this module, so every word of every ablation has an embedding.
 
 from __future__ import annotations
 
+import inspect
 import json
 
 import numpy as np
@@ -209,4 +210,42 @@ def test_bench_refuses_a_query_list_before_any_table(scene, tmp_path, capsys, ar
     code = main(["bench", str(scene / "scene.npz"), "--out", str(tmp_path / "o"), *args])
     assert code != 0
     assert message in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
+def test_llm_rows_read_the_cache_of_the_endpoint_given(scene, tmp_path, capsys):
+    """The llm sets are cached by endpoint and model: a cache filled from Ollama's port
+    (as lseg:quash-llm does) is read with --llm-base-url; with --llm-model alone the
+    bench looked at the llm heuristic's default endpoint and skipped every llm row."""
+    from quash_plugins.cli.cmd_bench import LLM_DEFAULT_BASE_URL
+    from quash_plugins.heuristics import LLMHeuristic
+
+    # --help names the heuristic's own default endpoint
+    assert inspect.signature(LLMHeuristic).parameters["base_url"].default == LLM_DEFAULT_BASE_URL
+    url = "http://127.0.0.1:11434/v1"
+    lmap = Quash.from_config({"encoder": ENCODER, "cache": False}).read_map(scene / "scene.npz")
+    present = sorted({lmap.label_names[i] for i in np.unique(lmap.labels)} - set(DEFAULT_EXCLUDE))
+    filler = LLMHeuristic(model="m", base_url=url, offline=True)
+    for q in present:
+        filler._write_cache(q, [f"{q} seat", "furniture"], ["ceiling", "floor"])
+    base = ["bench", str(scene / "scene.npz"), "--encoder", ENCODER, "--no-cache"]
+    base += ["--tables", "sources", "--llm-model", "m"]
+
+    assert main([*base, "--out", str(tmp_path / "a"), "--llm-base-url", url]) == 0
+    data = json.loads((tmp_path / "a" / "bench.json").read_text())["sources"]
+    names = _names(data["configs"])
+    assert {"llm x llm", "llm x lexicon", "adjectives x llm"} <= set(names)
+    assert not data["notes"]
+
+    capsys.readouterr()
+    assert main([*base, "--out", str(tmp_path / "b")]) == 0  # the default endpoint: a miss
+    data = json.loads((tmp_path / "b" / "bench.json").read_text())["sources"]
+    assert not any("llm" in n for n in _names(data["configs"]))
+    assert any(f"endpoint {LLM_DEFAULT_BASE_URL}/chat/completions" in n for n in data["notes"])
+
+
+def test_llm_base_url_without_a_model_is_refused(scene, tmp_path, capsys):
+    args = ["bench", str(scene / "scene.npz"), "--out", str(tmp_path / "o")]
+    assert main([*args, "--llm-base-url", "http://127.0.0.1:11434/v1"]) == 2
+    assert "--llm-base-url needs --llm-model" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
