@@ -1,8 +1,11 @@
 """The ablation runner: the paper's tables on a labelled map, as Markdown and PNG plots.
 
-Tables (each one :func:`~quash_plugins.evaluation.report.evaluate` call):
+Tables (each one :func:`~quash_plugins.evaluation.report.evaluate` call; the paper's
+Tables III, IV and V, then two of ours; what differs from the paper and why is in
+docs/benchmarks.md):
 
-1. prompt engineering on/off, for the contrast baseline and QuASH (taxonomy);
+1. prompt engineering on/off, for the paper's baseline (``contrast`` against "other")
+   and QuASH (taxonomy, nearest-sample);
 2. antonym words for the contrast baseline: other, others, background, texture, stuff,
    nothing, object, things and the zero vector (``<zero>``);
 3. synonym source x antonym source over taxonomy, adjectives, lexicon and llm (the llm
@@ -74,6 +77,9 @@ def _cfg(name: str, encoder: Any, heuristic: Any, classifier: Any, **extra: Any)
 
 
 def _source_spec(source: str, taxonomy: str | None, llm: dict[str, Any] | None) -> Any:
+    # The paper samples 100 antonyms; 200 gives the query sets of the shipped
+    # demo-quash-taxonomy config, so these rows compare with its fair-table row
+    # (docs/benchmarks.md, "How these tables compare with the paper's").
     if source == "taxonomy":
         return {"name": "taxonomy", "file": taxonomy, "n_synonyms": 20, "n_antonyms": 200}
     if source == "llm":

@@ -2,11 +2,11 @@
 by hand (2-D and 3-D vectors; every expected number below was computed on paper from the
 formula it names, not by the code under test).
 
-The paper (Pekkanen et al., QuASH, Sec. III-B) writes the two state-of-the-art rules as
+The paper (Pekkanen et al., QuASH, Sec. IV-B) writes the two state-of-the-art rules as
 
 - a threshold on the cosine distance, ``d_cos(e, e_q) < theta`` (ConceptFusion's family);
 - ``1_{e_q}(argmin_{x in {e_q, e_qbar}} d_cos(e, x))``: closer to the query than to the
-  complement (VLMaps, LERF, ...), with "other" as the complement in its baseline (Sec. IV-A).
+  complement (VLMaps, LERF, ...), with "other" as the complement in its baseline (Sec. V-A).
 """
 
 from __future__ import annotations
