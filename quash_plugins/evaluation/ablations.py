@@ -194,6 +194,8 @@ def run_bench(
             md += [f"## {titles[table]}", "", "_skipped: needs --taxonomy_", ""]
             continue
         rows, notes = [], []
+        if table in ("prompt", "sources") and not taxonomy:
+            notes.append("- taxonomy rows skipped: give the taxonomy file (--taxonomy).")
         if table == "sources" and not llm:
             notes.append("- llm rows skipped: give the model of a filled llm cache (--llm-model).")
         for cfg in cfgs:

@@ -235,7 +235,9 @@ def test_llm_rows_read_the_cache_of_the_endpoint_given(scene, tmp_path, capsys):
     data = json.loads((tmp_path / "a" / "bench.json").read_text())["sources"]
     names = _names(data["configs"])
     assert {"llm x llm", "llm x lexicon", "adjectives x llm"} <= set(names)
-    assert not data["notes"]
+    # no --taxonomy: its rows are missing, and the table says so
+    assert not any("taxonomy" in n for n in names)
+    assert data["notes"] == ["- taxonomy rows skipped: give the taxonomy file (--taxonomy)."]
 
     capsys.readouterr()
     assert main([*base, "--out", str(tmp_path / "b")]) == 0  # the default endpoint: a miss
