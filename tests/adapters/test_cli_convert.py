@@ -117,9 +117,10 @@ def test_help_lists_convert(name, capsys):
     assert name in capsys.readouterr().out
 
 
-def test_convert_carries_the_taxonomy_beside_the_map(tiny_world, tmp_path, capsys):
+def test_convert_carries_the_taxonomy_beside_the_map(tiny_world, tmp_path, capsys, monkeypatch):
     """A map's SRC.taxonomy.yaml (make-scene writes one) goes to DST.taxonomy.yaml, so the
     converted map finds the same sub-classes; an existing one is never replaced."""
+    monkeypatch.setenv("COLUMNS", "1000")  # long temporary paths on one line
     from quash_plugins.heuristics import taxonomy_beside
 
     src = tiny_world["map"]
