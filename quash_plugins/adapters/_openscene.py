@@ -137,7 +137,13 @@ def _load_error(exc: Exception, path: Path, what: str) -> MapFormatError:
 
 
 def _is_fused_file(path: Path) -> bool:
-    """A torch zip archive whose pickle mentions ``feat`` and ``mask_full`` (not unpickled)."""
+    """A torch zip archive holding a dict whose pickle mentions ``feat`` or ``mask_full``
+    (read as bytes, never unpickled).
+
+    One of OpenScene's two keys is enough, so that a fused file missing the other is read
+    here and refused naming the missing field, not taken for a per-image feature map
+    (``image-features`` reads bare tensors only, never a dict).
+    """
     try:
         with zipfile.ZipFile(path) as z:
             names = [n for n in z.namelist() if n.endswith("/data.pkl")]
@@ -146,7 +152,9 @@ def _is_fused_file(path: Path) -> bool:
             data = z.read(names[0])
     except (OSError, zipfile.BadZipFile, KeyError):
         return False
-    return b"mask_full" in data and b"feat" in data
+    # PROTO n, then EMPTY_DICT: the saved object is a dict (torch.save's pickle protocol 2)
+    is_dict = data[:1] == b"\x80" and data[2:3] == b"}"
+    return is_dict and (b"mask_full" in data or b"feat" in data)
 
 
 def scene_id(path: Path) -> str:
@@ -312,11 +320,7 @@ class OpenSceneAdapter(MapAdapter):
         obj = load_safe(path, "fused-feature file")
         torch = _torch()
         if not isinstance(obj, dict) or "feat" not in obj or "mask_full" not in obj:
-            keys = sorted(obj) if isinstance(obj, dict) else type(obj).__name__
-            raise MapFormatError(
-                f"{path}: expected OpenScene's dict with 'feat' (M, D) and 'mask_full' (N,); "
-                f"got {keys}."
-            )
+            raise _fused_keys_error(path, obj)
         feat, mask = obj["feat"], obj["mask_full"]
         if not isinstance(feat, torch.Tensor) or feat.ndim != 2 or not feat.is_floating_point():
             raise MapFormatError(
@@ -370,6 +374,34 @@ class OpenSceneAdapter(MapAdapter):
         pt.parent.mkdir(parents=True, exist_ok=True)
         torch.save({"feat": feat, "mask_full": mask}, pt)
         return pt
+
+
+def _fused_keys_error(path: Path, obj: Any) -> MapFormatError:
+    """The refusal of a ``.pt`` that lacks ``feat`` or ``mask_full``: what is missing, what
+    the file holds, and what to write instead."""
+    layout = (
+        "OpenScene's fusion scripts (save_fused_feature) write {'feat': (M, D) float16, "
+        "'mask_full': (N,) bool}, row j of 'feat' being the j-th True point"
+    )
+    if not isinstance(obj, dict):
+        return MapFormatError(
+            f"{path}: expected OpenScene's dict with fields 'feat' and 'mask_full'; got a "
+            f"{type(obj).__name__}. {layout}. Features of every point, in the scene's point "
+            "order, can be saved with np.save as <scene>_openscene_feat_<type>.npy instead."
+        )
+    missing = [k for k in ("feat", "mask_full") if k not in obj]
+    keys = ", ".join(repr(k) for k in sorted(map(str, obj))) or "none"
+    fix = (
+        "if 'feat' has a row for every point of the scene, in its point order, add "
+        "'mask_full' all True, or save 'feat' with np.save as "
+        "<scene>_openscene_feat_<type>.npy"
+        if missing == ["mask_full"]
+        else "re-save the file with both fields"
+    )
+    return MapFormatError(
+        f"{path}: field {' and '.join(repr(k) for k in missing)} missing (the dict holds "
+        f"{keys}). {layout}: {fix}."
+    )
 
 
 def _mapped(path: Path, feat: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

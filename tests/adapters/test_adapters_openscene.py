@@ -213,6 +213,41 @@ def test_sniff_tells_fused_files_from_frame_features(tmp_path):
     assert not adapter.sniff(s["pth"]) and not adapter.sniff(tmp_path)
 
 
+def test_a_fused_file_missing_one_field_is_refused_naming_it(tmp_path, capsys):
+    """A <scene>_<n>.pt with only 'feat' (or only 'mask_full') is OpenScene's, not a
+    per-image feature map: auto-detection reads it as openscene, and the error names the
+    missing field and what to write (it was taken for image-features, whose error told
+    the user to save the dict's tensor as a frame, or refused -o points)."""
+    from quash_plugins.cli.main import main
+
+    s = scannet_scene(tmp_path, n=40, d=8)
+    saved = torch.load(s["pts"][0], weights_only=True)
+    only_feat = tmp_path / "openseg" / "scene0011_00_1.pt"
+    torch.save({"feat": saved["feat"]}, only_feat)
+    only_mask = tmp_path / "openseg" / "scene0011_00_2.pt"
+    torch.save({"mask_full": saved["mask_full"]}, only_mask)
+    before = tree_hash(tmp_path)
+    assert detect_adapter(only_feat) == detect_adapter(only_mask) == "openscene"
+    with pytest.raises(MapFormatError) as err:
+        read_map(only_feat)
+    msg = str(err.value)
+    assert "scene0011_00_1.pt" in msg and "field 'mask_full' missing" in msg
+    assert "_openscene_feat_" in msg and "image-features" not in msg
+    with pytest.raises(MapFormatError, match=r"scene0011_00_2\.pt: field 'feat' missing"):
+        read_map(only_mask, "openscene")
+    out = tmp_path / "out.npz"
+    args = ["convert", str(only_feat), str(out), "-o", f"points={s['pth']}"]
+    assert main(args) == 1  # a map that cannot be read
+    err_text = capsys.readouterr().err
+    assert "field 'mask_full' missing" in err_text and "does not accept" not in err_text
+    assert not out.exists() and tree_hash(tmp_path) == before
+    # a frame's bare tensor is still a per-image feature map
+    frame = tmp_path / "saved-feat" / "frame000000.pt"
+    frame.parent.mkdir()
+    torch.save(torch.zeros(4, 5, 8), frame)
+    assert detect_adapter(frame) == "image-features"
+
+
 def test_nothing_fused_and_empty_maps(tmp_path):
     s = scannet_scene(tmp_path, n=30, d=8, visible=0.0)
     pt = s["pts"][0]
