@@ -25,9 +25,9 @@ writes it) is copied to DST.taxonomy.yaml for a .npz or .zarr DST, never over a 
 the converted map answers as SRC does. The input is only read; the
 output appears atomically. Lazy maps (HDF5, per-image features) are streamed block by
 block, so the map is never held whole in memory. DST is never SRC (nor inside it); an
-existing DST is replaced only with --force (an OpenLex3D folder: only a previous export
-of quash; with --format vlmaps DST may be an existing folder, and the files written into
-it are replaced only with --force)."""
+existing DST is replaced only with --force (with --format openlex3d, a previous export of
+quash is replaced without it and any other folder never; with --format vlmaps DST may be
+an existing folder, and the files written into it are replaced only with --force)."""
 EPILOG = """\
 examples:
   quash convert saved-map room0.npz                 # ConceptFusion pointclouds/
@@ -56,8 +56,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default="auto",
         choices=("auto", "npz", "zarr", "openlex3d", "vlmaps"),
         help="Output format (default: auto, by DST's suffix). openlex3d writes OpenLex3D's "
-        "prediction folder: embeddings.npy, index.npy (arange) and point_cloud.pcd. vlmaps "
-        "writes DST/vlmap_cam/vlmaps_cam.h5df in VLMaps' save layout (voxel maps only).",
+        "prediction folder: embeddings.npy, index.npy and point_cloud.pcd (one row per "
+        "point, index arange; a map of objects keeps its object table and point-to-object "
+        "index). vlmaps writes DST/vlmap_cam/vlmaps_cam.h5df in VLMaps' save layout (voxel "
+        "maps only).",
     )
     p.add_argument(
         "--adapter", default="auto", help="Adapter name, or 'auto' to sniff the format (default)."
@@ -89,7 +91,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--force",
         action="store_true",
-        help="Replace an existing DST (never SRC, and a folder only if it is a zarr store).",
+        help="Replace an existing DST (never SRC, and a folder only if it is a zarr store; "
+        "--format openlex3d replaces a previous export without it).",
     )
     p.add_argument("--json", action="store_true", help="Print a JSON summary.")
 
