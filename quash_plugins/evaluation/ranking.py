@@ -9,11 +9,14 @@ object has no relevant item).
   precision-recall curve without interpolation (scikit-learn's
   ``average_precision_score``). Ties share their block's precision. A random order scores
   the class share.
-- **Inverse rank** (OpenLex3D, ``openlex3d/core/rank_metric.py``): OpenLex3D ranks
-  predicted *objects* by their similarity to the query, takes for each ground-truth object
-  the rank of its best-matching prediction (IoU above a threshold), subtracts the number
-  of ground-truth objects found before it (so finding all k objects at ranks 1..k scores
-  1 each) and averages ``1 / rank`` over the ground-truth objects (0 when not found).
+- **Inverse rank** (OpenLex3D, ``compute_query_inverse_rank`` in
+  ``openlex3d/core/metric.py``): OpenLex3D ranks predicted *objects* by their similarity
+  to the query, takes for each ground-truth object the rank of its best-matching
+  prediction (IoU above a threshold), subtracts the number of ground-truth objects found
+  before it (so finding all k objects at ranks 1..k scores 1 each) and averages
+  ``1 / rank`` over the ground-truth objects (0 when not found). This function is one
+  query's value; OpenLex3D's summary pools the objects of all queries, where
+  :func:`~quash_plugins.evaluation.metrics.macro_mean` averages queries.
   A dense map has no predicted objects, so we use the map's **segments**: connected
   components of one ground-truth label (:func:`label_segments`), i.e. an oracle
   segmentation, each scored by the **mean** item score inside it. The ground-truth

@@ -49,6 +49,27 @@ def test_inverse_rank_follows_openlex3d():
     assert inverse_rank(scores, segments, np.zeros(8, bool)) is None
 
 
+def test_inverse_rank_hand_example_from_docs():
+    # docs/evaluation.md: ground-truth objects at ranks 2, 4 and 5 count as 2, 3 and 3
+    # (minus the 0, 1 and 2 objects found before them)
+    scores = np.array([0.9, 0.8, 0.7, 0.6, 0.5])
+    truth = np.array([0, 1, 0, 1, 1], bool)
+    expected = (1 / 2 + 1 / 3 + 1 / 3) / 3
+    assert inverse_rank(scores, np.arange(5), truth) == pytest.approx(expected)
+    assert round(expected, 3) == 0.389
+    # segments of several items rank by their mean score; ties keep segment order
+    seg = np.repeat(np.arange(5), 3)
+    jitter = np.tile([-0.01, 0.0, 0.01], 5)
+    assert inverse_rank(np.repeat(scores, 3) + jitter, seg, np.repeat(truth, 3)) == (
+        pytest.approx(expected)
+    )
+    # a query whose ground truth is one object ranked first: 1; pooled with the query
+    # above as OpenLex3D's summary does, (1 + 3 * expected) / 4, not the mean of queries
+    one = inverse_rank(scores, np.arange(5), np.array([1, 0, 0, 0, 0], bool))
+    assert one == 1.0
+    assert (one + 3 * expected) / 4 != pytest.approx((one + expected) / 2)
+
+
 def test_label_segments_for_voxels_points_and_pixels():
     grid = np.array([[0, 0, 0], [0, 0, 1], [5, 5, 5], [1, 1, 1]])
     labels = np.array([1, 1, 1, -1])
