@@ -81,7 +81,10 @@ def _load_npy(path: Path, field: str) -> np.ndarray:
     try:
         return np.load(path, mmap_mode="r", allow_pickle=False)
     except ValueError as exc:
-        raise MapFormatError(f"{path}: field {field!r} holds pickled objects ({exc}).") from None
+        raise MapFormatError(
+            f"{path}: field {field!r} holds pickled objects ({exc}); save a numeric array "
+            f"instead (np.save of a float or int array, not a list of arrays)."
+        ) from None
     except (OSError, EOFError) as exc:
         raise MapFormatError(f"{path}: not a readable .npy array ({exc}).") from None
 
@@ -150,7 +153,8 @@ class OpenLex3DAdapter(MapAdapter):
         if cloud is None:
             raise MapFormatError(
                 f"{folder / 'point_cloud.pcd'}: missing file; OpenLex3D predictions need "
-                "point_cloud.pcd, embeddings.npy and index.npy."
+                f"point_cloud.pcd, embeddings.npy and index.npy (the cloud may also be named "
+                f"{', '.join(CLOUD_NAMES[1:])})."
             )
         table = _load_npy(folder / "embeddings.npy", "embeddings")
         index = _load_npy(folder / "index.npy", "index")
@@ -215,13 +219,18 @@ class OpenLex3DAdapter(MapAdapter):
         elif index.dtype.kind not in "iu":
             raise MapFormatError(f"{label}: field 'index' must hold integers; got {index.dtype}.")
         index = index.astype(np.int64)
-        if int(index.min()) < -1:
-            raise MapFormatError(f"{label}: field 'index' must be >= -1 (-1 = no object).")
+        fix = (
+            f"each entry is a row of embeddings.npy (0 to {n_objects - 1}) or -1 for no "
+            "object; a dense map stores np.arange(n_points)"
+        )
+        low = int(index.min())
+        if low < -1:
+            raise MapFormatError(f"{label}: field 'index' holds {low}; {fix}.")
         top = int(index.max())
         if top >= n_objects:
             raise MapFormatError(
                 f"{label}: field 'index' refers to row {top}, but embeddings.npy has only "
-                f"{n_objects} rows."
+                f"{n_objects} rows; {fix}."
             )
         return index
 

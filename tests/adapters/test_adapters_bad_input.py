@@ -312,7 +312,26 @@ def test_ol_mismatched_rows(tmp_path):
 
 
 def test_ol_index_out_of_range(tmp_path):
-    _check(_ol(tmp_path, index=np.full(10, 3)), "index.npy", "'index'", "row 3")
+    _check(
+        _ol(tmp_path, index=np.full(10, 3)), "index.npy", "'index'", "row 3", "(0 to 2)", "arange"
+    )
+    # np.linspace(0, n, n) is not arange: its last entry is n, one past the table
+    dense = np.linspace(0, 10, 10, dtype=np.int32)
+    table = np.ones((10, 4), np.float32)
+    _check(_ol(tmp_path / "d", table=table, index=dense), "index.npy", "row 10", "np.arange")
+    _check(_ol(tmp_path / "m", index=np.full(10, -2)), "index.npy", "holds -2", "-1 for no")
+
+
+def test_ol_missing_cloud_names_the_accepted_names(tmp_path):
+    folder = _ol(tmp_path)
+    (folder / "point_cloud.pcd").unlink()
+    _check(folder, "point_cloud.pcd", "missing file", "input.ply", adapter="openlex3d")
+
+
+def test_ol_object_embeddings(tmp_path):
+    folder = _ol(tmp_path)
+    np.save(folder / "embeddings.npy", np.array([np.ones(4), np.ones(3)], dtype=object))
+    _check(folder, "embeddings.npy", "'embeddings'", "pickled", "numeric array")
 
 
 def test_ol_wrong_rank(tmp_path):
