@@ -385,6 +385,63 @@ def _resolve_path(value: str, config_path) -> str:
 MAX_ALIAS_EXPANSION = 100_000
 
 
+def read_text_file(path: str | Path, what: str = "file") -> str:
+    """The UTF-8 text of ``path``, which must be a regular file.
+
+    A pipe, a device (``/dev/zero``, ``/dev/stdin``), a socket or a folder is refused
+    before anything is read: reading a FIFO waits for a writer for ever, and a device
+    like ``/dev/zero`` never ends. The file is opened without blocking, so a FIFO is
+    refused at once, whether or not something writes to it.
+
+    Raises
+    ------
+    ConfigError
+        Naming ``what`` and the path: not found, not a regular file, unreadable, not
+        UTF-8.
+    """
+    import os
+    import stat
+
+    p = Path(path)
+    try:
+        fd = os.open(p, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    except FileNotFoundError:
+        raise ConfigError(f"{what.capitalize()} not found: {p}") from None
+    except OSError as exc:
+        raise ConfigError(f"Cannot read {what} {p}: {exc.strerror}.") from None
+    try:
+        mode = os.fstat(fd).st_mode
+        if not stat.S_ISREG(mode):
+            kind = (
+                "a folder"
+                if stat.S_ISDIR(mode)
+                else "a pipe (FIFO)"
+                if stat.S_ISFIFO(mode)
+                else "a socket"
+                if stat.S_ISSOCK(mode)
+                else "a device"
+            )
+            raise ConfigError(
+                f"{what.capitalize()} {p} is {kind}, not a regular file; write it to a file "
+                "and give that file's path."
+            )
+        chunks = []
+        while chunk := os.read(fd, 1 << 20):
+            chunks.append(chunk)
+    except OSError as exc:
+        raise ConfigError(f"Cannot read {what} {p}: {exc.strerror}.") from None
+    finally:
+        os.close(fd)
+    data = b"".join(chunks)
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(
+            f"Cannot read {what} {p}: it is not UTF-8 text (byte {exc.start + 1}: "
+            f"{exc.reason}). Is it the right file?"
+        ) from None
+
+
 def load_yaml(path: str | Path) -> tuple[Any, dict[tuple, int]]:
     """Parse a YAML file safely; return the data and the 1-based line of each key path.
 
@@ -393,12 +450,7 @@ def load_yaml(path: str | Path) -> tuple[Any, dict[tuple, int]]:
     :data:`MAX_ALIAS_EXPANSION` nodes (or refer to themselves).
     """
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ConfigError(f"Config file not found: {p}") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"Cannot read config file {p}: {exc}") from None
+    text = read_text_file(p, "config file")
     data, node = _parse_yaml(text, str(p))
     lines: dict[tuple, int] = {}
     _walk(node, (), lines, set())

@@ -118,10 +118,13 @@ def read_vlmaps_templates(path: str | Path) -> list[str]:
     :mod:`ast` (the file is parsed, never executed)."""
     import ast
 
+    from .config import read_text_file
+
     path = Path(path)
+    text = read_text_file(path, "prompt-template file")
     try:
-        tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
-    except (OSError, SyntaxError, UnicodeDecodeError) as exc:
+        tree = ast.parse(text, filename=str(path))
+    except (SyntaxError, ValueError) as exc:
         raise ConfigError(f"{path}: cannot parse the prompt templates ({exc}).") from None
     value: Any = None
     for node in tree.body:
@@ -191,7 +194,10 @@ def load_templates(spec: Any) -> list[str]:
                 raise ConfigError(f"{path}: expected a YAML list of templates with '{{}}'.")
             templates = [str(t) for t in data]
         else:
-            templates = [ln.strip() for ln in path.read_text(encoding="utf-8").splitlines()]
+            from .config import read_text_file
+
+            text = read_text_file(path, "prompt-template file")
+            templates = [ln.strip() for ln in text.splitlines()]
     return _checked_templates([t for t in templates if t and not t.startswith("#")])
 
 

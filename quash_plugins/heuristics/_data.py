@@ -35,7 +35,9 @@ def read_word_list(spec: str | list[str] | None, default: str, what: str) -> lis
                 raise ConfigError(f"{path}: expected a YAML list of {what} entries.")
             items = [" ".join(str(s).split()) for s in data]
         else:
-            items = _lines(path.read_text(encoding="utf-8"))
+            from ..core.config import read_text_file
+
+            items = _lines(read_text_file(path, f"{what} file"))
     items = list(dict.fromkeys(s for s in items if s))
     if not items:
         raise ConfigError(f"{where}: the {what} list is empty.")
