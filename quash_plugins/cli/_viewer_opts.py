@@ -69,7 +69,7 @@ def add_viewer_arguments(
     g.add_argument(
         "--web-port",
         type=_arg_type(check_port, "--web-port"),
-        default=DEFAULT_WEB_PORT,
+        default=None,
         metavar="PORT",
         help=f"HTTP port (1-65535) of the web viewer for --serve-web (default: "
         f"{DEFAULT_WEB_PORT}).",
@@ -77,7 +77,7 @@ def add_viewer_arguments(
     g.add_argument(
         "--grpc-port",
         type=_arg_type(check_port, "--grpc-port"),
-        default=DEFAULT_GRPC_PORT,
+        default=None,
         metavar="PORT",
         help="gRPC port (1-65535) the web viewer reads the recording from (default: "
         f"{DEFAULT_GRPC_PORT}).",
@@ -85,7 +85,7 @@ def add_viewer_arguments(
     g.add_argument(
         "--bind",
         type=_arg_type(check_bind, "--bind"),
-        default=DEFAULT_BIND,
+        default=None,
         metavar="ADDR",
         help=f"IP address --serve-web listens on (default: {DEFAULT_BIND}, this machine only; "
         "localhost means 127.0.0.1; 0.0.0.0 serves every network interface: only on a "
@@ -108,7 +108,9 @@ def add_viewer_arguments(
 def check_rrd(args: argparse.Namespace, inputs: Any = ()) -> None:
     """Refuse, before any work, an ``--rrd`` that is an input, or that replaces a file
     other than a recording quash wrote (unless ``--force``): a recording of another
-    application (a robot's own log) is refused naming its application id."""
+    application (a robot's own log) is refused naming its application id. With
+    ``--serve-web``, one port for both servers is refused; without it, ``--web-port``,
+    ``--grpc-port`` and ``--bind`` are (they would be ignored)."""
     from pathlib import Path
 
     from ..core.atomic import check_output
@@ -117,6 +119,19 @@ def check_rrd(args: argparse.Namespace, inputs: Any = ()) -> None:
 
     if getattr(args, "serve_web", False):
         check_distinct_ports(getattr(args, "web_port", None), getattr(args, "grpc_port", None))
+    else:  # a flag that would be ignored is refused
+        given = [
+            flag
+            for flag, dest in (("--web-port", "web_port"), ("--grpc-port", "grpc_port"))
+            + (("--bind", "bind"),)
+            if getattr(args, dest, None) is not None
+        ]
+        if given:
+            raise UsageError(
+                f"{' and '.join(given)} only {'applies' if len(given) == 1 else 'apply'} to "
+                "--serve-web, which was not given. Add --serve-web to serve the recording, or "
+                f"leave {'it' if len(given) == 1 else 'them'} out."
+            )
     if not getattr(args, "rrd", None):
         return
     force = bool(getattr(args, "force", False))

@@ -115,6 +115,31 @@ def check_bind(value: str, what: str = "--bind") -> str:
     return str(address)
 
 
+def warn_if_exposed(bind: str, web_port: int, grpc_port: int) -> bool:
+    """Warn that servers bound to ``bind`` are open to other machines, unless it is a
+    loopback address (127.0.0.0/8); True when it warned."""
+    import ipaddress
+
+    if ipaddress.ip_address(bind).is_loopback:
+        return False
+    where = "every network interface" if bind in _WILDCARDS else f"the interface of {bind}"
+    log.warning(
+        "--bind %s: the web viewer (port %d) and the recording (port %d: the map and every "
+        "result) are served on %s, to anyone who can reach this machine, with no password. "
+        "Use --bind 127.0.0.1 (the default) and an SSH tunnel "
+        "(ssh -L %d:127.0.0.1:%d -L %d:127.0.0.1:%d HOST) unless the network is yours.",
+        bind,
+        web_port,
+        grpc_port,
+        where,
+        web_port,
+        web_port,
+        grpc_port,
+        grpc_port,
+    )
+    return True
+
+
 def check_distinct_ports(
     web: int | None, grpc: int | None, web_what: str = "--web-port", grpc_what: str = "--grpc-port"
 ) -> None:
@@ -309,6 +334,7 @@ class SinkRerunLogger(RerunLogger):
         self.bind = check_bind(DEFAULT_BIND if sinks.bind is None else sinks.bind)
         if self.serve_web:
             check_distinct_ports(self.web_port, self.grpc_port, "web_port", "grpc_port")
+            warn_if_exposed(self.bind, self.web_port, self.grpc_port)
         self.url: str | None = None
         self.streaming: list[str] = []  # streaming sinks, for messages
         self._tmp: Path | None = None

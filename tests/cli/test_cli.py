@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import os
 import re
 import subprocess
@@ -364,6 +365,40 @@ def test_serving_on_one_port_for_both_servers_is_refused_before_any_work(tiny_wo
         tiny_world, "--serve-web", "--web-port", "9090", "--grpc-port", "9090", capsys=capsys
     )
     assert code == 2 and "need a port each" in err and "read" not in err
+
+
+@pytest.mark.parametrize(
+    ("flags", "said"),
+    [
+        (["--bind", "0.0.0.0"], "--bind only applies to --serve-web"),
+        (["--web-port", "9191"], "--web-port only applies to --serve-web"),
+        (["--grpc-port", "9977", "--bind", "127.0.0.1"], "--grpc-port and --bind only apply"),
+    ],
+)
+def test_serving_flags_without_serve_web_are_refused(flags, said, tiny_world, capsys):
+    """They used to be ignored without a word: --bind 0.0.0.0 served nothing and said so
+    to no one."""
+    code, out, err = query_chair(tiny_world, *flags, capsys=capsys)
+    assert code == 2 and said in err and "Add --serve-web" in err
+    assert "chair" not in out  # refused before any work
+
+
+@pytest.mark.parametrize(
+    ("bind", "warned"),
+    [("127.0.0.1", False), ("127.0.0.2", False), ("0.0.0.0", True), ("192.0.2.7", True)],
+)
+def test_serving_beyond_loopback_is_warned_about(bind, warned, caplog):
+    from quash_plugins.viewer._sinks import warn_if_exposed
+
+    caplog.set_level(logging.WARNING)
+    assert warn_if_exposed(bind, 9090, 9876) is warned
+    text = caplog.text
+    assert (f"--bind {bind}" in text) is warned
+    if warned:
+        assert "anyone who can reach this machine" in text
+        assert "ssh -L 9090:127.0.0.1:9090 -L 9876:127.0.0.1:9876" in text
+        where = "every network interface" if bind == "0.0.0.0" else f"interface of {bind}"
+        assert where in text
 
 
 def test_out_suffix_and_format_must_agree(tiny_world, tmp_path, capsys):
