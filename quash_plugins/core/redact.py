@@ -22,6 +22,10 @@ from collections.abc import Iterable
 from typing import Any
 
 MASK = "***"
+#: A secret this long is removed wherever it appears, even inside a longer word.
+MIN_SUBSTRING_SECRET = 6
+#: A shorter secret of at least this many characters is removed where it is a word.
+MIN_WORD_SECRET = 3
 
 _TOKENS = re.compile(
     r"\b(?:sk|pk|rk)-[A-Za-z0-9_\-*.]{6,}"  # OpenAI-style keys, also masked echoes
@@ -48,13 +52,20 @@ def redact(text: Any, secrets: Iterable[str | None] = ()) -> str:
     text
         Anything; converted with ``str``.
     secrets
-        Exact values to remove wherever they appear (values shorter than 6 characters
-        are ignored, so that a one-letter "key" cannot blank a message).
+        Exact values to remove: wherever they appear when 6 characters or longer; a
+        shorter one (a local server's ``EMPTY`` or ``abc``) where it stands as a word of
+        its own, not inside another word (so that a key ``abc`` leaves "cabcase" alone);
+        one of 1 or 2 characters is ignored, so that it cannot blank a message.
     """
     out = str(text)
     for secret in secrets:
-        if secret and len(secret) >= 6:
+        if not secret or len(secret) < MIN_WORD_SECRET:
+            continue
+        if len(secret) >= MIN_SUBSTRING_SECRET:
             out = out.replace(secret, MASK)
+        else:
+            word = rf"(?<![A-Za-z0-9]){re.escape(secret)}(?![A-Za-z0-9])"
+            out = re.sub(word, MASK, out)
     out = _USERINFO.sub(rf"\1{MASK}@", out)
     out = _TOKENS.sub(MASK, out)
     out = _BEARER.sub(rf"\1 {MASK}", out)

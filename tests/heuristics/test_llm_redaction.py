@@ -21,6 +21,8 @@ pytest.importorskip("httpx")
 
 KEY = "sk-proj-Zx9vQ2mT7rK4pL8sW1nB6yH3"
 PLAIN_KEY = "plainsecretvalue9876"  # a key that looks like nothing in particular
+SHORT_KEY = "Qz9x"  # a local server's short key: was shown, cached and queried as a word
+REGEX_KEY = "s3cr.t*K(y)+[9]$^|?"  # regular-expression metacharacters
 
 
 class EchoServer:
@@ -94,7 +96,7 @@ def _make(echo, tmp_path, **kw):
     return registry.create("heuristics", "llm", **params)
 
 
-@pytest.mark.parametrize("key", [KEY, PLAIN_KEY])
+@pytest.mark.parametrize("key", [KEY, PLAIN_KEY, SHORT_KEY, REGEX_KEY])
 def test_401_echoing_the_key_is_redacted(echo, tmp_path, monkeypatch, caplog, key):
     monkeypatch.setenv("QUASH_TEST_KEY", key)
     caplog.set_level(logging.DEBUG)
@@ -126,14 +128,16 @@ def test_cli_never_prints_the_key(echo, tmp_path, monkeypatch, capsys):
     assert not (tmp_path / "c").exists() or KEY not in _files_text(tmp_path / "c")
 
 
+@pytest.mark.parametrize("key", [KEY, SHORT_KEY, REGEX_KEY])
 def test_a_reply_carrying_the_key_never_reaches_the_cache_or_the_query_set(
-    echo, tmp_path, monkeypatch
+    echo, tmp_path, monkeypatch, key
 ):
-    monkeypatch.setenv("QUASH_TEST_KEY", KEY)
+    monkeypatch.setenv("QUASH_TEST_KEY", key)
     echo.mode = "reply"
     qs = _make(echo, tmp_path).expand("chair")
     assert qs.positives == ["chair", "seat"] and qs.negatives == ["table"]
-    assert KEY not in _files_text(tmp_path / "llm")
+    cached = _files_text(tmp_path / "llm")
+    assert key not in cached and key.lower() not in cached
 
 
 def test_credentials_in_base_url_are_never_sent_shown_or_cached(echo, tmp_path, caplog):
@@ -158,7 +162,12 @@ def test_redact_patterns():
     )
     assert redact("https://u:pw@host/v1") == "https://***@host/v1"
     assert redact("a desk-lamp, task-force, sk-8") == "a desk-lamp, task-force, sk-8"
-    assert redact("value shortkey", ["abc"]) == "value shortkey"  # too short to redact
+    assert redact("value shortkey", ["abc"]) == "value shortkey"  # not a word of its own
+    # a short key is removed where it stands as a word, metacharacters and all
+    assert redact("key abc, (abc) abcd cabc", ["abc"]) == "key ***, (***) abcd cabc"
+    assert redact("got +[9]: bad", ["+[9]"]) == "got ***: bad"
+    assert redact("key a or ab", ["a", "ab"]) == "key a or ab"  # 1-2 characters: ignored
+    assert redact(f"x{REGEX_KEY}y", [REGEX_KEY]) == "x***y"
 
 
 def test_object_names_after_basic_or_bearer_are_not_credentials():
