@@ -41,6 +41,32 @@ def machine_cores() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+def local_cluster_security() -> Any:
+    """A ``distributed.Security`` with a certificate made for this process only (mutual
+    TLS), or None, with a warning, when ``cryptography`` is not installed.
+
+    A LocalCluster listens on 127.0.0.1, which every user of the machine can reach, and
+    a Dask scheduler runs whatever a client sends it: over plain TCP, anyone logged in
+    on a shared machine could run code as you in its workers. With this, a client must
+    show the certificate, which never leaves the process's memory and its workers.
+    """
+    from distributed.security import Security
+
+    try:
+        return Security.temporary()
+    except ImportError:
+        from ..core.once import first_time
+
+        if first_time(("dask-plain-tcp",)):
+            log.warning(
+                "the local Dask cluster listens on 127.0.0.1 without TLS (cryptography is not "
+                "installed): on a shared machine, any user of it could run code in its workers "
+                'as you. Install the Dask extra again (pip install "quash-plugins[dask]") '
+                "or run with --backend numpy."
+            )
+        return None
+
+
 def local_cluster_client(
     n_workers: int | None = None, threads_per_worker: int = 1, memory_limit: Any = "auto"
 ) -> Any:
@@ -57,6 +83,7 @@ def local_cluster_client(
     """
     distributed = _require_distributed()
     n = int(n_workers or machine_cores())
+    security = local_cluster_security()
     cluster = distributed.LocalCluster(
         n_workers=n,
         threads_per_worker=threads_per_worker,
@@ -64,9 +91,15 @@ def local_cluster_client(
         host="127.0.0.1",
         dashboard_address=None,
         memory_limit=memory_limit,
+        security=security,
     )
-    client = distributed.Client(cluster)
-    log.info("started a LocalCluster: %d worker processes x %d threads", n, threads_per_worker)
+    client = distributed.Client(cluster, security=security)
+    log.info(
+        "started a LocalCluster: %d worker processes x %d threads (%s)",
+        n,
+        threads_per_worker,
+        "TLS, this process's own certificate" if security is not None else "plain TCP",
+    )
 
     def _close() -> None:
         try:
