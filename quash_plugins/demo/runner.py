@@ -11,7 +11,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from ..core.cache_dirs import cache_dir
+from ..core.cache_dirs import cache_dir, make_private_dirs
 from ..evaluation.report import EvalReport, evaluate
 from .scene import SceneOptions, make_scene, write_scene
 
@@ -69,6 +69,7 @@ def demo_scene(
         log.info("demo scene from cache: %s", path)
         return path
     log.info("building the demo scene (%s) in %s", tag, path.parent)
+    make_private_dirs(path.parent)
     write_scene(make_scene(encoder, opts, cache=cache), path, opts)
     return path
 

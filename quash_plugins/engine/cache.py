@@ -246,8 +246,9 @@ class TextEmbeddingCache:
     def _store(self, fingerprint: str, embeddings: dict[str, np.ndarray]) -> None:
         from filelock import FileLock, Timeout
 
-        folder = self._dir(fingerprint)
-        folder.mkdir(parents=True, exist_ok=True)
+        from ..core.cache_dirs import make_private_dirs
+
+        folder = make_private_dirs(self._dir(fingerprint))
         by_shard: dict[str, dict[str, np.ndarray]] = {}
         for t, v in embeddings.items():
             by_shard.setdefault(_shard_of(t), {})[t] = np.asarray(v, dtype=np.float32).ravel()

@@ -287,6 +287,7 @@ class LLMHeuristic(Heuristic):
         self, query: str, synonyms: list[str], antonyms: list[str], seed: int | None = None
     ) -> Path:
         from ..core.atomic import atomic_write_text
+        from ..core.cache_dirs import make_private_dirs
 
         path = self.cache_path(query, seed)
         record = {
@@ -297,7 +298,10 @@ class LLMHeuristic(Heuristic):
             "created": datetime.now(UTC).isoformat(timespec="seconds"),
         }
         try:
+            make_private_dirs(path.parent)
             atomic_write_text(path, json.dumps(record, indent=1, ensure_ascii=False))
+        except OSError as exc:
+            log.warning("llm: query set for %r not cached: %s", query, exc)
         except QuashError as exc:  # a link or folder planted at the cache path: never followed
             log.warning("llm: query set for %r not cached: %s", query, exc)
         return path

@@ -238,3 +238,27 @@ def test_concurrent_processes_lose_nothing(tmp_path):
     got = cache.lookup("fp", wanted)
     assert set(got) == set(wanted) and not cache.corrupt
     np.testing.assert_array_equal(got["w2-24"], _vec(2024))
+
+
+@pytest.mark.parametrize("umask", [0o022, 0o002, 0o000])
+def test_cache_folders_are_private_whatever_the_umask(tmp_path, umask):
+    """On a shared machine the cache's folders were 0755 (0775, 0777 under a group or
+    open umask): others could read the cached strings or plant embeddings. Each folder
+    the cache makes is 0700 now; one that exists keeps its mode."""
+    import os
+    import stat
+
+    shared = tmp_path / "shared"
+    shared.mkdir()
+    os.chmod(shared, 0o1777)  # a folder everyone may write into, like /tmp
+    old = os.umask(umask)
+    try:
+        TextEmbeddingCache(shared / "quash" / "text-embeddings").store("fp-1", {"chair": _vec(0)})
+    finally:
+        os.umask(old)
+    made = [shared / "quash", shared / "quash" / "text-embeddings"]
+    made += [p for p in (shared / "quash").rglob("*") if p.is_dir()]
+    assert len(made) >= 4  # the root, text-embeddings, v1 and the fingerprint's folder
+    for folder in made:
+        assert stat.S_IMODE(folder.stat().st_mode) == 0o700, folder
+    assert stat.S_IMODE(shared.stat().st_mode) == 0o1777  # not made here: left alone

@@ -289,6 +289,23 @@ def test_cache_and_offline(server, tmp_path):
     server.httpd = _Dummy()  # already closed
 
 
+def test_llm_cache_folder_is_private(server, tmp_path):
+    """The cached query sets name every query asked: their folder is 0700 whatever the
+    umask (it was 0777 under umask 0)."""
+    import os
+    import stat
+
+    old = os.umask(0)
+    try:
+        h = make(server, tmp_path, cache_dir=str(tmp_path / "a" / "llm"))
+        h.expand("chair")
+    finally:
+        os.umask(old)
+    for folder in (tmp_path / "a", tmp_path / "a" / "llm"):
+        assert stat.S_IMODE(folder.stat().st_mode) == 0o700, folder
+    assert h.cache_path("chair").exists()
+
+
 def test_a_sampled_reply_is_cached_per_temperature_and_seed(server, tmp_path):
     from quash_plugins.core.interfaces import ExpansionContext
 
