@@ -157,7 +157,7 @@ def load_query_file(path: str | Path) -> tuple[dict[str, str], list[str]]:
     from ..core.config import load_yaml
     from ..core.errors import closest
 
-    if not Path(path).is_file():
+    if not Path(path).exists():  # a pipe, a device or a folder: load_yaml says which
         raise QuashError(
             f"Query file not found: {path}. A query file is YAML {{present: {{text: label}} "
             "or [labels], absent: [texts]} (quash make-scene writes SCENE.queries.yaml)."

@@ -298,3 +298,22 @@ def test_a_query_of_an_excluded_label_and_a_negative_tolerance_are_refused(tmp_p
     missing_map = str(tmp_path / "no-map.npz")
     assert main(["eval", missing_map, "--empty-tolerance", "-1"]) != 0
     assert "--empty-tolerance takes N >= 0" in capsys.readouterr().err
+
+
+def test_a_query_file_that_is_a_pipe_or_a_folder_is_named_as_such(tmp_path):
+    """A FIFO given as --queries-file is refused at once (reading it would wait for a
+    writer for ever), and said to be a pipe, not 'not found'."""
+    import os
+
+    from quash_plugins.evaluation.queries import load_query_file
+
+    fifo = tmp_path / "q.yaml"
+    os.mkfifo(fifo)
+    with pytest.raises(QuashError) as err:
+        load_query_file(fifo)
+    assert "not found" not in str(err.value) and str(fifo) in str(err.value)
+    with pytest.raises(QuashError) as err:
+        load_query_file(tmp_path)
+    assert "not found" not in str(err.value)
+    with pytest.raises(QuashError, match="Query file not found"):
+        load_query_file(tmp_path / "missing.yaml")
