@@ -442,15 +442,16 @@ def read_text_file(path: str | Path, what: str = "file") -> str:
         ) from None
 
 
-def load_yaml(path: str | Path) -> tuple[Any, dict[tuple, int]]:
+def load_yaml(path: str | Path, what: str = "config file") -> tuple[Any, dict[tuple, int]]:
     """Parse a YAML file safely; return the data and the 1-based line of each key path.
+    ``what`` names the file in errors ("query file", "taxonomy").
 
     Raises :class:`ConfigError` naming the file and line for malformed YAML, for a
     missing or unreadable file, and for a document whose aliases expand beyond
     :data:`MAX_ALIAS_EXPANSION` nodes (or refer to themselves).
     """
     p = Path(path)
-    text = read_text_file(p, "config file")
+    text = read_text_file(p, what)
     data, node = _parse_yaml(text, str(p))
     lines: dict[tuple, int] = {}
     _walk(node, (), lines, set())

@@ -162,7 +162,7 @@ def load_query_file(path: str | Path) -> tuple[dict[str, str], list[str]]:
             f"Query file not found: {path}. A query file is YAML {{present: {{text: label}} "
             "or [labels], absent: [texts]} (quash make-scene writes SCENE.queries.yaml)."
         )
-    data, _ = load_yaml(path)
+    data, _ = load_yaml(path, "query file")
     if isinstance(data, dict) and ("present" in data or "absent" in data):
         known = ("present", "absent", *QUERY_FILE_INFO)
         for key in data:

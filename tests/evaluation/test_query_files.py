@@ -314,6 +314,6 @@ def test_a_query_file_that_is_a_pipe_or_a_folder_is_named_as_such(tmp_path):
     assert "not found" not in str(err.value) and str(fifo) in str(err.value)
     with pytest.raises(QuashError) as err:
         load_query_file(tmp_path)
-    assert "not found" not in str(err.value)
+    assert "not found" not in str(err.value) and "uery file" in str(err.value)
     with pytest.raises(QuashError, match="Query file not found"):
         load_query_file(tmp_path / "missing.yaml")
