@@ -7,34 +7,17 @@ Before, ``quash query MAP chair -c FIFO`` waited for a writer for ever, and
 
 from __future__ import annotations
 
-import contextlib
 import os
-import signal
 from pathlib import Path
 
 import pytest
+from _time_limit import time_limit
 
 from quash_plugins import QuashConfig
 from quash_plugins.core.config import load_yaml, read_text_file
 from quash_plugins.core.errors import ConfigError, QuashError
 
 pytestmark = pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="needs FIFOs (POSIX)")
-
-
-@contextlib.contextmanager
-def hang_guard(seconds: float = 20):
-    """Fail instead of hanging the suite when a read blocks (not a timing assertion)."""
-
-    def expire(signum, frame):
-        raise TimeoutError(f"still reading after {seconds} s")
-
-    previous = signal.signal(signal.SIGALRM, expire)
-    signal.setitimer(signal.ITIMER_REAL, seconds)
-    try:
-        yield
-    finally:
-        signal.setitimer(signal.ITIMER_REAL, 0)
-        signal.signal(signal.SIGALRM, previous)
 
 
 def _special(tmp_path: Path, kind: str, name: str) -> tuple[Path, str]:
@@ -58,7 +41,7 @@ KINDS = ["fifo", "folder", "link-to-dev-zero"]
 @pytest.mark.parametrize("kind", KINDS)
 def test_read_text_file_refuses_what_is_not_a_regular_file(tmp_path, kind):
     path, word = _special(tmp_path, kind, "c.yaml")
-    with hang_guard(), pytest.raises(ConfigError) as info:
+    with time_limit(20), pytest.raises(ConfigError) as info:
         read_text_file(path, "config file")
     assert str(path) in str(info.value) and word in str(info.value)
 
@@ -93,7 +76,7 @@ def test_every_text_loader_refuses_a_special_file(tmp_path, kind):
         folder = tmp_path / name.replace(".", "_")
         folder.mkdir()
         path, word = _special(folder, kind, name)
-        with hang_guard(), pytest.raises(QuashError) as info:
+        with time_limit(20), pytest.raises(QuashError) as info:
             load(path)
         assert word in str(info.value), (name, str(info.value))
 
@@ -103,7 +86,7 @@ def test_cli_config_that_is_a_fifo_is_refused(tiny_world, tmp_path, capsys):
 
     fifo = tmp_path / "quash.yaml"
     os.mkfifo(fifo)
-    with hang_guard():
+    with time_limit(20):
         assert main(["query", str(tiny_world["map"]), "chair", "-c", str(fifo)]) == 1
     err = capsys.readouterr().err
     assert f"Config file {fifo} is a pipe (FIFO), not a regular file" in err

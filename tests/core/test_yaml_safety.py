@@ -8,12 +8,12 @@ The bomb is the issue's: nine nested aliases (9**9 strings once expanded), which
 from __future__ import annotations
 
 import contextlib
-import signal
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from _time_limit import time_limit
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -38,22 +38,6 @@ LIST_BOMB = "\n".join(_levels("- "))
 def _bomb(path: Path, tail: str) -> Path:
     path.write_text(BOMB_BODY + "\n" + tail + "\n")
     return path
-
-
-@contextlib.contextmanager
-def time_limit(seconds: float):
-    """Fail (instead of hanging the suite) when the block runs longer than ``seconds``."""
-
-    def expire(signum, frame):
-        raise TimeoutError(f"took longer than {seconds} s")
-
-    previous = signal.signal(signal.SIGALRM, expire)
-    signal.setitimer(signal.ITIMER_REAL, seconds)
-    try:
-        yield
-    finally:
-        signal.setitimer(signal.ITIMER_REAL, 0)
-        signal.signal(signal.SIGALRM, previous)
 
 
 def test_alias_bomb_config_is_refused_by_the_cli_within_seconds(tiny_world, tmp_path):
