@@ -18,11 +18,6 @@ from quash_plugins.engine.pipeline import Quash
 from quash_plugins.heuristics import add_map_negatives
 
 
-@pytest.fixture(autouse=True)
-def _cache_env(tmp_path, monkeypatch):
-    monkeypatch.setenv("QUASH_CACHE_DIR", str(tmp_path / "quash-cache"))
-
-
 class HashEncoder(Encoder):
     """Deterministic pseudo-random unit vectors per string (any text works)."""
 

@@ -125,18 +125,6 @@ class ChatServer:
         self.httpd.server_close()
 
 
-@pytest.fixture
-def server():
-    s = ChatServer()
-    yield s
-    s.close()
-
-
-@pytest.fixture(autouse=True)
-def _cache_env(tmp_path, monkeypatch):
-    monkeypatch.setenv("QUASH_CACHE_DIR", str(tmp_path / "quash-cache"))
-
-
 def make(server, tmp_path, **kw):
     params = dict(
         model="test-model",

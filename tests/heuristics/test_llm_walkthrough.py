@@ -10,25 +10,13 @@ import logging
 import socket
 
 import pytest
-from test_heuristics_llm import ChatServer, make
+from test_heuristics_llm import make
 
 from quash_plugins.core import registry
 from quash_plugins.core.errors import HeuristicError
 from quash_plugins.heuristics._llm_http import client_options, env_proxy, is_loopback
 
 PROXY_VARS = ("HTTP_PROXY", "HTTPS_PROXY", "ALL_PROXY", "NO_PROXY")
-
-
-@pytest.fixture
-def server():
-    s = ChatServer()
-    yield s
-    s.close()
-
-
-@pytest.fixture(autouse=True)
-def _cache_env(tmp_path, monkeypatch):
-    monkeypatch.setenv("QUASH_CACHE_DIR", str(tmp_path / "quash-cache"))
 
 
 @pytest.fixture
