@@ -84,12 +84,7 @@ def detect_adapter(source: Any, *, claimed: bool = False) -> str:
     refused: which of the two is meant is the user's choice (:func:`check_no_other_maps`).
     """
     for name, cls in _ordered_adapters():
-        try:
-            found = cls().sniff(source)
-        except Exception as exc:  # noqa: BLE001 - a faulty sniff must not break detection
-            log.debug("adapter %s failed to sniff %r: %s", name, source, exc)
-            continue
-        if found:
+        if _sniffs(cls, source):
             check_no_other_maps(source, name)
             return name
     if claimed:
@@ -129,16 +124,8 @@ def check_no_other_maps(source: Any, chosen: str, limit: int = 256) -> None:
     if not by_suffix:
         return
     chosen_cls = dict(adapters).get(chosen)
-    try:
-        entries = sorted(p for p in folder.iterdir() if not p.name.startswith("."))
-    except OSError:
-        return
-    if len(entries) > limit:
-        log.debug(
-            "%s: %d entries; looking at the first %d for other maps", folder, len(entries), limit
-        )
     others = []
-    for entry in entries[:limit]:
+    for entry in _entries(folder, limit, "other maps"):
         lower = entry.name.lower()
         for suffix, name, cls in by_suffix:
             if not lower.endswith(suffix) or not _sniffs(cls, entry):
@@ -156,6 +143,20 @@ def check_no_other_maps(source: Any, chosen: str, limit: int = 256) -> None:
         f"meant is ambiguous: pass --adapter {chosen} (adapter={chosen!r} in Python) to read "
         f"the folder as {chosen}, or pass the file itself (e.g. {first}) to read it."
     )
+
+
+def _entries(folder: Path, limit: int, purpose: str) -> list[Path]:
+    """The first ``limit`` entries of ``folder`` by name, hidden ones left out (a debug
+    line says when more are skipped); ``[]`` when it cannot be listed."""
+    try:
+        entries = sorted(p for p in folder.iterdir() if not p.name.startswith("."))
+    except OSError:
+        return []
+    if len(entries) > limit:
+        log.debug(
+            "%s: %d entries; looking at the first %d for %s", folder, len(entries), limit, purpose
+        )
+    return entries[:limit]
 
 
 def _sniffs(cls: Any, source: Any) -> bool:
@@ -190,18 +191,11 @@ def _maps_inside(source: Any, limit: int = 64) -> str:
     if not isinstance(source, (str, Path)) or not Path(source).is_dir():
         return ""
     found = []
-    try:
-        subs = sorted(p for p in Path(source).iterdir() if not p.name.startswith("."))[:limit]
-    except OSError:
-        return ""
-    for sub in subs:
+    for sub in _entries(Path(source), limit, "maps inside it"):
         for name, cls in _ordered_adapters():
-            try:
-                if cls().sniff(sub):
-                    found.append(f"{sub} ({name})")
-                    break
-            except Exception:  # noqa: BLE001, S112 - a faulty sniff must not break the hint
-                continue
+            if _sniffs(cls, sub):
+                found.append(f"{sub} ({name})")
+                break
     if not found:
         return ""
     return f" Maps inside it: {', '.join(found)}; pass one of them."
