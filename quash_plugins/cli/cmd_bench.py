@@ -10,8 +10,6 @@ HELP = (
     "classifiers) and the fair protocol (every peer with the label list QuASH gets)."
 )
 ORDER = 34
-#: The llm heuristic's own default base_url (heuristics/_llm.py), named in --help.
-LLM_DEFAULT_BASE_URL = "http://127.0.0.1:8000/v1"
 DESCRIPTION = """\
 Runs each ablation table with `quash eval`'s metrics and writes bench.md, bench.json and
 one precision-vs-recall plot per table into --out. Every table says what each method
@@ -32,6 +30,7 @@ examples:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from ..evaluation.ablations import TABLES
+    from ..heuristics import LLM_DEFAULT_BASE_URL  # the llm heuristic's own default
     from ._backend_opts import add_backend_arguments
 
     p.add_argument("map", help="Labelled map (labels + label_names).")

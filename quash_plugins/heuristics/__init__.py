@@ -13,6 +13,7 @@ _EXPORTS = {
     "NoneHeuristic": "._basic",
     "StaticHeuristic": "._basic",
     "LLMHeuristic": "._llm",
+    "LLM_DEFAULT_BASE_URL": "._llm",
     "llm_cache_info": "._llm_cache",
     "clear_llm_cache": "._llm_cache",
     "llm_cache_root": "._llm_cache",

@@ -41,6 +41,8 @@ log.addFilter(RedactingFilter())
 
 #: Bumped whenever the prompt wording changes; part of every cache key.
 PROMPT_VERSION = "quash-llm-2"
+#: The endpoint asked when a config gives no ``base_url`` (vLLM's default port).
+LLM_DEFAULT_BASE_URL = "http://127.0.0.1:8000/v1"
 
 SYSTEM_PROMPT = (
     "You help a robot find things in a map of an indoor or outdoor scene. "
@@ -162,7 +164,7 @@ class LLMHeuristic(Heuristic):
     def __init__(
         self,
         model: str | None = None,
-        base_url: str = "http://127.0.0.1:8000/v1",
+        base_url: str = LLM_DEFAULT_BASE_URL,
         api_key_env: str | None = None,
         n_synonyms: int = 20,
         n_antonyms: int = 20,

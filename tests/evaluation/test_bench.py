@@ -217,8 +217,7 @@ def test_llm_rows_read_the_cache_of_the_endpoint_given(scene, tmp_path, capsys):
     """The llm sets are cached by endpoint and model: a cache filled from Ollama's port
     (as lseg:quash-llm does) is read with --llm-base-url; with --llm-model alone the
     bench looked at the llm heuristic's default endpoint and skipped every llm row."""
-    from quash_plugins.cli.cmd_bench import LLM_DEFAULT_BASE_URL
-    from quash_plugins.heuristics import LLMHeuristic
+    from quash_plugins.heuristics import LLM_DEFAULT_BASE_URL, LLMHeuristic
 
     # --help names the heuristic's own default endpoint
     assert inspect.signature(LLMHeuristic).parameters["base_url"].default == LLM_DEFAULT_BASE_URL
