@@ -417,6 +417,15 @@ class Instance:
     def size(self) -> int:
         return int(len(self.indices))
 
+    def __repr__(self) -> str:
+        """One line (its size, centroid and mean score), not every index of its items."""
+        centroid = ", ".join(f"{float(x):.3g}" for x in np.ravel(self.centroid))
+        frame = f", frame_id={self.frame_id!r}" if self.frame_id is not None else ""
+        return (
+            f"Instance(id={self.id}, size={self.size}, centroid=[{centroid}], "
+            f"mean_score={float(self.mean_score):.3f}{frame})"
+        )
+
     def to_dict(self) -> dict[str, Any]:
         return {
             "id": self.id,
@@ -531,6 +540,15 @@ class QueryResult:
         """The presence check's decision in words: ``present``, ``absent: ...`` (why the
         mask is empty), ``not checked: ...`` or ``off`` (the config has no check)."""
         return presence_words(self.queryset.provenance)
+
+    def __repr__(self) -> str:
+        """One line: the query, how many of the map's items matched, the instances and
+        the presence decision; the arrays and the query set are the fields."""
+        instances = "off" if self.n_instances is None else self.n_instances
+        return (
+            f"QueryResult(query={self.query!r}, matched={self.n_matched} of {len(self.mask)}, "
+            f"instances={instances}, presence={self.presence!r}, config={self.config_name!r})"
+        )
 
     def summary(self) -> dict[str, Any]:
         return {

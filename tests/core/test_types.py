@@ -48,3 +48,38 @@ def test_a_result_says_what_the_presence_check_decided(info, expected):
     result = QueryResult(qs, np.zeros(4, bool), np.zeros(4, np.float32), np.zeros(4, np.float32))
     assert result.presence.startswith(expected), result.presence
     assert result.summary()["presence"] == result.presence
+
+
+def test_a_result_and_its_instances_print_in_one_line():
+    """``print(result)`` in a notebook printed every field: the query set's hundreds of
+    negatives, the arrays and every index of every instance (thousands of lines)."""
+    from quash_plugins.core.types import Instance
+
+    n = 50_000
+    negatives = [f"negative {i}" for i in range(300)]
+    qs = QuerySet("chair", ["chair", "seat"], negatives, {"presence": {"checked": False}})
+    mask = np.zeros(n, bool)
+    mask[100:877] = True
+    indices = np.flatnonzero(mask)
+    inst = Instance(
+        0, indices, np.array([2.53581, 0.4893, -3.68848]), np.zeros(3), np.ones(3), 0.72031
+    )
+    result = QueryResult(
+        qs,
+        mask,
+        np.zeros(n, np.float32),
+        np.zeros(n, np.float32),
+        instances=[inst],
+        config_name="quash-labels",
+    )
+    text = repr(result)
+    assert "\n" not in text and len(text) < 200, text
+    assert f"matched={int(mask.sum())} of {n}" in text and "'chair'" in text
+    assert "instances=1" in text and "quash-labels" in text and result.presence in text
+    assert "negative 0" not in text
+    one = repr(inst)
+    assert "\n" not in one and len(one) < 120, one
+    assert f"size={len(indices)}" in one and "2.54, 0.489, -3.69" in one and "0.720" in one
+    # a config without instance grouping says so, rather than "0 instances"
+    bare = QueryResult(qs, mask, np.zeros(n, np.float32), np.zeros(n, np.float32))
+    assert "instances=off" in repr(bare)
