@@ -104,3 +104,31 @@ def test_block_runs_as_written(block: Block, workdirs):
         f"{block.id} failed ({proc.returncode}):\n{block.code}\n--- stdout\n"
         f"{proc.stdout[-3000:]}\n--- stderr\n{proc.stderr[-3000:]}"
     )
+
+
+PY_EXAMPLES = [b for b in ALL if b.lang == "python" and "result.instances" in b.code]
+
+
+@pytest.mark.parametrize("block", PY_EXAMPLES, ids=[b.id for b in PY_EXAMPLES])
+def test_python_examples_that_show_instances_find_some(block, minilm_scene, tmp_path, monkeypatch):
+    """The README's and the quickstart's Python examples show ``result.instances`` (the
+    groups a robot goes to) with the shipped ``demo:quash-labels``, whose ``instances:
+    false`` made them always ``[]``; they run here on a make-scene map, with the shipped
+    config, and the chair they ask for is found as objects."""
+    import contextlib
+    import io
+    import shutil
+
+    assert not block.skip, block.id
+    for name in ("scene.npz", "scene.taxonomy.yaml"):
+        shutil.copy(minilm_scene.with_name(name), tmp_path / name)
+    monkeypatch.chdir(tmp_path)
+    namespace: dict = {"__name__": "doc_example"}
+    with contextlib.redirect_stdout(io.StringIO()):
+        exec(compile(block.code, block.id, "exec"), namespace)
+    results = [v for v in namespace.values() if type(v).__name__ == "QueryResult"]
+    assert results, f"{block.id} left no result to look at"
+    for result in results:
+        assert result.n_matched and result.instances, (block.id, result)
+        sizes = [inst.size for inst in result.instances]
+        assert sum(sizes) <= result.n_matched and sizes == sorted(sizes, reverse=True)
