@@ -403,7 +403,24 @@ def _plain(obj: Any) -> Any:
 
 @dataclass
 class Instance:
-    """A connected group of matched items: what a robot navigates to."""
+    """A connected group of matched items: what a robot navigates to.
+
+    Attributes
+    ----------
+    id
+        Its rank in :attr:`QueryResult.instances` (0 is the largest).
+    indices
+        ``(M,)`` int: the map's items (rows) it holds; ``size`` is ``M``.
+    centroid
+        ``(3,)`` float32: the mean position of its items, in metres in the map's frame
+        (a pixel map without positions: pixel ``(col, row, 0)``).
+    bbox_min, bbox_max
+        ``(3,)`` float32: the corners of its axis-aligned box, in the same units.
+    mean_score
+        The mean raw score of its items.
+    frame_id
+        For a pixel map, the image it lies in; None otherwise.
+    """
 
     id: int
     indices: np.ndarray
@@ -490,17 +507,50 @@ def _no_large_component(info: dict[str, Any], n: int) -> str:
 class QueryResult:
     """The answer to one query over one map.
 
+    Row ``i`` of every ``(N,)`` array is item ``i`` of the map, in the order it was read
+    (for a VLMaps map, row ``i`` of ``grid_feat``). To save results as ``quash query
+    --out`` does, use :func:`quash_plugins.engine.write_results_npz`.
+
     Attributes
     ----------
+    queryset
+        The :class:`QuerySet` the classifier was trained on: the query, its positives
+        and negatives, and its ``provenance`` (the heuristic and its parameters, the
+        refinement, the presence check's decision).
     mask
         ``(N,)`` bool, True where the item matches.
     scores
         ``(N,)`` float32 raw decision values; ``mask == scores > threshold``.
     display_scores
         ``(N,)`` float32 in [0, 1], for colormaps; 0.5 at the threshold.
+    threshold
+        The score above which an item matches.
+    instances
+        The matched items in connected groups (:class:`Instance`), largest first; empty
+        when nothing matched or the config groups none (``instances: false``, see
+        :attr:`n_instances`).
+    timings
+        Seconds per stage (``read``, ``expand``, ``encode``, ``fit``, ``classify``, ...)
+        and ``total``.
+    classifier
+        The classifier that decided, in words (with its refinement, if any).
+    config_name
+        The ``name`` of the config.
+    map_source
+        The map's record as its adapter read it (``adapter``, ``path``, ``up``...).
     rejected
         ``(N,)`` bool: the items the last pass matched that the presence check dropped
         (what an absent object's look-alikes were); None when the config has no check.
+    query
+        The query text (``queryset.query``).
+    n_matched
+        How many items match.
+    n_instances
+        ``len(instances)``, or None when the config groups none.
+    share
+        ``n_matched / N``.
+    presence
+        The presence check's decision in words.
     """
 
     queryset: QuerySet

@@ -83,3 +83,30 @@ def test_a_result_and_its_instances_print_in_one_line():
     # a config without instance grouping says so, rather than "0 instances"
     bare = QueryResult(qs, mask, np.zeros(n, np.float32), np.zeros(n, np.float32))
     assert "instances=off" in repr(bare)
+
+
+@pytest.mark.parametrize("cls", ["QueryResult", "Instance"])
+def test_every_field_of_a_result_is_documented(cls):
+    """QueryResult's docstring listed 4 of its 11 fields (not ``instances``, ``timings``
+    or ``map_source``) and none of its properties; Instance's listed none."""
+    import dataclasses
+    import inspect
+
+    from quash_plugins.core import types
+
+    klass = getattr(types, cls)
+    doc = inspect.getdoc(klass)
+    attributes = doc.split("Attributes\n----------\n", 1)[1]
+    documented = set()
+    for line in attributes.splitlines():
+        if line and not line.startswith(" "):
+            documented |= {n.strip() for n in line.split(",")}
+    names = {f.name for f in dataclasses.fields(klass)}
+    names |= {
+        n
+        for n, v in vars(klass).items()
+        if isinstance(v, property) and not n.startswith("_") and n != "size"
+    }
+    missing = names - documented
+    assert not missing, f"{cls} does not document {sorted(missing)}"
+    assert not documented - names, sorted(documented - names)
