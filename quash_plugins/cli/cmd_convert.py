@@ -21,8 +21,9 @@ DST/vlmap_cam/vlmaps_cam.h5df (the camera-base layout: it stores its cell size a
 origin, and its cells are [row, height, col] with y up, so a z-up map is turned rigidly
 to y-up and reads back so; labels go to grid_semantic and vlmap_cam/obj2cls_dict.txt,
 which VLMaps itself ignores). A taxonomy beside SRC (SRC.taxonomy.yaml, as make-scene
-writes it) is copied to DST.taxonomy.yaml for a .npz or .zarr DST, never over a file, so
-the converted map answers as SRC does. The input is only read; the
+writes it) is copied to DST.taxonomy.yaml for a .npz or .zarr DST (with --format vlmaps,
+to DST/vlmap_cam/vlmaps_cam.taxonomy.yaml), never over a file, so the converted map
+answers as SRC does. The input is only read; the
 output appears atomically. Lazy maps (HDF5, per-image features) are streamed block by
 block, so the map is never held whole in memory. DST is never SRC (nor inside it); an
 existing DST is replaced only with --force (with --format openlex3d, a previous export of
@@ -147,7 +148,8 @@ def run(args: argparse.Namespace) -> int:
 
 def _carry_taxonomy(source: str, written: Any) -> Any:
     """Copy ``SRC.taxonomy.yaml`` (what ``quash make-scene`` writes beside its map, and
-    what the taxonomy heuristics read beside a map) to ``DST.taxonomy.yaml``, so that the
+    what the taxonomy heuristics read beside a map) to ``DST.taxonomy.yaml`` (beside the
+    ``.h5df`` that ``--format vlmaps`` writes into its folder), so that the
     converted map answers as its source does. Never replaces a file: an existing one is
     kept with a warning when it differs. Returns the path written, or None."""
     import logging
@@ -160,7 +162,7 @@ def _carry_taxonomy(source: str, written: Any) -> Any:
     if src is None or not src.is_file():
         return None
     dst = taxonomy_path_beside(written)
-    if dst is None:  # a folder (openlex3d, vlmaps): nothing is read beside it
+    if dst is None:  # a folder (openlex3d; vlmaps writes a file into its folder)
         log.info(
             "%s is not carried to %s: give it to a taxonomy config as heuristic file: %s",
             src,

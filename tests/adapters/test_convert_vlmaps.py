@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import hashlib
+import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -76,13 +78,15 @@ def test_make_scene_round_trips_through_vlmaps(minilm_scene, tmp_path):
         assert back.source[key] == src.source[key]
     assert _digest(minilm_scene) == before
 
-    # the same query on both gives the same rows; the sub-classes beside scene.npz are
-    # not beside the converted map, so the config names them (as docs/vlmaps.md does)
+    # the same query on both gives the same rows: the sub-classes beside scene.npz are
+    # copied beside the converted file, where the taxonomy heuristic finds them
     tax = minilm_scene.with_name("scene.taxonomy.yaml")
+    carried = h5.with_name("vlmaps_cam.taxonomy.yaml")
+    assert carried.read_text(encoding="utf-8") == tax.read_text(encoding="utf-8")
     cfg = tmp_path / "quash.yaml"
     cfg.write_text(
         "encoder: minilm\n"
-        f"heuristic: {{name: taxonomy, file: {tax}, n_synonyms: 20, n_antonyms: all}}\n"
+        "heuristic: {name: taxonomy, n_synonyms: 20, n_antonyms: all}\n"
         "classifier: {name: nearest-sample, k: 2}\n"
         "refine: {classifier: svm-rbf, n_positives: 100, n_negatives: 1000, seeds: top}\n"
     )
@@ -91,6 +95,9 @@ def test_make_scene_round_trips_through_vlmaps(minilm_scene, tmp_path):
         assert main(["-q", "query", str(m), "chair", "-c", str(cfg), "--out", str(r)]) == 0
     with np.load(r0) as a, np.load(r1) as b:
         assert a["masks"].any()
+        for z in (a, b):  # each found its map's taxonomy: the query has its sub-classes
+            record = json.loads(str(z["provenance"]))["queries"][0]
+            assert record["labels_from"].endswith(".taxonomy.yaml"), record["labels_from"]
         np.testing.assert_array_equal(a["masks"], b["masks"])
         np.testing.assert_allclose(a["scores"], b["scores"], atol=1e-3)  # rows re-normalised
         mask, scores = a["masks"][0], a["scores"][0]
@@ -211,3 +218,14 @@ def test_convert_up_names_the_axis_a_format_does_not_record(tmp_path):
     assert "up" not in orig.source and read_map(tmp_path / "x.npz").source["up"] == "+x"
     with pytest.raises(UsageError, match=r"up axis 'y'.*\+y"):
         convert_map(src, tmp_path / "z.npz", up="y")
+
+
+def test_the_docs_say_where_convert_puts_the_taxonomy():
+    """docs/vlmaps.md said `quash query vl` could not see make-scene's sub-classes after
+    `quash convert --format vlmaps`, and docs/adapters.md that no taxonomy is carried to
+    a VLMaps folder; convert copies it beside vlmaps_cam.h5df (checked above)."""
+    docs = Path(__file__).resolve().parents[2] / "docs"
+    for page in ("vlmaps.md", "adapters.md"):
+        text = " ".join((docs / page).read_text(encoding="utf-8").split())
+        assert "vlmap_cam/vlmaps_cam.taxonomy.yaml" in text, page
+        assert "does not see them" not in text and "`--format openlex3d`, `vlmaps`)" not in text
