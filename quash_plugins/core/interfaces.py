@@ -79,8 +79,9 @@ class Encoder(ABC):
         version names the code (a class in a script or a local module, or a package
         installed with ``pip install -e``), the source is hashed too
         (:func:`source_digest`: every ``.py`` file of the class's top-level package, or
-        the module file of a class outside a package), so that editing ``encode_text``,
-        or a helper module it calls, does.
+        the module file of a class outside a package; for a built-in encoder, the files
+        of ``quash_plugins/encoders``), so that editing ``encode_text``, or a helper
+        module it calls, does.
         """
         payload = {
             "class": f"{type(self).__module__}.{type(self).__qualname__}",
@@ -117,7 +118,8 @@ def source_digest(cls: type) -> str | None:
 
     For a class in a package, every ``.py`` file of its top-level package is hashed
     (their paths within it and their content), so that editing a helper module the
-    encoder imports changes the digest too; a package of more than
+    encoder imports changes the digest too (for a class of this project, the files of
+    its subpackage: :func:`digest_package`); a package of more than
     :data:`PACKAGE_DIGEST_MAX_FILES` files or :data:`PACKAGE_DIGEST_MAX_BYTES` bytes
     hashes the class's module file only (a debug line says so). A class in a single-file
     module (a script) hashes that file, and a class with no file (an interactive
@@ -146,7 +148,8 @@ def _compute_source_digest(cls: type) -> str | None:
     try:
         if not path:
             return hashlib.sha256(inspect.getsource(cls).encode()).hexdigest()[:16]
-        package = _package_digest(module.partition(".")[0])
+        root = digest_package(module)
+        package = _package_digest(root) if root is not None else None
         if package is not None:
             return package
         return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]
@@ -154,9 +157,30 @@ def _compute_source_digest(cls: type) -> str | None:
         return None
 
 
+def digest_package(module: str) -> str | None:
+    """The package whose ``.py`` files :func:`source_digest` hashes for a class defined in
+    ``module``: its top-level package, or, for a class of this project itself, the
+    subpackage it sits in (``quash_plugins.encoders``; None, i.e. the module file, for a
+    module directly under the top level). This project's other modules (the CLI, the
+    viewer, evaluation) change with nearly every commit of an editable install and do not
+    change what a built-in encoder returns; hashing them changed every built-in
+    fingerprint, and so emptied the text cache and warned about every map built before,
+    after any edit or ``git pull``.
+
+    Examples
+    --------
+    >>> digest_package("my_plugin.nets.clip"), digest_package("quash_plugins.encoders._table")
+    ('my_plugin', 'quash_plugins.encoders')
+    """
+    parts = module.split(".")
+    if parts[0] != __name__.partition(".")[0]:
+        return parts[0]
+    return ".".join(parts[:2]) if len(parts) > 2 else None
+
+
 def _package_digest(top: str) -> str | None:
-    """A digest of every ``.py`` file under the top-level package ``top`` (paths relative
-    to its folder, in order, and contents), or None: ``top`` is no package (a single-file
+    """A digest of every ``.py`` file under the package ``top`` (paths relative to its
+    folder, in order, and contents), or None: ``top`` is no package (a single-file
     module) or exceeds the bounds."""
     import sys
 

@@ -442,3 +442,22 @@ def test_messages_name_the_plugin_a_factory_entry_point_was_registered_under(cap
     finally:
         registry.unregister("encoders", "fast-sloppy", dist="tests")
         registry.unregister("encoders", "fast-failing", dist="tests")
+
+
+def test_a_built_in_encoder_hashes_its_own_subpackage_not_the_whole_project(monkeypatch):
+    """In an editable checkout every commit edits some module of quash_plugins (the CLI,
+    the viewer): hashing them all gave the built-in encoders a new fingerprint at every
+    edit or pull, an empty text cache, and a "built with another embedding function"
+    warning for every map built before. Their own subpackage is hashed instead."""
+    from quash_plugins.core import interfaces
+    from quash_plugins.encoders._table import TableEncoder
+
+    monkeypatch.setattr(registry, "distribution_of", lambda module: None)  # unversioned
+    asked = []
+    monkeypatch.setattr(interfaces, "_package_digest", lambda p: asked.append(p) or "d")
+    monkeypatch.setattr(interfaces, "_SOURCE_DIGESTS", interfaces.weakref.WeakKeyDictionary())
+    assert interfaces.source_digest(TableEncoder) == "d"
+    assert asked == ["quash_plugins.encoders"]
+    assert interfaces.digest_package("my_plugin.nets.clip") == "my_plugin"
+    assert interfaces.digest_package("quash_plugins.viewer._rerun") == "quash_plugins.viewer"
+    assert interfaces.digest_package("quash_plugins.main") is None  # its module file
