@@ -11,6 +11,8 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from ..core.cache_dirs import cache_dir, make_private_dirs
 from ..evaluation.report import EvalReport, evaluate
 from .scene import SceneOptions, make_scene, write_scene
@@ -61,17 +63,48 @@ def demo_config_paths() -> list[Path]:
 def demo_scene(
     encoder: Any, tiny: bool = False, seed: int = 0, cache: Any = None, rebuild: bool = False
 ) -> Path:
-    """Build (once) and return the cached demo scene's NPZ path."""
+    """Build (once) and return the cached demo scene's NPZ path.
+
+    A cached scene that another embedding function built (its recorded
+    ``encoder_fingerprint`` is neither ``encoder``'s nor one of its earlier names: other
+    weights under the same encoder name) is built again: queried, it would be scored in
+    another space."""
     opts = SceneOptions(**{**TINY.__dict__, "seed": seed}) if tiny else SceneOptions(seed=seed)
     tag = "tiny" if tiny else "full"
     path = cache_root() / f"scene-v{SCENE_VERSION}-{tag}-seed{seed}-{encoder.name}.npz"
     if path.exists() and not rebuild:
-        log.info("demo scene from cache: %s", path)
-        return path
+        built = _built_with(path)
+        if built is None or _same_function(encoder, built):
+            log.info("demo scene from cache: %s", path)
+            return path
+        log.info(
+            "demo scene %s was built by another embedding function (%s); building it again",
+            path,
+            built,
+        )
     log.info("building the demo scene (%s) in %s", tag, path.parent)
     make_private_dirs(path.parent)
     write_scene(make_scene(encoder, opts, cache=cache), path, opts)
     return path
+
+
+def _built_with(path: Path) -> str | None:
+    """The encoder fingerprint a scene file records (None: none, or unreadable)."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return str(z["encoder_fingerprint"]) if "encoder_fingerprint" in z.files else None
+    except (OSError, ValueError, KeyError):
+        return None
+
+
+def _same_function(encoder: Any, fingerprint: str) -> bool:
+    """``fingerprint`` names ``encoder``'s embedding function, now or as earlier
+    versions named it (``earlier_fingerprints``)."""
+    fp = getattr(encoder, "fingerprint", None)
+    if not callable(fp) or fingerprint == fp():
+        return True
+    earlier = getattr(encoder, "earlier_fingerprints", None)
+    return callable(earlier) and fingerprint in earlier()
 
 
 def run_demo(

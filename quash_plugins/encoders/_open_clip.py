@@ -38,7 +38,14 @@ from ._open_clip_weights import (
     network_timeout,
     seeded,
 )
-from ._runtime import hf_offline, read_json, require, resolve_device, weights_identity
+from ._runtime import (
+    hf_offline,
+    legacy_weights_identity,
+    read_json,
+    require,
+    resolve_device,
+    weights_identity,
+)
 
 log = logging.getLogger(__name__)
 
@@ -166,7 +173,7 @@ class OpenClipEncoder(Encoder):
                         f"open-clip local-dir {d} needs {HF_CONFIG_NAME} and a weights file "
                         f"({' or '.join(HF_WEIGHT_NAMES)})."
                     )
-                return Resolved(self.model, schema=schema, identity=weights_identity(d))
+                return Resolved(self.model, schema=schema, identity=weights_identity(d), weights=d)
             config = hf_cached_file(ident, (HF_CONFIG_NAME,), self.cache_dir)
             weights = hf_cached_file(ident, HF_WEIGHT_NAMES, self.cache_dir)
             if (config is None or weights is None) and self._offline:
@@ -182,7 +189,7 @@ class OpenClipEncoder(Encoder):
                     fix_timeout=True,
                 )
             ident_w = weights_identity(weights) if weights is not None else self.model
-            return Resolved(self.model, schema=schema, identity=ident_w)
+            return Resolved(self.model, schema=schema, identity=ident_w, weights=weights)
         if self.model.replace("/", "-") not in open_clip.list_models():
             guess = closest(self.model, open_clip.list_models())
             hint = f" Did you mean {guess!r}?" if guess else ""
@@ -216,6 +223,7 @@ class OpenClipEncoder(Encoder):
                 tag=tag,
                 tag_cfg=tag_cfg,
                 identity=weights_identity(path),
+                weights=path,
             )
         if tag is None or str(tag).lower() in RANDOM:
             if tag is None and self.preset is None:
@@ -230,7 +238,14 @@ class OpenClipEncoder(Encoder):
         if found is None and self._offline:
             raise missing_weights_error(what, places, self.model, fix_timeout=True)
         identity = weights_identity(found) if found is not None else {"tag": tag}
-        return Resolved(self.model, checkpoint=found, tag=tag, tag_cfg=tag_cfg, identity=identity)
+        return Resolved(
+            self.model,
+            checkpoint=found,
+            tag=tag,
+            tag_cfg=tag_cfg,
+            identity=identity,
+            weights=found,
+        )
 
     # ------------------------------------------------------------------ loading
     @property
@@ -386,12 +401,24 @@ class OpenClipEncoder(Encoder):
 
     def fingerprint(self) -> str:
         """Architecture, weights identity, QuickGELU, precision and normalisation."""
+        return self._fingerprint(self._resolved.identity)
+
+    def earlier_fingerprints(self) -> list[str]:
+        """The fingerprint as quash-plugins wrote it before weights were named by their
+        content (their path and mtimes, :func:`legacy_weights_identity`): maps built then
+        with these weights are not warned about."""
+        r = self._resolved
+        if r.weights is None or not Path(r.weights).exists():
+            return []
+        return [self._fingerprint(legacy_weights_identity(r.weights))]
+
+    def _fingerprint(self, weights: Any) -> str:
         r = self._resolved
         ident = {
             "class": f"{type(self).__module__}.{type(self).__qualname__}",
             "model": self.model,
             "tag": r.tag,
-            "weights": r.identity,
+            "weights": weights,
             "quick_gelu": bool(r.tag_cfg.get("quick_gelu")),
             "precision": self.resolved_precision,
             "normalized": True,

@@ -34,7 +34,8 @@ class Resolved:
 
     ``checkpoint`` is a local file to load (or None for random weights / schema models),
     ``tag_cfg`` the pretrained-tag configuration whose preprocessing and QuickGELU flag
-    apply, and ``identity`` what enters the fingerprint.
+    apply, ``identity`` what enters the fingerprint, and ``weights`` the file or folder
+    it names (None when no weights are on disk), for the earlier fingerprints.
     """
 
     model_name: str
@@ -44,6 +45,7 @@ class Resolved:
     random: bool = False
     schema: str | None = None
     identity: Any = None
+    weights: Path | None = None
 
 
 def hf_cache_dir(cache_dir: str | None = None) -> Path:

@@ -24,7 +24,7 @@ log = logging.getLogger(__name__)
 #: Environment variables that put the Hugging Face libraries into offline mode.
 OFFLINE_ENV = ("HF_HUB_OFFLINE", "TRANSFORMERS_OFFLINE", "HF_DATASETS_OFFLINE")
 
-#: Weight files whose sizes and mtimes enter a fingerprint.
+#: Weight files whose sizes and content digests enter a fingerprint.
 _WEIGHT_SUFFIXES = (".safetensors", ".bin", ".pt", ".pth", ".ckpt", ".msgpack", ".h5")
 #: Small config files whose content enters a fingerprint.
 _CONFIG_NAMES = (
@@ -134,18 +134,39 @@ def safetensors_header_digest(path: Path) -> str | None:
 
 
 def weights_identity(path: str | Path) -> dict[str, Any]:
-    """A cheap identity of the weights at ``path`` (a file or a model directory).
+    """The identity of the weights at ``path`` (a file or a model directory): what they
+    are, not where they lie.
 
-    Combines the content of small config files, the size and mtime of every weight file,
-    and each safetensors header digest. Reads no tensor data.
+    Combines the content of small config files and, for every weight file, its path
+    within ``path``, its size and the SHA-256 of its content (:func:`content_digest`:
+    read once per file and remembered by path, size and mtime, so a later call reads no
+    tensor data). The same weights installed in two virtual environments, copied, or
+    reinstalled (a new mtime) have one identity, so a map built in one checkout is not
+    called "built with another embedding function" in the other, and the text cache is
+    shared; two fine-tunes of one architecture (the same sizes and safetensors header)
+    do not.
     """
     path = Path(path).expanduser()
-    files: list[Path]
-    if path.is_file():
-        root, files = path.parent, [path]
-    else:
-        root = path
-        files = sorted(p for p in path.rglob("*") if p.is_file())
+    root, files = _weight_files(path)
+    h = hashlib.sha256()
+    n_weights = 0
+    for p in files:
+        rel = p.relative_to(root).as_posix()
+        if p.name in _CONFIG_NAMES:
+            h.update(f"{rel}:".encode())
+            h.update(p.read_bytes())
+        elif p.suffix in _WEIGHT_SUFFIXES:
+            h.update(f"{rel}:{p.stat().st_size}:{content_digest(p)}".encode())
+            n_weights += 1
+    return {"files": n_weights, "sha": h.hexdigest()[:16]}
+
+
+def legacy_weights_identity(path: str | Path) -> dict[str, Any]:
+    """:func:`weights_identity` as quash-plugins named weights before it was content
+    based (the resolved path, and each weight file's size, mtime and safetensors header):
+    for ``earlier_fingerprints``, so maps and cache rows made then are still recognised."""
+    path = Path(path).expanduser()
+    root, files = _weight_files(path)
     h = hashlib.sha256()
     n_weights = 0
     for p in files:
@@ -160,6 +181,51 @@ def weights_identity(path: str | Path) -> dict[str, Any]:
                 h.update((safetensors_header_digest(p) or "").encode())
             n_weights += 1
     return {"path": str(path.resolve()), "files": n_weights, "sha": h.hexdigest()[:16]}
+
+
+def _weight_files(path: Path) -> tuple[Path, list[Path]]:
+    if path.is_file():
+        return path.parent, [path]
+    return path, sorted(p for p in path.rglob("*") if p.is_file())
+
+
+#: Files larger than this log a line while their content is hashed (once per file).
+_HASH_LOG_BYTES = 512 * 2**20
+
+
+def content_digest(path: Path) -> str:
+    """SHA-256 (16 hex digits) of the content of the file at ``path``, remembered under
+    ``<cache>/weight-digests`` by the file's resolved path, size, mtime and inode: a file
+    is read once, not at every start (a ViT-H checkpoint is 4 GB). A memo that cannot be
+    read or written is not used (the file is hashed each time); a changed file is a new
+    key; a memo that is a symbolic link is not read."""
+    from ..core.cache_dirs import cache_dir, make_private_dirs
+
+    st = path.stat()
+    key = hashlib.sha256(
+        f"{path.resolve()}|{st.st_size}|{st.st_mtime_ns}|{st.st_ino}".encode()
+    ).hexdigest()[:32]
+    memo = cache_dir("weight-digests") / key
+    with contextlib.suppress(OSError, UnicodeDecodeError):
+        if not memo.is_symlink() and memo.is_file():  # a planted link is not followed
+            known = memo.read_text(encoding="ascii").strip()
+            if len(known) == 16 and all(c in "0123456789abcdef" for c in known):
+                return known
+    if st.st_size > _HASH_LOG_BYTES:
+        log.info("hashing %s (%.1f GB) once, to name these weights", path, st.st_size / 1e9)
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(8 * 2**20), b""):
+            h.update(block)
+    digest = h.hexdigest()[:16]
+    from ..core.errors import UsageError
+
+    with contextlib.suppress(OSError, UsageError):  # unwritable, or a planted link there
+        from ..core.atomic import atomic_write_text
+
+        make_private_dirs(memo.parent)
+        atomic_write_text(memo, digest + "\n")
+    return digest
 
 
 def read_json(path: Path) -> Any:

@@ -18,7 +18,14 @@ import numpy as np
 from ..core.config import check_device
 from ..core.errors import EncoderError
 from ..core.interfaces import Encoder
-from ._runtime import hf_offline, read_json, require, resolve_device, weights_identity
+from ._runtime import (
+    hf_offline,
+    legacy_weights_identity,
+    read_json,
+    require,
+    resolve_device,
+    weights_identity,
+)
 
 log = logging.getLogger(__name__)
 
@@ -210,20 +217,30 @@ class SentenceTransformerEncoder(Encoder):
         return f"sentence-transformers-{hashlib.sha256(blob).hexdigest()[:16]}"
 
     def earlier_fingerprints(self) -> list[str]:
-        """What quash-plugins 0.x before this naming called the same embedding function
-        (the model string and the class were hashed too): a map whose record carries one
-        of these was built with these weights, so a query is not warned about it."""
+        """What earlier quash-plugins versions called the same embedding function: before
+        the weights were named by their content (:func:`legacy_weights_identity`: their
+        path and mtimes), and in 0.x before this naming (the model string and the class
+        were hashed too). A map whose record carries one of these was built with these
+        weights, so a query is not warned about it."""
         import hashlib
         import json
 
-        ident: dict[str, Any] = {
+        legacy = legacy_weights_identity(self._path) if self._path is not None else None
+        named = {"family": "sentence-transformers", "normalize": self.normalize, "weights": legacy}
+        first = {
             "model": self.model,
             "normalize": self.normalize,
-            "weights": weights_identity(self._path) if self._path is not None else None,
+            "weights": legacy,
             "class": f"{type(self).__module__}.{type(self).__qualname__}",
         }
-        blob = json.dumps(ident, sort_keys=True, default=str).encode()
-        return [f"{self.name}-{hashlib.sha256(blob).hexdigest()[:16]}"]
+        digest = [
+            hashlib.sha256(json.dumps(i, sort_keys=True, default=str).encode()).hexdigest()[:16]
+            for i in (named, first)
+        ]
+        earlier = [f"{self.name}-{digest[1]}"]
+        if legacy is not None:  # without weights on disk the name has not changed
+            earlier.insert(0, f"sentence-transformers-{digest[0]}")
+        return earlier
 
 
 class MiniLMEncoder(SentenceTransformerEncoder):

@@ -212,3 +212,38 @@ def _close(shown: str, ran: str) -> bool:
     if "." in a or "." in b:
         return abs(x - y) <= 0.005
     return abs(x - y) <= max(1.0, 0.01 * abs(y))
+
+
+def test_a_cached_scene_of_another_embedding_function_is_built_again(tmp_path, monkeypatch):
+    """The demo's cached scene is named by the encoder's name; one that other weights
+    under that name built is not reused (it would be queried in another space), one
+    that these weights built, now or under an earlier name, is."""
+    import numpy as np
+
+    import quash_plugins.demo.runner as runner
+
+    monkeypatch.setenv("QUASH_CACHE_DIR", str(tmp_path))
+    built = []
+    monkeypatch.setattr(runner, "make_scene", lambda enc, opts, cache=None: "scene")
+    monkeypatch.setattr(runner, "write_scene", lambda scene, path, opts: built.append(path))
+
+    class Enc:
+        name = "minilm"
+
+        def fingerprint(self):
+            return "sentence-transformers-new"
+
+        def earlier_fingerprints(self):
+            return ["sentence-transformers-old"]
+
+    path = tmp_path / "demo" / f"scene-v{runner.SCENE_VERSION}-tiny-seed0-minilm.npz"
+    path.parent.mkdir(parents=True)
+    for recorded, rebuilt in (
+        ("sentence-transformers-new", False),
+        ("sentence-transformers-old", False),
+        ("sentence-transformers-other", True),
+    ):
+        np.savez(path, embeddings=np.zeros((1, 2)), encoder_fingerprint=recorded)
+        built.clear()
+        assert runner.demo_scene(Enc(), tiny=True) == path
+        assert built == ([path] if rebuilt else []), recorded

@@ -161,15 +161,88 @@ def test_a_map_recorded_under_the_earlier_name_is_not_warned_about(caplog):
     from quash_plugins.engine.map_fit import warn_built_by
 
     mini = MiniLMEncoder(device="cpu")
-    [earlier] = mini.earlier_fingerprints()
-    assert earlier.startswith("minilm-") and earlier != mini.fingerprint()
+    earlier = mini.earlier_fingerprints()
+    assert len(earlier) == 2 and mini.fingerprint() not in earlier
+    assert any(e.startswith("minilm-") for e in earlier)
+    for i, fp in enumerate(earlier):
+        lmap = LatentMap(
+            embeddings=np.eye(2, 384, dtype=np.float32),
+            source={"path": f"old{i}.npz", "encoder": "minilm", "encoder_fingerprint": fp},
+        )
+        with caplog.at_level("WARNING"):
+            warn_built_by(mini, lmap)
+    assert "was built with encoder" not in caplog.text
+
+
+def test_a_map_built_before_weights_were_named_by_content_is_not_warned_about(caplog):
+    """The fingerprint as it was computed before (the weights' resolved path, each weight
+    file's size, mtime and safetensors header), computed here from that rule."""
+    import hashlib
+    import json
+    import struct
+
+    from quash_plugins.core.types import LatentMap
+    from quash_plugins.encoders._sentence_transformers import MiniLMEncoder
+    from quash_plugins.engine.map_fit import warn_built_by
+
+    mini = MiniLMEncoder(device="cpu")
+    root = mini._path
+    h = hashlib.sha256()
+    n = 0
+    for p in sorted(q for q in root.rglob("*") if q.is_file()):
+        rel = p.relative_to(root).as_posix()
+        if p.name in ("config.json", "modules.json", "config_sentence_transformers.json",
+                      "sentence_bert_config.json", "tokenizer_config.json",
+                      "open_clip_config.json"):  # fmt: skip
+            h.update(f"{rel}:".encode() + p.read_bytes())
+        elif p.suffix in (".safetensors", ".bin", ".pt", ".pth", ".ckpt", ".msgpack", ".h5"):
+            st = p.stat()
+            h.update(f"{rel}:{st.st_size}:{st.st_mtime_ns}".encode())
+            if p.suffix == ".safetensors":
+                with open(p, "rb") as fh:
+                    (k,) = struct.unpack("<Q", fh.read(8))
+                    h.update(hashlib.sha256(fh.read(k)).hexdigest()[:16].encode())
+            n += 1
+    weights = {"path": str(root.resolve()), "files": n, "sha": h.hexdigest()[:16]}
+    ident = {"family": "sentence-transformers", "normalize": True, "weights": weights}
+    old = hashlib.sha256(json.dumps(ident, sort_keys=True).encode()).hexdigest()[:16]
+    old = f"sentence-transformers-{old}"
+    assert old != mini.fingerprint() and old in mini.earlier_fingerprints()
     lmap = LatentMap(
         embeddings=np.eye(2, 384, dtype=np.float32),
-        source={"path": "old.npz", "encoder": "minilm", "encoder_fingerprint": earlier},
+        source={"path": "before.npz", "encoder": "minilm", "encoder_fingerprint": old},
     )
     with caplog.at_level("WARNING"):
         warn_built_by(mini, lmap)
     assert "was built with encoder" not in caplog.text
+
+
+def test_the_same_weights_in_another_environment_have_one_fingerprint(tmp_path, monkeypatch):
+    """A second checkout or a reinstalled venv holds the same files at another path with
+    new mtimes: one fingerprint, so its maps and text cache are the same function's."""
+    import shutil
+
+    from quash_plugins.encoders._sentence_transformers import (
+        MiniLMEncoder,
+        SentenceTransformerEncoder,
+    )
+
+    monkeypatch.setenv("QUASH_CACHE_DIR", str(tmp_path / "cache"))
+    mini = MiniLMEncoder(device="cpu")
+    copy = tmp_path / "other-venv" / "model"
+    shutil.copytree(mini._path, copy)  # copytree gives the copies new mtimes
+    for p in copy.rglob("*.safetensors"):
+        os.utime(p, ns=(1, 10**18))
+    other = SentenceTransformerEncoder(model=str(copy), device="cpu")
+    assert other.fingerprint() == mini.fingerprint()
+    # and other weights under the same files' names are another function
+    [w] = list(copy.rglob("model.safetensors"))
+    data = bytearray(w.read_bytes())
+    data[-1] ^= 0xFF
+    w.write_bytes(bytes(data))
+    assert SentenceTransformerEncoder(model=str(copy), device="cpu").fingerprint() != (
+        mini.fingerprint()
+    )
 
 
 def test_sentence_transformers_missing_model_says_how_to_fix():
