@@ -31,6 +31,21 @@ WORDS = [
 ]
 
 
+@pytest.fixture(autouse=True)
+def _package_logging_restored():
+    """``main()`` routes the package's logging to its own stderr handler and stops it
+    propagating; restore that after each test, so that ``caplog`` in a later test of the
+    same process still sees the package's records."""
+    import logging
+
+    logger = logging.getLogger("quash_plugins")
+    handlers, level, propagate = logger.handlers[:], logger.level, logger.propagate
+    yield
+    logger.handlers[:] = handlers
+    logger.setLevel(level)
+    logger.propagate = propagate
+
+
 @pytest.fixture
 def tiny_world(tmp_path):
     """A 16-d text table and a 600-item NPZ map whose items sit near their label's word.
