@@ -47,6 +47,18 @@ def _package_logging_restored():
 
 
 @pytest.fixture
+def no_vlmaps(monkeypatch):
+    """As on a machine without VLMaps (``_no_vlmaps.hide_vlmaps``)."""
+    from _no_vlmaps import hide_vlmaps
+
+    from quash_plugins.core import once
+
+    hide_vlmaps(monkeypatch)
+    yield
+    once.forget("no-vlmaps")
+
+
+@pytest.fixture
 def tiny_world(tmp_path):
     """A 16-d text table and a 600-item NPZ map whose items sit near their label's word.
 

@@ -59,37 +59,16 @@ FAIR_PEERS = tuple(f"demo:{name}" for name in LIST_PEERS)
 
 def fair_default_configs() -> list[QuashConfig]:
     """The configs of ``quash eval`` given no ``-c``: the fair peers, then the default
-    config; the peers take the default config's encoder (a map has one text encoder)."""
+    config; the peers take the default config's encoder (a map has one text encoder).
+
+    The VLMaps peer's ``templates: vlmaps-or-default`` takes VLMaps' prompt templates
+    when VLMaps is installed, else ours, said at INFO (the user did not choose the peer).
+    """
     import dataclasses
 
     default = QuashConfig.default()
-    peers = [_with_installed_templates(load_config(name), name) for name in FAIR_PEERS]
+    peers = [load_config(name) for name in FAIR_PEERS]
     return [dataclasses.replace(p, encoder=default.encoder) for p in peers] + [default]
-
-
-def _with_installed_templates(cfg: QuashConfig, ref: str) -> QuashConfig:
-    """The peer ``ref`` that asks for VLMaps' prompt templates (``templates: vlmaps``), with our
-    default templates in their place when no VLMaps is installed, said at INFO.
-
-    The user did not choose the peer, and the stand-in is what a config naming
-    ``templates: vlmaps`` gets anyway (with a warning, since there the user asked for
-    VLMaps' own list): so a plain ``quash eval MAP`` warns only when something is wrong.
-    """
-    import dataclasses
-    import logging
-
-    from ..core.text import VLMAPS_TEMPLATES, vlmaps_templates_file
-
-    pt = cfg.prompt_templates
-    if not pt or pt.get("templates") != VLMAPS_TEMPLATES or vlmaps_templates_file():
-        return cfg
-    logging.getLogger(__name__).info(
-        "%s: no VLMaps is installed, so its prompt templates are our default ones, not "
-        "VLMaps' own (-c %s asks for VLMaps' and warns without them)",
-        cfg.name,
-        ref,
-    )
-    return dataclasses.replace(cfg, prompt_templates={**pt, "templates": "default"})
 
 
 def _default_summary() -> str:
@@ -130,6 +109,7 @@ def input_files(map_path: str | None, configs: list[QuashConfig]) -> list[str]:
     ``heuristic.file``, a vocabulary, a prompt-template file...). A file that does not
     exist is listed too: nothing will then be read from it, and checks skip it."""
     from ..core.config import PluginSpec, _is_path_key
+    from ..core.text import TEMPLATE_NAMES
     from ..heuristics import taxonomy_path_beside
 
     found: list[str] = []
@@ -156,7 +136,7 @@ def input_files(map_path: str | None, configs: list[QuashConfig]) -> list[str]:
             if isinstance(value, PluginSpec):
                 walk(value.params)
         templates = (cfg.prompt_templates or {}).get("templates")
-        if isinstance(templates, str) and templates not in ("default", "vlmaps"):
+        if isinstance(templates, str) and templates not in TEMPLATE_NAMES:
             found.append(templates)
     return [f for f in found if "://" not in f and not f.startswith("hf-hub:")]
 

@@ -73,7 +73,8 @@ def _summary(prov: dict) -> str:
         bits.append(f"synonyms by {syn.get('heuristic')}, antonyms by {ant.get('heuristic')}")
     tpl = prov.get("prompt_templates")
     if tpl:
-        bits.append(f"{tpl.get('count')} prompt templates, mode {tpl.get('mode')}")
+        source = f" from {tpl['source']}" if tpl.get("source") else ""
+        bits.append(f"{tpl.get('count')} prompt templates{source}, mode {tpl.get('mode')}")
     mined = prov.get("map_negatives")
     if mined:
         added = ", ".join(mined.get("added") or []) or "none"

@@ -156,8 +156,8 @@ class QuashConfig:
         default=None,
         metadata={
             "help": "Prompt engineering for any heuristic: {mode: mean|all, templates: "
-            "default|vlmaps|[...]|FILE, normalize: true|false (re-normalise the mean; "
-            "VLMaps does not)}. null turns it off."
+            "default|vlmaps|vlmaps-or-default|[...]|FILE, normalize: true|false "
+            "(re-normalise the mean; VLMaps does not)}. null turns it off."
         },
     )
     map_negatives: dict[str, Any] | None = field(
@@ -313,10 +313,15 @@ def _convert(cls, key: str, value: Any, where: _Where, path) -> Any:
         if not isinstance(value, dict):
             raise ConfigError(f"{where.at((key,))}{key!r} must be a mapping, true or null.")
         if key == "prompt_templates":
+            from .text import TEMPLATE_NAMES, misspelt_template_name
+
             value = dict(value)
             tpl = value.get("templates")
-            if isinstance(tpl, str) and tpl not in ("default", "vlmaps"):
+            if isinstance(tpl, str) and tpl not in TEMPLATE_NAMES:
                 value["templates"] = _resolve_path(tpl, path)
+                misspelt = misspelt_template_name(value["templates"])
+                if misspelt:  # a name, not a file: say so here, with the file and line
+                    raise ConfigError(f"{where.at((key, 'templates'))}{misspelt}")
         return dict(value)
     typ = {
         "name": str,

@@ -6,11 +6,18 @@ import logging
 from collections.abc import Sequence
 from importlib import resources
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 
-from .errors import ConfigError, EncoderError, QuashError, install_hint, missing_module
+from .errors import (
+    ConfigError,
+    EncoderError,
+    QuashError,
+    closest,
+    install_hint,
+    missing_module,
+)
 from .interfaces import Encoder, check_text_embeddings, plugin_name
 from .once import first_time
 from .registry import distribution_of
@@ -84,8 +91,17 @@ def encode_texts(
     return np.stack([found[t] for t in texts]).astype(np.float32, copy=False)
 
 
-#: ``templates: vlmaps``: VLMaps' own prompt templates, from the user's installed VLMaps.
+#: ``templates: vlmaps``: VLMaps' own prompt templates, from the user's installed VLMaps;
+#: without one, our default list with a warning (the rule is then not VLMaps' exactly).
 VLMAPS_TEMPLATES = "vlmaps"
+#: ``templates: vlmaps-or-default``: VLMaps' own list when VLMaps is installed, else our
+#: default list, said at INFO and never warned. The name reads as its two outcomes, each
+#: itself a template name. It is for configs run where VLMaps is not expected to be
+#: installed (the shipped demo peers that ``quash demo``, ``quash eval`` and the
+#: benchmarks run), where the stand-in is the expected case, not a mistake to warn about.
+VLMAPS_OR_DEFAULT = "vlmaps-or-default"
+#: The template lists a ``templates`` setting may name; any other string is a file.
+TEMPLATE_NAMES = ("default", VLMAPS_TEMPLATES, VLMAPS_OR_DEFAULT)
 #: The module-level list that holds them in ``vlmaps/utils/clip_utils.py``.
 VLMAPS_TEMPLATES_VARIABLE = "multiple_templates"
 
@@ -149,55 +165,129 @@ def read_vlmaps_templates(path: str | Path) -> list[str]:
     return list(value)
 
 
-def load_templates(spec: Any) -> list[str]:
-    """Resolve a ``templates`` setting.
+class Templates(NamedTuple):
+    """Resolved prompt templates and, in words, where they came from (for provenance)."""
 
-    ``"default"`` (our list), ``"vlmaps"`` (VLMaps' own list from the installed ``vlmaps``
-    package, see :func:`vlmaps_templates_file`; our list with a warning when VLMaps is
-    not installed), a list, or a file: ``.txt`` (one per line), ``.yaml`` (a list) or
-    ``.py`` (its module-level ``multiple_templates`` list, e.g. VLMaps' ``clip_utils.py``
-    in a clone that is not installed).
+    templates: list[str]
+    source: str
+
+
+class TemplateList(list):
+    """A resolved template list that remembers where it came from (``source``): handed
+    on as a ``templates`` setting (the ``templates`` heuristic's), the provenance of the
+    pipeline that adopts it still says where the list came from."""
+
+    def __init__(self, templates: Sequence[str], source: str) -> None:
+        super().__init__(templates)
+        self.source = source
+
+
+def load_templates(spec: Any) -> list[str]:
+    """Resolve a ``templates`` setting to its list (see :func:`resolve_templates`)."""
+    return resolve_templates(spec).templates
+
+
+def resolve_templates(spec: Any) -> Templates:
+    """Resolve a ``templates`` setting: the list and where it came from.
+
+    ``"default"`` (our list); ``"vlmaps"`` (VLMaps' own list from the installed
+    ``vlmaps`` package, see :func:`vlmaps_templates_file`; our list with a warning when
+    VLMaps is not installed); ``"vlmaps-or-default"`` (the same, but without VLMaps our
+    list is said at INFO, not warned); a list; or a file: ``.txt`` (one per line),
+    ``.yaml`` (a list) or ``.py`` (its module-level ``multiple_templates`` list, e.g.
+    VLMaps' ``clip_utils.py`` in a clone that is not installed).
+
+    Examples
+    --------
+    >>> resolve_templates("default").source
+    'our default list'
+    >>> resolve_templates(["a {}.", "the {}."])
+    Templates(templates=['a {}.', 'the {}.'], source='a list of 2 in the config')
     """
-    if spec == VLMAPS_TEMPLATES:
+    if spec in (VLMAPS_TEMPLATES, VLMAPS_OR_DEFAULT):
         found = vlmaps_templates_file()
         if found is not None:
-            return _checked_templates(read_vlmaps_templates(found))
-        # Once per process: a benchmark builds the VLMaps configs for every scene.
+            return Templates(
+                _checked_templates(read_vlmaps_templates(found)), f"VLMaps' list ({found})"
+            )
+        _say_no_vlmaps(spec)
+        return Templates(_default_templates(), f"our default list ({spec}: no VLMaps installed)")
+    if spec is None or spec == "default":
+        return Templates(_default_templates(), "our default list")
+    if isinstance(spec, (list, tuple)):
+        templates = [str(t) for t in spec]
+        source = getattr(spec, "source", None) or f"a list of {len(templates)} in the config"
+        return Templates(_checked_lines(templates), source)
+    path = Path(str(spec)).expanduser()
+    if not path.exists():
+        raise ConfigError(
+            misspelt_template_name(path)
+            or f"Prompt-template file not found: {path} (prompt_templates: templates:). Fix "
+            f"the path, or name one of the template lists: {', '.join(TEMPLATE_NAMES)}."
+        )
+    if path.suffix == ".py":
+        return Templates(_checked_templates(read_vlmaps_templates(path)), str(path))
+    if path.suffix in (".yaml", ".yml"):
+        from .config import load_yaml
+
+        data, _ = load_yaml(path)
+        if not isinstance(data, list):
+            raise ConfigError(f"{path}: expected a YAML list of templates with '{{}}'.")
+        return Templates(_checked_lines([str(t) for t in data]), str(path))
+    from .config import read_text_file
+
+    text = read_text_file(path, "prompt-template file")
+    return Templates(_checked_lines([ln.strip() for ln in text.splitlines()]), str(path))
+
+
+def misspelt_template_name(path: str | Path) -> str | None:
+    """The error for a ``templates`` setting that reads as a template name, not a file
+    (no suffix, no such file: ``vlmaps-or-defualt``), naming the known ones; else None."""
+    path = Path(path).expanduser()
+    if path.suffix or path.exists():
+        return None
+    near = closest(path.name, TEMPLATE_NAMES)
+    return (
+        f"prompt_templates: templates: {path.name!r} is not a template list "
+        f"({', '.join(TEMPLATE_NAMES)}) and there is no such file ({path})."
+        + (f" Did you mean {near!r}?" if near else "")
+        + " Name one of the lists, or give a .txt, .yaml or .py file of templates."
+    )
+
+
+def _say_no_vlmaps(spec: str) -> None:
+    """Without VLMaps, ``vlmaps`` warns (once per process, then INFO: a benchmark builds
+    the VLMaps configs for every scene); ``vlmaps-or-default`` says it at INFO (once,
+    then DEBUG)."""
+    first = first_time(("no-vlmaps", spec))
+    if spec == VLMAPS_TEMPLATES:
         log.log(
-            logging.WARNING if first_time(("no-vlmaps",)) else logging.INFO,
+            logging.WARNING if first else logging.INFO,
             "templates: vlmaps: no installed VLMaps package was found (vlmaps/utils/"
             "clip_utils.py), so the default templates are used and the rule is not VLMaps' "
             "exactly. Install VLMaps from its clone (pip install -e .), or set templates: "
-            "to VLMaps' clip_utils.py or to a file with one template per line.",
+            "to VLMaps' clip_utils.py or to a file with one template per line (or to "
+            f"{VLMAPS_OR_DEFAULT} to take the default ones without this warning).",
         )
-        spec = "default"
-    if spec is None or spec == "default":
-        text = (
-            resources.files("quash_plugins.data")
-            .joinpath("prompt_templates.txt")
-            .read_text(encoding="utf-8")
-        )
-        templates = [ln.strip() for ln in text.splitlines()]
-    elif isinstance(spec, (list, tuple)):
-        templates = [str(t) for t in spec]
-    else:
-        path = Path(str(spec)).expanduser()
-        if not path.exists():
-            raise ConfigError(f"Prompt-template file not found: {path}")
-        if path.suffix == ".py":
-            return _checked_templates(read_vlmaps_templates(path))
-        if path.suffix in (".yaml", ".yml"):
-            from .config import load_yaml
+        return
+    log.log(
+        logging.INFO if first else logging.DEBUG,
+        f"templates: {spec}: no installed VLMaps package was found (vlmaps/utils/"
+        "clip_utils.py), so our default prompt templates are used, not VLMaps' own.",
+    )
 
-            data, _ = load_yaml(path)
-            if not isinstance(data, list):
-                raise ConfigError(f"{path}: expected a YAML list of templates with '{{}}'.")
-            templates = [str(t) for t in data]
-        else:
-            from .config import read_text_file
 
-            text = read_text_file(path, "prompt-template file")
-            templates = [ln.strip() for ln in text.splitlines()]
+def _default_templates() -> list[str]:
+    text = (
+        resources.files("quash_plugins.data")
+        .joinpath("prompt_templates.txt")
+        .read_text(encoding="utf-8")
+    )
+    return _checked_lines([ln.strip() for ln in text.splitlines()])
+
+
+def _checked_lines(templates: list[str]) -> list[str]:
+    """``templates`` without blank and ``#`` comment lines, checked."""
     return _checked_templates([t for t in templates if t and not t.startswith("#")])
 
 

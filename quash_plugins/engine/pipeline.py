@@ -43,7 +43,7 @@ from ..core.config import (
 )
 from ..core.errors import ConfigError, QuashError
 from ..core.interfaces import Encoder, ExpansionContext, Heuristic, plugin_name
-from ..core.text import TextCache, encode_texts, load_templates
+from ..core.text import TextCache, encode_texts, resolve_templates
 from ..core.types import DEFAULT_NEGATIVES, LatentMap, QueryResult, QuerySet, check_query
 from .answer import Pending, answer, classifier_words
 from .build import plugin_argument
@@ -79,8 +79,9 @@ class Quash:
     threshold
         Items with ``score > threshold`` match.
     prompt_templates
-        ``{"mode": "mean"|"all", "templates": "default"|"vlmaps"|list|path,
-        "normalize": bool}`` or None. ``normalize: false`` keeps the template mean as it
+        ``{"mode": "mean"|"all", "templates": "default"|"vlmaps"|"vlmaps-or-default"|list|
+        path, "normalize": bool}`` or None (:func:`quash_plugins.core.text.resolve_templates`;
+        :attr:`templates_source` says where the list came from). ``normalize: false`` keeps the template mean as it
         is (VLMaps' rule); see :func:`quash_plugins.engine.training.training_set`.
     map_negatives
         Options for map-mined negatives (the ``map-negatives`` heuristic wraps
@@ -154,6 +155,8 @@ class Quash:
             prompt_templates = getattr(self.heuristic, "prompt_templates", None)
         self.prompt_templates = prompt_templates
         self._templates = None
+        #: Where the prompt templates came from, in words (None without templates).
+        self.templates_source: str | None = None
         if prompt_templates is not None:
             unknown = set(prompt_templates) - {"mode", "templates", "normalize"}
             if unknown:
@@ -163,7 +166,8 @@ class Quash:
                 )
             if not isinstance(prompt_templates.get("normalize", True), bool):
                 raise ConfigError("prompt_templates: normalize must be true or false.")
-            self._templates = load_templates(prompt_templates.get("templates", "default"))
+            resolved = resolve_templates(prompt_templates.get("templates", "default"))
+            self._templates, self.templates_source = resolved
         self.map_negatives = map_negatives
         if map_negatives is not None:
             self.heuristic = registry.create(
@@ -323,6 +327,7 @@ class Quash:
             qs.provenance["prompt_templates"] = {
                 "mode": self.prompt_templates.get("mode", "mean"),
                 "count": len(self._templates or []),
+                "source": self.templates_source,
                 "normalize": bool(self.prompt_templates.get("normalize", True)),
             }
         if log.isEnabledFor(logging.DEBUG):  # -v: what the heuristic made of the query

@@ -298,7 +298,9 @@ def eval_provenance(
     (None without one); ``queries``: ``{text: label}`` of the presence queries;
     ``absent``: the absence queries; ``configs``: per table row its ``name``, the
     config ``file`` it was read from (None for the default config, a dict or an object),
-    the ``shipped`` name of a shipped config (else None) and its ``encoder``;
+    the ``shipped`` name of a shipped config (else None), its ``encoder`` and
+    ``templates``: where its prompt templates came from (None without templates; "our
+    default list (vlmaps-or-default: no VLMaps installed)");
     ``exclude`` and ``empty_tolerance``.
     """
     from .. import __version__
@@ -318,7 +320,8 @@ def eval_provenance(
 
 
 def _config_provenance(name: str, quash: Any) -> dict[str, Any]:
-    """A row's config: its file (and shipped name, when the package ships it)."""
+    """A row's config: its file (and shipped name, when the package ships it), its
+    encoder and where its prompt templates came from."""
     from ..core.shipped import config_dir, shipped_configs
 
     file = getattr(quash, "config_source", None)
@@ -333,6 +336,7 @@ def _config_provenance(name: str, quash: Any) -> dict[str, Any]:
         "file": str(file) if file else None,
         "shipped": shipped,
         "encoder": getattr(encoder, "name", None) if encoder is not None else None,
+        "templates": getattr(quash, "templates_source", None),
     }
 
 

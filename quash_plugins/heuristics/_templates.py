@@ -1,7 +1,8 @@
 """``templates`` heuristic: prompt engineering on the bare query.
 
 Templates are applied by the pipeline, never by a heuristic: the pipeline's
-``prompt_templates`` setting (``{mode: mean|all, templates: default|list|path}``) is the
+``prompt_templates`` setting (``{mode: mean|all, templates: default|vlmaps|
+vlmaps-or-default|list|path}``) is the
 one mechanism, and it composes with every heuristic. This heuristic is shorthand: it
 expands like ``none`` (or like its ``base`` heuristic) and exposes a
 ``prompt_templates`` attribute that the pipeline adopts when the config has no
@@ -14,7 +15,7 @@ from typing import Any
 
 from ..core.errors import ConfigError
 from ..core.interfaces import ExpansionContext, Heuristic
-from ..core.text import TEMPLATE_MODES, load_templates
+from ..core.text import TEMPLATE_MODES, TemplateList, resolve_templates
 from ..core.types import QuerySet
 
 
@@ -28,7 +29,9 @@ class TemplatesHeuristic(Heuristic):
         embeddings (the VLMaps/LSeg baseline's prompt engineering); ``"all"``: every
         templated variant is a training sample.
     templates
-        ``"default"`` (the 61 shipped templates) or a list of strings with one ``{}``.
+        ``"default"`` (the 61 shipped templates), ``"vlmaps"``, ``"vlmaps-or-default"``
+        (:func:`~quash_plugins.core.text.resolve_templates`) or a list of strings with
+        one ``{}``.
     templates_file
         A text file (one template a line) or YAML list; relative to the config.
     base
@@ -59,7 +62,7 @@ class TemplatesHeuristic(Heuristic):
         self.templates_file = templates_file
         self.base = base
         spec = templates_file if templates_file is not None else templates
-        self._list = load_templates(spec)
+        self._list, self._source = resolve_templates(spec)
         self._base = None
         if base is not None:
             from ._combine import build_heuristic
@@ -69,7 +72,7 @@ class TemplatesHeuristic(Heuristic):
     @property
     def prompt_templates(self) -> dict[str, Any]:
         """The pipeline setting this heuristic asks for."""
-        return {"mode": self.mode, "templates": list(self._list)}
+        return {"mode": self.mode, "templates": TemplateList(self._list, self._source)}
 
     def expand(self, query: str, context: ExpansionContext | None = None) -> QuerySet:
         if self._base is not None:

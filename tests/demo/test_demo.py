@@ -51,18 +51,27 @@ def test_demo_list_configs_prints_long_paths_whole(monkeypatch, capsys):
 
 @pytest.fixture(scope="module")
 def demo(tmp_path_factory):
-    """``quash demo --tiny`` once, with its own cache folder (never the user's)."""
+    """``quash demo --tiny`` once, with its own cache folder (never the user's), as on a
+    machine without VLMaps."""
+    from _no_vlmaps import hide_vlmaps
+
     out = tmp_path_factory.mktemp("demo")
     cache = tmp_path_factory.mktemp("demo-cache")
-    stdout = io.StringIO()
-    with pytest.MonkeyPatch.context() as mp, contextlib.redirect_stdout(stdout):
+    stdout, stderr = io.StringIO(), io.StringIO()
+    with (
+        pytest.MonkeyPatch.context() as mp,
+        contextlib.redirect_stdout(stdout),
+        contextlib.redirect_stderr(stderr),
+    ):
         mp.setenv("QUASH_CACHE_DIR", str(cache))
+        hide_vlmaps(mp)
         code = main(["demo", "--tiny", "--out", str(out)])
         scenes = sorted(cache_root().glob("scene-v*-tiny-seed0-*.npz"))
     return {
         "code": code,
         "out": out,
         "stdout": stdout.getvalue(),
+        "stderr": stderr.getvalue(),
         "scenes": scenes,
         "json": json.loads((out / "demo.json").read_text()) if code == 0 else None,
     }
@@ -94,6 +103,18 @@ def test_demo_tiny_end_to_end(demo):
     assert len(demo["scenes"]) == 1
     # the console shows rich tables; the Markdown is only in demo.md
     assert "|---" not in demo["stdout"] and "|---" in (out / "demo.md").read_text()
+
+
+@pytest.mark.slow
+def test_demo_without_vlmaps_says_its_templates_at_info_and_in_the_json(demo):
+    """The VLMaps peers' stand-in templates are expected on a machine without VLMaps: said
+    at INFO, never as a warning, and demo.json says which list each method used."""
+    assert demo["code"] == 0, demo["stderr"]
+    said = [ln for ln in demo["stderr"].splitlines() if "VLMaps" in ln]
+    assert said and all(ln.startswith("INFO") for ln in said), demo["stderr"]
+    rows = {c["name"]: c for c in demo["json"]["provenance"]["configs"]}
+    for name in ("vlmaps", "vlmaps-labels"):
+        assert "default list (vlmaps-or-default: no VLMaps installed)" in rows[name]["templates"]
 
 
 @pytest.mark.slow

@@ -133,12 +133,19 @@ def test_eval_json_says_which_map_queries_and_configs_it_came_from(world, tmp_pa
     assert prov["queries"] == {"couch": "sofa", "wall": "wall"}
     assert prov["absent"] == ["an elephant", "piano"]
     assert prov["configs"] == [
-        {"name": "vlmaps", "file": str(world / "base.yaml"), "shipped": None, "encoder": "table"},
+        {
+            "name": "vlmaps",
+            "file": str(world / "base.yaml"),
+            "shipped": None,
+            "encoder": "table",
+            "templates": None,
+        },
         {
             "name": "quash-taxonomy",
             "file": str(world / "quash.yaml"),
             "shipped": None,
             "encoder": "table",
+            "templates": None,
         },
     ]
     assert prov["empty_tolerance"] == 0 and "void" in prov["exclude"]
@@ -163,6 +170,7 @@ def test_eval_provenance_names_a_shipped_config_and_a_config_without_a_file(worl
     shipped = QuashConfig.from_yaml("demo:openscene-labels")
     shipped = dataclasses.replace(shipped, encoder=table, cache=False)
     plain = {"name": "plain", "encoder": table.to_dict(), "classifier": "contrast"}
+    plain["prompt_templates"] = {"mode": "mean", "templates": ["{}"]}  # the table's strings
     report = evaluate(
         str(world / "scene.npz"), [Quash.from_config(shipped), plain], queries=["wall"]
     )
@@ -172,8 +180,15 @@ def test_eval_provenance_names_a_shipped_config_and_a_config_without_a_file(worl
             "file": str(find_shipped("demo:openscene-labels").path),
             "shipped": "demo:openscene-labels",
             "encoder": "table",
+            "templates": None,
         },
-        {"name": "plain", "file": None, "shipped": None, "encoder": "table"},
+        {
+            "name": "plain",
+            "file": None,
+            "shipped": None,
+            "encoder": "table",
+            "templates": "a list of 1 in the config",
+        },
     ]
     assert report.provenance["query_file"] is None
     assert report.to_json()["provenance"] == report.provenance

@@ -17,9 +17,14 @@ import pytest
 import yaml
 from _vlmaps_writers import build_mobile_map, save_3d_map
 
-from quash_plugins import Quash
+from quash_plugins import Quash, QuashConfig
 from quash_plugins.core.errors import ConfigError
-from quash_plugins.core.text import load_templates, vlmaps_templates_file
+from quash_plugins.core.text import (
+    VLMAPS_OR_DEFAULT,
+    load_templates,
+    resolve_templates,
+    vlmaps_templates_file,
+)
 from quash_plugins.integrations.vlmaps import index_map
 
 #: The tests' own templates (not VLMaps').
@@ -47,6 +52,14 @@ def fake_vlmaps(tmp_path, monkeypatch):
     return pkg
 
 
+def shipped_default_templates() -> list[str]:
+    """Our default list, read from the package's file here (not through load_templates)."""
+    from importlib import resources
+
+    text = resources.files("quash_plugins.data").joinpath("prompt_templates.txt").read_text()
+    return [ln.strip() for ln in text.splitlines() if ln.strip() and not ln.startswith("#")]
+
+
 def test_templates_read_from_installed_vlmaps_without_importing_it(fake_vlmaps):
     assert vlmaps_templates_file() == fake_vlmaps / "utils" / "clip_utils.py"
     assert load_templates("vlmaps") == TEST_TEMPLATES  # the last assignment, as in Python
@@ -55,25 +68,61 @@ def test_templates_read_from_installed_vlmaps_without_importing_it(fake_vlmaps):
     assert load_templates(str(fake_vlmaps / "utils" / "clip_utils.py")) == TEST_TEMPLATES
 
 
-def test_templates_without_vlmaps_fall_back_with_a_warning(monkeypatch, caplog, tmp_path):
-    import importlib.util
-
-    real = importlib.util.find_spec
-    monkeypatch.setattr(
-        importlib.util, "find_spec", lambda name, *a: None if name == "vlmaps" else real(name, *a)
-    )
-    from quash_plugins.core import once
-
-    once.forget("no-vlmaps")
+def test_templates_without_vlmaps_fall_back_with_a_warning(no_vlmaps, caplog, tmp_path):
     with caplog.at_level("INFO"):
-        assert load_templates("vlmaps") == load_templates("default")
+        assert load_templates("vlmaps") == shipped_default_templates()
         load_templates("vlmaps")  # a second config: said again at INFO, not warned
     said = [r for r in caplog.records if "not VLMaps' exactly" in r.getMessage()]
     assert [r.levelname for r in said] == ["WARNING", "INFO"]
+    assert "vlmaps-or-default" in said[0].getMessage()  # the quiet spelling is offered
     bad = tmp_path / "clip_utils.py"
     bad.write_text("templates = ['a {}']\n")
     with pytest.raises(ConfigError, match=r"clip_utils\.py.*multiple_templates"):
         load_templates(str(bad))
+
+
+def test_vlmaps_or_default_takes_installed_vlmaps_templates_silently(fake_vlmaps, caplog):
+    with caplog.at_level("DEBUG", logger="quash_plugins"):
+        resolved = resolve_templates(VLMAPS_OR_DEFAULT)
+    assert resolved.templates == TEST_TEMPLATES
+    assert str(fake_vlmaps / "utils" / "clip_utils.py") in resolved.source
+    assert not [r for r in caplog.records if "VLMaps" in r.getMessage()]
+    assert "vlmaps" not in sys.modules
+
+
+def test_vlmaps_or_default_without_vlmaps_is_our_list_said_at_info(no_vlmaps, caplog):
+    with caplog.at_level("DEBUG", logger="quash_plugins"):
+        first = resolve_templates(VLMAPS_OR_DEFAULT)
+        again = resolve_templates(VLMAPS_OR_DEFAULT)  # a second config: DEBUG only
+    assert first.templates == again.templates == shipped_default_templates()
+    assert "default" in first.source and "no VLMaps" in first.source
+    said = [r for r in caplog.records if "no installed VLMaps" in r.getMessage()]
+    assert [r.levelname for r in said] == ["INFO", "DEBUG"]
+    assert all("vlmaps-or-default" in r.getMessage() for r in said)
+    # and `vlmaps` keeps its own warning after the quiet spec was said
+    caplog.clear()
+    with caplog.at_level("INFO"):
+        load_templates("vlmaps")
+    assert [r.levelname for r in caplog.records if "not VLMaps' exactly" in r.getMessage()] == [
+        "WARNING"
+    ]
+
+
+@pytest.mark.parametrize(
+    ("spec", "near"), [("vlmaps-or-defualt", "vlmaps-or-default"), ("vlmap", "vlmaps")]
+)
+def test_a_misspelt_template_name_is_named_with_the_known_ones(spec, near, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(ConfigError, match=rf"{spec!r} is not a template list.*{near!r}"):
+        load_templates(spec)
+    config = tmp_path / "mine.yaml"  # in a config: its file and line
+    config.write_text(
+        f"name: mine\nencoder: minilm\nprompt_templates: {{mode: mean, templates: {spec}}}\n"
+    )
+    with pytest.raises(ConfigError, match=rf"mine\.yaml:3: .*{spec!r}.*default, vlmaps, "):
+        QuashConfig.from_yaml(config)
+    with pytest.raises(ConfigError, match=r"not found: .*nope\.txt.*vlmaps-or-default"):
+        load_templates(str(tmp_path / "nope.txt"))  # a file's name: the file is missing
 
 
 # ----------------------------------------------------------------------------- the rule
@@ -269,36 +318,38 @@ def test_label_argmax_parameters():
     assert unit_rule.decision_function(E)[0] < 0
 
 
-def test_eval_without_configs_warns_about_vlmaps_templates_only_when_asked(monkeypatch, caplog):
-    """``quash eval MAP`` (no -c) runs the VLMaps peer the user did not choose: without an
-    installed VLMaps it takes the default templates, said at INFO, not a warning; a config
-    that names ``templates: vlmaps`` itself is still warned about."""
-    import importlib.util
+def test_eval_without_configs_warns_about_vlmaps_templates_only_when_asked(no_vlmaps, caplog):
+    """``quash eval MAP`` (no -c) runs the VLMaps peer the user did not choose: its
+    ``templates: vlmaps-or-default`` takes the default templates without an installed
+    VLMaps, said at INFO, not a warning; a config that names ``templates: vlmaps`` itself
+    is still warned about."""
+    import dataclasses
     import logging
 
-    from quash_plugins.cli._config_opts import fair_default_configs, load_config
-    from quash_plugins.core import once
+    from quash_plugins.cli._config_opts import fair_default_configs
 
-    real = importlib.util.find_spec
-    monkeypatch.setattr(
-        importlib.util, "find_spec", lambda name, *a: None if name == "vlmaps" else real(name, *a)
-    )
-    once.forget("no-vlmaps")
     with caplog.at_level(logging.INFO):
         configs = fair_default_configs()
         quashes = [Quash.from_config(c) for c in configs]
     assert not [r for r in caplog.records if r.levelno >= logging.WARNING]
     peer = next(c for c in configs if c.name == "vlmaps-labels")
-    assert peer.prompt_templates == {"mode": "mean", "templates": "default", "normalize": False}
-    assert quashes[configs.index(peer)]._templates == load_templates("default")
-    assert any(
-        "vlmaps-labels: no VLMaps is installed" in r.getMessage()
-        and "-c demo:vlmaps-labels" in r.getMessage()
-        for r in caplog.records
-    )
+    assert peer.prompt_templates == {
+        "mode": "mean",
+        "templates": VLMAPS_OR_DEFAULT,
+        "normalize": False,
+    }
+    built = quashes[configs.index(peer)]
+    assert built._templates == shipped_default_templates()
+    assert "no VLMaps installed" in built.templates_source
+    assert [r.levelname for r in caplog.records if "no installed VLMaps" in r.getMessage()] == [
+        "INFO"
+    ]
     caplog.clear()
+    asked = dataclasses.replace(
+        peer, prompt_templates={**peer.prompt_templates, "templates": "vlmaps"}
+    )
     with caplog.at_level(logging.INFO):
-        Quash.from_config(load_config("demo:vlmaps-labels"))  # asked for: warned
+        Quash.from_config(asked)  # asked for: warned
     said = [r for r in caplog.records if "not VLMaps' exactly" in r.getMessage()]
     assert [r.levelname for r in said] == ["WARNING"]
 
@@ -308,5 +359,20 @@ def test_eval_without_configs_uses_installed_vlmaps_templates(fake_vlmaps):
 
     configs = fair_default_configs()
     peer = next(c for c in configs if c.name == "vlmaps-labels")
-    assert peer.prompt_templates["templates"] == "vlmaps"
-    assert Quash.from_config(peer)._templates == TEST_TEMPLATES
+    built = Quash.from_config(peer)
+    assert built._templates == TEST_TEMPLATES
+    assert built.templates_source == f"VLMaps' list ({fake_vlmaps / 'utils' / 'clip_utils.py'})"
+
+
+@pytest.mark.parametrize("name", ["demo:vlmaps", "demo:vlmaps-labels", "lseg:vlmaps"])
+def test_shipped_vlmaps_configs_take_our_list_without_vlmaps(name, no_vlmaps, caplog):
+    """Scores stay as measured: without VLMaps every shipped VLMaps config resolves to our
+    default list; the demo peers say so at INFO, lseg:vlmaps (a real map, where VLMaps'
+    own list is expected) warns."""
+    import logging
+
+    spec = QuashConfig.from_yaml(name).prompt_templates["templates"]
+    with caplog.at_level(logging.INFO):
+        assert load_templates(spec) == shipped_default_templates()
+    levels = {r.levelname for r in caplog.records if "VLMaps" in r.getMessage()}
+    assert levels == ({"WARNING"} if name.startswith("lseg:") else {"INFO"})
