@@ -79,7 +79,7 @@ def queryset_markdown(
         f"Matched **{result.n_matched:,}** of {lmap.n:,} items ({100 * result.share:.2f} %) · "
         f"{_instances_words(result)} · query {index}",
         "",
-        f"Presence check: {_md(result.presence)}{_rejected_words(result)}",
+        f"Presence check: {_md(result.presence)}{_rejected_words(lmap, result)}",
         "",
         f"**Positives ({len(pos)}):** {_head(pos)}",
         "",
@@ -123,10 +123,17 @@ def queryset_markdown(
     return "\n".join(lines)
 
 
-def _rejected_words(result: QueryResult) -> str:
-    """How many matched items the presence check dropped, shown grey in the map view."""
+def _rejected_words(lmap: LatentMap, result: QueryResult) -> str:
+    """How many matched items the presence check dropped, and where they are drawn grey:
+    the map view (a map with positions), the image masks (a pixel map's frames)."""
     rejected = getattr(result, "rejected", None)
     n = int(np.count_nonzero(rejected)) if rejected is not None else 0
     if not n:
         return ""
-    return f" · dropped {n:,} matched item{'' if n == 1 else 's'} (grey in the map view)"
+    where = []
+    if lmap.positions is not None:
+        where.append("the map view")
+    if lmap.kind == "pixels" and lmap.frames:
+        where.append("the image masks")
+    shown = f" (grey in {' and '.join(where)})" if where else ""
+    return f" · dropped {n:,} matched item{'' if n == 1 else 's'}{shown}"

@@ -25,6 +25,8 @@ from ._display import (
 
 #: Colour of matched items (RGB): a magenta no map palette is likely to use.
 MATCH_COLOR = (255, 0, 200)
+#: Items the presence check dropped (grey in the map view and the image masks).
+REJECTED_COLOR = (150, 150, 150)
 
 
 class MapLogging:
@@ -97,7 +99,11 @@ class MapLogging:
             rec.log(
                 "images",
                 rr.AnnotationContext(
-                    [(0, "background", (0, 0, 0, 0)), (1, "match", (*MATCH_COLOR, 255))]
+                    [
+                        (0, "background", (0, 0, 0, 0)),
+                        (1, "match", (*MATCH_COLOR, 255)),
+                        (2, "dropped by the presence check", (*REJECTED_COLOR, 255)),
+                    ]
                 ),
                 static=True,
             )

@@ -15,12 +15,10 @@ from ..core.types import LatentMap, QueryResult
 from ._blueprint import QUERY_LIST
 from ._display import colormap, score_classes, thin
 from ._document import queryset_markdown
-from ._log_map import MATCH_COLOR
+from ._log_map import MATCH_COLOR, REJECTED_COLOR
 
 #: Colour of instance boxes.
 INSTANCE_COLOR = (255, 200, 0)
-#: Items the presence check dropped.
-REJECTED_COLOR = (150, 150, 150)
 
 
 class _ConfigState:
@@ -45,7 +43,8 @@ class ResultLogging:
         Per config (``result.config_name``): ``world/matches/<config>`` (the matched
         items), ``world/rejected/<config>`` (those the presence check dropped, grey), the class ids of ``world/scores/<config>``, ``world/instances/<config>``
         and the document ``queries/<config>``; for pixel maps
-        ``images/<frame>/<config>/{mask,scores,instances}``. Each replaces the config's
+        ``images/<frame>/<config>/{mask,scores,instances}`` (the mask's class 2: the pixels
+        the presence check dropped). Each replaces the config's
         previous query, so scrubbing the timeline shows one query at a time per config.
         """
         rr, rec = self.rr, self.recording
@@ -67,7 +66,11 @@ class ResultLogging:
         for fname, frame in self._frames:
             sl = slice(frame.offset, frame.offset + frame.size)
             hw = (frame.height, frame.width)
-            seg = np.asarray(result.mask[sl]).reshape(hw).astype(np.uint8)
+            # class 1: the match; class 2: what the presence check dropped (grey)
+            seg = np.asarray(result.mask[sl]).astype(np.uint8)
+            if result.rejected is not None:
+                seg[np.asarray(result.rejected[sl]) & (seg == 0)] = 2
+            seg = seg.reshape(hw)
             base = f"images/{fname}/{c}"
             rec.log(f"{base}/mask", rr.SegmentationImage(seg, opacity=0.5))
             heat = colormap(np.asarray(result.display_scores[sl]), self.colormap)

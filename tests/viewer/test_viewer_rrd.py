@@ -744,3 +744,38 @@ def test_cli_up_orients_a_map_whose_format_does_not_say(tmp_path, capsys):
             "+z",
             "-z",
         }
+
+
+def test_pixels_the_presence_check_dropped_are_grey_in_the_image_masks(tmp_path):
+    """A pixel map has no map view: the dropped pixels are class 2 of each frame's mask
+    (grey, named in the images' annotation context), and the document says so."""
+    import dataclasses
+
+    from quash_plugins.viewer._log_result import REJECTED_COLOR
+
+    lmap = pixel_map()
+    chair, sofa = make_quash().query_many(lmap, ["chair", "sofa"])
+    dropped = (lmap.labels == 1) & ~chair.mask  # say the check dropped the sofa pixels
+    assert dropped.any()
+    chair = dataclasses.replace(chair, rejected=dropped)
+    sofa = dataclasses.replace(sofa, rejected=None)
+    out = tmp_path / "px.rrd"
+    log_to_file(out, lmap, [chair, sofa])
+    _, by_path = read_rrd(out)
+    [(_, [context])] = rows(by_path["images"], "AnnotationContext:context")
+    classes = {c["class_id"]: c["class_description"]["info"] for c in context}
+    assert (classes[2]["color"] >> 24) & 255 == REJECTED_COLOR[0]
+    assert "presence" in classes[2]["label"]
+    for frame in lmap.frames:
+        name = frame.frame_id.replace(" ", "_")
+        hw = (frame.height, frame.width)
+        sl = slice(frame.offset, frame.offset + frame.size)
+        masks = rows(by_path[f"images/{name}/quash/mask"], "SegmentationImage:buffer")
+        first, second = (np.array(buf, dtype=np.uint8).reshape(hw) for _, [buf] in masks)
+        want = chair.mask[sl].astype(np.uint8) + 2 * dropped[sl].astype(np.uint8)
+        assert first.tolist() == want.reshape(hw).tolist()
+        assert second.tolist() == sofa.mask[sl].astype(np.uint8).reshape(hw).tolist()
+    texts = [str(v[0]) for _, v in rows(by_path["queries/quash"], "TextDocument:text")]
+    n = int(dropped.sum())
+    assert f"dropped {n:,} matched item{'s' if n > 1 else ''} (grey in the image masks)" in texts[0]
+    assert "map view" not in texts[0]
