@@ -81,6 +81,7 @@ def queryset_markdown(
         "",
         f"Presence check: {_md(result.presence)}{_rejected_words(lmap, result)}",
         "",
+        *_presence_detail(lmap, result),
         f"**Positives ({len(pos)}):** {_head(pos)}",
         "",
         f"**Negatives ({len(neg)}):** {_head(neg)}",
@@ -137,3 +138,36 @@ def _rejected_words(lmap: LatentMap, result: QueryResult) -> str:
         where.append("the image masks")
     shown = f" (grey in {' and '.join(where)})" if where else ""
     return f" · dropped {n:,} matched item{'' if n == 1 else 's'}{shown}"
+
+
+#: Labels named in the look-alike line (the rest are counted).
+LOOKALIKE_LABELS = 6
+
+
+def _presence_detail(lmap: LatentMap, result: QueryResult) -> list[str]:
+    """Lines under the presence decision: the closest competitor of a present object (an
+    absent one's is in its decision's words), and, on a map with labels, what the dropped
+    items are: an absent object's look-alikes by name."""
+    out = []
+    info = (result.queryset.provenance or {}).get("presence")
+    rival = info.get("rival") if isinstance(info, dict) else None
+    if isinstance(rival, str) and rival and info.get("present"):
+        out += [f"Closest competitor: {_md(rival)}", ""]
+    rejected = getattr(result, "rejected", None)
+    if rejected is None or lmap.labels is None or not np.any(rejected):
+        return out
+    labels = np.asarray(lmap.labels)[np.asarray(rejected, dtype=bool)]
+    ids, counts = np.unique(labels[labels >= 0], return_counts=True)
+    names = list(lmap.label_names or [])
+    order = np.lexsort((ids, -counts))  # most first; ties by label id
+    words = [
+        f"{_md(names[i] if 0 <= i < len(names) else f'label {i}')} {n:,}"
+        for i, n in zip(ids[order][:LOOKALIKE_LABELS], counts[order][:LOOKALIKE_LABELS])
+    ]
+    more = len(ids) - LOOKALIKE_LABELS
+    unlabelled = int(np.count_nonzero(labels < 0))
+    if unlabelled:
+        words.append(f"unlabelled {unlabelled:,}")
+    tail = f" … and {more} more label{'' if more == 1 else 's'}" if more > 0 else ""
+    out += [f"Dropped items by the map's labels: {', '.join(words)}{tail}", ""]
+    return out

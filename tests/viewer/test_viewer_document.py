@@ -49,3 +49,66 @@ def test_document_times_presence_before_the_total_and_folds_the_group_sizes():
     text = queryset_markdown(lmap, result, 0)
     assert text.index("| presence |") < text.index("| total |")
     assert "negative_groups: [1, 1]" in text
+
+
+def _absent_bed(lmap, rejected, presence):
+    import numpy as np
+
+    from quash_plugins.core.types import QueryResult, QuerySet
+
+    qs = QuerySet("bed", ["bed"], ["sofa", "chair", "other"], {"presence": presence})
+    n = lmap.n
+    zeros = np.zeros(n, np.float32)
+    return QueryResult(qs, np.zeros(n, bool), zeros, zeros, rejected=rejected)
+
+
+def test_document_names_what_the_dropped_items_are_by_the_maps_labels():
+    """An absent query's look-alikes by name: the labels of the items the presence check
+    dropped, most first, with their counts (the map's own labels, not the classifier's)."""
+    from collections import Counter
+
+    import numpy as np
+
+    lmap = voxel_map()
+    rng = np.random.default_rng(4)
+    rejected = rng.random(lmap.n) < 0.4
+    rejected[lmap.labels == 0] = True  # every chair cell: chair has the most
+    absent = {"checked": True, "present": False, "components": 3, "kept": 0}
+    text = queryset_markdown(lmap, _absent_bed(lmap, rejected, absent), 0)
+    counts = Counter(lmap.label_names[i] for i in lmap.labels[rejected])
+    want = ", ".join(f"{name} {n:,}" for name, n in counts.most_common())
+    assert f"Dropped items by the map's labels: {want}" in text
+    assert "Closest competitor" not in text  # an absent decision names its own
+    # nothing dropped, or a map without labels: no line
+    none = queryset_markdown(lmap, _absent_bed(lmap, np.zeros(lmap.n, bool), absent), 0)
+    assert "Dropped items" not in none
+    lmap.labels = None
+    assert "Dropped items" not in queryset_markdown(lmap, _absent_bed(lmap, rejected, absent), 0)
+
+
+def test_document_names_a_present_objects_closest_competitor():
+    import numpy as np
+
+    lmap = voxel_map()
+    present = {"checked": True, "present": True, "components": 2, "kept": 1, "rival": "sofa"}
+    text = queryset_markdown(lmap, _absent_bed(lmap, np.zeros(lmap.n, bool), present), 0)
+    assert "Closest competitor: sofa" in text
+    assert text.index("Closest competitor") < text.index("**Positives")
+
+
+def test_document_counts_the_labels_past_the_first_ones():
+    import numpy as np
+
+    from quash_plugins.viewer._document import LOOKALIKE_LABELS
+
+    lmap = voxel_map()
+    n_labels = LOOKALIKE_LABELS + 3
+    lmap.labels = np.arange(lmap.n) % n_labels - 1  # -1: unlabelled items too
+    lmap.label_names = [f"thing{i}" for i in range(n_labels - 1)]
+    absent = {"checked": True, "present": False, "components": 1, "kept": 0}
+    text = queryset_markdown(lmap, _absent_bed(lmap, np.ones(lmap.n, bool), absent), 0)
+    [line] = [x for x in text.splitlines() if x.startswith("Dropped items")]
+    named = n_labels - 1
+    assert line.endswith(f"… and {named - LOOKALIKE_LABELS} more labels")
+    assert line.count("thing") == LOOKALIKE_LABELS
+    assert f"unlabelled {int((lmap.labels < 0).sum())}" in line
