@@ -107,8 +107,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_runtime_options(p)
     add_viewer_arguments(
         p,
-        "Log the evaluation to Rerun: each config's per-query F1, precision, recall and "
-        "IoU as plots, and the comparison table (needs the [rerun] extra). The map and "
+        "Log the evaluation to Rerun: each config's per-query F1, precision, recall, IoU "
+        "and AP as plots, each absence query after them as 'absence' (1: it came back "
+        "empty), and the comparison table (needs the [rerun] extra). The map and "
         "the masks are not logged: quash query --rrd logs those.",
         maps=False,
     )
@@ -171,7 +172,7 @@ def run(args: argparse.Namespace) -> int:
         plot_precision_recall(report.configs, args.plot, title=f"quash eval: {args.map}")
     viewer = open_viewer(args, app_id="quash-eval")
     if viewer is not None:
-        viewer.log_evaluation(report.configs, report.queries, md)
+        viewer.log_evaluation(report.configs, report.queries, md, absent=report.absent)
     out = console()
     out.print(
         safe_text(lmap.describe())

@@ -141,6 +141,8 @@ def _log_demo(viewer: Any, lmap: Any, quashes: list[Any], report: EvalReport) ->
     for c in report.configs:
         for i, r in enumerate(report.results.get(c["name"], [])):
             viewer.log_result(lmap, r, index=i)
-    viewer.log_evaluation(report.configs, report.queries, report.to_markdown())
+    viewer.log_evaluation(
+        report.configs, report.queries, report.to_markdown(), absent=report.absent
+    )
     if report.configs:
         viewer.focus(report.best("f1")["name"])

@@ -12,7 +12,8 @@ This package imports ``rerun`` only when a logger is built, so
 from __future__ import annotations
 
 from ._display import colormap, display_indices, pca_colors, slugify
-from ._log_map import MATCH_COLOR
+from ._log_eval import EVAL_METRICS
+from ._log_map import MATCH_COLOR, REJECTED_COLOR
 from ._log_result import INSTANCE_COLOR
 from ._rerun import RerunLogger, import_rerun
 from ._sinks import (
@@ -38,8 +39,10 @@ __all__ = [
     "DEFAULT_BIND",
     "DEFAULT_GRPC_PORT",
     "DEFAULT_WEB_PORT",
+    "EVAL_METRICS",
     "INSTANCE_COLOR",
     "MATCH_COLOR",
+    "REJECTED_COLOR",
     "RerunLogger",
     "SinkRerunLogger",
     "ViewerOptions",

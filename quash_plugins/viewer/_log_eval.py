@@ -27,6 +27,10 @@ SERIES_COLORS = (
 )
 
 
+#: Per-query metrics :meth:`EvalLogging.log_evaluation` plots, one plot each.
+EVAL_METRICS = ("f1", "precision", "recall", "iou", "ap")
+
+
 class EvalLogging:
     """:meth:`log_eval_scalars`, :meth:`log_evaluation` and :meth:`log_summary`; a base of
     ``RerunLogger``."""
@@ -108,17 +112,24 @@ class EvalLogging:
         configs: Sequence[dict[str, Any]],
         queries: Sequence[str],
         summary_markdown: str | None = None,
-        metrics: Sequence[str] = ("f1", "precision", "recall", "iou"),
+        metrics: Sequence[str] = EVAL_METRICS,
+        absent: Sequence[str] = (),
     ) -> None:
         """Log an evaluation report: per-query metrics of every config, and a summary.
 
-        ``configs`` is the report's JSON list (``[{"name", "per_query": {query: {...}}}]``,
+        ``configs`` is the report's JSON list (``[{"name", "per_query": {query: {...}},
+        "absence": {"per_query": {query: {"empty": ...}}}}]``,
         :class:`quash_plugins.evaluation.report.EvalReport`); query ``i`` of ``queries``
-        goes to step ``i`` of the ``query`` timeline, where :meth:`log_result` puts its
-        result, so the plots line up with the queries shown in the 3D views. The
-        ``query_list`` names each step, also when no result was logged (``quash eval``).
+        goes to step ``i`` of the ``query`` timeline, and absence query ``j`` of
+        ``absent`` to step ``len(queries) + j``, where :meth:`log_result` puts their
+        results when they are logged in the report's order, so the plots line up with
+        the queries shown in the 3D views. An absence query is plotted as ``absence``:
+        1 when the config's mask is empty (within the report's tolerance), 0 when it
+        matched something. The ``query_list`` names each step, also when no result was
+        logged (``quash eval``).
         """
-        for i, q in enumerate(queries):
+        steps = [*queries, *absent]
+        for i, q in enumerate(steps):
             self.recording.set_time("query", sequence=i)
             self._list_query(i, q)
         for c in configs:
@@ -127,5 +138,11 @@ class EvalLogging:
                 row = per_query.get(q)
                 if row:
                     self.log_eval_scalars(c["name"], {m: row.get(m) for m in metrics}, i)
+            absence = (c.get("absence") or {}).get("per_query") or {}
+            for j, q in enumerate(absent):
+                row = absence.get(q)
+                if row and isinstance(row.get("empty"), bool):
+                    value = 1.0 if row["empty"] else 0.0
+                    self.log_eval_scalars(c["name"], {"absence": value}, len(queries) + j)
         if summary_markdown:
             self.log_summary(summary_markdown)

@@ -779,3 +779,34 @@ def test_pixels_the_presence_check_dropped_are_grey_in_the_image_masks(tmp_path)
     n = int(dropped.sum())
     assert f"dropped {n:,} matched item{'s' if n > 1 else ''} (grey in the image masks)" in texts[0]
     assert "map view" not in texts[0]
+
+
+def test_cli_eval_rrd_plots_ap_and_the_absence_queries(tmp_path):
+    """`quash eval --rrd`: each present query's AP beside F1, and each absence query at
+    its own step after them (named in the query list) as `absence`, 1 when the config's
+    mask came back empty, else 0: the same numbers as the report's JSON."""
+    import json
+
+    from quash_plugins.adapters import write_npz_map
+    from quash_plugins.cli.main import main
+
+    lmap = voxel_map()
+    map_path = write_npz_map(tmp_path / "map.npz", lmap)
+    cfg = write_table_config(tmp_path)
+    out, js = tmp_path / "e.rrd", tmp_path / "e.json"
+    args = ["eval", str(map_path), "-c", str(cfg), "--queries", "chair,sofa"]
+    code = main([*args, "--absent", "nothing,background", "--rrd", str(out), "--json", str(js)])
+    assert code == 0
+    [report] = json.loads(js.read_text())["configs"]
+    reader, by_path = read_rrd(out)
+    names = [(t, v[0]) for t, v in rows(by_path["query_list"], "TextLog:text")]
+    assert names == [(0, "chair"), (1, "sofa"), (2, "nothing"), (3, "background")]
+    ap = rows(by_path["eval/ap/table_contrast"], "Scalars:scalars")
+    assert ap == [
+        (i, [pytest.approx(report["per_query"][q]["ap"])]) for i, q in enumerate(["chair", "sofa"])
+    ]
+    absence = rows(by_path["eval/absence/table_contrast"], "Scalars:scalars")
+    want = [float(report["absence"]["per_query"][q]["empty"]) for q in ("nothing", "background")]
+    assert absence == [(2, [want[0]]), (3, [want[1]])]
+    assert ("TimeSeries", "eval/absence") in blueprint_views(reader)
+    assert ("TimeSeries", "eval/ap") in blueprint_views(reader)
