@@ -86,7 +86,8 @@ def queryset_markdown(
         "",
         f"**Negatives ({len(neg)}):** {_head(neg)}",
         "",
-        f"Classifier: `{result.classifier or '-'}` · threshold {result.threshold:g}",
+        f"Classifier: `{result.classifier or '-'}` · threshold {result.threshold:g} on its raw "
+        "scores (0.5 in the score colours)",
         "",
     ]
     if result.timings:

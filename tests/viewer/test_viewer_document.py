@@ -112,3 +112,11 @@ def test_document_counts_the_labels_past_the_first_ones():
     assert line.endswith(f"… and {named - LOOKALIKE_LABELS} more labels")
     assert line.count("thing") == LOOKALIKE_LABELS
     assert f"unlabelled {int((lmap.labels < 0).sum())}" in line
+
+
+def test_document_says_which_scale_its_threshold_is_on():
+    """The raw threshold (0 for most classifiers) beside the score view's "0.5 =
+    threshold" read as two thresholds: the document says which scale each is on."""
+    lmap, result = _result()
+    text = queryset_markdown(lmap, result, 0)
+    assert f"threshold {result.threshold:g} on its raw scores (0.5 in the score colours)" in text
