@@ -208,6 +208,24 @@ class Quash:
         self._maps = MapCache()  # the maps read_map has read
         self._querysets: dict[tuple[str, int], tuple[Any, QuerySet]] = {}
 
+    def __repr__(self) -> str:
+        """One line: the config's name and the plugins and stages that answer a query
+        (``refine`` names the re-fitted classifier; ``presence`` is on or off)."""
+        refine = self.refine.classifier if self.refine is not None else None
+        if isinstance(refine, dict):
+            refine = refine.get("name")
+        parts = [
+            f"name={self.name!r}",
+            f"encoder={plugin_name(self.encoder)!r}",
+            f"heuristic={plugin_name(self.heuristic)!r}",
+            f"classifier={plugin_name(self.classifier)!r}",
+            f"refine={str(refine) if refine is not None else None!r}",
+            f"presence={'on' if self.presence is not None else 'off'!r}",
+            f"backend={self.backend!r}",
+            f"device={self.device!r}",
+        ]
+        return f"Quash({', '.join(parts)})"
+
     # ------------------------------------------------------------------ building
     @classmethod
     def from_config(

@@ -397,3 +397,26 @@ def test_plugin_names_are_built_like_a_config_and_bad_arguments_refused_when_bui
         Quash(enc, heuristic=3)
     with pytest.raises(ConfigError, match="Quash: encoder must be .* such as 'minilm'"):
         Quash(None)
+
+
+def test_a_pipeline_prints_as_one_line_naming_its_plugins_and_stages():
+    """print(quash) in a notebook: which config and plugins answer, not an address."""
+    enc = TableEncoder(table={"chair": [1.0, 0.0], "other": [0.0, 1.0]})
+    plain = Quash(enc, name="mine", device="cpu")
+    assert repr(plain) == (
+        "Quash(name='mine', encoder='table', heuristic='none', classifier='nearest-sample', "
+        "refine=None, presence='off', backend='numpy', device='cpu')"
+    )
+    full = Quash(
+        enc,
+        heuristic="taxonomy",
+        classifier={"name": "contrast"},
+        refine={"classifier": {"name": "svm-rbf"}},
+        presence={},
+        name="full",
+    )
+    text = repr(full)
+    assert "\n" not in text and " at 0x" not in text
+    for part in ("name='full'", "heuristic='taxonomy'", "classifier='contrast'",
+                 "refine='svm-rbf'", "presence='on'"):  # fmt: skip
+        assert part in text, (part, text)
