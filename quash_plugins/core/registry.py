@@ -259,6 +259,11 @@ def _import_hint(info: PluginInfo, exc: BaseException) -> str:
     """What to do about ``exc``, raised while importing ``info.target``: an entry point
     that names a module or object that does not exist, or a missing dependency."""
     module, _, attr = info.target.partition(":")
+    if isinstance(exc, SystemExit):
+        return (
+            f"Module {module!r} calls sys.exit() while it is imported: raise an exception "
+            "instead, or do the check when the plugin is built."
+        )
     where = (
         f"check the entry point {info.name!r} in group {GROUP_PREFIX + info.kind!r} of "
         f"{info.dist!r} (its pyproject.toml)"
@@ -288,7 +293,10 @@ def _load_info(info: PluginInfo) -> Any:
             raise PluginError(info.error) from info.exception
         try:
             obj = info._loader() if info._loader else None
-        except Exception as exc:  # noqa: BLE001 - any import failure is reported, not raised raw
+        # SystemExit too: a module that calls sys.exit() when imported (a licence or
+        # driver check) would otherwise end `quash plugins` and, through adapter: auto,
+        # every query. KeyboardInterrupt still stops the command.
+        except (Exception, SystemExit) as exc:  # noqa: BLE001 - reported, not raised raw
             info.status = "error"
             info.exception = exc
             hint = _import_hint(info, exc)

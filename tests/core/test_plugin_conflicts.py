@@ -39,6 +39,7 @@ none = "quash_shadow:Shadow"
 
 [project.entry-points."quash_plugins.adapters"]
 broken-adapter = "quash_shadow.missing:Nothing"
+exits-on-import = "quash_shadow.exits:Nothing"
 
 [tool.setuptools]
 packages = ["quash_shadow"]
@@ -56,6 +57,13 @@ class Shadow(Heuristic):
         return QuerySet(query, [query, "shadowed"], ["other"], {"heuristic": "shadow"})
 """
 
+# A licence or driver check at import time that ends the process.
+EXITS = """\
+import sys
+
+sys.exit("no licence file found")
+"""
+
 
 @pytest.fixture(scope="module")
 def installed(tmp_path_factory):
@@ -63,6 +71,7 @@ def installed(tmp_path_factory):
     (project / "pyproject.toml").write_text(PYPROJECT)
     (project / "quash_shadow").mkdir()
     (project / "quash_shadow" / "__init__.py").write_text(MODULE)
+    (project / "quash_shadow" / "exits.py").write_text(EXITS)
     target = tmp_path_factory.mktemp("site")
     pip_install(project, target)
     pip_install(EXAMPLES / "quash-broken-plugin", target)
@@ -143,3 +152,22 @@ def test_cli_table_marks_the_shadowed_plugin_and_says_how_to_reach_it(installed)
     ]
     assert shadow and shadow[0]["shadowed_by"] == "quash-plugins:none"
     assert shadow[0]["config_name"] == "quash-shadow-plugin:none"
+
+
+def test_a_plugin_that_calls_sys_exit_when_imported_is_listed_as_broken(installed, tiny_world):
+    """Before: SystemExit is not an Exception, so the import error was not caught:
+    `quash plugins` printed "no licence file found" and stopped, and every query with
+    adapter: auto (which loads every adapter to sniff the map) did the same."""
+    proc = _quash_cli(installed, "plugins", "--kind", "adapters", "--json")
+    assert proc.returncode == 0, proc.stderr
+    rows = {r["name"]: r for r in json.loads(proc.stdout)}
+    exits = rows["exits-on-import"]
+    assert exits["status"] == "error" and exits["distribution"] == "quash-shadow-plugin"
+    assert "SystemExit: no licence file found" in exits["error"]
+    assert "'quash_shadow.exits' calls sys.exit()" in exits["error"]
+    assert rows["npz"]["status"] == "ok"
+    config = tiny_world["config"]
+    proc = _quash_cli(installed, "query", tiny_world["map"], "chair", "-c", config, "--json")
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout)  # the query was answered
+    assert "Adapter plugin 'exits-on-import' from distribution" in " ".join(proc.stderr.split())
