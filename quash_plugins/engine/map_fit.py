@@ -36,26 +36,38 @@ PRESETS_BY_DIM = {
 
 
 def check_encoder_fits(encoder: Any, lmap: LatentMap, config_source: Any = None) -> None:
-    """Fail when ``encoder``'s dimension differs from ``lmap``'s; warn (once per map and
-    encoder) when the map records that another encoder built it.
+    """Fail when ``encoder``'s dimension differs from ``lmap``'s (naming the encoder the
+    map records, when it records one); when they agree, warn (once per map and encoder)
+    when the map records that another encoder built it.
 
     ``config_source``: the config file the encoder came from, named in the error.
     """
-    warn_built_by(encoder, lmap)
     enc_dim = int(encoder.dim)
     if enc_dim == lmap.dim:
+        warn_built_by(encoder, lmap)
         return
     from ..core.registry import accepted_params
 
     where = lmap.source.get("path", "the map")
     name = plugin_name(encoder)  # what the config's encoder section calls it
     section = f" (the 'encoder:' section of {config_source})" if config_source else ""
+    built = lmap.source.get("encoder")
     fixes = []
-    if "dim" in (accepted_params(type(encoder)) or []):
-        fixes.append(f"set 'encoder: {{name: {name}, dim: {lmap.dim}}}' if that model supports it")
-    hint = PRESETS_BY_DIM.get(lmap.dim)
-    if hint:
-        fixes.append(f"a matching encoder: {hint}")
+    if isinstance(built, str) and built and built not in (name, getattr(encoder, "name", None)):
+        # The map names the encoder that built it: that is the fix, not another dim of
+        # this one (which would only give rows of the right length in another space).
+        fixes.append(
+            f"the map records that encoder {built!r} built it: write "
+            f"'encoder: {built}' with the parameters the map was built with"
+        )
+    else:
+        if "dim" in (accepted_params(type(encoder)) or []):
+            fixes.append(
+                f"set 'encoder: {{name: {name}, dim: {lmap.dim}}}' if that model supports it"
+            )
+        hint = PRESETS_BY_DIM.get(lmap.dim)
+        if hint:
+            fixes.append(f"a matching encoder: {hint}")
     text = "; or ".join(fixes)
     suggestion = f" {text[0].upper()}{text[1:]}." if text else ""
     note = lmap.source.get("dim_note")  # the adapter's word on how it read D

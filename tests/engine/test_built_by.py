@@ -86,3 +86,41 @@ def test_the_warning_names_the_encoder_as_the_config_does(tmp_path, caplog):
     assert len(warned) == 1, warned
     assert "this config's encoder is 'reversed-words'" in warned[0]
     assert "'other-hashing'" not in warned[0]  # (its fingerprint may spell it, unquoted)
+
+
+class _DimHashing(HashingEncoder):
+    """Another embedding function that, like many plugins, takes ``dim``."""
+
+    name = "dim-hashing"
+
+    def __init__(self, dim: int = 24) -> None:
+        super().__init__(dim)
+
+
+def test_a_dimension_mismatch_names_the_encoder_the_map_records(tmp_path, caplog):
+    """Before: a map built by 'hashing-test' (32-d) queried with a 24-d encoder that takes
+    ``dim`` was told to set that encoder's dim to 32, which gives rows of the right
+    length in another space, and the encoder the map records came only in a warning
+    logged before the error. Now the error names it, and the warning is not repeated."""
+    import pytest
+
+    from quash_plugins.core.errors import DimensionMismatchError
+
+    paths = write_scene(make_scene(HashingEncoder(32), SceneOptions(**OPTS)), tmp_path / "s.npz")
+    once.forget("built-by")
+    with (
+        caplog.at_level("WARNING", logger="quash_plugins.engine.map_fit"),
+        pytest.raises(DimensionMismatchError) as err,
+    ):
+        _quash(_DimHashing(24)).query(str(paths["map"]), "chair")
+    msg = str(err.value)
+    assert "32-dimensional embeddings" in msg and "produces 24-dimensional" in msg
+    assert "The map records that encoder 'hashing-test' built it" in msg
+    assert "'encoder: hashing-test'" in msg
+    assert "dim: 32" not in msg
+    assert not [r for r in caplog.records if "was built with encoder" in r.getMessage()]
+    # The same encoder at another size: the map's own encoder, so its dim is the fix.
+    same = HashingEncoder(16)
+    with pytest.raises(DimensionMismatchError) as err:
+        _quash(same).query(str(paths["map"]), "chair")
+    assert "records that encoder" not in str(err.value)
