@@ -50,9 +50,13 @@ _EDITABLE: dict[str, bool] = {}
 
 
 def is_editable(module: str) -> bool:
-    """True when the distribution providing ``module`` is an editable install
-    (``pip install -e``: PEP 610 ``direct_url.json`` with ``dir_info.editable`` true),
-    whose code changes without its version; False otherwise (and for no distribution).
+    """True when the code of the distribution providing ``module`` changes without its
+    version: an editable install (``pip install -e``: PEP 610 ``direct_url.json`` with
+    ``dir_info.editable`` true), or a source tree whose setuptools metadata is found first
+    (a ``NAME.egg-info`` folder with ``SOURCES.txt`` and no ``RECORD``, which an earlier
+    ``pip install .`` leaves in a project's root: run from there, the module and that
+    metadata come from the source tree, not from an install). False otherwise (and for
+    no distribution).
 
     Examples
     --------
@@ -67,9 +71,17 @@ def is_editable(module: str) -> bool:
         return False
     if dist not in _EDITABLE:
         try:
-            text = metadata.distribution(dist.partition("==")[0]).read_text("direct_url.json")
-            info = json.loads(text) if text else {}
-            _EDITABLE[dist] = bool(info.get("dir_info", {}).get("editable", False))
+            found = metadata.distribution(dist.partition("==")[0])
+            text = found.read_text("direct_url.json")
+            if text:
+                editable = bool(json.loads(text).get("dir_info", {}).get("editable", False))
+            else:  # an installer writes RECORD; setuptools' egg_info in a tree SOURCES.txt
+                editable = (
+                    found.read_text("SOURCES.txt") is not None
+                    and found.read_text("RECORD") is None
+                    and found.read_text("installed-files.txt") is None
+                )
+            _EDITABLE[dist] = editable
         except Exception:  # noqa: BLE001 - missing or broken metadata: not editable
             _EDITABLE[dist] = False
     return _EDITABLE[dist]

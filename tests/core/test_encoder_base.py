@@ -314,18 +314,23 @@ def _load_plugin(folder, module, row):
     return importlib.import_module(module).Edited()
 
 
-@pytest.mark.parametrize("install", ["none", "editable", "release"])
+@pytest.mark.parametrize("install", ["none", "editable", "release", "wheel", "source-tree"])
 def test_editing_encode_text_changes_the_fingerprint_unless_a_version_names_it(
     tmp_path, monkeypatch, install
 ):
     """The text cache is keyed by the fingerprint. A researcher iterating on a plugin in
     a script or a ``pip install -e`` checkout must not be served the rows cached before
     the edit (it used to be name + version + config only); a released install keeps its
-    fingerprint, which its version names."""
+    fingerprint, which its version names.
+
+    ``source-tree``: run from the root of a flat-layout plugin project where an earlier
+    ``pip install .`` left ``NAME.egg-info``: that metadata is found first, it has no
+    ``direct_url.json``, and the source was taken for a released install, so an edit
+    of ``encode_text`` was served the rows cached before it."""
     from quash_plugins.core.text import encode_texts
     from quash_plugins.engine import TextEmbeddingCache
 
-    module = f"qp_edited_{install}"
+    module = f"qp_edited_{install.replace('-', '_')}"
     monkeypatch.syspath_prepend(str(tmp_path))
     if install != "none":  # a dist-info as pip writes it (PEP 610 direct_url.json)
         info = tmp_path / f"{module}-1.0.dist-info"
@@ -337,6 +342,15 @@ def test_editing_encode_text_changes_the_fingerprint_unless_a_version_names_it(
         info.joinpath("direct_url.json").write_text(
             f'{{"url": "file:///src", "dir_info": {{"editable": {editable}}}}}'
         )
+    if install == "wheel":  # installed from a wheel: a RECORD and no direct_url.json
+        info.joinpath("direct_url.json").unlink()
+        info.joinpath("RECORD").write_text(f"{module}/__init__.py,,\n")
+    if install == "source-tree":  # what setuptools' egg_info writes in the project
+        info.rename(tmp_path / f"{module}.egg-info")
+        info = tmp_path / f"{module}.egg-info"
+        info.joinpath("METADATA").rename(info / "PKG-INFO")
+        info.joinpath("direct_url.json").unlink()
+        info.joinpath("SOURCES.txt").write_text(f"pyproject.toml\n{module}/__init__.py\n")
     cache = TextEmbeddingCache(tmp_path / "cache")
     before = _load_plugin(tmp_path, module, "1, 0")
     assert registry.distribution_of(module) == (None if install == "none" else f"{module}==1.0")
@@ -345,7 +359,7 @@ def test_editing_encode_text_changes_the_fingerprint_unless_a_version_names_it(
     same = _load_plugin(tmp_path, module, "1, 0")  # rewritten, unchanged: same code
     assert same.fingerprint() == fp
     after = _load_plugin(tmp_path, module, "0, 1")
-    if install == "release":
+    if install in ("release", "wheel"):
         assert after.fingerprint() == fp
         return
     assert after.fingerprint() != fp
