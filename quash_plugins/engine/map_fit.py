@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import DimensionMismatchError, EmptyMapWarning
-from ..core.interfaces import plugin_name
+from ..core.interfaces import plugin_name, source_digest
 from ..core.once import first_time
 from ..core.types import LatentMap
 
@@ -100,6 +100,13 @@ def warn_built_by(encoder: Any, lmap: LatentMap) -> None:
             "another model or other settings (normalize, dim, templates) under the same "
             "encoder name"
         )
+        if source_digest(type(encoder)) is not None:
+            # An editable install or a local module: its fingerprint hashes its source.
+            differs += (
+                f", or its code: {name!r} is an editable install or a local module, whose "
+                "fingerprint hashes its package's .py files, so any edit since the map was "
+                "built counts"
+            )
     else:
         differs = f"this config's encoder is {name!r} ({ours})"
     log.warning(

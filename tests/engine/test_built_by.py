@@ -124,3 +124,36 @@ def test_a_dimension_mismatch_names_the_encoder_the_map_records(tmp_path, caplog
     with pytest.raises(DimensionMismatchError) as err:
         _quash(same).query(str(paths["map"]), "chair")
     assert "records that encoder" not in str(err.value)
+
+
+def test_the_warning_says_an_edit_counts_for_an_encoder_whose_source_is_hashed(caplog, monkeypatch):
+    """A plugin author iterating on an editable install edits any file of the package
+    (a docstring, a new heuristic module): the fingerprint changes, and a map built the
+    day before was warned about as 'other weights, another model or other settings',
+    which sent them looking for a weights change. The warning now names the edit."""
+    from quash_plugins.core.interfaces import source_digest
+    from quash_plugins.core.types import LatentMap
+    from quash_plugins.engine import map_fit
+
+    enc = HashingEncoder(16)
+    assert source_digest(type(enc)) is not None  # this checkout, or a test module
+    rng = np.random.default_rng(0)
+    emb = rng.normal(size=(20, 16)).astype(np.float32)
+    source = {"path": "built.npz", "encoder": enc.name, "encoder_fingerprint": "hashing-test-0"}
+    lmap = LatentMap(emb, kind="points", source=source)
+
+    def warned():
+        return [r.getMessage() for r in caplog.records if "was built with" in r.getMessage()]
+
+    once.forget("built-by")
+    with caplog.at_level("WARNING", logger="quash_plugins.engine.map_fit"):
+        map_fit.check_encoder_fits(enc, lmap)
+    assert len(warned()) == 1 and "another embedding function" in warned()[0]
+    assert "is an editable install or a local module" in warned()[0]
+    # A released install: its version names its code, so no edit to speak of.
+    caplog.clear()
+    once.forget("built-by")
+    monkeypatch.setattr(map_fit, "source_digest", lambda cls: None)
+    with caplog.at_level("WARNING", logger="quash_plugins.engine.map_fit"):
+        map_fit.check_encoder_fits(enc, lmap)
+    assert len(warned()) == 1 and "editable install" not in warned()[0]
