@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import ConfigError
+from ..core.interfaces import plugin_name
 from ..core.types import LatentMap
 from .classes import ABSENT, ABSENT_FREE_TEXT, CLASSES, SUPPORTS, SceneClass
 from .queries import open_queries
@@ -480,7 +481,8 @@ def _built_by(encoder: Any) -> dict[str, str]:
     fingerprint = getattr(encoder, "fingerprint", None)
     if not callable(fingerprint):
         return {}
-    return {"encoder": str(getattr(encoder, "name", "?")), "encoder_fingerprint": fingerprint()}
+    # The name a config writes (a factory entry point may build a class of another name).
+    return {"encoder": plugin_name(encoder), "encoder_fingerprint": fingerprint()}
 
 
 def _unit_rows(rng: np.random.Generator, n: int, d: int) -> np.ndarray:

@@ -56,10 +56,12 @@ def check_encoder_fits(encoder: Any, lmap: LatentMap, config_source: Any = None)
     if isinstance(built, str) and built and built not in (name, getattr(encoder, "name", None)):
         # The map names the encoder that built it: that is the fix, not another dim of
         # this one (which would only give rows of the right length in another space).
-        fixes.append(
-            f"the map records that encoder {built!r} built it: write "
-            f"'encoder: {built}' with the parameters the map was built with"
-        )
+        fix = f"the map records that encoder {built!r} built it"
+        if _registered_encoder(built):
+            fix += f": write 'encoder: {built}' with the parameters the map was built with"
+        else:  # a class name no entry point registers, or a name two distributions claim
+            fix += f" (fingerprint {lmap.source.get('encoder_fingerprint', '?')}): query with it"
+        fixes.append(fix)
     else:
         if "dim" in (accepted_params(type(encoder)) or []):
             fixes.append(
@@ -77,6 +79,18 @@ def check_encoder_fits(encoder: Any, lmap: LatentMap, config_source: Any = None)
         f"{name!r}{section} produces {enc_dim}-dimensional ones. Use the text "
         f"encoder that built the map.{suggestion}"
     )
+
+
+def _registered_encoder(name: str) -> bool:
+    """Whether a config can write ``encoder: name`` (one registered encoder has it)."""
+    from ..core.errors import PluginError
+    from ..core.registry import info
+
+    try:
+        info("encoders", name)
+    except PluginError:
+        return False
+    return True
 
 
 def warn_built_by(encoder: Any, lmap: LatentMap) -> None:

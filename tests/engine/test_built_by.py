@@ -39,6 +39,23 @@ def test_the_map_records_its_encoder_and_a_copy_keeps_it(tmp_path):
     assert read_map(copy).source["encoder_fingerprint"] == enc.fingerprint()
 
 
+def test_the_map_records_the_name_a_config_writes(tmp_path):
+    """Before: make-scene recorded the class's ``name``; an encoder built by a factory
+    entry point ('reversed-words') of a class named otherwise was recorded under a name
+    no config can write, and the dimension error's advice named it."""
+    from quash_plugins.core import registry
+
+    registry.register("encoders", "reversed-words", lambda: _OtherHashing(32), dist="pkg-rev")
+    try:
+        encoder = registry.create("encoders", "reversed-words")
+    finally:
+        registry.unregister("encoders", "reversed-words", dist="pkg-rev")
+    paths = write_scene(make_scene(encoder, SceneOptions(**OPTS)), tmp_path / "s.npz")
+    lmap = read_map(paths["map"])
+    assert lmap.source["encoder"] == "reversed-words"
+    assert lmap.source["encoder_fingerprint"] == encoder.fingerprint()
+
+
 def test_a_query_with_another_encoder_warns_once_and_the_same_one_never(tmp_path, caplog):
     paths = write_scene(make_scene(HashingEncoder(32), SceneOptions(**OPTS)), tmp_path / "s.npz")
     once.forget("built-by")
@@ -116,9 +133,19 @@ def test_a_dimension_mismatch_names_the_encoder_the_map_records(tmp_path, caplog
     msg = str(err.value)
     assert "32-dimensional embeddings" in msg and "produces 24-dimensional" in msg
     assert "The map records that encoder 'hashing-test' built it" in msg
-    assert "'encoder: hashing-test'" in msg
     assert "dim: 32" not in msg
+    # 'hashing-test' is no registered name, so a config cannot write it: no such advice.
+    assert "encoder: hashing-test" not in msg and "query with it" in msg
     assert not [r for r in caplog.records if "was built with encoder" in r.getMessage()]
+    from quash_plugins.core import registry
+
+    registry.register("encoders", "hashing-test", HashingEncoder, dist="pkg-hash")
+    try:
+        with pytest.raises(DimensionMismatchError) as err:
+            _quash(_DimHashing(24)).query(str(paths["map"]), "chair")
+    finally:
+        registry.unregister("encoders", "hashing-test", dist="pkg-hash")
+    assert "write 'encoder: hashing-test' with the parameters" in str(err.value)
     # The same encoder at another size: the map's own encoder, so its dim is the fix.
     same = HashingEncoder(16)
     with pytest.raises(DimensionMismatchError) as err:
