@@ -79,8 +79,8 @@ def tiny_world(tmp_path):
     E = (E / np.linalg.norm(E, axis=1, keepdims=True)).astype(np.float32)
     positions = rng.uniform(0, 5, size=(600, 3)).astype(np.float32)
     map_path = write_npz_map(
-        tmp_path / "map.npz",
         LatentMap(E, positions=positions, labels=labels, label_names=label_names),
+        tmp_path / "map.npz",
     )
     config = tmp_path / "contrast.yaml"
     config.write_text(

@@ -25,7 +25,7 @@ import numpy as np
 from ..core.errors import UsageError
 from ..core.layout import read_frames, read_up
 from ..core.types import UP_AXES, FrameInfo, LatentMap
-from ._npz import metadata_arrays
+from ._npz import map_then_path, metadata_arrays
 
 log = logging.getLogger(__name__)
 
@@ -90,15 +90,19 @@ def up_from_zarr(path: str | Path) -> str | None:
     return read_up(attrs, str(path), what="attribute")
 
 
-def write_npz_streaming(path: str | Path, lmap: LatentMap, chunk_rows: int = 65536) -> Path:
-    """Write ``lmap`` as a portable NPZ, copying embeddings ``chunk_rows`` rows at a time.
+def write_npz_streaming(lmap: LatentMap, path: str | Path, chunk_rows: int = 65536) -> Path:
+    """Write ``lmap`` as a portable NPZ at ``path``, copying embeddings ``chunk_rows`` rows
+    at a time; returns ``path``.
 
-    Values and dtype are kept as stored (float16 stays float16, rows are not normalised;
-    the ``normalize`` flag is recorded instead). The file appears atomically.
+    The map comes first, as for every map writer; the old order,
+    ``write_npz_streaming(path, lmap)``, still works for this release with a
+    :class:`DeprecationWarning`. Values and dtype are kept as stored (float16 stays
+    float16, rows are not normalised; the ``normalize`` flag is recorded instead). The
+    file appears atomically.
     """
     from ..core.atomic import atomic_write, refuse_own_input
 
-    path = Path(path)
+    lmap, path = map_then_path("write_npz_streaming", lmap, path)
     refuse_own_input(path, lmap.source)
     emb = lmap.embeddings
     n, d = lmap.n, lmap.dim
@@ -202,11 +206,11 @@ def convert_map(
     if isinstance(lmap.embeddings, np.ndarray) and not lmap.frames:
         from ._npz import write_npz_map
 
-        written = write_npz_map(dst, lmap, compress=compress)
+        written = write_npz_map(lmap, dst, compress=compress)
     else:
         if compress:
             log.info("--compress is ignored for streamed maps (written uncompressed)")
-        written = write_npz_streaming(dst, lmap)
+        written = write_npz_streaming(lmap, dst)
     return written
 
 

@@ -9,6 +9,8 @@ uint8, ``labels (N,)`` int, ``label_names (L,)`` str, ``voxel_size`` scalar,
 
 from __future__ import annotations
 
+import os
+import warnings
 import zipfile
 from pathlib import Path
 from typing import Any
@@ -180,7 +182,7 @@ class NpzAdapter(MapAdapter):
             labels=rng.integers(0, 3, size=40),
             label_names=["floor", "chair", "table"],
         )
-        return write_npz_map(Path(directory) / "example.npz", lmap)
+        return write_npz_map(lmap, Path(directory) / "example.npz")
 
 
 def metadata_arrays(lmap: LatentMap) -> dict[str, Any]:
@@ -203,14 +205,60 @@ def metadata_arrays(lmap: LatentMap) -> dict[str, Any]:
     return arrays
 
 
-def write_npz_map(path: str | Path, lmap: LatentMap, compress: bool = False) -> Path:
-    """Write ``lmap`` as a portable NPZ atomically. Embeddings are read whole here; use
-    :func:`quash_plugins.adapters._convert.write_npz_streaming` for lazy maps.
+def map_then_path(writer: str, lmap: Any, path: Any) -> tuple[LatentMap, Path]:
+    """``(lmap, Path(path))`` for ``writer(lmap, path, ...)``, the order of every map writer.
 
-    ``path`` may not be the map's own source file (through any link)."""
+    The old order of the NPZ writers, ``writer(path, lmap)``, is still accepted for one
+    release: the two are swapped and a :class:`DeprecationWarning` names the new order
+    (attributed to the writer's caller). Anything else is a :class:`TypeError`.
+    """
+    if not isinstance(lmap, LatentMap) and isinstance(path, LatentMap):
+        warnings.warn(
+            f"{writer}(path, lmap) is deprecated: pass the map first, {writer}(lmap, path), "
+            "as write_zarr_map, write_vlmaps_map and write_openlex3d_map take it. The old "
+            "order will be refused in the next release.",
+            DeprecationWarning,
+            stacklevel=3,  # this helper's caller is the writer; the warning names its caller
+        )
+        lmap, path = path, lmap
+    if not isinstance(lmap, LatentMap):
+        raise TypeError(
+            f"{writer}(lmap, path): the first argument must be a LatentMap (got "
+            f"{type(lmap).__name__}) and the second the output path. Read a map with "
+            "quash_plugins.adapters.read_map, or build one with LatentMap(embeddings, ...)."
+        )
+    if not isinstance(path, (str, os.PathLike)):
+        raise TypeError(
+            f"{writer}(lmap, path): the second argument must be the output path, a str or "
+            f"pathlib.Path (got {type(path).__name__})."
+        )
+    return lmap, Path(path)
+
+
+def write_npz_map(lmap: LatentMap, path: str | Path, compress: bool = False) -> Path:
+    """Write ``lmap`` as a portable NPZ at ``path`` atomically; returns ``path``.
+
+    The map comes first, as for every map writer (``write_zarr_map``,
+    ``write_vlmaps_map``, ``write_openlex3d_map``). The old order, ``write_npz_map(path,
+    lmap)``, still works for this release with a :class:`DeprecationWarning`.
+    Embeddings are read whole here; use
+    :func:`quash_plugins.adapters._convert.write_npz_streaming` for lazy maps.
+    ``compress``: zip-deflate the arrays (smaller, slower to read).
+
+    ``path`` may not be the map's own source file (through any link).
+
+    Examples
+    --------
+    >>> import numpy as np, tempfile, os
+    >>> from quash_plugins.adapters import read_map
+    >>> m = LatentMap(np.eye(4, dtype=np.float32), labels=np.arange(4))
+    >>> p = write_npz_map(m, os.path.join(tempfile.mkdtemp(), "m.npz"))
+    >>> read_map(p).labels.tolist()
+    [0, 1, 2, 3]
+    """
     from ..core.atomic import atomic_write, refuse_own_input
 
-    path = Path(path)
+    lmap, path = map_then_path("write_npz_map", lmap, path)
     refuse_own_input(path, lmap.source)
     arrays = {"embeddings": np.asarray(lmap.embeddings), **metadata_arrays(lmap)}
     with atomic_write(path, suffix=".npz") as tmp:

@@ -574,7 +574,7 @@ def write_scene(
     if out.suffix != ".npz":
         raise ConfigError(f"{out}: the scene is written as our NPZ format; use a .npz name.")
     out.parent.mkdir(parents=True, exist_ok=True)
-    write_npz_map(out, scene.map)
+    write_npz_map(scene.map, out)
     paths = scene_paths(out)
     tax, queries = paths["taxonomy"], paths["queries"]
     head = _TAXONOMY_HEAD

@@ -172,7 +172,7 @@ def test_a_folder_that_also_holds_another_map_is_refused_with_the_choices(cf_map
 
     root, arrays = cf_map
     emb = np.random.default_rng(1).normal(size=(7, 16)).astype(np.float32)
-    other = write_npz_map(root / "other.npz", LatentMap(emb, kind="points"))
+    other = write_npz_map(LatentMap(emb, kind="points"), root / "other.npz")
     with pytest.raises(MapFormatError) as exc:
         read_map(root)
     msg = str(exc.value)

@@ -42,7 +42,7 @@ def test_npz_round_trip(n, d, dtype, zeros, seed):
         np.savez(path, embeddings=emb, positions=pos)
         lmap = read_map(path)
         assert lmap.dtype == dtype and lmap.n == n
-        out = write_npz_streaming(Path(tmp) / "copy.npz", lmap, chunk_rows=7)
+        out = write_npz_streaming(lmap, Path(tmp) / "copy.npz", chunk_rows=7)
         back = read_map(out)
         np.testing.assert_array_equal(np.asarray(back.embeddings), emb)
         np.testing.assert_array_equal(back.positions, pos)

@@ -129,7 +129,7 @@ def _grid_map(path):
     pos = (np.array([-1.0, 2.0, 0.5]) + idx * 0.05).astype(np.float32)
     emb = rng.normal(size=(12, 4)).astype(np.float16)
     return write_npz_map(
-        path, LatentMap(emb, kind="voxels", positions=pos, grid_index=idx, voxel_size=0.05)
+        LatentMap(emb, kind="voxels", positions=pos, grid_index=idx, voxel_size=0.05), path
     )
 
 

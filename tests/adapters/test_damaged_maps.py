@@ -82,7 +82,7 @@ def test_a_foreign_store_with_missing_chunks_warns_with_the_share(tiny_world, tm
 
 # ---------------------------------------------------------------------- unobserved maps
 def test_an_all_zero_map_warns_that_nothing_can_match(tiny_world, tmp_path, capsys):
-    path = write_npz_map(tmp_path / "zeros.npz", LatentMap(np.zeros((50, 16), np.float32)))
+    path = write_npz_map(LatentMap(np.zeros((50, 16), np.float32)), tmp_path / "zeros.npz")
     assert _query(tiny_world, path) == 0
     err = " ".join(capsys.readouterr().err.split())  # the log handler wraps lines
     assert "every one of its 50 items has an all-zero embedding" in err
@@ -91,7 +91,7 @@ def test_an_all_zero_map_warns_that_nothing_can_match(tiny_world, tmp_path, caps
 def test_a_mostly_unobserved_map_warns_with_the_share(tiny_world, tmp_path, caplog):
     emb = np.asarray(read_map(tiny_world["map"]).embeddings).copy()
     emb[:420] = 0
-    path = write_npz_map(tmp_path / "sparse.npz", LatentMap(emb))
+    path = write_npz_map(LatentMap(emb), tmp_path / "sparse.npz")
     caplog.set_level(logging.WARNING)
     Quash.from_config(tiny_world["config"]).query(path, "chair")
     assert "420 of 600 items (70.0%) have all-zero embeddings" in caplog.text

@@ -103,7 +103,7 @@ def test_a_folder_of_map_files_names_them(tmp_path):
     from quash_plugins.core.types import LatentMap
 
     for stem in ("room0", "scene"):
-        write_npz_map(tmp_path / f"{stem}.npz", LatentMap(np.eye(3, dtype=np.float32)))
+        write_npz_map(LatentMap(np.eye(3, dtype=np.float32)), tmp_path / f"{stem}.npz")
     (tmp_path / "notes.txt").write_text("not a map", encoding="utf-8")
     with pytest.raises(MapFormatError) as info:
         read_map(tmp_path)

@@ -30,7 +30,6 @@ def _without_labels(lmap: LatentMap, path):
     from quash_plugins.adapters import write_npz_map
 
     return write_npz_map(
-        path,
         LatentMap(
             np.asarray(lmap.embeddings),
             kind="voxels",
@@ -38,6 +37,7 @@ def _without_labels(lmap: LatentMap, path):
             grid_index=lmap.grid_index,
             voxel_size=lmap.voxel_size,
         ),
+        path,
     )
 
 

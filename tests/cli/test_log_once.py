@@ -19,7 +19,6 @@ def test_eval_logs_a_query_resolution_once_for_several_configs(tmp_path, capsys)
     rows = [vec("bed")] * 8 + [vec("sofa")] * 8
     grid = [(x + 10 * b, y, z) for b in (0, 1) for x in (0, 1) for y in (0, 1) for z in (0, 1)]
     write_npz_map(
-        tmp_path / "map.npz",
         LatentMap(
             np.asarray(rows, np.float32),
             kind="voxels",
@@ -28,6 +27,7 @@ def test_eval_logs_a_query_resolution_once_for_several_configs(tmp_path, capsys)
             labels=np.repeat([0, 1], 8),
             label_names=["bed", "sofa"],
         ),
+        tmp_path / "map.npz",
     )
     names = sorted({n for k, v in TAX.items() for n in (k, *v)} | {"other", "somewhere to nap"})
     np.savez(

@@ -254,7 +254,7 @@ def test_npz_and_zarr_writers_refuse_their_own_source(tiny_world, tmp_path):
     lmap = read_map(tiny_world["map"])
     before = _sha(tiny_world["map"])
     with pytest.raises(UsageError, match="is the input"):
-        write_npz_map(tiny_world["map"], lmap)
+        write_npz_map(lmap, tiny_world["map"])
     assert _sha(tiny_world["map"]) == before
     store = write_zarr_map(lmap, tmp_path / "m.zarr")
     zmap = read_map(store)

@@ -28,7 +28,6 @@ def test_eval_without_c_says_the_templates_at_info_not_as_a_warning(no_vlmaps, t
     rng = np.random.default_rng(0)
     grid = [(x + 4 * b, y, 0) for b in (0, 1) for x in (0, 1, 2) for y in (0, 1, 2)]
     write_npz_map(
-        tmp_path / "map.npz",
         LatentMap(
             rng.standard_normal((len(grid), dim)).astype(np.float32),
             kind="voxels",
@@ -37,6 +36,7 @@ def test_eval_without_c_says_the_templates_at_info_not_as_a_warning(no_vlmaps, t
             labels=np.repeat([0, 1], len(grid) // 2),
             label_names=["bed", "sofa"],
         ),
+        tmp_path / "map.npz",
     )
     out = tmp_path / "eval.json"
     args = ["eval", str(tmp_path / "map.npz"), "--queries", "bed", "--json", str(out)]

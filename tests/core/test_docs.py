@@ -103,8 +103,8 @@ def _stand_ins(folder: Path) -> None:
     lmap = LatentMap(
         E.astype(np.float32), positions=positions, labels=labels, label_names=WORDS[:3]
     )
-    write_npz_map(folder / "map.npz", lmap)
-    write_npz_map(folder / "scene.npz", lmap)
+    write_npz_map(lmap, folder / "map.npz")
+    write_npz_map(lmap, folder / "scene.npz")
     gs, vh = 40, 10
     cells = rng.choice(gs * gs * vh, size=400, replace=False)
     grid_pos = np.stack(np.unravel_index(cells, (gs, gs, vh)), axis=1).astype(np.int32)

@@ -27,7 +27,7 @@ def minilm_map(minilm, tmp_path):
     E = (E / np.linalg.norm(E, axis=1, keepdims=True)).astype(np.float32)
     pos = rng.uniform(0, 3, size=(80, 3)).astype(np.float32)
     lmap = LatentMap(E, positions=pos, labels=labels, label_names=["chair", "bathtub"])
-    return write_npz_map(tmp_path / "map384.npz", lmap), labels
+    return write_npz_map(lmap, tmp_path / "map384.npz"), labels
 
 
 @pytest.fixture
@@ -122,7 +122,7 @@ def test_dimension_mismatch_names_dims_and_preset(tmp_path, capsys):
     from quash_plugins.core.types import LatentMap
 
     E = np.random.default_rng(1).normal(size=(10, 512)).astype(np.float32)
-    path = write_npz_map(tmp_path / "lseg512.npz", LatentMap(E))
+    path = write_npz_map(LatentMap(E), tmp_path / "lseg512.npz")
     rc = main(["query", str(path), "chair", "--adapter", "npz", "--device", "cpu"])
     err = capsys.readouterr().err
     assert rc == 1
@@ -167,7 +167,7 @@ def test_dimension_mismatch_is_the_message_the_docs_show(tmp_path, monkeypatch, 
     from quash_plugins.core.types import LatentMap
 
     E = np.random.default_rng(1).normal(size=(10, 512)).astype(np.float32)
-    write_npz_map(tmp_path / "lseg_map.npz", LatentMap(E))
+    write_npz_map(LatentMap(E), tmp_path / "lseg_map.npz")
     monkeypatch.chdir(tmp_path)
     assert main(["query", "lseg_map.npz", "chair", "--device", "cpu"]) == 1
     printed = " ".join(capsys.readouterr().err.split())

@@ -35,7 +35,7 @@ def test_the_map_records_its_encoder_and_a_copy_keeps_it(tmp_path):
     lmap = read_map(paths["map"])
     assert lmap.source["encoder"] == "hashing-test"
     assert lmap.source["encoder_fingerprint"] == enc.fingerprint()
-    copy = write_npz_map(tmp_path / "copy.npz", lmap)
+    copy = write_npz_map(lmap, tmp_path / "copy.npz")
     assert read_map(copy).source["encoder_fingerprint"] == enc.fingerprint()
 
 
@@ -76,7 +76,7 @@ def test_a_map_without_the_record_is_not_warned_about(tmp_path, caplog):
 
     rng = np.random.default_rng(0)
     emb = rng.normal(size=(20, 32)).astype(np.float32)
-    path = write_npz_map(tmp_path / "m.npz", LatentMap(emb, kind="points"))
+    path = write_npz_map(LatentMap(emb, kind="points"), tmp_path / "m.npz")
     assert "encoder_fingerprint" not in np.load(path).files
     with caplog.at_level("WARNING", logger="quash_plugins.engine.map_fit"):
         _quash(_OtherHashing(32)).query(str(path), "chair")

@@ -379,7 +379,7 @@ def test_cli_convert_to_zarr(tmp_path, world):
     from quash_plugins.cli.main import main
 
     emb = world["emb"][:1000]
-    src = write_npz_map(tmp_path / "m.npz", LatentMap(emb, normalize=True))
+    src = write_npz_map(LatentMap(emb, normalize=True), tmp_path / "m.npz")
     assert main(["convert", str(src), str(tmp_path / "m.zarr")]) == 0
     back = read_map(tmp_path / "m.zarr")
     assert back.embeddings.dtype == np.float16 and back.normalize

@@ -90,7 +90,7 @@ def test_results_file_and_convert(tmp_path):
     out = write_results_npz(tmp_path / "r.npz", results)
     with np.load(out) as z:
         assert z["masks"].shape == (2, 0) and z["scores"].dtype == np.float32
-    back = read_map(write_npz_map(tmp_path / "m.npz", lmap))
+    back = read_map(write_npz_map(lmap, tmp_path / "m.npz"))
     assert (back.n, back.dim, back.dtype) == (0, 3, np.float16)
     pytest.importorskip("zarr")
     back = read_map(write_zarr_map(lmap, tmp_path / "m.zarr"))

@@ -59,7 +59,7 @@ def test_a_rewritten_map_file_is_read_again(tiny_world):
     assert quash.read_map(tiny_world["map"]) is first  # unchanged: reused
     # a mapping process rewrites the file with more items
     E = np.concatenate([tiny_world["E"], tiny_world["E"][:50]])
-    write_npz_map(tiny_world["map"], LatentMap(E, positions=np.zeros((650, 3), np.float32)))
+    write_npz_map(LatentMap(E, positions=np.zeros((650, 3), np.float32)), tiny_world["map"])
     again = quash.read_map(tiny_world["map"])
     assert again is not first and again.n == 650
     assert quash.query(tiny_world["map"], "chair").mask.shape == (650,)
@@ -102,7 +102,7 @@ def test_at_most_keep_maps_maps_are_kept(tiny_world, tmp_path):
     paths = []
     for i in range(3):
         rows = tiny_world["E"][100 * i : 100 * i + 100]
-        paths.append(write_npz_map(tmp_path / f"m{i}.npz", LatentMap(rows)))
+        paths.append(write_npz_map(LatentMap(rows), tmp_path / f"m{i}.npz"))
     quash = Quash.from_config(tiny_world["config"])
     quash.keep_maps = 2
     maps = [quash.read_map(p) for p in paths]
@@ -247,7 +247,7 @@ def test_npz_round_trip_keeps_frames(tmp_path):
 
     frames = [FrameInfo("f0", 2, 3, 0), FrameInfo("f1", 1, 4, 6)]
     E = np.random.default_rng(0).normal(size=(10, 4)).astype(np.float32)
-    path = write_npz_map(tmp_path / "px.npz", LatentMap(E, kind="pixels", frames=frames))
+    path = write_npz_map(LatentMap(E, kind="pixels", frames=frames), tmp_path / "px.npz")
     back = read_map(path)
     assert back.kind == "pixels"
     assert [(f.frame_id, f.height, f.width, f.offset) for f in back.frames] == [

@@ -16,7 +16,7 @@ E = np.eye(4, dtype=np.float32)
 
 
 def test_labels_without_names_in_an_npz_say_the_names_are_missing(tmp_path):
-    path = write_npz_map(tmp_path / "m.npz", LatentMap(E, labels=np.array([0, 1, 0, 1])))
+    path = write_npz_map(LatentMap(E, labels=np.array([0, 1, 0, 1])), tmp_path / "m.npz")
     q = Quash.from_config({"encoder": {"name": "table", "table": {"a": [1, 0, 0, 0]}}})
     with pytest.raises(QuashError) as err:
         evaluate(str(path), [q])

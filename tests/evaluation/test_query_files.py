@@ -149,7 +149,7 @@ def test_a_misspelt_label_in_a_query_file_names_the_file(tmp_path, capsys):
     from quash_plugins.adapters._npz import write_npz_map
 
     lmap, _ = _robot_map_and_peer()
-    write_npz_map(tmp_path / "map.npz", lmap)
+    write_npz_map(lmap, tmp_path / "map.npz")
     q = tmp_path / "q.yaml"
     q.write_text("present:\n  a cobot: robbot arm\n  forklift: forklift\nabsent: [a giraffe]\n")
     assert main(["eval", str(tmp_path / "map.npz"), "--queries-file", str(q)]) == 1
@@ -206,7 +206,7 @@ def test_an_absence_query_from_a_query_file_that_the_map_has_names_the_file(tmp_
     from quash_plugins.adapters._npz import write_npz_map
 
     lmap, _ = _robot_map_and_peer()
-    write_npz_map(tmp_path / "map.npz", lmap)
+    write_npz_map(lmap, tmp_path / "map.npz")
     q = tmp_path / "q.yaml"
     q.write_text("present: [robot arm]\nabsent: [a giraffe, Forklift]\n")
     run = ["eval", str(tmp_path / "map.npz"), "--queries-file", str(q)]
@@ -270,7 +270,7 @@ def test_the_plot_of_a_report_with_only_absence_queries_is_not_written(tmp_path,
 
     from quash_plugins.adapters._npz import write_npz_map
 
-    write_npz_map(tmp_path / "map.npz", lmap)
+    write_npz_map(lmap, tmp_path / "map.npz")
     (tmp_path / "table.yaml").write_text(yaml.safe_dump(table_for(["drone", "other"])))
     cfg = {
         "encoder": {"name": "table", "file": str(tmp_path / "table.yaml")},

@@ -184,7 +184,7 @@ def test_cli_eval_takes_text_label_queries_and_a_query_file(tmp_path, capsys, mo
         texts=np.asarray(sorted(names)),
         embeddings=np.asarray([vec(n) for n in sorted(names)], np.float32),
     )
-    write_npz_map(tmp_path / "map.npz", _bed_sofa_map())
+    write_npz_map(_bed_sofa_map(), tmp_path / "map.npz")
     (tmp_path / "peer.yaml").write_text(
         "name: peer\nencoder: {name: table, file: text.npz}\n"
         "heuristic: {name: label-list, file: tax.yaml}\nnegatives: [other]\n"

@@ -262,7 +262,7 @@ def test_serve_web_in_headless_chromium(tmp_path):
     from quash_plugins.adapters import write_npz_map
 
     lmap = voxel_map(shape=(12, 10, 4), colors="gray")  # only the matches are magenta
-    map_path = write_npz_map(tmp_path / "map.npz", lmap)
+    map_path = write_npz_map(lmap, tmp_path / "map.npz")
     cfg = write_table_config(tmp_path)
     # Query 0 is "chair", query 1 "sofa" (the config is named table-contrast).
     expected = {0: int((lmap.labels == 0).sum()), 1: int((lmap.labels == 1).sum())}

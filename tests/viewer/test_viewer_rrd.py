@@ -467,7 +467,7 @@ def test_cli_query_rrd(tmp_path, capsys):
     from quash_plugins.cli.main import main
 
     lmap = voxel_map()
-    map_path = write_npz_map(tmp_path / "map.npz", lmap)
+    map_path = write_npz_map(lmap, tmp_path / "map.npz")
     cfg = write_table_config(tmp_path)
     out = tmp_path / "sub" / "out.rrd"
     code = main(["query", str(map_path), "chair", "sofa", "-c", str(cfg), "--rrd", str(out)])
@@ -500,7 +500,7 @@ def test_cli_rrd_replaces_only_quash_recordings_without_force(tmp_path, capsys):
     from quash_plugins.adapters import write_npz_map
     from quash_plugins.cli.main import main
 
-    map_path = write_npz_map(tmp_path / "map.npz", voxel_map())
+    map_path = write_npz_map(voxel_map(), tmp_path / "map.npz")
     cfg = write_table_config(tmp_path)
     robot = _robot_recording(tmp_path / "robot.rrd")
     assert RrdReader(robot).recordings()[0].application_id == "my-robot"
@@ -536,7 +536,7 @@ def test_cli_connect_confirms_what_it_streamed(tmp_path, capsys):
     server.set_sinks(rr.GrpcServerSink(bind_ip="127.0.0.1", port=port))
     url = f"rerun+http://127.0.0.1:{port}/proxy"
     try:
-        map_path = write_npz_map(tmp_path / "map.npz", voxel_map())
+        map_path = write_npz_map(voxel_map(), tmp_path / "map.npz")
         cfg = write_table_config(tmp_path)
         assert main(["query", str(map_path), "chair", "-c", str(cfg), "--connect", url]) == 0
     finally:
@@ -548,7 +548,7 @@ def test_cli_rejects_bad_rrd_name(tmp_path):
     from quash_plugins.adapters import write_npz_map
     from quash_plugins.cli.main import main
 
-    map_path = write_npz_map(tmp_path / "map.npz", voxel_map())
+    map_path = write_npz_map(voxel_map(), tmp_path / "map.npz")
     cfg = write_table_config(tmp_path)
     code = main(["query", str(map_path), "chair", "-c", str(cfg), "--rrd", str(tmp_path / "x.txt")])
     assert code == 2
@@ -719,7 +719,7 @@ def test_cli_up_orients_a_map_whose_format_does_not_say(tmp_path, capsys):
     lmap = room_map()
     x, y, z = np.asarray(lmap.positions, dtype=np.float32).T
     lmap.positions = np.column_stack([x, -z, y])  # y down, as camera frames are
-    map_path = write_npz_map(tmp_path / "map.npz", lmap)
+    map_path = write_npz_map(lmap, tmp_path / "map.npz")
     cfg = write_table_config(tmp_path)
     argv = ["-q", "query", str(map_path), "chair", "-c", str(cfg), "--rrd"]
     for flags, eye_up in (([], [0.0, 0.0, 1.0]), (["--up=-y"], [0.0, -1.0, 0.0])):
@@ -791,7 +791,7 @@ def test_cli_eval_rrd_plots_ap_and_the_absence_queries(tmp_path):
     from quash_plugins.cli.main import main
 
     lmap = voxel_map()
-    map_path = write_npz_map(tmp_path / "map.npz", lmap)
+    map_path = write_npz_map(lmap, tmp_path / "map.npz")
     cfg = write_table_config(tmp_path)
     out, js = tmp_path / "e.rrd", tmp_path / "e.json"
     args = ["eval", str(map_path), "-c", str(cfg), "--queries", "chair,sofa"]

@@ -76,7 +76,7 @@ def small_map(tmp_path):
 
     from quash_plugins.adapters._npz import write_npz_map
 
-    return write_npz_map(tmp_path / "map.npz", voxel_map()), write_table_config(tmp_path)
+    return write_npz_map(voxel_map(), tmp_path / "map.npz"), write_table_config(tmp_path)
 
 
 def run_cli(args: list[str], cwd: Path, env: dict, timeout: float = 300):
