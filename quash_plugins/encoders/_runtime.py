@@ -146,19 +146,8 @@ def weights_identity(path: str | Path) -> dict[str, Any]:
     shared; two fine-tunes of one architecture (the same sizes and safetensors header)
     do not.
     """
-    path = Path(path).expanduser()
-    root, files = _weight_files(path)
-    h = hashlib.sha256()
-    n_weights = 0
-    for p in files:
-        rel = p.relative_to(root).as_posix()
-        if p.name in _CONFIG_NAMES:
-            h.update(f"{rel}:".encode())
-            h.update(p.read_bytes())
-        elif p.suffix in _WEIGHT_SUFFIXES:
-            h.update(f"{rel}:{p.stat().st_size}:{content_digest(p)}".encode())
-            n_weights += 1
-    return {"files": n_weights, "sha": h.hexdigest()[:16]}
+    sha, n_weights = _weights_digest(Path(path).expanduser(), _content_part)
+    return {"files": n_weights, "sha": sha}
 
 
 def legacy_weights_identity(path: str | Path) -> dict[str, Any]:
@@ -166,6 +155,23 @@ def legacy_weights_identity(path: str | Path) -> dict[str, Any]:
     based (the resolved path, and each weight file's size, mtime and safetensors header):
     for ``earlier_fingerprints``, so maps and cache rows made then are still recognised."""
     path = Path(path).expanduser()
+    sha, n_weights = _weights_digest(path, _legacy_part)
+    return {"path": str(path.resolve()), "files": n_weights, "sha": sha}
+
+
+def _content_part(p: Path) -> str:
+    return f"{p.stat().st_size}:{content_digest(p)}"
+
+
+def _legacy_part(p: Path) -> str:
+    st = p.stat()
+    header = (safetensors_header_digest(p) or "") if p.suffix == ".safetensors" else ""
+    return f"{st.st_size}:{st.st_mtime_ns}{header}"
+
+
+def _weights_digest(path: Path, weight_part: Any) -> tuple[str, int]:
+    """The digest of the config files' content and ``rel:weight_part(file)`` of each
+    weight file under ``path``, and the number of weight files."""
     root, files = _weight_files(path)
     h = hashlib.sha256()
     n_weights = 0
@@ -175,12 +181,9 @@ def legacy_weights_identity(path: str | Path) -> dict[str, Any]:
             h.update(f"{rel}:".encode())
             h.update(p.read_bytes())
         elif p.suffix in _WEIGHT_SUFFIXES:
-            st = p.stat()
-            h.update(f"{rel}:{st.st_size}:{st.st_mtime_ns}".encode())
-            if p.suffix == ".safetensors":
-                h.update((safetensors_header_digest(p) or "").encode())
+            h.update(f"{rel}:{weight_part(p)}".encode())
             n_weights += 1
-    return {"path": str(path.resolve()), "files": n_weights, "sha": h.hexdigest()[:16]}
+    return h.hexdigest()[:16], n_weights
 
 
 def _weight_files(path: Path) -> tuple[Path, list[Path]]:
