@@ -27,13 +27,13 @@ log = logging.getLogger(__name__)
 
 def _ordered_adapters() -> list[tuple[str, Any]]:
     """Loadable adapters by ``priority`` (highest first), then name. A broken one is
-    skipped (the registry warns about it once)."""
+    skipped, with a warning once per process."""
     candidates = []
     for name in registry.available("adapters"):
         try:
             cls = registry.load("adapters", name)
         except PluginError as exc:
-            log.debug("skipping adapter %s: %s", name, exc)
+            registry.warn_skipped("adapters", name, exc)
             continue
         candidates.append((-int(getattr(cls, "priority", 0)), name, cls))
     return [(name, cls) for _, name, cls in sorted(candidates, key=lambda c: (c[0], c[1]))]

@@ -306,10 +306,6 @@ def _load_info(info: PluginInfo) -> Any:
                 f"{type(exc).__name__}: {str(exc).rstrip('.')}. {hint}".rstrip()
                 + f" Fix or uninstall {info.dist!r}."
             )
-            _warn_once(
-                ("broken", info.kind, info.qualified),
-                f"{info.error} It is skipped.",
-            )
             raise PluginError(info.error) from exc
         try:
             _validate(info, obj)
@@ -317,11 +313,17 @@ def _load_info(info: PluginInfo) -> Any:
             info.status = "error"
             info.error = f"{exc} Fix or uninstall {info.dist!r}."
             info.exception = exc
-            _warn_once(("broken", info.kind, info.qualified), f"{info.error} It is skipped.")
             raise PluginError(info.error) from None
         info._obj = obj
         info.status = "ok"
         return obj
+
+
+def warn_skipped(kind: str, name: str, exc: PluginError) -> None:
+    """For a caller that goes on without a plugin that failed to load (``adapter: auto``
+    tries every adapter): warn once per plugin that it is skipped. A caller that needed
+    the plugin raises the error instead, with no warning before it saying otherwise."""
+    _warn_once(("broken", kind, name), f"{exc} It is skipped.")
 
 
 def _warn_once(key: tuple[str, str, str], message: str) -> None:

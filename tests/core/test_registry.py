@@ -178,3 +178,50 @@ def test_the_split_keeps_the_public_import_paths_and_one_discovery_cache():
     registry.refresh()
     assert "classifiers" not in _entry_points._scanned
     assert "svm-rbf" in registry.available("classifiers")  # scanned again
+
+
+def _broken(kind: str, name: str):
+    from quash_plugins.core import _entry_points
+    from quash_plugins.core._entry_points import PluginInfo
+
+    def load():
+        raise ImportError("No module named 'missing_driver'")
+
+    registry.available(kind)  # scanned
+    info = PluginInfo(kind, name, f"broken_{name}:Thing", "broken-dist", "0.1", _loader=load)
+    _entry_points._scanned[kind].append(info)
+    return info
+
+
+def test_a_plugin_the_config_names_fails_with_an_error_not_a_skipped_warning(caplog):
+    """Before, a configured plugin that failed to import logged 'WARNING ... It is
+    skipped.' and then raised the same text as an error: it was not skipped."""
+    from quash_plugins.core import _entry_points, once
+    from quash_plugins.core.errors import PluginError
+
+    once.forget("registry")
+    info = _broken("encoders", "brokenenc")
+    try:
+        with caplog.at_level("WARNING"), pytest.raises(PluginError, match="failed to import"):
+            registry.create("encoders", "brokenenc")
+        assert "skipped" not in caplog.text
+    finally:
+        _entry_points._scanned["encoders"].remove(info)
+
+
+def test_a_broken_adapter_that_auto_detection_passes_over_is_warned_about_once(caplog):
+    from quash_plugins.core import _entry_points, once
+    from quash_plugins.core.maps import _ordered_adapters
+
+    once.forget("registry")
+    info = _broken("adapters", "brokenadapter")
+    try:
+        with caplog.at_level("WARNING"):
+            names = [n for n, _ in _ordered_adapters()]
+            _ordered_adapters()
+        assert "brokenadapter" not in names and "npz" in names
+        warned = [r.getMessage() for r in caplog.records if "brokenadapter" in r.getMessage()]
+        assert len(warned) == 1 and warned[0].endswith("It is skipped."), warned
+        assert "broken-dist" in warned[0]
+    finally:
+        _entry_points._scanned["adapters"].remove(info)
