@@ -122,8 +122,11 @@ def check_rrd(args: argparse.Namespace, inputs: Any = ()) -> None:
     else:  # a flag that would be ignored is refused
         given = [
             flag
-            for flag, dest in (("--web-port", "web_port"), ("--grpc-port", "grpc_port"))
-            + (("--bind", "bind"),)
+            for flag, dest in (
+                ("--web-port", "web_port"),
+                ("--grpc-port", "grpc_port"),
+                ("--bind", "bind"),
+            )
             if getattr(args, dest, None) is not None
         ]
         if given:

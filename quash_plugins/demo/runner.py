@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from ..core.cache_dirs import cache_dir, make_private_dirs
+from ..engine.map_fit import same_embedding_function
 from ..evaluation.report import EvalReport, evaluate
 from .scene import SceneOptions, make_scene, write_scene
 
@@ -74,7 +75,7 @@ def demo_scene(
     path = cache_root() / f"scene-v{SCENE_VERSION}-{tag}-seed{seed}-{encoder.name}.npz"
     if path.exists() and not rebuild:
         built = _built_with(path)
-        if built is None or _same_function(encoder, built):
+        if built is None or same_embedding_function(encoder, built):
             log.info("demo scene from cache: %s", path)
             return path
         log.info(
@@ -95,16 +96,6 @@ def _built_with(path: Path) -> str | None:
             return str(z["encoder_fingerprint"]) if "encoder_fingerprint" in z.files else None
     except (OSError, ValueError, KeyError):
         return None
-
-
-def _same_function(encoder: Any, fingerprint: str) -> bool:
-    """``fingerprint`` names ``encoder``'s embedding function, now or as earlier
-    versions named it (``earlier_fingerprints``)."""
-    fp = getattr(encoder, "fingerprint", None)
-    if not callable(fp) or fingerprint == fp():
-        return True
-    earlier = getattr(encoder, "earlier_fingerprints", None)
-    return callable(earlier) and fingerprint in earlier()
 
 
 def run_demo(

@@ -17,7 +17,9 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from ..core.errors import ConfigError, EncoderError
+from ..core.atomic import atomic_write_text
+from ..core.cache_dirs import cache_dir, make_private_dirs
+from ..core.errors import ConfigError, EncoderError, UsageError
 
 log = logging.getLogger(__name__)
 
@@ -202,8 +204,6 @@ def content_digest(path: Path) -> str:
     is read once, not at every start (a ViT-H checkpoint is 4 GB). A memo that cannot be
     read or written is not used (the file is hashed each time); a changed file is a new
     key; a memo that is a symbolic link is not read."""
-    from ..core.cache_dirs import cache_dir, make_private_dirs
-
     st = path.stat()
     key = hashlib.sha256(
         f"{path.resolve()}|{st.st_size}|{st.st_mtime_ns}|{st.st_ino}".encode()
@@ -221,11 +221,7 @@ def content_digest(path: Path) -> str:
         for block in iter(lambda: fh.read(8 * 2**20), b""):
             h.update(block)
     digest = h.hexdigest()[:16]
-    from ..core.errors import UsageError
-
     with contextlib.suppress(OSError, UsageError):  # unwritable, or a planted link there
-        from ..core.atomic import atomic_write_text
-
         make_private_dirs(memo.parent)
         atomic_write_text(memo, digest + "\n")
     return digest

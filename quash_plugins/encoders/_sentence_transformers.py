@@ -205,16 +205,12 @@ class SentenceTransformerEncoder(Encoder):
         warning between them). A model only the loader can find is named by its id.
         Neither the device nor the batch size is identity.
         """
-        import hashlib
-        import json
-
         ident: dict[str, Any] = {"family": "sentence-transformers", "normalize": self.normalize}
         if self._path is not None:
             ident["weights"] = weights_identity(self._path)
         else:
             ident["model"] = self.model
-        blob = json.dumps(ident, sort_keys=True, default=str).encode()
-        return f"sentence-transformers-{hashlib.sha256(blob).hexdigest()[:16]}"
+        return f"sentence-transformers-{_digest(ident)}"
 
     def earlier_fingerprints(self) -> list[str]:
         """What earlier quash-plugins versions called the same embedding function: before
@@ -222,25 +218,26 @@ class SentenceTransformerEncoder(Encoder):
         path and mtimes), and in 0.x before this naming (the model string and the class
         were hashed too). A map whose record carries one of these was built with these
         weights, so a query is not warned about it."""
-        import hashlib
-        import json
-
         legacy = legacy_weights_identity(self._path) if self._path is not None else None
-        named = {"family": "sentence-transformers", "normalize": self.normalize, "weights": legacy}
         first = {
             "model": self.model,
             "normalize": self.normalize,
             "weights": legacy,
             "class": f"{type(self).__module__}.{type(self).__qualname__}",
         }
-        digest = [
-            hashlib.sha256(json.dumps(i, sort_keys=True, default=str).encode()).hexdigest()[:16]
-            for i in (named, first)
-        ]
-        earlier = [f"{self.name}-{digest[1]}"]
+        earlier = [f"{self.name}-{_digest(first)}"]
         if legacy is not None:  # without weights on disk the name has not changed
-            earlier.insert(0, f"sentence-transformers-{digest[0]}")
+            named = {"family": "sentence-transformers", "normalize": self.normalize}
+            earlier.insert(0, f"sentence-transformers-{_digest({**named, 'weights': legacy})}")
         return earlier
+
+
+def _digest(ident: dict[str, Any]) -> str:
+    """16 hex digits of the SHA-256 of ``ident`` as sorted JSON: a fingerprint's body."""
+    import hashlib
+    import json
+
+    return hashlib.sha256(json.dumps(ident, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
 class MiniLMEncoder(SentenceTransformerEncoder):

@@ -93,17 +93,26 @@ def _registered_encoder(name: str) -> bool:
     return True
 
 
+def same_embedding_function(encoder: Any, fingerprint: str) -> bool:
+    """Whether ``fingerprint`` names ``encoder``'s embedding function: its fingerprint
+    now, or one an earlier version gave the same function (``earlier_fingerprints``,
+    asked only when the current one differs). An encoder without a fingerprint names
+    nothing, so nothing is said to differ."""
+    ours = getattr(encoder, "fingerprint", None)
+    if not callable(ours) or fingerprint == ours():
+        return True
+    earlier = getattr(encoder, "earlier_fingerprints", None)
+    return callable(earlier) and fingerprint in earlier()
+
+
 def warn_built_by(encoder: Any, lmap: LatentMap) -> None:
     """Warn once per map and encoder when ``lmap.source`` records another encoder's
     fingerprint (``encoder_fingerprint``) than ``encoder``'s."""
     built = lmap.source.get("encoder_fingerprint")
-    if not isinstance(built, str) or not built:
+    if not isinstance(built, str) or not built or same_embedding_function(encoder, built):
         return
     ours = encoder.fingerprint()
-    earlier = getattr(encoder, "earlier_fingerprints", None)
-    if callable(earlier) and built in earlier():
-        return  # the same embedding function, named as an earlier version named it
-    if built == ours or not first_time(("built-by", str(lmap.source.get("path")), built, ours)):
+    if not first_time(("built-by", str(lmap.source.get("path")), built, ours)):
         return
     name = plugin_name(encoder)  # what the config's encoder section calls it
     built_name = lmap.source.get("encoder", "?")

@@ -81,8 +81,9 @@ class Quash:
     prompt_templates
         ``{"mode": "mean"|"all", "templates": "default"|"vlmaps"|"vlmaps-or-default"|list|
         path, "normalize": bool}`` or None (:func:`quash_plugins.core.text.resolve_templates`;
-        :attr:`templates_source` says where the list came from). ``normalize: false`` keeps the template mean as it
-        is (VLMaps' rule); see :func:`quash_plugins.engine.training.training_set`.
+        :attr:`templates_source` says where the list came from). ``normalize: false``
+        keeps the template mean as it is (VLMaps' rule); see
+        :func:`quash_plugins.engine.training.training_set`.
     map_negatives
         Options for map-mined negatives (the ``map-negatives`` heuristic wraps
         ``heuristic``), or None.

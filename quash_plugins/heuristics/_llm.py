@@ -302,9 +302,8 @@ class LLMHeuristic(Heuristic):
         try:
             make_private_dirs(path.parent)
             atomic_write_text(path, json.dumps(record, indent=1, ensure_ascii=False))
-        except OSError as exc:
-            log.warning("llm: query set for %r not cached: %s", query, exc)
-        except QuashError as exc:  # a link or folder planted at the cache path: never followed
+        # unwritable, or a link or folder planted at the cache path (never followed)
+        except (OSError, QuashError) as exc:
             log.warning("llm: query set for %r not cached: %s", query, exc)
         return path
 
