@@ -28,6 +28,7 @@ __all__ = [
     "pixel_coordinates",
     "convert_map",
     "write_npz_map",
+    "write_npz_streaming",
     "read_zarr_map",
     "write_zarr_map",
     "VLMapsLiveAdapter",
@@ -36,6 +37,7 @@ __all__ = [
     "write_pcd",
     "to_vlmaps_grid",
     "vlmaps_outputs",
+    "write_vlmaps_map",
 ]
 
 #: Public helpers, imported on first use (keeps ``import quash_plugins.adapters`` light).
@@ -48,6 +50,7 @@ _LAZY = {
     "pixel_coordinates": "._frames",
     "convert_map": "._convert",
     "write_npz_map": "._npz",
+    "write_npz_streaming": "._convert",
     "read_zarr_map": "._zarr_store",
     "write_zarr_map": "._zarr_store",
     "VLMapsLiveAdapter": "._vlmaps_live",
@@ -56,6 +59,7 @@ _LAZY = {
     "write_pcd": "._openlex3d",
     "to_vlmaps_grid": "._vlmaps2d",
     "vlmaps_outputs": "._vlmaps_write",
+    "write_vlmaps_map": "._vlmaps_write",
 }
 
 

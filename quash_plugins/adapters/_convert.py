@@ -91,14 +91,46 @@ def up_from_zarr(path: str | Path) -> str | None:
 
 
 def write_npz_streaming(lmap: LatentMap, path: str | Path, chunk_rows: int = 65536) -> Path:
-    """Write ``lmap`` as a portable NPZ at ``path``, copying embeddings ``chunk_rows`` rows
-    at a time; returns ``path``.
+    """Write ``lmap`` as a portable NPZ at ``path``, ``chunk_rows`` rows at a time.
 
-    The map comes first, as for every map writer; the old order,
-    ``write_npz_streaming(path, lmap)``, still works for this release with a
-    :class:`DeprecationWarning`. Values and dtype are kept as stored (float16 stays
-    float16, rows are not normalised; the ``normalize`` flag is recorded instead). The
-    file appears atomically.
+    What ``quash convert`` uses for lazy maps (HDF5 datasets, per-frame features, rows
+    gathered through an index): the embeddings are never held whole in memory. Values
+    and dtype are kept as stored (float16 stays float16, rows are not normalised; the
+    ``normalize`` flag is recorded instead). The file appears atomically. For a map held
+    in memory, :func:`~quash_plugins.adapters.write_npz_map` does the same in one go.
+
+    Parameters
+    ----------
+    lmap : LatentMap
+        The map to write. It comes first, as for every map writer; the old order,
+        ``write_npz_streaming(path, lmap)``, still works for this release with a
+        :class:`DeprecationWarning` naming the new one.
+    path : str or pathlib.Path
+        The ``.npz`` file to write; an existing file is replaced. It may not be the
+        map's own source file (through any link).
+    chunk_rows : int, default 65536
+        Rows of embeddings copied at a time.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+
+    Raises
+    ------
+    TypeError
+        When no argument is a :class:`~quash_plugins.core.types.LatentMap`, or the
+        other is not a path.
+
+    Examples
+    --------
+    >>> import numpy as np, tempfile, os
+    >>> from quash_plugins import LatentMap
+    >>> from quash_plugins.adapters import read_map, write_npz_streaming
+    >>> m = LatentMap(np.eye(4, dtype=np.float16))
+    >>> p = write_npz_streaming(m, os.path.join(tempfile.mkdtemp(), "m.npz"), chunk_rows=3)
+    >>> str(read_map(p).embeddings.dtype)
+    'float16'
     """
     from ..core.atomic import atomic_write, refuse_own_input
 

@@ -242,7 +242,7 @@ def write_npz_map(lmap: LatentMap, path: str | Path, compress: bool = False) -> 
     ``write_vlmaps_map``, ``write_openlex3d_map``). The old order, ``write_npz_map(path,
     lmap)``, still works for this release with a :class:`DeprecationWarning`.
     Embeddings are read whole here; use
-    :func:`quash_plugins.adapters._convert.write_npz_streaming` for lazy maps.
+    :func:`quash_plugins.adapters.write_npz_streaming` for lazy maps.
     ``compress``: zip-deflate the arrays (smaller, slower to read).
 
     ``path`` may not be the map's own source file (through any link).

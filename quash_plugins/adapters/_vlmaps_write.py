@@ -79,11 +79,53 @@ def vlmaps_outputs(folder: str | Path, with_labels: bool = True) -> list[Path]:
 def write_vlmaps_map(lmap: LatentMap, folder: str | Path, chunk_rows: int = 65536) -> Path:
     """Write ``lmap`` as ``folder/vlmap_cam/vlmaps_cam.h5df`` in VLMaps' save layout.
 
-    ``lmap`` must be a voxel grid (``grid_index`` and ``voxel_size``). Embeddings are
-    copied ``chunk_rows`` rows at a time, float16 stays float16, other dtypes become
-    float32 (VLMaps' own). Each file is written beside its target and renamed into place;
-    an existing file is replaced (the command line checks ``--force`` first). Returns the
-    path of the ``.h5df``.
+    What ``quash convert --format vlmaps`` writes (the layout is in this module's
+    docstring). Positions and cells are turned rigidly to VLMaps' y-up frame; rows keep
+    their order. Embeddings are copied ``chunk_rows`` rows at a time, float16 stays
+    float16, other dtypes become float32 (VLMaps' own). Labels, when the map has them,
+    go to ``grid_semantic`` and their names to ``folder/vlmap_cam/obj2cls_dict.txt``
+    (:func:`vlmaps_outputs` lists the files). Each file is written beside its target and
+    renamed into place; an existing file is replaced (the command line checks
+    ``--force`` first). Needs ``pip install "quash-plugins[hdf5]"`` (h5py).
+
+    Parameters
+    ----------
+    lmap : LatentMap
+        The map to write, first as for every map writer. It must be a voxel grid
+        (``grid_index`` and ``voxel_size``) with ``positions``, one row per cell.
+    folder : str or pathlib.Path
+        The folder to write into (VLMaps' scene folder); created when missing.
+    chunk_rows : int, default 65536
+        Rows of embeddings copied at a time.
+
+    Returns
+    -------
+    pathlib.Path
+        The path of the ``.h5df`` file, which the ``vlmaps`` adapter reads back (as
+        ``folder``, or this path).
+
+    Raises
+    ------
+    UsageError
+        When the map is not a voxel grid, has no positions, has two rows in one cell,
+        or records an up axis that is not one of ``+x``, ``-x``, ``+y``, ``-y``, ``+z``,
+        ``-z``.
+    QuashError
+        When h5py is not installed.
+
+    Examples
+    --------
+    >>> import numpy as np, tempfile
+    >>> from quash_plugins import LatentMap
+    >>> from quash_plugins.adapters import read_map, write_vlmaps_map
+    >>> cells = np.array([[0, 0, 0], [1, 0, 0], [0, 2, 1]])
+    >>> m = LatentMap(np.eye(3, dtype=np.float32), kind="voxels", positions=cells * 0.1,
+    ...               grid_index=cells, voxel_size=0.1)
+    >>> folder = tempfile.mkdtemp()
+    >>> write_vlmaps_map(m, folder).name
+    'vlmaps_cam.h5df'
+    >>> read_map(folder).source["up"]
+    '+y'
     """
     from ..core.atomic import atomic_write, refuse_own_input
     from ._vlmaps import import_h5py
