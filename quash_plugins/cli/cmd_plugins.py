@@ -30,6 +30,13 @@ def config_name(info: Any, infos: list[Any]) -> str:
     return info.qualified
 
 
+def version_text(info: Any) -> str:
+    """The version column of ``info``: its distribution's version, followed by
+    ``(editable)`` when that distribution is an editable install (``pip install -e``) or
+    a source tree found first, whose version does not name its code."""
+    return f"{info.version} (editable)" if info.editable else info.version
+
+
 def shadowed_by(info: Any, infos: list[Any]) -> str | None:
     """The built-in that keeps ``info``'s bare name, when ``info`` is another
     distribution's plugin of that name; else None."""
@@ -85,7 +92,8 @@ def run(args: argparse.Namespace) -> int:
         else:
             status = "[green]ok[/]"
         name = config_name(i, infos)
-        table.add_row(*(safe_text(x) for x in (i.kind, name, i.dist, i.version)), status)
+        cells = (i.kind, name, i.dist, version_text(i))
+        table.add_row(*(safe_text(x) for x in cells), status)
     console().print(table)
     for i in (i for i in infos if by[id(i)]):
         console().print(

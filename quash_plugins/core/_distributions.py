@@ -2,10 +2,13 @@
 
 Private to :mod:`quash_plugins.core`; the public names are re-exported by
 :mod:`quash_plugins.core.registry` (``distribution_of``, ``is_editable``,
-``note_distribution``), whose plugin provenance and encoder fingerprints use them.
+``distribution_is_editable``, ``note_distribution``), whose plugin provenance, encoder
+fingerprints and ``quash plugins`` listing use them.
 """
 
 from __future__ import annotations
+
+from typing import Any
 
 #: Top-level module -> ``"name==version"``, noted by the registry from the entry points
 #: it scans (a distribution's import name need not be its name).
@@ -51,19 +54,14 @@ _EDITABLE: dict[str, bool] = {}
 
 def is_editable(module: str) -> bool:
     """True when the code of the distribution providing ``module`` changes without its
-    version: an editable install (``pip install -e``: PEP 610 ``direct_url.json`` with
-    ``dir_info.editable`` true), or a source tree whose setuptools metadata is found first
-    (a ``NAME.egg-info`` folder with ``SOURCES.txt`` and no ``RECORD``, which an earlier
-    ``pip install .`` leaves in a project's root: run from there, the module and that
-    metadata come from the source tree, not from an install). False otherwise (and for
-    no distribution).
+    version (:func:`distribution_is_editable`: an editable install, or a source tree
+    whose setuptools metadata is found first). False otherwise (and for no distribution).
 
     Examples
     --------
     >>> is_editable("numpy")
     False
     """
-    import json
     from importlib import metadata
 
     dist = distribution_of(module)
@@ -72,16 +70,41 @@ def is_editable(module: str) -> bool:
     if dist not in _EDITABLE:
         try:
             found = metadata.distribution(dist.partition("==")[0])
-            text = found.read_text("direct_url.json")
-            if text:
-                editable = bool(json.loads(text).get("dir_info", {}).get("editable", False))
-            else:  # an installer writes RECORD; setuptools' egg_info in a tree SOURCES.txt
-                editable = (
-                    found.read_text("SOURCES.txt") is not None
-                    and found.read_text("RECORD") is None
-                    and found.read_text("installed-files.txt") is None
-                )
-            _EDITABLE[dist] = editable
         except Exception:  # noqa: BLE001 - missing or broken metadata: not editable
-            _EDITABLE[dist] = False
+            found = None
+        _EDITABLE[dist] = found is not None and distribution_is_editable(found)
     return _EDITABLE[dist]
+
+
+def distribution_is_editable(found: Any) -> bool:
+    """True when the installed distribution ``found`` (an
+    :class:`importlib.metadata.Distribution`) changes its code without its version.
+
+    That is an editable install (``pip install -e``: PEP 610 ``direct_url.json`` with
+    ``dir_info.editable`` true), or a source tree whose setuptools metadata is found
+    first (a ``NAME.egg-info`` folder with ``SOURCES.txt`` and no ``RECORD``, which an
+    earlier ``pip install .`` leaves in a project's root: run from there, the module and
+    that metadata come from the source tree, not from an install). False otherwise, and
+    for missing or unreadable metadata. Used by :func:`is_editable` (encoder
+    fingerprints) and by ``quash plugins`` (the plugin's own distribution).
+
+    Examples
+    --------
+    >>> from importlib import metadata
+    >>> distribution_is_editable(metadata.distribution("numpy"))
+    False
+    """
+    import json
+
+    try:
+        text = found.read_text("direct_url.json")
+        if text:
+            return bool(json.loads(text).get("dir_info", {}).get("editable", False))
+        # an installer writes RECORD; setuptools' egg_info in a tree SOURCES.txt
+        return (
+            found.read_text("SOURCES.txt") is not None
+            and found.read_text("RECORD") is None
+            and found.read_text("installed-files.txt") is None
+        )
+    except Exception:  # noqa: BLE001 - broken metadata: not editable
+        return False

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from importlib import metadata
 from typing import Any
 
-from ._distributions import note_distribution
+from ._distributions import distribution_is_editable, note_distribution
 
 KINDS: tuple[str, ...] = ("encoders", "heuristics", "classifiers", "adapters")
 #: The distribution of the built-in plugins; they keep their bare names.
@@ -38,10 +38,23 @@ class PluginInfo:
     _obj: Any = field(default=None, repr=False)
     #: The exception raised while importing or validating the plugin (for ``--debug``).
     exception: BaseException | None = field(default=None, repr=False)
+    #: The installed distribution whose entry point this is (None when registered in
+    #: the process with :func:`~quash_plugins.core.registry.register`).
+    _distribution: metadata.Distribution | None = field(default=None, repr=False)
 
     @property
     def qualified(self) -> str:
         return f"{self.dist}:{self.name}"
+
+    @property
+    def editable(self) -> bool:
+        """True when the plugin's distribution is an editable install (``pip install
+        -e``) or a source tree found first (:func:`~quash_plugins.core.registry.
+        distribution_is_editable`): its version does not name its code. False for a
+        released install and for a plugin registered in the process."""
+        if self._distribution is None:
+            return False
+        return distribution_is_editable(self._distribution)
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -50,6 +63,7 @@ class PluginInfo:
             "target": self.target,
             "distribution": self.dist,
             "version": self.version,
+            "editable": self.editable,
             "status": self.status,
             "error": self.error,
         }
@@ -72,7 +86,11 @@ def scan(kind: str) -> list[PluginInfo]:
             # install plus a source checkout): keep one entry per (dist, name).
             if any(i.name == ep.name and i.dist == dist_name for i in infos):
                 continue
-            infos.append(PluginInfo(kind, ep.name, ep.value, dist_name, version, _loader=ep.load))
+            infos.append(
+                PluginInfo(
+                    kind, ep.name, ep.value, dist_name, version, _loader=ep.load, _distribution=dist
+                )
+            )
             if dist is not None:
                 note_distribution(ep.value, dist_name, version)
         _scanned[kind] = infos

@@ -32,6 +32,7 @@ from typing import Any
 
 from ._distributions import (  # noqa: F401 - re-exported: the public names
     _DISTRIBUTIONS,
+    distribution_is_editable,
     distribution_of,
     is_editable,
     note_distribution,

@@ -156,6 +156,7 @@ def test_the_split_keeps_the_public_import_paths_and_one_discovery_cache():
         KINDS,
         MisplacedEntryPoint,
         PluginInfo,
+        distribution_is_editable,
         distribution_of,
         is_editable,
         misplaced_entry_points,
@@ -172,6 +173,7 @@ def test_the_split_keeps_the_public_import_paths_and_one_discovery_cache():
     )
     assert distribution_of is _distributions.distribution_of
     assert is_editable is _distributions.is_editable
+    assert distribution_is_editable is _distributions.distribution_is_editable
     assert note_distribution is _distributions.note_distribution
     registry.available("classifiers")
     assert "classifiers" in _entry_points._scanned
