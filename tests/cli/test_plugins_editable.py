@@ -113,4 +113,5 @@ def test_a_plugin_registered_in_the_process_is_not_editable(capsys):
         (row,) = [r for r in rows if r["name"] == "in-process-demo" and r["version"] == ""]
         assert row["editable"] is False
     finally:
-        registry.unregister("heuristics", "in-process-demo")
+        registry.unregister("heuristics", "in-process-demo", dist="quash-plugins")
+    assert "in-process-demo" not in registry.available("heuristics")
