@@ -29,7 +29,7 @@ import numpy as np
 
 from ..core.errors import MapFormatError, QuashError
 from ..core.interfaces import MapAdapter
-from ..core.types import LatentMap
+from ..core.types import LatentMap, record_inputs
 from ._rows import colors_to_uint8, scan_finite, should_scan
 
 log = logging.getLogger(__name__)
@@ -212,12 +212,14 @@ class ConceptFusionAdapter(MapAdapter):
             positions=positions,
             colors=colors,
             normalize=True,
-            source={
-                "adapter": self.name,
-                "path": str(folder),
-                "embeddings_file": str(files["pc_embeddings"]),
-                **extra,
-            },
+            source=record_inputs(  # the folder: every file read is in it
+                {
+                    "adapter": self.name,
+                    "path": str(folder),
+                    "embeddings_file": str(files["pc_embeddings"]),
+                    **extra,
+                }
+            ),
         )
 
     def write_example(self, directory: Path) -> Path:

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import MapFormatError
-from ..core.types import LatentMap
+from ..core.types import LatentMap, record_inputs
 from ._rows import IndexedRows, colors_to_uint8
 
 
@@ -68,5 +68,7 @@ def read_conceptgraphs(path: Path) -> LatentMap:
         positions=positions,
         colors=rgb,
         normalize=True,
-        source={"adapter": "openlex3d", "path": str(path), "format": "conceptgraphs"},
+        source=record_inputs(
+            {"adapter": "openlex3d", "path": str(path), "format": "conceptgraphs"}
+        ),
     )

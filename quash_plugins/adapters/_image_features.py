@@ -35,7 +35,7 @@ import numpy as np
 
 from ..core.errors import MapFormatError
 from ..core.interfaces import MapAdapter
-from ..core.types import FrameInfo, LatentMap
+from ..core.types import FrameInfo, LatentMap, record_inputs
 from ._feature_files import (
     FEATURE_SUFFIXES,
     IMAGE_DIRS,
@@ -210,13 +210,18 @@ class ImageFeaturesAdapter(MapAdapter):
             colors=colors,
             frames=frames,
             normalize=True,
-            source={
-                "adapter": self.name,
-                "path": str(path),
-                "layout": sorted(set(layouts)),
-                "images": [str(d) for d in image_dirs],
-                **_dim_note(files[0], shapes[0], layouts[0], opts["layout"]),
-            },
+            source=record_inputs(
+                {
+                    "adapter": self.name,
+                    "path": str(path),
+                    "layout": sorted(set(layouts)),
+                    "images": [str(d) for d in image_dirs],
+                    **_dim_note(files[0], shapes[0], layouts[0], opts["layout"]),
+                },
+                # the feature files when ``path`` is one, and the images used for colour
+                # outside the feature folder (a folder stands for what it holds)
+                *_outside(path, [*files, *(i for i in images if i is not None)]),
+            ),
         )
 
     @staticmethod
@@ -266,6 +271,14 @@ class ImageFeaturesAdapter(MapAdapter):
             except ImportError:  # pragma: no cover
                 pass
         return folder
+
+
+def _outside(path: Path, files: list[Path]) -> list[Path]:
+    """``files`` that do not lie in the folder ``path`` (all of them when it is a file)."""
+    if not path.is_dir():
+        return files
+    root = path.resolve()
+    return [f for f in files if root not in f.resolve().parents]
 
 
 def _npy_frame(path: Path) -> bool:

@@ -20,7 +20,7 @@ import numpy as np
 from ..core.errors import MapFormatError
 from ..core.interfaces import MapAdapter
 from ..core.layout import layout_arrays, map_layout, read_frames, read_up
-from ..core.types import LatentMap
+from ..core.types import LatentMap, record_inputs
 
 OPTIONAL = (
     "positions",
@@ -170,7 +170,7 @@ class NpzAdapter(MapAdapter):
             grid_index=data.get("grid_index"),
             normalize=normalize,
             frames=frames,
-            source={"adapter": self.name, "path": str(path), **built_by},
+            source=record_inputs({"adapter": self.name, "path": str(path), **built_by}),
         )
 
     def write_example(self, directory: Path) -> Path:

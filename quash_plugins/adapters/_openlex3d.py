@@ -31,7 +31,7 @@ import numpy as np
 
 from ..core.errors import MapFormatError, QuashError
 from ..core.interfaces import MapAdapter
-from ..core.types import UP_AXES, LatentMap
+from ..core.types import UP_AXES, LatentMap, record_inputs
 from ._npz import encoder_record
 from ._rows import IndexedRows, colors_to_uint8, scan_finite, should_scan
 
@@ -197,14 +197,16 @@ class OpenLex3DAdapter(MapAdapter):
             positions=positions,
             colors=colors,
             normalize=True,
-            source={
-                "adapter": self.name,
-                "path": str(folder),
-                "cloud": cloud.name,
-                "objects": int(table.shape[0]),
-                "dense": bool(dense),
-                **_exported_record(folder),
-            },
+            source=record_inputs(  # the folder: every file read is in it
+                {
+                    "adapter": self.name,
+                    "path": str(folder),
+                    "cloud": cloud.name,
+                    "objects": int(table.shape[0]),
+                    "dense": bool(dense),
+                    **_exported_record(folder),
+                }
+            ),
         )
 
     @staticmethod

@@ -43,7 +43,7 @@ import numpy as np
 
 from ..core.errors import MapFormatError, QuashError
 from ..core.interfaces import MapAdapter
-from ..core.types import LatentMap
+from ..core.types import LatentMap, record_inputs
 from ._rows import MaskedRows, colors_to_uint8, scan_finite, should_scan
 from ._vlmaps_common import check_labels, fit_label_names, load_label_names
 
@@ -304,15 +304,19 @@ class OpenSceneAdapter(MapAdapter):
             labels=kept_labels,
             label_names=names,
             normalize=True,
-            source={
-                "adapter": self.name,
-                "path": str(path),
-                "points": str(points_path),
-                "scene": scene_id(path),
-                "featured_points": m,
-                "scene_points": n,
-                "encoder_hint": hint,
-            },
+            source=record_inputs(
+                {
+                    "adapter": self.name,
+                    "path": str(path),
+                    "points": str(points_path),
+                    "scene": scene_id(path),
+                    "featured_points": m,
+                    "scene_points": n,
+                    "encoder_hint": hint,
+                },
+                points_path,
+                opts["label_names"],  # a file of names (a list in memory is no input)
+            ),
         )
 
     @staticmethod

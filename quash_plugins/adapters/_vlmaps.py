@@ -49,7 +49,7 @@ import numpy as np
 
 from ..core.errors import MapFormatError, QuashError
 from ..core.interfaces import MapAdapter
-from ..core.types import LatentMap
+from ..core.types import LatentMap, record_inputs
 from ._npz import encoder_record
 from ._rows import scan_finite
 from ._vlmaps_common import (
@@ -357,6 +357,7 @@ class VLMapsAdapter(MapAdapter):
         if "mapped_iter_list" in f:
             source["frames_fused"] = int(np.asarray(f["mapped_iter_list"]).size)
         source.update(encoder_record(dict(f.attrs)))
+        record_inputs(source, names_spec)  # a file of names (obj2cls_dict.txt) read with it
         return LatentMap(
             embeddings=feat,
             kind="voxels",

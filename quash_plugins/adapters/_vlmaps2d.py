@@ -47,7 +47,7 @@ import numpy as np
 
 from ..core.errors import MapFormatError, QuashError
 from ..core.interfaces import MapAdapter
-from ..core.types import LatentMap
+from ..core.types import LatentMap, record_inputs
 from ._vlmaps_common import (
     DEFAULT_CS,
     RowSubset,
@@ -221,6 +221,8 @@ class VLMaps2DAdapter(MapAdapter):
         if names_spec is None and labels is not None:
             names_spec = find_obj2cls(grid_path.parent, levels=1)
         names = fit_label_names(load_label_names(names_spec), labels)
+        read = [p for p in (color_path, gt_path, obstacles_path) if p.is_file()]
+        record_inputs(source, *read, names_spec)  # the companions read beside the grid
         return LatentMap(
             embeddings=embeddings,
             kind="voxels",

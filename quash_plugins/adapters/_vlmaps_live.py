@@ -28,7 +28,7 @@ import numpy as np
 
 from ..core.errors import MapFormatError, QuashError
 from ..core.interfaces import MapAdapter
-from ..core.types import LatentMap
+from ..core.types import LatentMap, record_inputs
 from ._rows import scan_finite
 from ._vlmaps_common import (
     DEFAULT_CS,
@@ -267,7 +267,7 @@ class VLMapsLiveAdapter(MapAdapter):
             voxel_size=cs,
             grid_index=grid_pos.astype(np.int64),
             normalize=True,
-            source=source_meta,
+            source=record_inputs(source_meta, opts["label_names"]),  # a names file, if any
         )
 
     def write_example(self, directory: Path) -> Any:

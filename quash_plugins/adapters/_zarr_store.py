@@ -29,7 +29,7 @@ import numpy as np
 from ..core.atomic import atomic_dir, refuse_own_input
 from ..core.errors import MapFormatError
 from ..core.optional import require
-from ..core.types import FrameInfo, LatentMap
+from ..core.types import SOURCE_INPUTS, FrameInfo, LatentMap, record_inputs
 
 log = logging.getLogger(__name__)
 
@@ -228,6 +228,12 @@ def read_zarr_map(path: str | Path, *, dask: bool = False, chunk_rows: int | Non
         voxel_size=float(voxel) if voxel is not None else None,
         frames=[FrameInfo(**f) for f in frames] if frames else None,
         normalize=bool(attrs.get("normalize", False)),
-        source={**dict(attrs.get("source") or {}), "adapter": "zarr", "path": str(path)},
+        source=record_inputs(  # the store: every member read is in it
+            {
+                **{k: v for k, v in dict(attrs.get("source") or {}).items() if k != SOURCE_INPUTS},
+                "adapter": "zarr",
+                "path": str(path),
+            }
+        ),
         **rows_data,
     )

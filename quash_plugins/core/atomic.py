@@ -9,8 +9,9 @@ The policy, the same for every file quash-plugins writes:
   output of the same kind (a ``quash query`` result, a ``quash eval`` report...), or
   with ``--force``. Everything else that exists is refused before any work is done.
 - The Python writers (``write_results_npz``, ``write_npz_map``, ``write_zarr_map``,
-  ``LazyQuery.to_zarr``, ``convert_map``) refuse their own input map and non-regular
-  targets, and otherwise replace the file they are given, as ``open(path, "w")`` does.
+  ``LazyQuery.to_zarr``, ``convert_map``, ``write_vlmaps_map``) refuse their own input
+  map, every file read with it (its ``source["inputs"]``) and non-regular targets, and
+  otherwise replace the file they are given, as ``open(path, "w")`` does.
 - Every write goes to a hidden temporary file (or folder) beside the target, renamed
   over it at the end; an error, Ctrl-C or SIGTERM removes it.
 
@@ -31,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from .errors import UsageError
+from .types import source_inputs
 
 
 def _same_file(a: Path, b: Path) -> bool:
@@ -180,19 +182,21 @@ def check_output(
 
 
 def refuse_own_input(path: str | Path, source: Any, *, folder: bool = False) -> None:
-    """Refuse writing ``path`` when it is the map it was made from.
+    """Refuse writing ``path`` when it is the map it was made from or a file read with it.
 
-    ``source`` is a map's ``source`` dict (its ``path`` is checked), a path, or a list
-    of them. The same file through any link, and a path inside a source folder, are
-    refused with :class:`UsageError`, as are non-regular targets (a zarr store when
-    ``folder``). Used by the Python writers, which otherwise replace what they are given.
+    ``source`` is a map's ``source`` dict, a path, or a list of them. For a dict, every
+    input it records is checked (:func:`~quash_plugins.core.types.source_inputs`: its
+    ``path``, the files and folders listed under ``inputs``, such as VLMaps'
+    ``obj2cls_dict.txt`` or OpenScene's scene points, and the taxonomy beside the map).
+    The same file through any link, and a path inside a source folder, are refused with
+    :class:`UsageError` naming the output, the input and the fix, as are non-regular
+    targets (a zarr store when ``folder``). Used by the Python writers, which otherwise
+    replace what they are given.
     """
-    if isinstance(source, dict):
-        sources: list[Any] = [source.get("path")]
-    elif isinstance(source, (str, os.PathLike)):
-        sources = [source]
-    else:
-        sources = list(source or [])
+    items = [source] if isinstance(source, (dict, str, os.PathLike)) else list(source or [])
+    sources: list[Any] = []
+    for item in items:
+        sources += source_inputs(item) if isinstance(item, dict) else [item]
     check_output(path, sources, what="Output", overwrite=True, folder=folder)
 
 

@@ -20,7 +20,7 @@ from typing import Any
 
 from . import registry
 from .errors import MapFormatError, PluginError, QuashError
-from .types import LatentMap
+from .types import LatentMap, record_inputs
 
 log = logging.getLogger(__name__)
 
@@ -317,7 +317,13 @@ def live_adapter(source: Any, configured: str) -> str | None:
 
 
 def read_map(source: Any, adapter: str = "auto", **options: Any) -> LatentMap:
-    """Read ``source`` (path or live object) into a :class:`LatentMap`, read-only."""
+    """Read ``source`` (path or live object) into a :class:`LatentMap`, read-only.
+
+    The map's ``source["inputs"]`` lists every file or folder read for it: what its
+    adapter recorded, its ``path`` and the taxonomy beside it
+    (:func:`~quash_plugins.core.types.record_inputs`). A :class:`LatentMap` is returned
+    as it is.
+    """
     if isinstance(source, LatentMap):
         return source
     source, name = resolve_adapter(source, adapter)
@@ -358,6 +364,7 @@ def read_map(source: Any, adapter: str = "auto", **options: Any) -> LatentMap:
     lmap.source.setdefault("adapter", name)
     if isinstance(source, Path):
         lmap.source.setdefault("path", str(source))
+    record_inputs(lmap.source)  # the path and the taxonomy beside it, whatever the adapter
     log.info("read %s", lmap.describe())
     return lmap
 

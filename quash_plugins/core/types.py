@@ -52,6 +52,87 @@ def _describe_source(source: dict[str, Any]) -> str:
     return f" in {path}" if path else ""
 
 
+#: The key of :attr:`LatentMap.source` that lists, as path strings, every file or folder
+#: read for the map: the map's ``path`` first, then the files its adapter read beside
+#: it (VLMaps' ``obj2cls_dict.txt``, OpenScene's scene points, a feature folder's RGB
+#: images...) and the taxonomy beside it (:func:`taxonomy_path_beside`) when there is
+#: one. No writer replaces one of them (:func:`source_inputs`).
+SOURCE_INPUTS = "inputs"
+
+
+def taxonomy_path_beside(map_path: Any) -> Any:
+    """The ``MAP.taxonomy.yaml`` path beside a map file (a :class:`~pathlib.Path`,
+    whether it exists or not), or None for a path without a suffix.
+
+    The taxonomy heuristics read it (``quash make-scene OUT.npz`` writes
+    ``OUT.taxonomy.yaml``), so it counts as one of the map's inputs, which no output
+    may replace.
+
+    >>> str(taxonomy_path_beside("scenes/room.npz")), taxonomy_path_beside("saved-map")
+    ('scenes/room.taxonomy.yaml', None)
+    """
+    from pathlib import Path
+
+    p = Path(str(map_path))
+    return p.with_name(p.name[: -len(p.suffix)] + ".taxonomy.yaml") if p.suffix else None
+
+
+def _path_strings(values: Any) -> list[str]:
+    """The paths among ``values`` (one path, or an iterable of them) as strings."""
+    import os
+
+    if isinstance(values, (str, os.PathLike)):
+        values = [values]
+    elif not isinstance(values, (list, tuple)):
+        return []
+    return [str(v) for v in values if isinstance(v, (str, os.PathLike)) and str(v)]
+
+
+def record_inputs(source: dict[str, Any], *paths: Any) -> dict[str, Any]:
+    """Set ``source["inputs"]`` (:data:`SOURCE_INPUTS`): the map's ``source["path"]``,
+    the inputs already recorded, then ``paths`` (a path each; None and anything else
+    that is not a path, such as an in-memory list of label names, is skipped), then the
+    taxonomy beside the path when that file exists; each once. Returns ``source``.
+
+    Adapters call it with the files they read besides the map's ``path`` (a folder
+    stands for everything in it); :func:`~quash_plugins.core.maps.read_map` calls it
+    again for every map it reads, so that a third-party adapter's maps have their path
+    and taxonomy recorded too.
+
+    >>> record_inputs({"path": "m/grid.npy"}, "m/obstacles.npy", None, ["chair"])["inputs"]
+    ['m/grid.npy', 'm/obstacles.npy']
+    """
+    found = [*_path_strings(source.get("path")), *_path_strings(source.get(SOURCE_INPUTS))]
+    for value in paths:
+        if not isinstance(value, (list, tuple)):
+            found += _path_strings(value)
+    beside = taxonomy_path_beside(source["path"]) if source.get("path") else None
+    if beside is not None and beside.is_file():
+        found.append(str(beside))
+    source[SOURCE_INPUTS] = list(dict.fromkeys(found))
+    return source
+
+
+def source_inputs(source: Any) -> list[str]:
+    """Every file or folder a map was read from, by its ``source`` dict: ``path``, the
+    paths under :data:`SOURCE_INPUTS`, and the taxonomy beside ``path`` (whether or not
+    the adapter recorded it: a caller's own :class:`LatentMap` may name only its path).
+
+    What the Python writers refuse to replace
+    (:func:`~quash_plugins.core.atomic.refuse_own_input`). Anything but a dict gives [].
+
+    >>> source_inputs({"path": "m.npz", "inputs": ["m.npz", "labels.txt"]})
+    ['m.npz', 'labels.txt', 'm.taxonomy.yaml']
+    """
+    if not isinstance(source, dict):
+        return []
+    found = [*_path_strings(source.get("path")), *_path_strings(source.get(SOURCE_INPUTS))]
+    beside = taxonomy_path_beside(source["path"]) if source.get("path") else None
+    if beside is not None:
+        found.append(str(beside))
+    return list(dict.fromkeys(found))
+
+
 @dataclass
 class LatentMap:
     """A latent-semantic map: one embedding per voxel, point or pixel.
@@ -81,7 +162,11 @@ class LatentMap:
         True when rows are not unit norm and must be L2-normalised when read
         (VLMaps, ConceptFusion). Zero rows are unobserved and never match.
     source
-        Free-form metadata: ``adapter``, ``path``, ``encoder_hint``...
+        Free-form metadata: ``adapter``, ``path``, ``encoder_hint``... and ``inputs``
+        (:data:`SOURCE_INPUTS`): every file or folder read for the map, as path strings
+        (the map's ``path``, the files its adapter read beside it, the taxonomy beside
+        it). The Python writers refuse to replace any of them, and the taxonomy beside
+        ``path`` (:func:`source_inputs`).
 
     Examples
     --------
@@ -537,7 +622,8 @@ class QueryResult:
     config_name
         The ``name`` of the config.
     map_source
-        The map's record as its adapter read it (``adapter``, ``path``, ``up``...).
+        The map's record as its adapter read it (``adapter``, ``path``, ``up``...,
+        ``inputs``: the files read for it, which ``write_results_npz`` never replaces).
     rejected
         ``(N,)`` bool: the items the last pass matched that the presence check dropped
         (what an absent object's look-alikes were); None when the config has no check.

@@ -126,13 +126,19 @@ def write_results_npz(
     it: ``up`` when given (``quash query --up``), else the one the map's ``source``
     records; none when neither says (``+z`` is then assumed).
 
-    ``path`` may not be the map the results came from (their ``map_source``), through
-    any link: that is refused with :class:`~quash_plugins.core.errors.UsageError`.
+    ``path`` may not be the map the results came from, nor any file read with it (the
+    ``path`` and ``inputs`` of their ``map_source`` and of ``lmap.source``: VLMaps'
+    ``obj2cls_dict.txt``, OpenScene's scene points, the taxonomy beside the map...),
+    through any link: that is refused with
+    :class:`~quash_plugins.core.errors.UsageError`, and nothing is written.
     """
     import json
 
     path = Path(path)
-    refuse_own_input(path, [r.map_source.get("path") for r in results])
+    sources = [r.map_source for r in results]
+    if lmap is not None and isinstance(getattr(lmap, "source", None), dict):
+        sources.append(lmap.source)
+    refuse_own_input(path, sources)
     queries = np.asarray([r.query for r in results], dtype=str)
     masks = np.stack([r.mask for r in results]).astype(bool)
     scores = np.stack([r.scores for r in results]).astype(np.float32)

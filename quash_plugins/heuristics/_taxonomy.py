@@ -10,7 +10,7 @@ import numpy as np
 from ..core.errors import ConfigError, HeuristicError, closest
 from ..core.interfaces import ExpansionContext, Heuristic
 from ..core.text import head_index
-from ..core.types import QuerySet
+from ..core.types import QuerySet, taxonomy_path_beside
 from ._data import read_mapping
 
 log = logging.getLogger(__name__)
@@ -36,16 +36,6 @@ def load_taxonomy(spec: str | dict | None) -> dict[str, list[str]]:
 
 
 _BESIDE: dict[tuple[str, int], dict[str, list[str]]] = {}
-
-
-def taxonomy_path_beside(map_path: Any) -> Any:
-    """The ``MAP.taxonomy.yaml`` path that :func:`taxonomy_beside` reads for a map file
-    (a :class:`~pathlib.Path`, whether it exists or not), or None for a path without a
-    suffix. The command line counts it as an input that no output may replace."""
-    from pathlib import Path
-
-    p = Path(str(map_path))
-    return p.with_name(p.name[: -len(p.suffix)] + ".taxonomy.yaml") if p.suffix else None
 
 
 def taxonomy_beside(lmap: Any) -> tuple[str, dict[str, list[str]]] | None:
