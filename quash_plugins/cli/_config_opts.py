@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from typing import Any
 
 from ..core.config import QuashConfig
 from ..core.errors import ConfigError, UsageError
@@ -139,6 +140,21 @@ def input_files(map_path: str | None, configs: list[QuashConfig]) -> list[str]:
         if isinstance(templates, str) and templates not in TEMPLATE_NAMES:
             found.append(templates)
     return [f for f in found if "://" not in f and not f.startswith("hf-hub:")]
+
+
+def check_map_inputs(lmap: Any, outputs: list[tuple[str, Any]]) -> None:
+    """Refuse, once the map is read and before any query runs, an output that is one of
+    the files read with it (``lmap.source["inputs"]``: VLMaps' ``obj2cls_dict.txt``,
+    OpenScene's scene points, a feature folder's images...), which :func:`input_files`
+    cannot know before the map is read. ``outputs`` holds ``(option, path)`` pairs;
+    ``--force`` never lets an output replace one."""
+    from ..core.atomic import check_not_input
+    from ..core.types import source_inputs
+
+    inputs = source_inputs(getattr(lmap, "source", None))
+    for what, path in outputs:
+        if path:
+            check_not_input(path, inputs, what=what)
 
 
 def add_adapter_options(parser: argparse.ArgumentParser) -> None:

@@ -129,6 +129,7 @@ def run(args: argparse.Namespace) -> int:
         FAIR_PEERS,
         adapter_options,
         apply_runtime_options,
+        check_map_inputs,
         fair_default_configs,
         load_config,
     )
@@ -145,6 +146,8 @@ def run(args: argparse.Namespace) -> int:
     overrides = backend_overrides(args)
     quashes = [Quash.from_config(apply_runtime_options(cfg, args), **overrides) for cfg in configs]
     lmap = quashes[0].read_map(args.map, adapter=args.adapter, **adapter_options(args))
+    flags = ("--json", "--markdown", "--plot", "--rrd")
+    check_map_inputs(lmap, [(f, getattr(args, f[2:], None)) for f in flags])
     with (
         each_log_line_once(),
         progress(len(quashes), f"evaluating {len(quashes)} config(s)") as advance,

@@ -78,7 +78,12 @@ def run(args: argparse.Namespace) -> int:
     from ..engine.pipeline import Quash
     from ..engine.results import write_results_npz
     from ._backend_opts import backend_overrides
-    from ._config_opts import adapter_options, apply_runtime_options, load_config
+    from ._config_opts import (
+        adapter_options,
+        apply_runtime_options,
+        check_map_inputs,
+        load_config,
+    )
     from ._viewer_opts import open_viewer
 
     cfg = apply_runtime_options(load_config(args.config), args)
@@ -88,6 +93,7 @@ def run(args: argparse.Namespace) -> int:
     if args.out and _out_format(args) == "zarr":
         return _query_to_zarr(args, quash)
     lmap = quash.read_map(args.map, adapter=args.adapter, **options)
+    check_map_inputs(lmap, [("--out", args.out), ("--rrd", getattr(args, "rrd", None))])
     if args.out and _out_format(args) == "openlex3d":  # refused before any query runs
         from ..adapters import check_openlex3d_exportable
 

@@ -230,6 +230,39 @@ def test_make_scene_outputs_are_recognised_as_previous_ones(tmp_path):
     assert not is_scene_file(tmp_path / "other.npz")
 
 
+# ---------------------------------------------------------------------- files read with the map
+@pytest.fixture
+def vlmaps_scene(tmp_path):
+    """A VLMaps map with ground truth, the scene's ``obj2cls_dict.txt`` that names its
+    classes (read beside the map, not named on the command line), and a config."""
+    from _cf_writers import contrast_config, text_table
+    from _vlmaps_writers import mobile_map, write_vlmaps_h5df
+
+    h5 = write_vlmaps_h5df(
+        tmp_path / "scene" / "vlmap" / "vlmaps.h5df", mobile_map(d=8), semantic=np.arange(50) % 3
+    )
+    names = tmp_path / "scene" / "obj2cls_dict.txt"
+    names.write_text("0: 0, chair\n1: 1, sofa\n2: 2, table\n")
+    table, _ = text_table(tmp_path, 8)
+    return {"map": h5, "names": names, "config": contrast_config(tmp_path, table)}
+
+
+def test_query_and_eval_never_replace_a_file_read_beside_the_map(vlmaps_scene, tmp_path, capsys):
+    """Refused once the map is read, before any query runs, even with --force."""
+    world, names = vlmaps_scene, vlmaps_scene["names"]
+    before = _sha(names)
+    query = ["-q", "query", str(world["map"]), "chair", "-c", str(world["config"])]
+    assert main([*query, "--out", str(names), "--format", "npz", "--force"]) == 2
+    err = capsys.readouterr().err
+    assert f"--out {names} is the input {names}" in err and "Choose another" in err
+    for flag in ("--json", "--markdown", "--plot"):
+        assert _eval(world, flag, names, "--force") == 2
+        assert f"{flag} {names} is the input {names}" in capsys.readouterr().err
+    assert _sha(names) == before
+    assert main([*query, "--out", str(tmp_path / "r.npz")]) == 0
+    assert _eval(world, "--json", tmp_path / "r.json") == 0
+
+
 # ---------------------------------------------------------------------- Python writers
 def test_write_results_npz_refuses_the_results_own_map(tiny_world, tmp_path):
     from quash_plugins import Quash
