@@ -126,6 +126,7 @@ class NpzAdapter(MapAdapter):
             return False
 
     def read(self, source: Any, **options: Any) -> LatentMap:
+        self.options(options)  # it takes none: a misspelt option is an error, not ignored
         path = Path(source)
         if not path.exists():
             raise MapFormatError(f"Map not found: {path}")

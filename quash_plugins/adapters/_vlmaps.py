@@ -215,21 +215,7 @@ class VLMapsAdapter(MapAdapter):
         return lmap
 
     def _options(self, options: dict[str, Any]) -> dict[str, Any]:
-        known = (
-            "gs",
-            "cs",
-            "pose_type",
-            "label_names",
-            "semantic_field",
-            "check_finite",
-            "positions",
-        )
-        unknown = set(options) - set(known)
-        if unknown:
-            raise QuashError(
-                f"Adapter 'vlmaps' does not accept {sorted(unknown)}; it takes {', '.join(known)}."
-            )
-        opts = {k: options.get(k, getattr(self, k)) for k in known}
+        opts = self.options(options)
         if opts["pose_type"] not in POSE_TYPES:
             raise QuashError(
                 f"Adapter 'vlmaps': pose_type must be one of {POSE_TYPES}; "

@@ -148,14 +148,7 @@ class VLMaps2DAdapter(MapAdapter):
             return False
 
     def read(self, source: Any, **options: Any) -> LatentMap:
-        known = ("cs", "label_names", "keep_empty", "positions", "block_rows")
-        unknown = set(options) - set(known)
-        if unknown:
-            raise QuashError(
-                f"Adapter 'vlmaps-2d' does not accept {sorted(unknown)}; it takes "
-                f"{', '.join(known)}."
-            )
-        opts = {k: options.get(k, getattr(self, k)) for k in known}
+        opts = self.options(options)
         opts["positions"] = check_positions_option(opts["positions"], self.name)
         grid_path = resolve_grid(source)
         if grid_path is None:

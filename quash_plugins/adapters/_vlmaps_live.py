@@ -150,14 +150,7 @@ class VLMapsLiveAdapter(MapAdapter):
             return False
 
     def read(self, source: Any, **options: Any) -> LatentMap:
-        known = ("gs", "cs", "pose_type", "label_names", "positions")
-        unknown = set(options) - set(known)
-        if unknown:
-            raise QuashError(
-                f"Adapter 'vlmaps-live' does not accept {sorted(unknown)}; it takes "
-                f"{', '.join(known)}."
-            )
-        opts = {k: options.get(k, getattr(self, k)) for k in known}
+        opts = self.options(options)
         opts["positions"] = check_positions_option(opts["positions"], self.name)
         where = f"live {type(source).__name__} object"
         for field in ("grid_feat", "grid_pos"):

@@ -64,8 +64,7 @@ class ZarrAdapter(MapAdapter):
     def read(self, source: Any, **options: Any) -> LatentMap:
         from ._zarr_store import read_zarr_map
 
-        opts = {"dask": self.dask, "chunk_rows": self.chunk_rows, **options}
-        return read_zarr_map(Path(source), **opts)
+        return read_zarr_map(Path(source), **self.options(options))
 
     def write_example(self, directory: Path) -> Path:
         from ._zarr_store import write_zarr_map

@@ -366,3 +366,24 @@ def test_pickle_needs_opt_in(tmp_path, name):
     assert "pickle" in msg
     lmap = registry.create("adapters", "openlex3d", allow_pickle=True).read(path)
     assert lmap.n == 2 and (lmap.colors == 255).all()
+
+
+@pytest.mark.parametrize("name", sorted(registry.available("adapters")))
+def test_an_unknown_read_option_is_refused_naming_the_options(name, tmp_path):
+    """``read(source, **options)`` refuses an option the adapter does not take (a typo
+    such as ``pose_typ``) with the adapter's own options, whichever adapter reads it:
+    none ignores it, none fails with a bare TypeError."""
+    import inspect
+
+    adapter = registry.create("adapters", name)
+    source = adapter.write_example(tmp_path)
+    takes = [
+        p.name
+        for p in inspect.signature(type(adapter).__init__).parameters.values()
+        if p.name != "self" and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)
+    ]
+    with pytest.raises(MapFormatError) as err:
+        adapter.read(source, bogus_option=1)
+    msg = str(err.value)
+    assert f"Adapter {name!r}" in msg and "bogus_option" in msg, msg
+    assert msg.endswith(f"Options: {', '.join(takes) or '(none)'}."), msg
