@@ -46,6 +46,26 @@ def _package_logging_restored():
     logger.propagate = propagate
 
 
+@pytest.fixture(autouse=True)
+def _no_plugin_left_registered():
+    """A test that registers a plugin in the process (``registry.register``) removes it
+    again: one left behind shows up in every later test's plugin lists (it once made the
+    docs test of the built-in plugins fail, depending on the order tests ran in). The
+    registrations are restored, and the test that left one fails, naming it."""
+    from quash_plugins.core import registry
+
+    before = {kind: list(infos) for kind, infos in registry._manual.items()}
+    yield
+    left = {
+        kind: [f"{i.name} ({i.dist})" for i in infos if i not in before.get(kind, [])]
+        for kind, infos in registry._manual.items()
+    }
+    registry._manual.update(before)
+    left = {kind: names for kind, names in left.items() if names}
+    if left:
+        pytest.fail(f"the test left plugins registered: {left}; unregister them")
+
+
 @pytest.fixture
 def no_vlmaps(monkeypatch):
     """As on a machine without VLMaps (``_no_vlmaps.hide_vlmaps``)."""
