@@ -193,10 +193,12 @@ def test_the_docs_demo_tables_are_what_the_full_demo_prints(tmp_path, monkeypatc
         shown, ran = _table_rows(block, header), _table_rows(demo, header)
         assert shown.keys() == ran.keys(), header
         for name, cells in shown.items():
-            assert all(_close(a, b) for a, b in zip(cells, ran[name], strict=True)), (
-                cells,
-                ran[name],
-            )
+            differ = [
+                (column, a, b)
+                for column, (a, b) in enumerate(zip(cells, ran[name], strict=True))
+                if not _close(a, b)
+            ]
+            assert not differ, (header, name, "(column, docs, demo):", differ)
     # README: F1, recall, AP, absence and present -> empty of each method's row
     ran = _table_rows(demo, "| method |")
     readme = (root / "README.md").read_text(encoding="utf-8")
@@ -231,7 +233,7 @@ def _close(shown: str, ran: str) -> bool:
     except ValueError:
         return a == b
     if "." in a or "." in b:
-        return abs(x - y) <= 0.005
+        return abs(x - y) <= 0.005 + 1e-9  # 0.963 - 0.958 is 0.0050000000000000044 in floats
     return abs(x - y) <= max(1.0, 0.01 * abs(y))
 
 
