@@ -166,3 +166,57 @@ def test_a_changed_class_table_file_is_not_reused(bq, tmp_path, monkeypatch):
     ):
         with pytest.raises(SystemExit, match=r"another version of .*mine\.yaml.*another --out"):
             call()
+
+
+def test_open_queries_split_by_kind_with_their_own_means_and_absence(bq, monkeypatch):
+    """The split of an open-vocabulary run: free text (the class table's descriptions)
+    apart from sub-class names, each with its own per-query rows, mean, absence and
+    present -> empty, and the verdict judged on each kind as on the scenario."""
+    from quash_plugins.demo.classes import ABSENT_FREE_TEXT_OPEN, FREE_TEXT_A
+
+    monkeypatch.setitem(bq.GENERATORS, "g", {})  # table A
+    free, absent_free = FREE_TEXT_A["bed"], ABSENT_FREE_TEXT_OPEN[0]
+    rows = {"bunk bed": (0.9, 10), "a futon": (0.7, 5), free: (0.0, 0)}
+
+    def config(name, scale):
+        per_query = {
+            q: {
+                "f1": f * scale,
+                "precision": f,
+                "recall": f,
+                "ap": 0.5,
+                "inv_rank": 1.0,
+                "n_pred": n,
+            }
+            for q, (f, n) in rows.items()
+        }
+        absence = {"tub": {"empty": True}, absent_free: {"empty": scale < 1}}
+        return {
+            "name": name,
+            "given": "x",
+            "mean": {"f1": 0.0},
+            "per_query": per_query,
+            "absence": {"score": 0.5, "present_empty": 1, "per_query": absence},
+        }
+
+    configs = [config("quash-labels", 1.0), config("vlmaps-labels", 0.5)]
+    rec = {"generator": "g", "seed": 0, "scenario": "open-list", "configs": configs}
+    sub, text = bq.split_by_kind(rec)
+    assert sub["scenario"] == "open-list, sub-class names"
+    assert text["scenario"] == "open-list, free text"
+    q_sub = sub["configs"][0]
+    assert set(q_sub["per_query"]) == {"bunk bed", "a futon"}
+    assert q_sub["mean"]["f1"] == pytest.approx((0.9 + 0.7) / 2)
+    assert q_sub["absence"]["score"] == 1.0 and q_sub["absence"]["present_empty"] == 0
+    q_text = text["configs"][0]
+    assert set(q_text["per_query"]) == {free}
+    assert set(q_text["absence"]["per_query"]) == {absent_free}
+    assert q_text["absence"]["score"] == 0.0 and q_text["absence"]["present_empty"] == 1
+    # a closed run is not split
+    assert bq.split_by_kind({**rec, "scenario": "closed"}) == [{**rec, "scenario": "closed"}]
+    # the verdict of each kind: the peer's F1 is half QuASH's on sub-class names (2.00x)
+    verdict = bq.verdict(bq.summarise([sub, text]))[2:]
+    cells = [[c.strip() for c in row.strip("|").split("|")] for row in verdict]
+    assert cells[0][1] == "open-list, sub-class names" and cells[0][5] == "2.00x"
+    assert cells[0][-1] == "yes"
+    assert cells[1][1] == "open-list, free text" and cells[1][-1] == "NO"  # absence 0
