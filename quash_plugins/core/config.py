@@ -186,7 +186,9 @@ class QuashConfig:
             "keep_margin: -0.02, core_margin: 0.12, core_keep_margin: 0.03, size_margin: 0.3, "
             "flat_margin: null, support_margin: 0.12, label_name: true, k: 2, mode: filter|gate, "
             "grow: -0.25, grow_steps: null, grow_margin: 0.0 (auto: 0.0 with a label list, "
-            "else null), keep_like: null (auto: 0.6 with a label list, else null)}; "
+            "else null), keep_like: null (auto: 0.6 with a label list, else null), split: 2.5 "
+            "(with a label list: a component that is not strong whole is also judged piece "
+            "by piece, split where its items' label scores change; null: judged whole)}; "
             "{} takes these defaults). Needs a voxel grid, positions or frames. null turns it off."
         },
     )

@@ -29,7 +29,15 @@ component whose grown-region margin is above ``keep_margin``, core margin above
 component kept without being strong must be kept under both readings and, with
 ``keep_like``, its centred mean must have a cosine of at least ``keep_like`` to that of
 the strong components (``auto``: 0.6 with label groups, off without). When the query is
-not present: an empty mask, ``provenance["presence"]["present"]`` False. With ``grow``
+not present: an empty mask, ``provenance["presence"]["present"]`` False.
+
+With ``split`` (and label groups), a component that is not strong as a whole is also cut
+into pieces, where its items' label-group scores change
+(:func:`~quash_plugins.engine.segments.split_components`: Ward's clustering of neighbours), and each piece is judged as a component too: by its whole's
+grown-region margin, its own core, and against what wins its own grown region. Why:
+a small object and its support, or a rug and the floor it lies on, often match as one
+component whose mean is mostly the other object; the whole's test keeps a piece from
+passing the grown test that its whole failed (a look-alike's purer piece would). With ``grow``
 (refined scores only), the kept components then grow through connected items whose
 refined score is above ``grow`` (hysteresis: recovers an object's items just under the
 threshold, never a new object); with ``grow_margin``, each addition (the new items of one
@@ -79,11 +87,15 @@ import numpy as np
 
 from ..core.errors import ConfigError, check_options
 from ..core.types import LatentMap
+from .segments import split_components
 from .topology import MAX_DILATE, MapTopology
 
 MODES = ("filter", "gate")
 #: ``keep_like: auto`` with label groups: demo:quash-labels' value (chosen on seeds 100-102)
 KEEP_LIKE = 0.6
+#: Largest component that ``split`` clusters (Ward's clustering grows faster than the
+#: item count: a larger component is judged whole, as without ``split``)
+SPLIT_MAX = 20000
 
 
 @dataclass
@@ -106,6 +118,7 @@ class PresenceOptions:
     grow_steps: int | None = None
     grow_margin: float | str | None = 0.0
     keep_like: float | str | None = None
+    split: float | None = 2.5
 
     @classmethod
     def parse(cls, options: dict[str, Any]) -> PresenceOptions:
@@ -126,6 +139,7 @@ class PresenceOptions:
                 "grow",
                 "grow_margin",
                 "keep_like",
+                "split",
             ):
                 if key in ("grow_margin", "keep_like") and getattr(opts, key) == "auto":
                     continue
@@ -150,6 +164,8 @@ class PresenceOptions:
             raise ConfigError(
                 f"presence: label_name must be true or false; got {opts.label_name!r}."
             )
+        if opts.split is not None and not opts.split > 0:
+            raise ConfigError(f"presence: split must be > 0 or null; got {opts.split}.")
         if opts.size_margin < 0:
             raise ConfigError(f"presence: size_margin must be >= 0; got {opts.size_margin}.")
         if opts.mode not in MODES:
@@ -277,6 +293,16 @@ def presence_check(
     # the better of that and its first name alone (the label, or the query itself)
     by_name = bool(opts.label_name and groups)
 
+    def item_scores(members: np.ndarray) -> np.ndarray:
+        # (n, groups) label-group scores of single items: the features a split reads
+        rows = _unit(_unit(np.asarray(rows_of(members), np.float32)) - mu)
+        CN = rows @ N.T
+        cols = [_top_mean(rows @ P.T, opts.k)]
+        for start, size in scored:
+            live_g = nlive[start : start + size]
+            cols.append(_top_mean(CN[:, start : start + size][:, live_g], opts.k))
+        return np.column_stack(cols)
+
     def margins(
         dilate: int, parts: list[np.ndarray] | None = None
     ) -> tuple[list[np.ndarray], np.ndarray]:
@@ -304,28 +330,67 @@ def presence_check(
             )
         return against, flat
 
-    grown_r, flat = margins(opts.dilate)
-    grown = np.stack([a.min(axis=1) for a in grown_r])  # (readings, components)
+    def judge(parts: list[np.ndarray], whole_grown: list[np.ndarray] | None = None) -> dict:
+        # per reading, (readings, parts) strong and kept flags with the margins behind
+        # them; a piece of a split component (whole_grown: its whole's grown margins) is
+        # judged by its whole's surroundings, by its own items (core) and against what
+        # wins its own surroundings (support)
+        own_r, flat = margins(opts.dilate, parts)
+        grown_r = own_r if whole_grown is None else whole_grown
+        grown = np.stack([a.min(axis=1) for a in grown_r])  # (readings, parts)
+        out = {"grown_r": grown_r, "flat": flat, "grown": grown}
+        out["strong"], out["ok"] = grown > opts.margin, grown > opts.keep_margin
+        if opts.core_margin is not None or opts.support_margin is not None:
+            core_r = margins(0, parts)[0] if opts.dilate else own_r
+            penalty = opts.size_margin / np.sqrt([len(m) for m in parts])
+        if opts.core_margin is not None:
+            out["core"] = np.stack([a.min(axis=1) for a in core_r]) - penalty
+            out["strong"] |= out["core"] > opts.core_margin
+            out["ok"] |= out["core"] > opts.core_keep_margin
+        if opts.support_margin is not None:
+            # the core against the group that wins the grown region: a small object's support
+            rows = np.arange(len(parts))
+            out["support"] = (
+                np.stack([c[rows, g.argmin(axis=1)] for c, g in zip(core_r, own_r)]) - penalty
+            )
+            out["strong"] |= out["support"] > opts.support_margin
+            out["ok"] |= out["support"] > opts.support_margin
+        return out
+
+    J = judge(comps)
+    if opts.split is not None and groups:
+        # a component that is not strong as a whole may hold more than one object (a rug
+        # on the floor): its pieces are judged as well
+        weak = [i for i in range(len(comps)) if not J["strong"][:, i].any()]
+        pieces, of = split_components(
+            [comps[i] for i in weak],
+            topology,
+            item_scores,
+            opts.split,
+            min_size=opts.min_component,
+            max_size=SPLIT_MAX,
+        )
+        info["pieces"] = len(pieces)
+        if pieces:
+            whole = np.asarray([weak[i] for i in of], np.int64)
+            more = judge(pieces, [a[whole] for a in J["grown_r"]])
+            comps = [*comps, *pieces]
+            for key, val in more.items():
+                J[key] = (
+                    [np.concatenate([a, b]) for a, b in zip(J[key], val)]
+                    if isinstance(val, list)
+                    else np.concatenate([J[key], val], axis=-1)
+                )
+    sizes = np.array([len(m) for m in comps])
+    grown_r, grown, strong, ok = J["grown_r"], J["grown"], J["strong"], J["ok"]
     big = sizes >= opts.min_component
     if opts.flat_margin is not None:
-        big &= flat > opts.flat_margin
-    strong, ok = grown > opts.margin, grown > opts.keep_margin
+        big &= J["flat"] > opts.flat_margin
     core_best = support_best = None
-    if opts.core_margin is not None or opts.support_margin is not None:
-        core_r = margins(0)[0] if opts.dilate else grown_r
-        penalty = opts.size_margin / np.sqrt(sizes)
-    if opts.core_margin is not None:
-        core = np.stack([a.min(axis=1) for a in core_r]) - penalty
-        strong |= core > opts.core_margin
-        ok |= core > opts.core_keep_margin
-        core_best = round(float(core.max(axis=0)[big].max()), 4) if big.any() else None
-    if opts.support_margin is not None:
-        # the core against the group that wins the grown region: a small object's support
-        rows = np.arange(len(comps))
-        support = np.stack([c[rows, g.argmin(axis=1)] for c, g in zip(core_r, grown_r)]) - penalty
-        strong |= support > opts.support_margin
-        ok |= support > opts.support_margin
-        support_best = round(float(support.max(axis=0)[big].max()), 4) if big.any() else None
+    if "core" in J:
+        core_best = round(float(J["core"].max(axis=0)[big].max()), 4) if big.any() else None
+    if "support" in J:
+        support_best = round(float(J["support"].max(axis=0)[big].max()), 4) if big.any() else None
     # a component is strong when it is under either reading, and kept when it is kept
     # under a reading where it is strong, or under both: a near tie under one reading
     # cannot carry a look-alike along

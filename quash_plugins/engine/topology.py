@@ -128,6 +128,50 @@ class MapTopology:
         starts = np.flatnonzero(np.r_[True, lab_s[1:] != lab_s[:-1]])
         return [idx[order[a:b]] for a, b in zip(starts, np.r_[starts[1:], len(idx)])]
 
+    def pairs(self, members: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The neighbour pairs among ``members`` (sorted item indices), as positions in
+        ``members`` ``(i, j)`` with ``i < j``: 26-connected voxels, points within the
+        linking radius, 8-connected pixels of one frame."""
+        n = len(members)
+        empty = (np.zeros(0, np.int64), np.zeros(0, np.int64))
+        if n < 2:
+            return empty
+        if self.kind == "voxels":
+            keys = self.key[members]
+            order = np.argsort(keys, kind="stable")
+            skeys = keys[order]
+            s = self.span
+            step = (_OFFSETS26[:, 0] * s[1] + _OFFSETS26[:, 1]) * s[2] + _OFFSETS26[:, 2]
+            rows, cols = [], []
+            for d in step[step > 0]:  # each unordered pair once (and no self pair)
+                pos = np.minimum(np.searchsorted(skeys, keys + d), n - 1)
+                hit = skeys[pos] == keys + d
+                rows.append(np.flatnonzero(hit))
+                cols.append(order[pos[hit]])
+            i, j = np.concatenate(rows), np.concatenate(cols)
+        elif self.kind == "points":
+            from scipy.spatial import cKDTree
+
+            p = cKDTree(self.pts[members]).query_pairs(self.radius, output_type="ndarray")
+            i, j = p[:, 0].astype(np.int64), p[:, 1].astype(np.int64)
+        elif self.kind == "pixels":
+            frame = self.frames[int(self.frame_of[members[0]])]
+            local = members - frame.offset
+            r, c = np.divmod(local, frame.width)
+            rows, cols = [], []
+            for dr, dc in ((0, 1), (1, -1), (1, 0), (1, 1)):
+                nb = (r + dr) * frame.width + (c + dc)
+                ok = (r + dr < frame.height) & (c + dc >= 0) & (c + dc < frame.width)
+                pos = np.minimum(np.searchsorted(local, nb), n - 1)
+                hit = ok & (local[pos] == nb)
+                rows.append(np.flatnonzero(hit))
+                cols.append(pos[hit])
+            i, j = np.concatenate(rows), np.concatenate(cols)
+        else:
+            return empty
+        lo, hi = np.minimum(i, j), np.maximum(i, j)
+        return lo, hi
+
     def region(self, members: np.ndarray, dilate: int) -> np.ndarray:
         """``members`` and every item within ``dilate`` neighbourhood steps of them."""
         if dilate <= 0 or len(members) == 0:

@@ -668,3 +668,100 @@ def test_map_mean_reads_bounded_blocks_with_the_same_bits(dim):
     one = pr.region_means(regions, lambda i: E[i], block=10**6)
     assert pr.region_means(regions, lambda i: E[i]).tobytes() == one.tobytes()
     assert np.allclose(one[1], pr._unit(E[np.sort(regions[1])]).mean(axis=0), atol=1e-6)
+
+
+# ------------------------------------------------------------------------ the split
+def _pairs_by_hand(points, radius):
+    """Every pair of ``points`` within ``radius`` (Chebyshev 1 for cells), by brute force."""
+    out = set()
+    for i in range(len(points)):
+        for j in range(i + 1, len(points)):
+            d = np.abs(np.asarray(points[i]) - np.asarray(points[j]))
+            if d.max() <= 1 if radius is None else np.linalg.norm(d) <= radius:
+                out.add((i, j))
+    return out
+
+
+@pytest.mark.parametrize("kind", ["voxels", "points", "pixels"])
+def test_neighbour_pairs_among_members(kind):
+    """MapTopology.pairs: the neighbours among a set of items, as positions in it, each
+    pair once, checked against brute force (26-connected cells, points within the
+    radius, 8-connected pixels of one frame)."""
+    rng = np.random.default_rng(3)
+    if kind == "pixels":
+        h, w = 6, 7
+        frames = [FrameInfo("a", h, w, 0), FrameInfo("b", h, w, h * w)]
+        m = LatentMap(np.ones((2 * h * w, 4), np.float32), kind="pixels", frames=frames)
+        members = np.sort(rng.choice(np.arange(h * w, 2 * h * w), 25, replace=False))
+        where = [divmod(int(i) - h * w, w) for i in members]
+        want = _pairs_by_hand([(r, c, 0) for r, c in where], None)
+    else:
+        cells = np.unique(rng.integers(0, 5, (60, 3)), axis=0)
+        common = dict(kind=kind, voxel_size=0.1)
+        if kind == "voxels":
+            m = LatentMap(np.ones((len(cells), 4), np.float32), grid_index=cells, **common)
+        else:
+            m = LatentMap(
+                np.ones((len(cells), 4), np.float32),
+                positions=(cells * 0.1).astype(np.float32),
+                **common,
+            )
+        members = np.sort(rng.choice(len(cells), 30, replace=False))
+        radius = None if kind == "voxels" else 1.5  # in cells: 1.5 voxel sizes
+        want = _pairs_by_hand(cells[members], radius)
+    i, j = MapTopology(m).pairs(members)
+    got = set(zip(i.tolist(), j.tolist()))
+    assert got == want and len(got) == len(i)
+    assert (i < j).all()
+
+
+def _bed_on_a_sofa(seed=0):
+    """A 10x10 'sofa' slab with a 4x4x2 'bed' block standing on it, matched together as
+    one component, and a background wall far away."""
+    rng = np.random.default_rng(seed)
+    slab = [(x, y, 0) for x in range(10) for y in range(10)]
+    bed = [(x, y, z) for x in range(3, 7) for y in range(3, 7) for z in (1, 2)]
+    wall = [(30 + x, 0, z) for x in range(15) for z in range(15)]
+    E = np.concatenate(
+        [_rows("sofa", len(slab), rng), _rows("bed", len(bed), rng), _rows("other", len(wall), rng)]
+    ).astype(np.float32)
+    return LatentMap(E, kind="voxels", grid_index=np.asarray(slab + bed + wall), voxel_size=0.1)
+
+
+def test_a_component_of_two_objects_is_split_and_its_object_kept():
+    """split: a component that holds a bed on a sofa is judged whole and piece by piece.
+    Whole, the sofa's items outweigh the bed's and the bed is absent; split on its items'
+    label scores, the bed's own items win (core margin by hand), and only they are kept.
+    The whole's grown margin is what each piece is judged by in the grown test."""
+    m = _bed_on_a_sofa()
+    mask = np.zeros(m.n, bool)
+    mask[:132] = True  # the slab and the bed: one component
+    bed = np.arange(100, 132)
+    whole = _margins_by_hand(m, np.arange(132))
+    assert min(whole.values()) < 0  # the whole reads as sofa
+    keep, info = _check(m, mask, support_margin=0.12, split=None)
+    assert not keep.any() and info["present"] is False and "pieces" not in info
+    core = min(_margins_by_hand(m, bed).values()) - 0.3 / np.sqrt(len(bed))
+    assert core > 0.12  # the bed's own items clear the core margin
+    keep, info = _check(m, mask, support_margin=0.12, split=2.5)
+    assert info["present"] and info["pieces"] >= 2
+    assert keep[bed].mean() > 0.9 and not keep[:100].any()
+    # a piece inherits its whole's grown margin: the best grown margin is the whole's
+    grown_whole = _check(m, mask, support_margin=0.12, split=None)[1]["best_margin"]
+    assert info["best_margin"] == grown_whole
+    # the bed matched alone is kept whole, split or not
+    only = np.zeros(m.n, bool)
+    only[bed] = True
+    alone, _ = _check(m, only, support_margin=0.12, split=None)
+    assert alone[bed].all()
+    split_keep, split_info = _check(m, only, support_margin=0.12, split=2.5)
+    assert (split_keep == alone).all()
+    assert split_info["pieces"] == 0  # a component strong as a whole is not split
+
+
+def test_split_is_validated():
+    assert PresenceOptions.parse({"split": 2}).split == 2.0
+    assert PresenceOptions.parse({}).split == 2.5  # the chosen default
+    assert PresenceOptions.parse({"split": None}).split is None
+    with pytest.raises(ConfigError, match="split"):
+        PresenceOptions.parse({"split": 0})
