@@ -40,7 +40,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from bench_quality import GENERATORS, with_classes
+from bench_quality import GENERATORS, named_generators, with_classes
 
 from quash_plugins.core import registry
 from quash_plugins.core.text import encode_texts
@@ -181,9 +181,7 @@ def main() -> None:
     args = ap.parse_args()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    table_a = [g for g, o in GENERATORS.items() if o.get("classes", "a") == "a"]
-    default = table_a if args.classes else list(GENERATORS)
-    gens = [g for g in args.generators.split(",") if g] if args.generators else default
+    gens = named_generators(args.generators, args.classes)
     unknown = [g for g in gens if g not in GENERATORS]
     if unknown:
         raise SystemExit(f"unknown generator: {unknown[0]} (of {', '.join(GENERATORS)})")

@@ -85,6 +85,14 @@ TARGETS = {
 }
 
 
+def named_generators(spec: str | None, classes: str | None) -> list[str]:
+    """The generators that ``--generators`` names (comma-separated), else every one, or
+    table A's with ``--classes`` (unchecked: each script names the unknown its own way)."""
+    table_a = [g for g, o in GENERATORS.items() if o.get("classes", "a") == "a"]
+    default = table_a if classes else list(GENERATORS)
+    return [g for g in spec.split(",") if g] if spec else default
+
+
 def with_classes(gens: list[str], path: Path) -> list[str]:
     """The generators ``gens`` on the class-table file ``path``, added to GENERATORS as
     ``STEM-GENERATOR`` (only table A's generators: the file replaces table A)."""
@@ -337,9 +345,7 @@ def main() -> None:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     seeds = [int(s) for s in args.seeds.split(",")]
-    table_a = [g for g, o in GENERATORS.items() if o.get("classes", "a") == "a"]
-    default = table_a if args.classes else list(GENERATORS)
-    gens = [g for g in args.generators.split(",") if g] if args.generators else default
+    gens = named_generators(args.generators, args.classes)
     scens = [s for s in args.scenarios.split(",") if s]
     bad = [g for g in gens if g not in GENERATORS] + [s for s in scens if s not in SCENARIOS]
     if bad:
