@@ -121,8 +121,8 @@ def resolution_line(r: dict) -> str:
         )
     if r.get("to") is None:
         return (
-            f"query {r['from']!r} matches no label (nearest name {r.get('via')!r}, cosine "
-            f"{r.get('cosine')}): kept as its own concept"
+            f"query {r['from']!r} matches no label (nearest name {r.get('via')!r}"
+            f"{_of_label(r)}, cosine {r.get('cosine')}{_under(r)}): kept as its own concept"
         )
     what = {
         "subclass": f"sub-class {r.get('via')!r}",
@@ -131,3 +131,13 @@ def resolution_line(r: dict) -> str:
         "embedding": f"nearest name {r.get('via')!r}, cosine {r.get('cosine')}",
     }.get(how, how)
     return f"query {r['from']!r} resolved to label {r['to']!r} ({what})"
+
+
+def _of_label(r: dict) -> str:
+    near = r.get("nearest")
+    return f" of label {near!r}" if near and near != r.get("via") else ""
+
+
+def _under(r: dict) -> str:
+    least = r.get("min_similarity")
+    return f" < min_similarity {least}" if isinstance(least, (int, float)) else ""

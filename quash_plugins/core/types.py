@@ -568,8 +568,26 @@ def presence_words(provenance: dict[str, Any]) -> str:
     against = f"; closest competitor: {rival!r}" if isinstance(rival, str) and rival else ""
     return (
         "absent: no component won clearly against the other labels "
-        f"(best margins: {', '.join(best)}{against})"
+        f"(best margins: {', '.join(best)}{against}){_unresolved(provenance, rival)}"
     )
+
+
+def _unresolved(provenance: dict[str, Any], rival: Any) -> str:
+    """For an empty answer to a query that resolved to no label: the label it was nearest
+    to and, when that label is also what beat it in the map, how to ask for it."""
+    res = provenance.get("resolved")
+    if not isinstance(res, dict) or res.get("how") != "none" or not res.get("nearest"):
+        return ""
+    near, cos = res["nearest"], res.get("cosine")
+    least = res.get("min_similarity")
+    told = f"cosine {cos}" + (f" < min_similarity {least}" if least is not None else "")
+    words = f"; the query resolved to no label (nearest: {near!r}, {told})"
+    if rival == near:
+        words += (
+            f", and what matched it is nearer {near!r} itself: if you meant {near!r}, ask "
+            "for it by name, lower min_similarity, or expand with an LLM heuristic"
+        )
+    return words
 
 
 def _no_large_component(info: dict[str, Any], n: int) -> str:

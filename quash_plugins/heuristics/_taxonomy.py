@@ -195,6 +195,8 @@ class TaxonomyHeuristic(Heuristic):
         6. ``none``: the query stays its own concept (label None).
 
         Returns ``{"from", "to", "how", "via", "cosine"}``; ``via`` is the name matched.
+        Rule 6 also records ``nearest`` (the label of ``via``) and ``min_similarity``, so
+        an empty answer can say which label the query was nearest to.
         """
         tax = self._labels(context)
         q = " ".join(query.split())
@@ -257,7 +259,15 @@ class TaxonomyHeuristic(Heuristic):
                 cos,
                 self.min_similarity,
             )
-            return {"from": query, "to": None, "how": "none", "via": names[best], "cosine": cos}
+            return {
+                "from": query,
+                "to": None,
+                "how": "none",
+                "via": names[best],
+                "nearest": owner[best],
+                "cosine": cos,
+                "min_similarity": self.min_similarity,
+            }
         log.info(
             "taxonomy: query %r resolved to label %r through %r (cosine %.3f)",
             query,

@@ -765,3 +765,35 @@ def test_split_is_validated():
     assert PresenceOptions.parse({"split": None}).split is None
     with pytest.raises(ConfigError, match="split"):
         PresenceOptions.parse({"split": 0})
+
+
+def test_an_empty_unresolved_query_names_the_label_it_was_nearest_to():
+    """A description that resolves to no label (cosine under min_similarity) is judged as
+    its own concept; when what beat it in the map is the label its text is nearest to, the
+    empty answer says so and how to ask for that label."""
+    m = _object_map()
+    nap = np.asarray(vec("bed")) * 0.45 + np.asarray(vec("zzz")) * 0.89
+    enc = TableEncoder(
+        table={**_encoder().table, "a place to nap": (nap / np.linalg.norm(nap)).tolist()}
+    )
+    h = TaxonomyHeuristic(taxonomy=TAX, n_antonyms="all")
+    res = h.resolve_query("a place to nap", ExpansionContext(encoder=enc))
+    assert res["how"] == "none" and res["nearest"] == "bed" and res["cosine"] < 0.5
+    assert res["min_similarity"] == 0.5
+    q = Quash(enc, h, presence={}, threshold=-10.0, instances=False)
+    nap_result = q.query_many(m, ["a place to nap"])[0]
+    assert not nap_result.mask.any()
+    assert nap_result.queryset.provenance["presence"]["rival"] == "bed"
+    words = nap_result.presence
+    assert f"nearest: 'bed', cosine {res['cosine']} < min_similarity 0.5" in words
+    assert "if you meant 'bed', ask for it by name" in words
+    # asked for by name, the bed is found
+    assert q.query_many(m, ["bed"])[0].mask[:27].all()
+    # a rival that is not the nearest label: the resolution is told, not the advice
+    prov = {**nap_result.queryset.provenance}
+    prov["presence"] = {**prov["presence"], "rival": "sofa"}
+    assert "nearest: 'bed'" in presence_words(prov)
+    assert "if you meant" not in presence_words(prov)
+    # a query that resolved adds nothing
+    prov["resolved"] = {**prov["resolved"], "how": "embedding", "to": "bed"}
+    assert "nearest:" not in presence_words(prov)

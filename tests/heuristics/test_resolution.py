@@ -55,6 +55,14 @@ def test_embedding_resolution_through_a_subclass_and_an_unresolved_query():
     assert r["cosine"] == pytest.approx(1.0, abs=1e-3)
     r = h.resolve_query("an elephant", ctx)
     assert r["to"] is None and r["how"] == "none"
+    # the record says which label the nearest name belongs to, and quash expand tells it
+    near = max(((float(np.dot(vec("zzz"), vec(n))), n, k) for k, v in TAX.items() for n in (k, *v)))
+    assert (r["via"], r["nearest"], r["min_similarity"]) == (near[1], near[2], 0.5)
+    from quash_plugins.cli.cmd_expand import resolution_line
+
+    line = resolution_line(r)
+    assert f"cosine {r['cosine']} < min_similarity 0.5" in line
+    assert (f"of label {near[2]!r}" in line) == (near[1] != near[2])
     qs = h.expand("an elephant", ctx)
     assert qs.positives == ["an elephant"] and qs.provenance["label"] is None
     # without an encoder an unknown query is an error naming the fix
