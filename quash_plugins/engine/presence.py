@@ -71,6 +71,9 @@ narrowly; the defaults were chosen so (docs/benchmarks.md).
 A map with neither a voxel grid, nor positions, nor frames has no neighbourhood: the
 check is skipped (``provenance["presence"] = {"checked": False, "why": ...}``).
 
+This module decides; :mod:`~quash_plugins.engine.readings` measures (the centred text
+rows, the margins of each reading, the judgement of a set of components).
+
 Examples
 --------
 >>> PresenceOptions.parse({"min_component": 4}).min_component
@@ -87,8 +90,21 @@ import numpy as np
 
 from ..core.errors import ConfigError, check_options
 from ..core.types import LatentMap
+from .readings import READ_ROWS, Readings, _unit, map_mean, region_means
 from .segments import split_components
 from .topology import MAX_DILATE, MapTopology
+
+__all__ = [
+    "KEEP_LIKE",
+    "MODES",
+    "READ_ROWS",
+    "SPLIT_MAX",
+    "PresenceOptions",
+    "TopologyCache",
+    "map_mean",
+    "presence_check",
+    "region_means",
+]
 
 MODES = ("filter", "gate")
 #: ``keep_like: auto`` with label groups: demo:quash-labels' value (chosen on seeds 100-102)
@@ -174,74 +190,6 @@ class PresenceOptions:
 
 
 # ---------------------------------------------------------------------- the check
-def _unit(a: np.ndarray) -> np.ndarray:
-    n = np.linalg.norm(a, axis=-1, keepdims=True)
-    return a / np.where(n > 0, n, 1.0)
-
-
-def _top_mean(c: np.ndarray, k: int) -> np.ndarray:
-    k = min(int(k), c.shape[1])
-    if k <= 1:
-        return c.max(axis=1)
-    return np.partition(c, c.shape[1] - k, axis=1)[:, -k:].mean(axis=1)
-
-
-#: Rows a summation reads at once (map_mean, region_means): 8192 x D float64 is 24 MiB at
-#: D = 384, 64 MiB at D = 1024, whatever the map's size or ``chunk_mb``.
-READ_ROWS = 8192
-
-
-def map_mean(lmap: LatentMap, rows_of: Any, block: int = 65536) -> np.ndarray:
-    """The mean of the map's unit rows (zero rows, i.e. unobserved items, left out).
-
-    Summed in float32 over ``block`` rows at a time, each block into a float64 total; a
-    block is read :data:`READ_ROWS` rows at a time and its float32 sum carried on in row
-    order, so the result is bit for bit what one read of the block gives, with a bounded
-    read."""
-    acc = np.zeros(lmap.dim, np.float64)
-    count = 0
-    # a one-column block sums pairwise, not row by row: read it whole (it is small)
-    step = READ_ROWS if lmap.dim >= 2 else block
-    for start in range(0, lmap.n, block):
-        stop = min(lmap.n, start + block)
-        part_sum: np.ndarray | None = None
-        for a in range(start, stop, step):
-            rows = _unit(rows_of(np.arange(a, min(stop, a + step))))
-            live = np.any(rows != 0, axis=1)
-            rows = rows[live]
-            count += len(rows)
-            if part_sum is None:
-                part_sum = rows.sum(axis=0)
-            elif len(rows):
-                # carried in row order: (part_sum + r0) + r1 + ..., as one block's sum is
-                part_sum = np.add.reduce(np.concatenate([part_sum[None], rows]), axis=0)
-        if part_sum is not None:
-            acc += part_sum
-    return (acc / max(count, 1)).astype(np.float32)
-
-
-def region_means(regions: list[np.ndarray], rows_of: Any, block: int = READ_ROWS) -> np.ndarray:
-    """The mean unit row of each region, reading at most ``block`` rows at a time (the
-    sums are float64 and run in item order whatever ``block`` is: the result does not
-    depend on it)."""
-    if not regions:
-        return np.zeros((0, 0), np.float32)
-    owner = np.repeat(np.arange(len(regions)), [len(r) for r in regions])
-    items = np.concatenate(regions)
-    order = np.argsort(items, kind="stable")
-    items, owner = items[order], owner[order]
-    sums: np.ndarray | None = None
-    for start in range(0, len(items), block):
-        part, who = items[start : start + block], owner[start : start + block]
-        uniq, inv = np.unique(part, return_inverse=True)
-        rows = _unit(np.asarray(rows_of(uniq), np.float64))[inv]
-        if sums is None:
-            sums = np.zeros((len(regions), rows.shape[1]), np.float64)
-        np.add.at(sums, who, rows)
-    sizes = np.array([max(len(r), 1) for r in regions], np.float64)
-    return (sums / sizes[:, None]).astype(np.float32)
-
-
 def presence_check(
     mask: np.ndarray,
     X: np.ndarray,
@@ -271,93 +219,9 @@ def presence_check(
     if not comps:
         info.update(present=False, kept_items=0)
         return keep, info
-    live = np.any(X != 0, axis=1)
-    centre = X[live].mean(axis=0)
-    P = _unit(X[(y == 1) & live] - centre)
-    pos_rows = np.flatnonzero(y == 1)[head * reps : (head + 1) * reps]
-    pos_rows = pos_rows[live[pos_rows]]
-    P_head = _unit(X[pos_rows] - centre) if len(pos_rows) else P[:1]
-    neg_rows = np.flatnonzero(y == 0)
-    N = _unit(X[neg_rows] - centre)
-    nlive = live[neg_rows]
-    # the negative groups scored, as (first row, size): those with a live row
-    scored: list[tuple[int, int]] = []
-    start = 0
-    for size in _group_sizes(groups, len(N)):
-        if nlive[start : start + size].any():
-            scored.append((start, size))
-        start += size
-    sizes = np.array([len(m) for m in comps])
-
-    # the readings of a group's score: the mean of its k best names, and (label_name)
-    # the better of that and its first name alone (the label, or the query itself)
-    by_name = bool(opts.label_name and groups)
-
-    def item_scores(members: np.ndarray) -> np.ndarray:
-        # (n, groups) label-group scores of single items: the features a split reads
-        rows = _unit(_unit(np.asarray(rows_of(members), np.float32)) - mu)
-        CN = rows @ N.T
-        cols = [_top_mean(rows @ P.T, opts.k)]
-        for start, size in scored:
-            live_g = nlive[start : start + size]
-            cols.append(_top_mean(CN[:, start : start + size][:, live_g], opts.k))
-        return np.column_stack(cols)
-
-    def margins(
-        dilate: int, parts: list[np.ndarray] | None = None
-    ) -> tuple[list[np.ndarray], np.ndarray]:
-        # per reading, (components, groups) margins against each group; and the flat
-        # margin (against the single best negative string)
-        regions = [topology.region(m, dilate) for m in (comps if parts is None else parts)]
-        means = _unit(region_means(regions, rows_of) - mu)
-        sp = _top_mean(means @ P.T, opts.k)
-        CN = means @ N.T
-        top, name = [], []
-        for start, size in scored:
-            live_g = nlive[start : start + size]
-            block = CN[:, start : start + size]
-            top.append(_top_mean(block[:, live_g], opts.k if groups else 1))
-            first = live_g[: min(reps, size)]
-            name.append(block[:, : len(first)].mean(axis=1) if first.all() else top[-1])
-        if not top:
-            top = name = [np.full(len(means), -np.inf)]
-        flat = sp - CN[:, nlive].max(axis=1) if nlive.any() else np.full(len(means), np.inf)
-        against = [sp[:, None] - np.column_stack(top)]
-        if by_name:
-            sp_name = np.maximum(sp, (means @ P_head.T).mean(axis=1))
-            against.append(
-                sp_name[:, None] - np.maximum(np.column_stack(top), np.column_stack(name))
-            )
-        return against, flat
-
-    def judge(parts: list[np.ndarray], whole_grown: list[np.ndarray] | None = None) -> dict:
-        # per reading, (readings, parts) strong and kept flags with the margins behind
-        # them; a piece of a split component (whole_grown: its whole's grown margins) is
-        # judged by its whole's surroundings, by its own items (core) and against what
-        # wins its own surroundings (support)
-        own_r, flat = margins(opts.dilate, parts)
-        grown_r = own_r if whole_grown is None else whole_grown
-        grown = np.stack([a.min(axis=1) for a in grown_r])  # (readings, parts)
-        out = {"grown_r": grown_r, "flat": flat, "grown": grown}
-        out["strong"], out["ok"] = grown > opts.margin, grown > opts.keep_margin
-        if opts.core_margin is not None or opts.support_margin is not None:
-            core_r = margins(0, parts)[0] if opts.dilate else own_r
-            penalty = opts.size_margin / np.sqrt([len(m) for m in parts])
-        if opts.core_margin is not None:
-            out["core"] = np.stack([a.min(axis=1) for a in core_r]) - penalty
-            out["strong"] |= out["core"] > opts.core_margin
-            out["ok"] |= out["core"] > opts.core_keep_margin
-        if opts.support_margin is not None:
-            # the core against the group that wins the grown region: a small object's support
-            rows = np.arange(len(parts))
-            out["support"] = (
-                np.stack([c[rows, g.argmin(axis=1)] for c, g in zip(core_r, own_r)]) - penalty
-            )
-            out["strong"] |= out["support"] > opts.support_margin
-            out["ok"] |= out["support"] > opts.support_margin
-        return out
-
-    J = judge(comps)
+    R = Readings(X, y, opts, topology, mu, rows_of, groups, head, reps)
+    scored = R.scored
+    J = R.judge(comps)
     if opts.split is not None and groups:
         # a component that is not strong as a whole may hold more than one object (a rug
         # on the floor): its pieces are judged as well
@@ -365,7 +229,7 @@ def presence_check(
         pieces, of = split_components(
             [comps[i] for i in weak],
             topology,
-            item_scores,
+            R.item_scores,
             opts.split,
             min_size=opts.min_component,
             max_size=SPLIT_MAX,
@@ -373,7 +237,7 @@ def presence_check(
         info["pieces"] = len(pieces)
         if pieces:
             whole = np.asarray([weak[i] for i in of], np.int64)
-            more = judge(pieces, [a[whole] for a in J["grown_r"]])
+            more = R.judge(pieces, [a[whole] for a in J["grown_r"]])
             comps = [*comps, *pieces]
             for key, val in more.items():
                 J[key] = (
@@ -444,7 +308,7 @@ def presence_check(
             # checked growth with a label list; without one (a vocabulary standing in)
             # every connected candidate grows, as it measured better (docs/benchmarks.md)
             opts = replace(opts, grow_margin=0.0 if groups else None)
-        keep = _grow(keep, candidates, topology, opts, margins)
+        keep = _grow(keep, candidates, topology, opts, R.margins)
         info["grown_items"] = int(keep.sum())
     return keep, info
 
@@ -475,17 +339,6 @@ def _grow(keep, candidates, topology, opts, margins) -> np.ndarray:
     if opts.grow_steps:
         out |= topology.grow(keep, near, opts.grow_steps)
     return out
-
-
-def _group_sizes(groups: list[int] | None, n_neg: int) -> list[int]:
-    """Consecutive group sizes covering all ``n_neg`` negative rows; without usable groups
-    every negative is its own group."""
-    if groups:
-        groups = [int(g) for g in groups]
-        if all(g > 0 for g in groups) and sum(groups) <= n_neg:
-            rest = n_neg - sum(groups)
-            return [*groups, rest] if rest else groups
-    return [1] * n_neg
 
 
 class TopologyCache:
