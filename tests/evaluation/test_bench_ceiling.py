@@ -7,19 +7,15 @@ its objects move to that class, which the object accuracy counts exactly.
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
+from _bench import load_bench
 from _eval_table import vec
 
 from quash_plugins.demo.classes import ABSENT, CLASSES
 from quash_plugins.demo.scene import SceneOptions, make_scene
 from quash_plugins.encoders import TableEncoder
 
-ROOT = Path(__file__).resolve().parents[2]
 TINY = {
     "rooms": 2,
     "voxel_size": 0.2,
@@ -34,16 +30,7 @@ TINY = {
 
 @pytest.fixture(scope="module")
 def bc():
-    sys.path.insert(0, str(ROOT / "benchmarks"))  # bench_ceiling imports bench_quality
-    try:
-        spec = importlib.util.spec_from_file_location(
-            "bench_ceiling", ROOT / "benchmarks" / "bench_ceiling.py"
-        )
-        mod = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(mod)
-    finally:
-        sys.path.remove(str(ROOT / "benchmarks"))
-    return mod
+    return load_bench("bench_ceiling")
 
 
 def _encoder(owner: dict[str, str]) -> TableEncoder:

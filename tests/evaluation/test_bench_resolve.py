@@ -7,32 +7,19 @@ is ``c * label + sqrt(1 - c^2) * its own direction``, orthogonal to every other 
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
+from _bench import load_bench
 
 from quash_plugins.encoders import TableEncoder
 
-ROOT = Path(__file__).resolve().parents[2]
 TAX = {"bed": ["cot"], "sofa": ["couch"], "fridge": [], "chair": []}
 NAMES = ["bed", "cot", "sofa", "couch", "fridge", "chair"]
 
 
 @pytest.fixture(scope="module")
 def br():
-    sys.path.insert(0, str(ROOT / "benchmarks"))  # bench_resolve imports bench_quality
-    try:
-        spec = importlib.util.spec_from_file_location(
-            "bench_resolve", ROOT / "benchmarks" / "bench_resolve.py"
-        )
-        mod = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(mod)
-    finally:
-        sys.path.remove(str(ROOT / "benchmarks"))
-    return mod
+    return load_bench("bench_resolve")
 
 
 def _encoder(descriptions: dict[str, dict[str, float]]) -> TableEncoder:
