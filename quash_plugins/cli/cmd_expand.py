@@ -122,13 +122,14 @@ def resolution_line(r: dict) -> str:
     if r.get("to") is None:
         return (
             f"query {r['from']!r} matches no label (nearest name {r.get('via')!r}"
-            f"{_of_label(r)}, cosine {r.get('cosine')}{_under(r)}): kept as its own concept"
+            f"{_of_label(r)}, cosine {r.get('cosine')}{_under(r)}{_next(r)}): kept as its "
+            "own concept"
         )
     what = {
         "subclass": f"sub-class {r.get('via')!r}",
         "near-subclass": f"near match of sub-class {r.get('via')!r}",
         "near-label": f"near match of label {r.get('via')!r}",
-        "embedding": f"nearest name {r.get('via')!r}, cosine {r.get('cosine')}",
+        "embedding": f"nearest name {r.get('via')!r}, cosine {r.get('cosine')}{_next(r)}",
     }.get(how, how)
     return f"query {r['from']!r} resolved to label {r['to']!r} ({what})"
 
@@ -136,6 +137,11 @@ def resolution_line(r: dict) -> str:
 def _of_label(r: dict) -> str:
     near = r.get("nearest")
     return f" of label {near!r}" if near and near != r.get("via") else ""
+
+
+def _next(r: dict) -> str:
+    nxt = r.get("next")
+    return f"; next label {nxt!r}, {r.get('next_cosine')}" if nxt else ""
 
 
 def _under(r: dict) -> str:

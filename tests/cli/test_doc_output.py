@@ -90,3 +90,21 @@ def test_expand_shows_a_resolved_query_as_heuristics_md_does(minilm_scene, monke
     capsys.readouterr()
     assert main(["-q", *args]) == 0
     assert shown in capsys.readouterr().out.splitlines()
+
+
+def test_expand_shows_a_description_and_its_next_label_as_heuristics_md_does(
+    minilm_scene, monkeypatch, capsys
+):
+    """The `heuristic:` line heuristics.md shows for a description resolved by embedding,
+    with the next label; the cosines may differ in the last digits from CPU to CPU."""
+    text = (DOCS / "heuristics.md").read_text(encoding="utf-8")
+    (shown,) = re.findall(r"^heuristic: taxonomy .*'fabric that covers the window'.*$", text, re.M)
+    pattern = re.sub(r"0\\.\d+", r"0\\.\\d+", re.escape(shown))
+    monkeypatch.setenv("COLUMNS", "400")
+    args = ["expand", "fabric that covers the window", "-c", "demo:quash-labels"]
+    capsys.readouterr()
+    assert main(["-q", *args, "--map", str(minilm_scene)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert any(re.fullmatch(pattern, line) for line in lines), [
+        line for line in lines if line.startswith("heuristic:")
+    ]

@@ -53,6 +53,17 @@ def test_embedding_resolution_through_a_subclass_and_an_unresolved_query():
     r = h.resolve_query("somewhere to sleep", ctx)
     assert (r["to"], r["how"], r["via"]) == ("bed", "embedding", "cot")
     assert r["cosine"] == pytest.approx(1.0, abs=1e-3)
+    # the best other label is recorded, for a near tie to be seen (computed here by hand)
+    best_other = max(
+        (
+            (float(np.dot(vec("cot"), vec(n))), k)
+            for k, v in TAX.items()
+            if k != "bed"
+            for n in (k, *v)
+        )
+    )
+    assert r["next"] == best_other[1]
+    assert r["next_cosine"] == pytest.approx(best_other[0], abs=1e-4)
     r = h.resolve_query("an elephant", ctx)
     assert r["to"] is None and r["how"] == "none"
     # the record says which label the nearest name belongs to, and quash expand tells it
@@ -62,6 +73,7 @@ def test_embedding_resolution_through_a_subclass_and_an_unresolved_query():
 
     line = resolution_line(r)
     assert f"cosine {r['cosine']} < min_similarity 0.5" in line
+    assert r["next"] != r["nearest"] and f"next label {r['next']!r}" in line
     assert (f"of label {near[2]!r}" in line) == (near[1] != near[2])
     qs = h.expand("an elephant", ctx)
     assert qs.positives == ["an elephant"] and qs.provenance["label"] is None
