@@ -37,7 +37,6 @@ from bench_quality import GENERATORS, free_texts, named_generators, run_one
 
 from quash_plugins.core import registry
 from quash_plugins.core.interfaces import ExpansionContext
-from quash_plugins.core.text import encode_texts
 from quash_plugins.demo.scene import class_set
 from quash_plugins.engine import open_cache
 from quash_plugins.heuristics import TaxonomyHeuristic
@@ -45,21 +44,6 @@ from quash_plugins.heuristics import TaxonomyHeuristic
 #: The label-list methods of the open-list runs, the chosen one first
 METHODS = ("quash-labels", "vlmaps-labels", "openscene-labels")
 CASES = ("right", "wrong", "unresolved")
-
-
-def label_cosines(text: str, taxonomy: dict, encoder, cache) -> list[tuple[str, float]]:
-    """Each label's best cosine to ``text`` (over the label and its sub-classes), best
-    first: what the ``embedding`` rule reads."""
-    names, owner = [], []
-    for label, subs in taxonomy.items():
-        for name in (label, *subs):
-            names.append(name)
-            owner.append(label)
-    sims = encode_texts(encoder, names, cache) @ encode_texts(encoder, [text], cache)[0]
-    best: dict[str, float] = {}
-    for label, s in zip(owner, sims):
-        best[label] = max(best.get(label, -np.inf), float(s))
-    return sorted(best.items(), key=lambda t: -t[1])
 
 
 def resolve(
@@ -70,7 +54,8 @@ def resolve(
     lead: tuple[float, float] | None = None,
 ) -> dict[str, dict]:
     """``{text: {"truth", "to", "how", "cosine", "lead", "case"}}`` for each description
-    (``truth`` None: an absent object). ``to`` is what the shipped ``taxonomy`` heuristic
+    (``truth`` None: an absent object; ``cosine`` and ``lead`` None when it resolved by
+    name). ``to`` is what the shipped ``taxonomy`` heuristic
     resolves it to; with ``lead`` (``(floor, lead)``), an unresolved text also resolves
     to its nearest label when that label's cosine is at least ``floor`` and leads the
     next label's by ``lead``."""
@@ -78,19 +63,21 @@ def resolve(
     ctx = ExpansionContext(encoder=encoder, extra={"cache": cache})
     out = {}
     for text, truth in texts.items():
+        # the record of an embedding resolution (rules 5 and 6) holds the nearest label's
+        # cosine and the next label's; a resolution by name holds neither
         r = h.resolve_query(text, ctx)
-        ranked = label_cosines(text, taxonomy, encoder, cache)
-        gap = ranked[0][1] - ranked[1][1] if len(ranked) > 1 else np.inf
+        cos, nxt = r.get("cosine"), r.get("next_cosine")
+        gap = None if cos is None else (cos - nxt if nxt is not None else np.inf)
         to, how = r["to"], r["how"]
-        if how == "none" and lead is not None and ranked[0][1] >= lead[0] and gap >= lead[1]:
-            to, how = ranked[0][0], "lead"
+        if how == "none" and lead is not None and cos >= lead[0] and gap >= lead[1]:
+            to, how = r["nearest"], "lead"
         case = "unresolved" if to is None else ("right" if to == truth else "wrong")
         out[text] = {
             "truth": truth,
             "to": to,
             "how": how,
-            "cosine": round(ranked[0][1], 4),
-            "lead": round(float(gap), 4),
+            "cosine": cos,
+            "lead": None if gap is None else round(float(gap), 4),
             "case": case,
         }
     return out
@@ -217,11 +204,12 @@ def main() -> None:
         table = GENERATORS[gen].get("classes", "a")
         runs = [run_one(out, gen, s, "open-list", encoder, cache) for s in seeds]
         tax, present = _taxonomy_of(out, gen, seeds[0])
-        res = resolve(_descriptions(gen), tax, encoder, cache)
+        reported = _descriptions(gen)
+        res = resolve(reported, tax, encoder, cache)
         if table not in tables_done:
             tables_done.add(table)
             rules = [("shipped", None)] + ([(f"lead {args.lead}", lead)] if lead else [])
-            sets = [("reported", _descriptions(gen))]
+            sets = [("reported", reported)]
             if args.descriptions:
                 sets.append((args.descriptions.name, _own(args.descriptions, table, tax)))
             for set_name, texts in sets:
