@@ -140,8 +140,7 @@ class MapTopology:
             keys = self.key[members]
             order = np.argsort(keys, kind="stable")
             skeys = keys[order]
-            s = self.span
-            step = (_OFFSETS26[:, 0] * s[1] + _OFFSETS26[:, 1]) * s[2] + _OFFSETS26[:, 2]
+            step = self._key(_OFFSETS26)
             rows, cols = [], []
             for d in step[step > 0]:  # each unordered pair once (and no self pair)
                 pos = np.minimum(np.searchsorted(skeys, keys + d), n - 1)
@@ -178,8 +177,7 @@ class MapTopology:
             return members
         if self.kind == "voxels":
             keys = self.key[members]
-            s = self.span
-            step = (_OFFSETS26[:, 0] * s[1] + _OFFSETS26[:, 1]) * s[2] + _OFFSETS26[:, 2]
+            step = self._key(_OFFSETS26)
             for _ in range(dilate):
                 keys = np.unique((keys[:, None] + step[None, :]).reshape(-1))
             lo = np.searchsorted(self.skey, keys, "left")
