@@ -46,6 +46,7 @@ from quash_plugins.core import registry
 from quash_plugins.core.text import encode_texts
 from quash_plugins.demo.scene import SceneOptions, make_scene
 from quash_plugins.engine import open_cache
+from quash_plugins.evaluation.metrics import query_metrics
 
 READINGS = ("top2", "top1", "label", "mean")
 MARGINS = (0.0, 0.02, 0.05, 0.1)
@@ -72,15 +73,6 @@ def group_scores(means: np.ndarray, groups: list[np.ndarray], reading: str) -> n
         else:
             cols.append(means @ _unit(rows.mean(axis=0)))
     return np.stack(cols, axis=1)
-
-
-def f1_score(pred: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
-    """``(F1, recall)`` of a mask against the ground truth."""
-    tp = int((pred & truth).sum())
-    fp, fn = int((pred & ~truth).sum()), int((~pred & truth).sum())
-    rec = tp / max(tp + fn, 1)
-    prec = tp / max(tp + fp, 1)
-    return (2 * prec * rec / (prec + rec) if tp else 0.0), rec
 
 
 def one_scene(gen: str, seed: int, encoder, cache) -> dict:
@@ -126,9 +118,9 @@ def one_scene(gen: str, seed: int, encoder, cache) -> dict:
             given = np.where(won_by >= margin, best, -1)[inst]
             f1s, recs = [], []
             for lab in present:
-                f, r = f1_score(given == labs.index(lab), labels == names.index(lab))
-                f1s.append(f)
-                recs.append(r)
+                m = query_metrics(given == labs.index(lab), labels == names.index(lab))
+                f1s.append(m["f1"])
+                recs.append(m["recall"])
             empty = [not np.any(given == labs.index(lab)) for lab in absent]
             rec["margins"][str(margin)] = {
                 "f1": float(np.mean(f1s)),
