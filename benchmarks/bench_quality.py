@@ -60,6 +60,7 @@ from quash_plugins.core import registry
 from quash_plugins.core.shipped import LIST_PEERS, QUERY_PEERS, find_shipped
 from quash_plugins.demo.scene import SceneOptions, make_scene, write_scene
 from quash_plugins.engine import open_cache
+from quash_plugins.evaluation.metrics import macro_mean
 from quash_plugins.evaluation.plot import plot_precision_recall
 from quash_plugins.evaluation.report import evaluate, load_query_file
 
@@ -229,11 +230,7 @@ def split_by_kind(rec: dict) -> list[dict]:
         for c in rec["configs"]:
             pq = {q: v for q, v in c["per_query"].items() if keep(q)}
             ab = {q: v for q, v in c["absence"]["per_query"].items() if keep(q)}
-            mean = {
-                k: float(np.mean([v[k] for v in pq.values() if v.get(k) is not None]))
-                for k in ("f1", "precision", "recall", "ap", "inv_rank")
-                if any(v.get(k) is not None for v in pq.values())
-            }
+            mean = macro_mean(pq)  # as evaluate averages a whole run
             absence = {
                 **c["absence"],
                 "score": float(np.mean([v["empty"] for v in ab.values()])) if ab else 1.0,

@@ -184,6 +184,7 @@ def test_open_queries_split_by_kind_with_their_own_means_and_absence(bq, monkeyp
                 "f1": f * scale,
                 "precision": f,
                 "recall": f,
+                "iou": f,
                 "ap": 0.5,
                 "inv_rank": 1.0,
                 "n_pred": n,
