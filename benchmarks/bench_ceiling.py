@@ -172,11 +172,11 @@ def main() -> None:
     )
     args = ap.parse_args()
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     gens = named_generators(args.generators, args.classes)
     unknown = [g for g in gens if g not in GENERATORS]
     if unknown:
         raise SystemExit(f"unknown generator: {unknown[0]} (of {', '.join(GENERATORS)})")
+    out.mkdir(parents=True, exist_ok=True)  # after the checks: a refused run leaves nothing
     if args.classes:
         gens = with_classes(gens, Path(args.classes))
     seeds = [int(s) for s in args.seeds.split(",")]

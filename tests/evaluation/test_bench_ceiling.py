@@ -87,3 +87,11 @@ def test_a_noiseless_scene_has_a_perfect_ceiling_and_a_moved_label_is_counted(bc
     top2 = rec2["readings"]["top2"]
     assert top2["object_accuracy"] == pytest.approx(want)
     assert top2["margins"]["0.0"]["present_empty"] >= 1  # chair gets nothing
+
+
+def test_a_refused_run_leaves_no_output_folder(bc, tmp_path, monkeypatch):
+    out = tmp_path / "ceiling"
+    monkeypatch.setattr("sys.argv", ["bench_ceiling.py", "--out", str(out), "--generators", "nope"])
+    with pytest.raises(SystemExit, match="unknown generator: nope"):
+        bc.main()
+    assert not out.exists()
