@@ -188,7 +188,10 @@ class QuashConfig:
             "grow: -0.25, grow_steps: null, grow_margin: 0.0 (auto: 0.0 with a label list, "
             "else null), keep_like: null (auto: 0.6 with a label list, else null), split: 2.5 "
             "(with a label list: a component that is not strong whole is also judged piece "
-            "by piece, split where its items' label scores change; null: judged whole)}; "
+            "by piece, split where its items' label scores change; null: judged whole), "
+            "fallback: null (e.g. 0.03, with a label list and refinement: when nothing of the "
+            "refined mask passes, the first pass's mask is checked with every presence "
+            "margin raised by it and answers if an object passes)}; "
             "{} takes these defaults). Needs a voxel grid, positions or frames. null turns it off."
         },
     )

@@ -12,8 +12,9 @@ from :meth:`Quash._prepare <quash_plugins.engine.pipeline.Quash._prepare>`), and
 3. :func:`refine_pass` (``refine:``): each query re-fitted on its map samples
    (:mod:`quash_plugins.engine.refine`), all of them classified again in one shared pass;
 4. :func:`presence_pass` (``presence:``): the presence check
-   (:mod:`quash_plugins.engine.presence`) on each final mask, and the scores of the
-   items it drops or adds moved across the threshold.
+   (:mod:`quash_plugins.engine.presence`) on each final mask (and, with ``fallback``,
+   on the first pass's mask when nothing of the refined one passes), and the scores of
+   the items it drops or adds moved across the threshold.
 
 The pipeline's ``_answer`` is a thin delegate to :func:`answer`.
 """
@@ -48,6 +49,9 @@ class Pending:
     display: np.ndarray | None = None
     #: the items the presence check dropped (None until it runs)
     rejected: np.ndarray | None = None
+    #: the first pass's classifier and scores, kept by refinement for the presence
+    #: check's ``fallback`` (None without it)
+    first: tuple[Any, np.ndarray] | None = None
 
 
 def answer(
@@ -62,8 +66,10 @@ def answer(
     as the config asks. Returns the ``(N,)`` bool ``observed`` mask.
 
     Each query then holds ``raw``, ``mask`` and ``display`` ``(N,)`` vectors (9 bytes
-    an item). ``LazyQuery.to_zarr`` calls it for one group of queries at a time;
-    ``client`` runs the passes on that Dask client (see ``Quash._classify``).
+    an item; with the presence check's ``fallback``, 4 more from the refinement pass to
+    the presence check: the first pass's scores). ``LazyQuery.to_zarr`` calls it for
+    one group of queries at a time; ``client`` runs the passes on that Dask client (see
+    ``Quash._classify``).
     """
     t = time.perf_counter()
     if progress is not None:
@@ -130,6 +136,7 @@ def refine_pass(
     """Re-fit each query on its map samples and classify again, in one shared pass."""
     from .refine import pseudo_labels, resolve_seeds
 
+    keep_first = quash.presence is not None and quash.presence.fallback is not None
     todo = []
     for p in pending:
         t = time.perf_counter()
@@ -170,6 +177,8 @@ def refine_pass(
     share = (time.perf_counter() - t) / len(todo)
     for (p, refined), raw in zip(todo, scores):
         p.queryset.provenance["refine"]["first_pass"] = _describe(p.clf)
+        if keep_first and p.queryset.provenance.get("negative_groups"):
+            p.first = (p.clf, p.raw)  # 4 bytes an item more, until the presence check
         p.clf = refined
         p.raw, p.mask, p.display = finish(refined, raw, observed, quash.threshold)
         p.timings["reclassify"] = share
@@ -181,9 +190,12 @@ def presence_pass(
     """The presence check (:mod:`quash_plugins.engine.presence`) on each final mask.
 
     Items it drops or adds get new scores (:func:`_moved_scores`), so the mask stays
-    ``score > threshold``.
+    ``score > threshold``. With ``fallback`` (and label groups), a refined query that
+    passes nothing is checked once more on the first pass's mask, each presence margin
+    raised by ``fallback``; if an object passes there, the first pass's kept components
+    and scores are the answer (``provenance["presence"]["fallback"]``).
     """
-    from .presence import presence_check
+    from .presence import fallback_options, presence_check
     from .refine import take_rows
 
     def rows_of(index: np.ndarray) -> np.ndarray:
@@ -194,6 +206,7 @@ def presence_pass(
     for p in pending:
         if topology.kind is None:
             p.queryset.provenance["presence"] = {"checked": False, "why": topology.why}
+            p.first = None
             continue
         t = time.perf_counter()
         n_strings = len(p.queryset.positives) + len(p.queryset.negatives)
@@ -218,9 +231,42 @@ def presence_pass(
             reps=reps,
             candidates=candidates,
         )
+        first_answers = False
+        if not info["present"] and groups and p.first is not None and opts.fallback is not None:
+            # the refit can lose a small object that the first pass had (a laptop whose
+            # 100 best-scored items are mostly its desk): the first pass's mask is checked
+            # with every presence margin raised, and answers if an object passes there
+            first_clf, first_raw = p.first
+            first_mask = (first_raw > threshold) & observed
+            f_keep, f_info = presence_check(
+                first_mask,
+                p.X,
+                p.y,
+                fallback_options(opts),
+                topology,
+                mu,
+                rows_of,
+                groups=groups,
+                head=head,
+                reps=reps,
+            )
+            f_info.pop("rival_negative", None)
+            info["fallback"] = {
+                k: f_info.get(k) for k in ("present", "kept", "kept_items", "best_margin")
+            }
+            info["fallback"]["margins_raised_by"] = float(opts.fallback)
+            if f_info["present"]:
+                first_answers = True
+                p.clf, p.raw, p.mask, keep = first_clf, first_raw, first_mask, f_keep
+                p.queryset.provenance["refine"]["answered_by"] = "first pass"
+                info.update(
+                    present=True,
+                    **{k: f_info[k] for k in ("kept", "kept_items", "largest_kept")},
+                )
+        p.first = None
         keep &= observed
         p.rejected = p.mask & ~keep
-        if (p.mask & ~keep).any() or (keep & ~p.mask).any():
+        if first_answers or (p.mask & ~keep).any() or (keep & ~p.mask).any():
             p.raw = _moved_scores(p.raw, p.mask, keep, observed, threshold)
             p.mask = keep
             p.display = display_scores(p.clf, p.raw, observed, threshold)
@@ -275,6 +321,10 @@ def classifier_words(p: Pending) -> str:
     """The classifier that gave ``p`` its scores, with the first pass's when refinement
     re-fitted it: ``"NearestSampleClassifier(k=2), refined as RbfSvmClassifier(...) on
     the map's items"`` (``QueryResult.classifier``)."""
-    first = (p.queryset.provenance.get("refine") or {}).get("first_pass")
+    refine = p.queryset.provenance.get("refine") or {}
+    first = refine.get("first_pass")
     words = _describe(p.clf)
+    if refine.get("answered_by") == "first pass":
+        # the presence check's fallback: the refit found no object, the first pass did
+        return f"{words} (its refit on the map's items found no object; the first pass did)"
     return f"{first}, refined as {words} on the map's items" if first else words

@@ -45,6 +45,14 @@ connected region) is added only when the query wins its own mean by that margin 
 either reading, else (with ``grow_steps``) only its items within that many steps;
 ``grow_margin: auto`` checks growth (0.0) for a query set with label groups and grows
 unchecked without them (a vocabulary standing in for the list), as the default config does.
+With ``fallback`` (opt-in; label groups and refinement), a query of which nothing in
+the refined mask passes is checked once more on the first pass's mask, under
+:func:`fallback_options` (each presence margin raised by ``fallback``, no growth), and
+the first pass answers if an object passes there
+(:func:`~quash_plugins.engine.answer.presence_pass`): the refit's positives, the 100
+best-scored items, can be mostly the desk a laptop stands on. It is off in the shipped
+configs: at 0.03 it let an absent refrigerator through on a reported seed of the second
+class table (docs/benchmarks.md).
 
 Why a grown region: a matched set is *selected* for looking like the query, so its own
 mean leans towards the query (on the proxy scenes every absent label passed such a test).
@@ -101,6 +109,7 @@ __all__ = [
     "SPLIT_MAX",
     "PresenceOptions",
     "TopologyCache",
+    "fallback_options",
     "map_mean",
     "presence_check",
     "region_means",
@@ -135,6 +144,7 @@ class PresenceOptions:
     grow_margin: float | str | None = 0.0
     keep_like: float | str | None = None
     split: float | None = 2.5
+    fallback: float | None = None
 
     @classmethod
     def parse(cls, options: dict[str, Any]) -> PresenceOptions:
@@ -156,6 +166,7 @@ class PresenceOptions:
                 "grow_margin",
                 "keep_like",
                 "split",
+                "fallback",
             ):
                 if key in ("grow_margin", "keep_like") and getattr(opts, key) == "auto":
                     continue
@@ -166,7 +177,8 @@ class PresenceOptions:
         except (TypeError, ValueError) as exc:
             raise ConfigError(
                 f"presence: {exc}; numbers expected (null turns off core_margin, flat_margin, "
-                "support_margin, grow, grow_margin and keep_like; the last two also take auto)."
+                "support_margin, grow, grow_margin, keep_like, split and fallback; grow_margin "
+                "and keep_like also take auto)."
             ) from None
         if not 0 <= opts.dilate <= MAX_DILATE or opts.min_component < 1 or opts.k < 1:
             raise ConfigError(
@@ -182,6 +194,8 @@ class PresenceOptions:
             )
         if opts.split is not None and not opts.split > 0:
             raise ConfigError(f"presence: split must be > 0 or null; got {opts.split}.")
+        if opts.fallback is not None and not opts.fallback >= 0:
+            raise ConfigError(f"presence: fallback must be >= 0 or null; got {opts.fallback}.")
         if opts.size_margin < 0:
             raise ConfigError(f"presence: size_margin must be >= 0; got {opts.size_margin}.")
         if opts.mode not in MODES:
@@ -311,6 +325,21 @@ def presence_check(
         keep = _grow(keep, candidates, topology, opts, R.margins)
         info["grown_items"] = int(keep.sum())
     return keep, info
+
+
+def fallback_options(opts: PresenceOptions) -> PresenceOptions:
+    """The options of the check on the first pass's mask (``fallback``): every presence
+    margin (``margin``, ``core_margin``, ``support_margin``) raised by ``fallback``, the
+    keep margins as they are, and no growth (``grow`` is a threshold on refined scores)."""
+    d = float(opts.fallback or 0.0)
+    return replace(
+        opts,
+        margin=opts.margin + d,
+        core_margin=None if opts.core_margin is None else opts.core_margin + d,
+        support_margin=None if opts.support_margin is None else opts.support_margin + d,
+        grow=None,
+        fallback=None,
+    )
 
 
 def _grow(keep, candidates, topology, opts, margins) -> np.ndarray:

@@ -797,3 +797,86 @@ def test_an_empty_unresolved_query_names_the_label_it_was_nearest_to():
     # a query that resolved adds nothing
     prov["resolved"] = {**prov["resolved"], "how": "embedding", "to": "bed"}
     assert "nearest:" not in presence_words(prov)
+
+
+def _refit_lost_the_object(fallback=0.03, first_on_bed=True):
+    """A bed query whose refit matched only the sofa specks (single items: nothing passes)
+    while its first pass had matched the bed block (or, ``first_on_bed=False``, the
+    specks too), run through the presence pass as the pipeline runs it."""
+    from quash_plugins.core import registry
+    from quash_plugins.engine.answer import Pending, classifier_words, presence_pass
+
+    m = _object_map()
+    qs, X, y = _training("bed")
+    q = Quash(
+        _encoder(),
+        TaxonomyHeuristic(taxonomy=TAX, n_antonyms="all"),
+        refine={},
+        presence={"fallback": fallback},
+        instances=False,
+    )
+    first_clf = registry.create("classifiers", "nearest-sample", k=2).fit(X, y)
+    refit = registry.create("classifiers", "nearest-sample", k=2).fit(X, y)
+    specks = np.r_[np.zeros(27, bool), np.ones(m.n - 27, bool)]
+    first_raw = np.where(~specks if first_on_bed else specks, 1.0, -1.0).astype(np.float32)
+    raw = np.where(specks, 1.0, -1.0).astype(np.float32)
+    qs.provenance["refine"] = {"applied": True, "first_pass": "first"}
+    p = Pending(qs, X, y, refit, {}, raw=raw, mask=raw > 0, display=raw.copy())
+    p.first = (first_clf, first_raw)
+    presence_pass(q, m, [p], np.ones(m.n, bool))
+    return p, classifier_words(p)
+
+
+def test_a_refit_that_lost_the_object_falls_back_to_the_first_pass():
+    """presence.fallback: when no component of the refined mask passes, the first pass's
+    mask is checked with every presence margin raised, and answers if an object passes:
+    its kept components, its scores, its classifier."""
+    p, words = _refit_lost_the_object()
+    record = p.queryset.provenance["presence"]
+    assert record["present"] is True and record["fallback"]["present"] is True
+    assert record["fallback"]["margins_raised_by"] == 0.03
+    assert record["kept_items"] == record["largest_kept"] == 27
+    assert np.array_equal(p.mask, np.r_[np.ones(27, bool), np.zeros(p.mask.size - 27, bool)])
+    assert p.queryset.provenance["refine"]["answered_by"] == "first pass"
+    assert "the first pass did" in words and p.first is None
+    assert p.raw[p.mask].min() > 0 >= p.raw[~p.mask].max()  # the mask is score > threshold
+    # the same check with the raised margins, by hand: the bed block passes it
+    opts = PresenceOptions(fallback=0.03)
+    raised = PresenceOptions(margin=0.08, core_margin=0.15, support_margin=0.15, grow=None)
+    from quash_plugins.engine.presence import fallback_options
+
+    assert fallback_options(opts) == PresenceOptions(**{**vars(raised), "fallback": None})
+    _, info = _run(_object_map(), p.mask, **{**vars(raised), "fallback": None})
+    assert info["present"] and info["kept_items"] == 27
+
+
+def test_the_fallback_keeps_absence_and_can_be_turned_off():
+    # the first pass matched only specks too: still absent, nothing kept
+    p, _ = _refit_lost_the_object(first_on_bed=False)
+    record = p.queryset.provenance["presence"]
+    assert not p.mask.any() and record["present"] is False
+    assert record["fallback"]["present"] is False
+    assert "answered_by" not in p.queryset.provenance["refine"]
+    # margins raised past what the bed block wins by: the fallback finds nothing either
+    p, _ = _refit_lost_the_object(fallback=5.0)
+    assert not p.mask.any() and p.queryset.provenance["presence"]["fallback"]["present"] is False
+    # fallback: null is the rule before it
+    p, words = _refit_lost_the_object(fallback=None)
+    assert not p.mask.any() and "fallback" not in p.queryset.provenance["presence"]
+    assert "refined as" in words
+    with pytest.raises(ConfigError, match="fallback must be >= 0"):
+        PresenceOptions.parse({"fallback": -0.1})
+    assert PresenceOptions.parse({"fallback": None}).fallback is None
+
+
+def test_the_fallback_changes_nothing_when_the_refit_passes():
+    """A refit whose mask passes answers as without the option (same mask, same scores,
+    no fallback record), through the pipeline."""
+    m = _object_map()
+    common = dict(heuristic=TaxonomyHeuristic(taxonomy=TAX, n_antonyms="all"), instances=False)
+    off = Quash(_encoder(), refine={}, presence={}, **common).query(m, "bed")
+    on = Quash(_encoder(), refine={}, presence={"fallback": 0.03}, **common).query(m, "bed")
+    assert off.queryset.provenance["refine"]["applied"] and off.mask[:27].any()
+    assert np.array_equal(on.mask, off.mask) and np.array_equal(on.scores, off.scores)
+    assert "fallback" not in on.queryset.provenance["presence"]
+    assert PresenceOptions().fallback is None  # off unless a config asks for it
