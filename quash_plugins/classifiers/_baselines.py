@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from ..core.interfaces import Classifier
-from ..core.kernels import CosineExpansion, CosineMargin
+from ..core.kernels import CosineExpansion, CosineMargin, top_mean
 from ._params import (
     ClassifierParamError,
     check_choice,
@@ -412,7 +412,7 @@ class NearestSampleClassifier(_CosineRule):
 
     def decision_from_cosines(self, c: np.ndarray) -> np.ndarray:
         p = len(self.positives_)
-        return (_top_mean(c[:, :p], self.k) - _top_mean(c[:, p:], self.k)).astype(np.float32)
+        return (top_mean(c[:, :p], self.k) - top_mean(c[:, p:], self.k)).astype(np.float32)
 
     def cosine_margin(self) -> CosineMargin | None:
         return CosineMargin(len(self.positives_), k=int(self.k))
@@ -421,11 +421,3 @@ class NearestSampleClassifier(_CosineRule):
 def _check_k(k: Any) -> None:
     if not isinstance(k, (int, np.integer)) or isinstance(k, bool) or k < 1:
         raise ClassifierParamError(f"nearest-sample: k must be an integer >= 1; got {k!r}.")
-
-
-def _top_mean(c: np.ndarray, k: int) -> np.ndarray:
-    """Row-wise mean of the ``k`` largest values of ``c (N, m)``."""
-    k = min(int(k), c.shape[1])
-    if k == 1:
-        return c.max(axis=1)
-    return np.partition(c, c.shape[1] - k, axis=1)[:, -k:].mean(axis=1)

@@ -87,6 +87,21 @@ class KernelExpansion:
     unit_rows: bool = False
 
 
+def top_mean(c: np.ndarray, k: int) -> np.ndarray:
+    """Row-wise mean of the ``k`` largest values of ``c`` ``(N, m)``, ``k`` capped at ``m``.
+
+    The reduction of every cosine rule (:class:`CosineMargin`, ``nearest-sample``) and of
+    the presence check's readings, in one place.
+
+    >>> top_mean(np.array([[0.1, 0.9, 0.5], [0.3, 0.2, 0.4]]), 2).round(2).tolist()
+    [0.7, 0.35]
+    """
+    k = min(int(k), c.shape[1])
+    if k <= 1:
+        return c.max(axis=1)
+    return np.partition(c, c.shape[1] - k, axis=1)[:, -k:].mean(axis=1)
+
+
 @dataclass(frozen=True)
 class CosineMargin:
     """A cosine rule's reduction, declared so that any executor can run it (a GPU too).
@@ -112,16 +127,9 @@ class CosineMargin:
     def apply(self, c: np.ndarray) -> np.ndarray:
         """The reduction in numpy: ``(rows,)`` float32 (the reference for executors)."""
         p = int(self.positives)
-
-        def top(m: np.ndarray) -> np.ndarray:
-            k = min(int(self.k), m.shape[1])
-            if k == 1:
-                return m.max(axis=1)
-            return np.partition(m, m.shape[1] - k, axis=1)[:, -k:].mean(axis=1)
-
-        m = top(c[:, :p])
+        m = top_mean(c[:, :p], self.k)
         if self.use_negatives and c.shape[1] > p:
-            m = m - top(c[:, p:])
+            m = m - top_mean(c[:, p:], self.k)
         if self.temperature is not None:
             z = float(self.temperature) * m.astype(np.float64)
             m = (0.5 * (1.0 + np.tanh(0.5 * z))).astype(np.float32)

@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from ..core.kernels import top_mean
 from ..core.types import LatentMap
 from .topology import MapTopology
 
@@ -36,13 +37,6 @@ READ_ROWS = 8192
 def _unit(a: np.ndarray) -> np.ndarray:
     n = np.linalg.norm(a, axis=-1, keepdims=True)
     return a / np.where(n > 0, n, 1.0)
-
-
-def _top_mean(c: np.ndarray, k: int) -> np.ndarray:
-    k = min(int(k), c.shape[1])
-    if k <= 1:
-        return c.max(axis=1)
-    return np.partition(c, c.shape[1] - k, axis=1)[:, -k:].mean(axis=1)
 
 
 def map_mean(lmap: LatentMap, rows_of: Any, block: int = 65536) -> np.ndarray:
@@ -159,10 +153,10 @@ class Readings:
         opts, N, nlive = self.opts, self.N, self.nlive
         rows = _unit(_unit(np.asarray(self.rows_of(members), np.float32)) - self.mu)
         CN = rows @ N.T
-        cols = [_top_mean(rows @ self.P.T, opts.k)]
+        cols = [top_mean(rows @ self.P.T, opts.k)]
         for start, size in self.scored:
             live_g = nlive[start : start + size]
-            cols.append(_top_mean(CN[:, start : start + size][:, live_g], opts.k))
+            cols.append(top_mean(CN[:, start : start + size][:, live_g], opts.k))
         return np.column_stack(cols)
 
     def margins(self, dilate: int, parts: list[np.ndarray]) -> tuple[list[np.ndarray], np.ndarray]:
@@ -172,13 +166,13 @@ class Readings:
         opts, N, nlive, reps = self.opts, self.N, self.nlive, self.reps
         regions = [self.topology.region(m, dilate) for m in parts]
         means = _unit(region_means(regions, self.rows_of) - self.mu)
-        sp = _top_mean(means @ self.P.T, opts.k)
+        sp = top_mean(means @ self.P.T, opts.k)
         CN = means @ N.T
         top, name = [], []
         for start, size in self.scored:
             live_g = nlive[start : start + size]
             block = CN[:, start : start + size]
-            top.append(_top_mean(block[:, live_g], opts.k if self.groups else 1))
+            top.append(top_mean(block[:, live_g], opts.k if self.groups else 1))
             first = live_g[: min(reps, size)]
             name.append(block[:, : len(first)].mean(axis=1) if first.all() else top[-1])
         if not top:
