@@ -218,19 +218,23 @@ def presence_pass(
         head = p.queryset.positives.index(label) if label in p.queryset.positives else 0
         refined = (p.queryset.provenance.get("refine") or {}).get("applied", False)
         candidates = (p.raw > opts.grow) & observed if opts.grow is not None and refined else None
-        keep, info = presence_check(
-            p.mask,
-            p.X,
-            p.y,
-            opts,
-            topology,
-            mu,
-            rows_of,
-            groups=groups,
-            head=head,
-            reps=reps,
-            candidates=candidates,
-        )
+
+        def check(mask, options, candidates=None, p=p, groups=groups, head=head, reps=reps):
+            return presence_check(
+                mask,
+                p.X,
+                p.y,
+                options,
+                topology,
+                mu,
+                rows_of,
+                groups=groups,
+                head=head,
+                reps=reps,
+                candidates=candidates,
+            )
+
+        keep, info = check(p.mask, opts, candidates)
         first_answers = False
         if not info["present"] and groups and p.first is not None and opts.fallback is not None:
             # the refit can lose a small object that the first pass had (a laptop whose
@@ -238,19 +242,7 @@ def presence_pass(
             # with every presence margin raised, and answers if an object passes there
             first_clf, first_raw = p.first
             first_mask = (first_raw > threshold) & observed
-            f_keep, f_info = presence_check(
-                first_mask,
-                p.X,
-                p.y,
-                fallback_options(opts),
-                topology,
-                mu,
-                rows_of,
-                groups=groups,
-                head=head,
-                reps=reps,
-            )
-            f_info.pop("rival_negative", None)
+            f_keep, f_info = check(first_mask, fallback_options(opts))
             info["fallback"] = {
                 k: f_info.get(k) for k in ("present", "kept", "kept_items", "best_margin")
             }
