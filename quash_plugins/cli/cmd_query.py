@@ -212,7 +212,7 @@ def _query_to_zarr(args, quash) -> int:
     store = zarr.open_group(str(path), mode="r")
     counts = da.from_zarr(store["masks"]).sum(axis=1).compute().tolist()
     n = int(store["masks"].shape[1])
-    from ..core.types import presence_words
+    from ..core.presence_text import presence_words
 
     sets = list(store.attrs.get("querysets") or [{}] * len(counts))
     rows = [

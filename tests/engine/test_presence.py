@@ -16,7 +16,8 @@ from quash_plugins import LatentMap, Quash
 from quash_plugins.core.config import QuashConfig
 from quash_plugins.core.errors import ConfigError
 from quash_plugins.core.interfaces import ExpansionContext
-from quash_plugins.core.types import FrameInfo, presence_words
+from quash_plugins.core.presence_text import presence_words
+from quash_plugins.core.types import FrameInfo
 from quash_plugins.encoders import TableEncoder
 from quash_plugins.engine.presence import PresenceOptions, map_mean, presence_check
 from quash_plugins.engine.topology import MapTopology
