@@ -191,7 +191,9 @@ class QuashConfig:
             "by piece, split where its items' label scores change; null: judged whole), "
             "fallback: null (e.g. 0.03, with a label list and refinement: when nothing of the "
             "refined mask passes, the first pass's mask is checked with every presence "
-            "margin raised by it and answers if an object passes)}; "
+            "margin raised by it and answers if an object passes), reseed: true (with a "
+            "label list and refinement: when nothing of the refined mask passes, refine "
+            "again from what passes on the first pass's mask, and check that refit)}; "
             "{} takes these defaults). Needs a voxel grid, positions or frames. null turns it off."
         },
     )

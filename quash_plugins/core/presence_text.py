@@ -30,7 +30,8 @@ def presence_words(provenance: dict[str, Any]) -> str:
     if not info.get("checked", True):
         return f"not checked: {info.get('why', 'no neighbourhood')}"
     if info.get("present"):
-        return f"present ({info.get('kept', 0)} of {info.get('components', 0)} components kept)"
+        kept = f"{info.get('kept', 0)} of {info.get('components', 0)} components kept"
+        return f"present ({kept}{_reseed_words(info)})"
     best = [
         f"{what} {info[key]:+.3f}"
         for key, what in (
@@ -49,8 +50,33 @@ def presence_words(provenance: dict[str, Any]) -> str:
     against = f"; closest competitor: {rival!r}" if isinstance(rival, str) and rival else ""
     return (
         "absent: no component won clearly against the other labels "
-        f"(best margins: {', '.join(best)}{against}){_unresolved(provenance, rival)}"
+        f"(best margins: {', '.join(best)}{against}{_reseed_words(info)})"
+        f"{_unresolved(provenance, rival)}"
     )
+
+
+def _reseed_words(info: dict[str, Any]) -> str:
+    """What the check's second refit (``presence.reseed``) did, when it ran one.
+
+    Examples
+    --------
+    >>> _reseed_words({"reseed": {"first_pass_present": True, "first_pass_kept": 12,
+    ...                           "positives": 12, "present": True}})
+    '; found by a second refit on the 12 items the first pass kept'
+    >>> _reseed_words({"reseed": {"first_pass_present": True, "first_pass_kept": 140,
+    ...                           "positives": 100, "present": False}})
+    '; a second refit on the 100 of the 140 items the first pass kept found none either'
+    >>> _reseed_words({"reseed": {"first_pass_present": False, "present": False}})
+    ''
+    """
+    record = info.get("reseed")
+    if not isinstance(record, dict) or not isinstance(record.get("positives"), int):
+        return ""
+    n, kept = record["positives"], record.get("first_pass_kept", record["positives"])
+    items = f"{n} items" if n == kept else f"{n} of the {kept} items"
+    if record.get("present"):
+        return f"; found by a second refit on the {items} the first pass kept"
+    return f"; a second refit on the {items} the first pass kept found none either"
 
 
 def _unresolved(provenance: dict[str, Any], rival: Any) -> str:

@@ -12,9 +12,11 @@ from :meth:`Quash._prepare <quash_plugins.engine.pipeline.Quash._prepare>`), and
 3. :func:`refine_pass` (``refine:``): each query re-fitted on its map samples
    (:mod:`quash_plugins.engine.refine`), all of them classified again in one shared pass;
 4. :func:`presence_pass` (``presence:``): the presence check
-   (:mod:`quash_plugins.engine.presence`) on each final mask (and, with ``fallback``,
-   on the first pass's mask when nothing of the refined one passes), and the scores of
-   the items it drops or adds moved across the threshold.
+   (:mod:`quash_plugins.engine.presence`) on each final mask (and, when nothing of the
+   refined one passes: with ``reseed``, a second refit seeded by what passes on the
+   first pass's mask, classified in one more shared pass; with ``fallback``, the first
+   pass's mask itself), and the scores of the items it drops or adds moved across the
+   threshold.
 
 The pipeline's ``_answer`` is a thin delegate to :func:`answer`.
 """
@@ -86,7 +88,7 @@ def answer(
     if quash.refine is not None:
         refine_pass(quash, lmap, pending, observed, progress, client)
     if quash.presence is not None:
-        presence_pass(quash, lmap, pending, observed)
+        presence_pass(quash, lmap, pending, observed, client)
     return observed
 
 
@@ -136,7 +138,8 @@ def refine_pass(
     """Re-fit each query on its map samples and classify again, in one shared pass."""
     from .refine import pseudo_labels, resolve_seeds
 
-    keep_first = quash.presence is not None and quash.presence.fallback is not None
+    presence = quash.presence
+    keep_first = presence is not None and (presence.fallback is not None or presence.reseed)
     todo = []
     for p in pending:
         t = time.perf_counter()
@@ -185,24 +188,37 @@ def refine_pass(
 
 
 def presence_pass(
-    quash: Quash, lmap: LatentMap, pending: list[Pending], observed: np.ndarray
+    quash: Quash,
+    lmap: LatentMap,
+    pending: list[Pending],
+    observed: np.ndarray,
+    client: Any = None,
 ) -> None:
     """The presence check (:mod:`quash_plugins.engine.presence`) on each final mask.
 
     Items it drops or adds get new scores (:func:`_moved_scores`), so the mask stays
-    ``score > threshold``. With ``fallback`` (and label groups), a refined query that
-    passes nothing is checked once more on the first pass's mask, each presence margin
-    raised by ``fallback``; if an object passes there, the first pass's kept components
-    and scores are the answer (``provenance["presence"]["fallback"]``).
+    ``score > threshold``. Two second chances for a refined query (with label groups) of
+    which nothing passes, in this order:
+
+    - ``reseed``: the first pass's mask is checked with the same margins; if an object
+      passes there, the refit is done again with only that object's kept items as its
+      map positives (:func:`_reseeded`), every such query classified again in one shared
+      pass, and the new mask is checked as the first refit's was; it answers if an
+      object passes (``provenance["presence"]["reseed"]``);
+    - ``fallback``: the first pass's mask is checked with each presence margin raised by
+      ``fallback``; if an object passes there, the first pass's kept components and
+      scores are the answer (``provenance["presence"]["fallback"]``).
     """
-    from .presence import fallback_options, presence_check
+    from .presence import presence_check
     from .refine import take_rows
 
     def rows_of(index: np.ndarray) -> np.ndarray:
         return take_rows(lmap, index)
 
-    opts, threshold = quash.presence, quash.threshold
+    opts = quash.presence
     topology, mu = quash._topology.get(lmap, rows_of)
+    checked: list[tuple[Pending, Any, np.ndarray, dict[str, Any], float]] = []
+    again: list[tuple[int, Any, dict[str, Any]]] = []
     for p in pending:
         if topology.kind is None:
             p.queryset.provenance["presence"] = {"checked": False, "why": topology.why}
@@ -216,8 +232,6 @@ def presence_pass(
             groups = [int(g) * reps for g in groups]
         label = p.queryset.provenance.get("label")
         head = p.queryset.positives.index(label) if label in p.queryset.positives else 0
-        refined = (p.queryset.provenance.get("refine") or {}).get("applied", False)
-        candidates = (p.raw > opts.grow) & observed if opts.grow is not None and refined else None
 
         def check(mask, options, candidates=None, p=p, groups=groups, head=head, reps=reps):
             return presence_check(
@@ -234,39 +248,116 @@ def presence_pass(
                 candidates=candidates,
             )
 
-        keep, info = check(p.mask, opts, candidates)
-        first_answers = False
-        if not info["present"] and groups and p.first is not None and opts.fallback is not None:
-            # the refit can lose a small object that the first pass had (a laptop whose
-            # 100 best-scored items are mostly its desk): the first pass's mask is checked
-            # with every presence margin raised, and answers if an object passes there
-            first_clf, first_raw = p.first
-            first_mask = (first_raw > threshold) & observed
-            f_keep, f_info = check(first_mask, fallback_options(opts))
-            info["fallback"] = {
-                k: f_info.get(k) for k in ("present", "kept", "kept_items", "best_margin")
-            }
-            info["fallback"]["margins_raised_by"] = float(opts.fallback)
-            if f_info["present"]:
-                first_answers = True
-                p.clf, p.raw, p.mask, keep = first_clf, first_raw, first_mask, f_keep
-                p.queryset.provenance["refine"]["answered_by"] = "first pass"
-                info.update(
-                    present=True,
-                    **{k: f_info[k] for k in ("kept", "kept_items", "largest_kept")},
-                )
-        p.first = None
-        keep &= observed
-        p.rejected = p.mask & ~keep
-        if first_answers or (p.mask & ~keep).any() or (keep & ~p.mask).any():
-            p.raw = _moved_scores(p.raw, p.mask, keep, observed, threshold)
-            p.mask = keep
-            p.display = display_scores(p.clf, p.raw, observed, threshold)
-        rival = info.pop("rival_negative", None)
-        if rival is not None and 0 <= rival < len(p.queryset.negatives):
-            info["rival"] = p.queryset.negatives[rival]
-        p.queryset.provenance["presence"] = info
-        p.timings["presence"] = time.perf_counter() - t
+        keep, info = check(p.mask, opts, _candidates(quash, p, p.raw, observed))
+        if not info["present"] and groups and p.first is not None and opts.reseed:
+            clf, record = _reseeded(quash, lmap, p, observed, check)
+            info["reseed"] = record
+            if clf is not None:
+                again.append((len(checked), clf, record))
+        checked.append((p, check, keep, info, time.perf_counter() - t))
+    if again:
+        # the reseeded refits: one shared pass over the map for all of them
+        t = time.perf_counter()
+        scores, _ = quash._classify(lmap, [clf for _, clf, _ in again], None, client)
+        share = (time.perf_counter() - t) / len(again)
+        for (i, clf, record), raw in zip(again, scores):
+            p, check, keep, info, spent = checked[i]
+            raw, mask, display = finish(clf, raw, observed, quash.threshold)
+            r_keep, r_info = check(mask, opts, _candidates(quash, p, raw, observed))
+            record["present"] = bool(r_info["present"])
+            if r_info["present"]:
+                p.clf, p.raw, p.mask, p.display = clf, raw, mask, display
+                p.queryset.provenance["refine"]["reseeded"] = record["positives"]
+                keep, info = r_keep, r_info
+            info["reseed"] = record
+            checked[i] = (p, check, keep, info, spent + share)
+    for p, check, keep, info, spent in checked:
+        t = time.perf_counter()
+        _answer_presence(quash, p, check, keep, info, observed)
+        p.timings["presence"] = spent + time.perf_counter() - t
+
+
+def _candidates(quash: Quash, p: Pending, raw: np.ndarray, observed: np.ndarray) -> Any:
+    """The items growth may add (refined scores only), or None."""
+    grow = quash.presence.grow
+    refined = (p.queryset.provenance.get("refine") or {}).get("applied", False)
+    return (raw > grow) & observed if grow is not None and refined else None
+
+
+def _reseeded(
+    quash: Quash, lmap: LatentMap, p: Pending, observed: np.ndarray, check: Any
+) -> tuple[Any, dict[str, Any]]:
+    """The presence check's ``reseed`` for one query whose refined mask passed nothing:
+    the refit done again on the items the check keeps of the first pass's mask (the same
+    margins, no growth), and its provenance record; the refit is None when nothing
+    passes there, or too few items are kept to seed it (``refine.min_seed``).
+
+    Why: the refit takes the ``n_positives`` best-scored items as its positives, and for
+    a small object (a laptop of 6-21 items) they are mostly its desk; the first pass's
+    own presence check had told the laptop from the desk.
+    """
+    from .refine import pseudo_labels
+
+    first_raw = p.first[1]
+    first_mask = (first_raw > quash.threshold) & observed
+    f_keep, f_info = check(first_mask, quash.presence)
+    f_keep &= observed
+    record: dict[str, Any] = {
+        "first_pass_present": bool(f_info["present"]),
+        "first_pass_kept": int(f_keep.sum()),
+        "present": False,
+    }
+    if not f_info["present"] or f_keep.sum() < quash.refine.min_seed:
+        return None, record
+    salt = p.queryset.provenance.get("label") or p.queryset.query
+    extra = pseudo_labels(lmap, first_raw, f_keep, observed, quash.refine, str(salt), "matched")
+    if extra is None:
+        return None, record
+    Xm, ym = extra
+    clf = clone(quash._refine_template).fit(np.concatenate([p.X, Xm]), np.concatenate([p.y, ym]))
+    record["positives"] = int(ym.sum())
+    return clf, record
+
+
+def _answer_presence(
+    quash: Quash, p: Pending, check: Any, keep: np.ndarray, info: dict[str, Any], observed
+) -> None:
+    """The fallback, the moved scores and the provenance record of one checked query."""
+    from .presence import fallback_options
+
+    opts, threshold = quash.presence, quash.threshold
+    groups = p.queryset.provenance.get("negative_groups")
+    first_answers = False
+    if not info["present"] and groups and p.first is not None and opts.fallback is not None:
+        # the refit can lose a small object that the first pass had (a laptop whose
+        # 100 best-scored items are mostly its desk): the first pass's mask is checked
+        # with every presence margin raised, and answers if an object passes there
+        first_clf, first_raw = p.first
+        first_mask = (first_raw > threshold) & observed
+        f_keep, f_info = check(first_mask, fallback_options(opts))
+        info["fallback"] = {
+            k: f_info.get(k) for k in ("present", "kept", "kept_items", "best_margin")
+        }
+        info["fallback"]["margins_raised_by"] = float(opts.fallback)
+        if f_info["present"]:
+            first_answers = True
+            p.clf, p.raw, p.mask, keep = first_clf, first_raw, first_mask, f_keep
+            p.queryset.provenance["refine"]["answered_by"] = "first pass"
+            info.update(
+                present=True,
+                **{k: f_info[k] for k in ("kept", "kept_items", "largest_kept")},
+            )
+    p.first = None
+    keep &= observed
+    p.rejected = p.mask & ~keep
+    if first_answers or (p.mask & ~keep).any() or (keep & ~p.mask).any():
+        p.raw = _moved_scores(p.raw, p.mask, keep, observed, threshold)
+        p.mask = keep
+        p.display = display_scores(p.clf, p.raw, observed, threshold)
+    rival = info.pop("rival_negative", None)
+    if rival is not None and 0 <= rival < len(p.queryset.negatives):
+        info["rival"] = p.queryset.negatives[rival]
+    p.queryset.provenance["presence"] = info
 
 
 def _moved_scores(
@@ -319,4 +410,10 @@ def classifier_words(p: Pending) -> str:
     if refine.get("answered_by") == "first pass":
         # the presence check's fallback: the refit found no object, the first pass did
         return f"{words} (its refit on the map's items found no object; the first pass did)"
+    reseeded = refine.get("reseeded")
+    if first and reseeded:
+        return (
+            f"{first}, refined as {words} on the map's items (refitted on the {reseeded} "
+            "items the presence check kept of the first pass)"
+        )
     return f"{first}, refined as {words} on the map's items" if first else words

@@ -45,6 +45,14 @@ connected region) is added only when the query wins its own mean by that margin 
 either reading, else (with ``grow_steps``) only its items within that many steps;
 ``grow_margin: auto`` checks growth (0.0) for a query set with label groups and grows
 unchecked without them (a vocabulary standing in for the list), as the default config does.
+With ``reseed`` (on by default; label groups and refinement), a query of which nothing in the refined
+mask passes is given a second refit: the first pass's mask is checked with the same
+margins, and if an object passes there, refinement is done again with only the items
+kept there as its map positives; the new refined mask is then checked as the first one
+was, and answers if an object passes
+(:func:`~quash_plugins.engine.answer.presence_pass`). Why: the refit's positives, the
+100 best-scored items, can be mostly the desk a laptop stands on, while the first pass's
+check tells the laptop from the desk.
 With ``fallback`` (opt-in; label groups and refinement), a query of which nothing in
 the refined mask passes is checked once more on the first pass's mask, under
 :func:`fallback_options` (each presence margin raised by ``fallback``, no growth), and
@@ -145,6 +153,7 @@ class PresenceOptions:
     keep_like: float | str | None = None
     split: float | None = 2.5
     fallback: float | None = None
+    reseed: bool = True
 
     @classmethod
     def parse(cls, options: dict[str, Any]) -> PresenceOptions:
@@ -188,10 +197,11 @@ class PresenceOptions:
             )
         if opts.grow_steps is not None and opts.grow_steps < 0:
             raise ConfigError(f"presence: grow_steps must be >= 0 or null; got {opts.grow_steps}.")
-        if not isinstance(opts.label_name, bool):
-            raise ConfigError(
-                f"presence: label_name must be true or false; got {opts.label_name!r}."
-            )
+        for key in ("label_name", "reseed"):
+            if not isinstance(getattr(opts, key), bool):
+                raise ConfigError(
+                    f"presence: {key} must be true or false; got {getattr(opts, key)!r}."
+                )
         if opts.split is not None and not opts.split > 0:
             raise ConfigError(f"presence: split must be > 0 or null; got {opts.split}.")
         if opts.fallback is not None and not opts.fallback >= 0:

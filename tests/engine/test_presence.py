@@ -800,7 +800,7 @@ def test_an_empty_unresolved_query_names_the_label_it_was_nearest_to():
     assert "nearest:" not in presence_words(prov)
 
 
-def _refit_lost_the_object(fallback=0.03, first_on_bed=True):
+def _refit_lost_the_object(fallback=0.03, first_on_bed=True, presence=None, quash=None):
     """A bed query whose refit matched only the sofa specks (single items: nothing passes)
     while its first pass had matched the bed block (or, ``first_on_bed=False``, the
     specks too), run through the presence pass as the pipeline runs it."""
@@ -809,11 +809,11 @@ def _refit_lost_the_object(fallback=0.03, first_on_bed=True):
 
     m = _object_map()
     qs, X, y = _training("bed")
-    q = Quash(
+    q = quash or Quash(
         _encoder(),
         TaxonomyHeuristic(taxonomy=TAX, n_antonyms="all"),
         refine={},
-        presence={"fallback": fallback},
+        presence={"fallback": fallback, "reseed": False} if presence is None else presence,
         instances=False,
     )
     first_clf = registry.create("classifiers", "nearest-sample", k=2).fit(X, y)
@@ -881,3 +881,105 @@ def test_the_fallback_changes_nothing_when_the_refit_passes():
     assert np.array_equal(on.mask, off.mask) and np.array_equal(on.scores, off.scores)
     assert "fallback" not in on.queryset.provenance["presence"]
     assert PresenceOptions().fallback is None  # off unless a config asks for it
+
+
+def test_reseed_refits_on_what_the_first_pass_check_kept():
+    """presence.reseed: when nothing of the refined mask passes, the refit is done again
+    with the items the check keeps of the first pass's mask as its only map positives;
+    that refit's mask is checked and answers. Its scores are the new classifier's."""
+    from quash_plugins.engine.refine import RefineOptions, pseudo_labels
+
+    p, words = _refit_lost_the_object(presence={"reseed": True})
+    record = p.queryset.provenance["presence"]
+    assert record["present"] is True and "fallback" not in record
+    reseed = record["reseed"]
+    assert reseed == {
+        "first_pass_present": True,
+        "first_pass_kept": 27,
+        "present": True,
+        "positives": 27,
+    }
+    assert p.queryset.provenance["refine"]["reseeded"] == 27
+    assert "refitted on the 27 items the presence check kept of the first pass" in words
+    assert presence_words(p.queryset.provenance) == (
+        "present (1 of 1 components kept; found by a second refit on the 27 items the "
+        "first pass kept)"
+    )
+    assert np.array_equal(p.mask, np.r_[np.ones(27, bool), np.zeros(p.mask.size - 27, bool)])
+    assert p.first is None
+    # the new classifier, fitted by hand on the same samples, gives the same scores
+    m = _object_map()
+    qs, X, y = _training("bed")
+    first_raw = np.r_[np.ones(27), -np.ones(m.n - 27)].astype(np.float32)
+    Xm, ym = pseudo_labels(
+        m, first_raw, first_raw > 0, np.ones(m.n, bool), RefineOptions(), "bed", "matched"
+    )
+    assert ym.sum() == 27 and len(ym) == m.n  # the block's items, every speck a negative
+    from quash_plugins.core import registry
+
+    by_hand = registry.create("classifiers", "svm-rbf").fit(np.r_[X, Xm], np.r_[y, ym])
+    expected = by_hand.decision_function(np.asarray(m.embeddings))
+    assert np.allclose(p.raw[p.mask], expected[p.mask], atol=1e-5)
+    assert (expected[:27] > 0).all() and (expected[27:] <= 0).all()
+
+
+def test_reseed_keeps_absence_and_can_be_turned_off():
+    # the first pass matched only specks: nothing passes there, no second refit
+    p, _ = _refit_lost_the_object(first_on_bed=False, presence={"reseed": True})
+    record = p.queryset.provenance["presence"]
+    assert not p.mask.any() and record["present"] is False
+    assert record["reseed"] == {"first_pass_present": False, "first_pass_kept": 0, "present": False}
+    assert "reseeded" not in p.queryset.provenance["refine"]
+    # off: the rule before it
+    p, words = _refit_lost_the_object(fallback=None)
+    assert not p.mask.any() and "reseed" not in p.queryset.provenance["presence"]
+    assert PresenceOptions().reseed is True  # on unless a config turns it off
+    with pytest.raises(ConfigError, match="reseed must be true or false"):
+        PresenceOptions.parse({"reseed": "yes"})
+
+
+def test_reseed_classifies_every_reseeded_query_in_one_shared_pass():
+    """Two queries reseeded in one presence pass: one more pass over the map, not two."""
+    from quash_plugins.core import registry
+    from quash_plugins.engine.answer import Pending, presence_pass
+
+    m = _object_map()
+    q = Quash(
+        _encoder(),
+        TaxonomyHeuristic(taxonomy=TAX, n_antonyms="all"),
+        refine={},
+        presence={"reseed": True},
+        instances=False,
+    )
+    passes = []
+    classify = q._classify
+
+    def counting(lmap, classifiers, progress, client=None):
+        passes.append(len(classifiers))
+        return classify(lmap, classifiers, progress, client)
+
+    q._classify = counting
+    specks = np.r_[np.zeros(27, bool), np.ones(m.n - 27, bool)]
+    pending = []
+    for _ in range(2):
+        qs, X, y = _training("bed")
+        qs.provenance["refine"] = {"applied": True, "first_pass": "first"}
+        clf = registry.create("classifiers", "nearest-sample", k=2).fit(X, y)
+        raw = np.where(specks, 1.0, -1.0).astype(np.float32)
+        p = Pending(qs, X, y, clf, {}, raw=raw, mask=raw > 0, display=raw.copy())
+        p.first = (clf, np.where(specks, -1.0, 1.0).astype(np.float32))
+        pending.append(p)
+    presence_pass(q, m, pending, np.ones(m.n, bool))
+    assert passes == [2]
+    assert all(p.mask[:27].all() and not p.mask[27:].any() for p in pending)
+    assert all(p.timings["presence"] > 0 for p in pending)
+
+
+def test_reseed_changes_nothing_when_the_refit_passes():
+    m = _object_map()
+    common = dict(heuristic=TaxonomyHeuristic(taxonomy=TAX, n_antonyms="all"), instances=False)
+    off = Quash(_encoder(), refine={}, presence={}, **common).query(m, "bed")
+    on = Quash(_encoder(), refine={}, presence={"reseed": True}, **common).query(m, "bed")
+    assert off.mask[:27].any()
+    assert np.array_equal(on.mask, off.mask) and np.array_equal(on.scores, off.scores)
+    assert "reseed" not in on.queryset.provenance["presence"]
