@@ -45,11 +45,11 @@ connected region) is added only when the query wins its own mean by that margin 
 either reading, else (with ``grow_steps``) only its items within that many steps;
 ``grow_margin: auto`` checks growth (0.0) for a query set with label groups and grows
 unchecked without them (a vocabulary standing in for the list), as the default config does.
-With ``reseed`` (on by default; label groups and refinement), a query of which nothing in the refined
-mask passes is given a second refit: the first pass's mask is checked with the same
-margins, and if an object passes there, refinement is done again with only the items
-kept there as its map positives; the new refined mask is then checked as the first one
-was, and answers if an object passes
+With ``reseed`` (on by default; label groups and refinement), a query of which nothing
+in the refined mask passes is given a second refit: the first pass's mask is checked with
+the same margins, and if an object passes there, refinement is done again with only the
+items kept there as its map positives; the new refined mask is then checked as the first
+one was, and answers if an object passes
 (:func:`~quash_plugins.engine.answer.presence_pass`). Why: the refit's positives, the
 100 best-scored items, can be mostly the desk a laptop stands on, while the first pass's
 check tells the laptop from the desk.
