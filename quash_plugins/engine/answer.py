@@ -136,21 +136,17 @@ def refine_pass(
     client: Any = None,
 ) -> None:
     """Re-fit each query on its map samples and classify again, in one shared pass."""
-    from .refine import pseudo_labels, resolve_seeds
+    from .refine import resolve_seeds
 
     presence = quash.presence
     keep_first = presence is not None and (presence.fallback is not None or presence.reseed)
     todo = []
     for p in pending:
         t = time.perf_counter()
-        # the map negatives are a seeded draw: seeded by the concept (the label a query
-        # resolves to), so "wood stove", "a fireplace" and "fireplace" draw the same ones
-        # and a sub-class query answers as its label does
-        salt = p.queryset.provenance.get("label") or p.queryset.query
         seeds = resolve_seeds(quash.refine.seeds, p.queryset.provenance)
-        extra = pseudo_labels(lmap, p.raw, p.mask, observed, quash.refine, str(salt), seeds)
+        fitted = _refit(quash, lmap, p, p.raw, p.mask, observed, seeds)
         seed_matches = int(p.mask.sum())
-        if extra is None:
+        if fitted is None:
             p.queryset.provenance["refine"] = {
                 "applied": False,
                 "seed_matches": seed_matches,
@@ -158,10 +154,7 @@ def refine_pass(
             }
             p.timings["refine"] = time.perf_counter() - t
             continue
-        Xm, ym = extra
-        refined = clone(quash._refine_template).fit(
-            np.concatenate([p.X, Xm]), np.concatenate([p.y, ym])
-        )
+        refined, ym = fitted
         p.queryset.provenance["refine"] = {
             "applied": True,
             "seeds": seeds,
@@ -296,8 +289,6 @@ def _reseeded(
     a small object (a laptop of 6-21 items) they are mostly its desk; the first pass's
     own presence check had told the laptop from the desk.
     """
-    from .refine import pseudo_labels
-
     first_raw = p.first[1]
     first_mask = (first_raw > quash.threshold) & observed
     f_keep, f_info = check(first_mask, quash.presence)
@@ -309,14 +300,40 @@ def _reseeded(
     }
     if not f_info["present"] or f_keep.sum() < quash.refine.min_seed:
         return None, record
-    salt = p.queryset.provenance.get("label") or p.queryset.query
-    extra = pseudo_labels(lmap, first_raw, f_keep, observed, quash.refine, str(salt), "matched")
-    if extra is None:
+    fitted = _refit(quash, lmap, p, first_raw, f_keep, observed, "matched")
+    if fitted is None:
         return None, record
-    Xm, ym = extra
-    clf = clone(quash._refine_template).fit(np.concatenate([p.X, Xm]), np.concatenate([p.y, ym]))
+    clf, ym = fitted
     record["positives"] = int(ym.sum())
     return clf, record
+
+
+def _refit(
+    quash: Quash,
+    lmap: LatentMap,
+    p: Pending,
+    scores: np.ndarray,
+    mask: np.ndarray,
+    observed: np.ndarray,
+    seeds: str,
+) -> tuple[Any, np.ndarray] | None:
+    """The refinement classifier fitted on ``p``'s text rows and the map samples that
+    ``scores`` and ``mask`` give (:func:`~quash_plugins.engine.refine.pseudo_labels`),
+    and the samples' labels; None when there are too few to fit. Both the refinement
+    pass and ``reseed`` fit here.
+    """
+    from .refine import pseudo_labels
+
+    # the map negatives are a seeded draw: seeded by the concept (the label a query
+    # resolves to), so "wood stove", "a fireplace" and "fireplace" draw the same ones
+    # and a sub-class query answers as its label does
+    salt = p.queryset.provenance.get("label") or p.queryset.query
+    extra = pseudo_labels(lmap, scores, mask, observed, quash.refine, str(salt), seeds)
+    if extra is None:
+        return None
+    Xm, ym = extra
+    clf = clone(quash._refine_template).fit(np.concatenate([p.X, Xm]), np.concatenate([p.y, ym]))
+    return clf, ym
 
 
 def _answer_presence(
