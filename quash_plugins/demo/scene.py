@@ -215,6 +215,8 @@ class Scene:
     open_present: dict[str, str] = dataclasses.field(default_factory=dict)
     open_absent: list[str] = dataclasses.field(default_factory=list)
     class_table_sha256: str | None = None  # of the class-table file that built it
+    #: appearance names nearer an absent label than their own (:mod:`.lookalikes`)
+    absent_lookalikes: list[dict[str, Any]] = dataclasses.field(default_factory=list)
 
 
 def _class_index(cs: ClassSet) -> dict[str, int]:
@@ -462,6 +464,7 @@ def make_scene(encoder: Any, options: SceneOptions | None = None, cache: Any = N
     )
     present = [c.label for i, c in enumerate(CLASSES) if np.any(labels == i)]
     open_present, open_absent = open_queries(cs, present, opts.seed)
+    lookalikes = _lookalikes(cs, present, encoder, cache)
     return Scene(
         lmap,
         taxonomy,
@@ -472,7 +475,32 @@ def make_scene(encoder: Any, options: SceneOptions | None = None, cache: Any = N
         open_present,
         open_absent,
         cs.sha256,
+        lookalikes,
     )
+
+
+def _lookalikes(cs: ClassSet, present: list[str], encoder: Any, cache: Any) -> list[dict]:
+    """The present classes' appearance names that read as an absent label
+    (:func:`~quash_plugins.demo.lookalikes.absent_lookalikes`), each logged as a warning."""
+    from ..core.errors import EncoderError
+    from .lookalikes import absent_lookalikes
+
+    here = [c for c in cs.classes if c.label in set(present)]
+    try:
+        found = absent_lookalikes(here, cs.absent, encoder, cache)
+    except EncoderError as exc:  # a table encoder that holds the appearance names only
+        log.info("skipped the check for appearance names that read as absent labels: %s", exc)
+        return []
+    for x in found:
+        log.warning(
+            "class table %s: %s, so this scene's features hold what the absence query %r "
+            "asks for; rename that appearance name (quash make-scene --show-classes "
+            "prints the format)",
+            cs.name,
+            x.words(),
+            x.absent,
+        )
+    return [x.record() for x in found]
 
 
 def _built_by(encoder: Any) -> dict[str, str]:
@@ -589,6 +617,8 @@ def write_scene(
     }
     if scene.class_table_sha256:  # which file content built it
         info["class_table_sha256"] = scene.class_table_sha256
+    if scene.absent_lookalikes:  # appearance names that read as an absent label
+        info["absent_lookalikes"] = scene.absent_lookalikes
     with atomic_write(queries, suffix=".yaml") as tmp:
         Path(tmp).write_text(yaml.safe_dump(info, sort_keys=False), "utf-8")
     open_info = {
