@@ -206,8 +206,19 @@ def _queries(args: argparse.Namespace) -> tuple[Any, list[str], list[str]]:
         )
     absent, in_file = _split(args.absent), []
     if args.queries_file:
+        from ..evaluation.queries import query_file_lookalikes
+
         queries, in_file = load_query_file(args.queries_file)
         absent = list(dict.fromkeys([*in_file, *absent]))
+        for label, names in query_file_lookalikes(args.queries_file).items():
+            log.warning(
+                "%s: the scene's appearance names %s read as the absent %r (make-scene's "
+                "absent_lookalikes): a match of its absence queries may be the scene's "
+                "features, not a method's mistake",
+                args.queries_file,
+                ", ".join(names),
+                label,
+            )
     return queries, absent, in_file
 
 

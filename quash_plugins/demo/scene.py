@@ -626,6 +626,8 @@ def write_scene(
         "present": dict(scene.open_present),
         "absent": list(scene.open_absent),
     }
+    if scene.absent_lookalikes:
+        open_info["absent_lookalikes"] = scene.absent_lookalikes
     with atomic_write(paths["open_queries"], suffix=".yaml") as tmp:
         Path(tmp).write_text(yaml.safe_dump(open_info, sort_keys=False), "utf-8")
     return {**paths}

@@ -141,7 +141,22 @@ def _typo_message(text: str, label: str, near: list[str], source: str | Path | N
 
 #: Keys a query file may hold besides ``present`` and ``absent``: what ``quash make-scene``
 #: writes to describe the scene the queries came from.
-QUERY_FILE_INFO = ("kind", "room_types", "options", "class_table_sha256")
+QUERY_FILE_INFO = ("kind", "room_types", "options", "class_table_sha256", "absent_lookalikes")
+
+
+def query_file_lookalikes(path: str | Path) -> dict[str, list[str]]:
+    """``{absent label: [appearance names]}`` from a query file's ``absent_lookalikes``
+    (what ``quash make-scene`` found: appearance names of the scene that read as that
+    absent label, :mod:`quash_plugins.demo.lookalikes`); empty when it has none."""
+    from ..core.config import load_yaml
+
+    data, _ = load_yaml(path, "query file")
+    out: dict[str, list[str]] = {}
+    if isinstance(data, dict):
+        for x in data.get("absent_lookalikes") or []:
+            if isinstance(x, dict) and "absent" in x and "appearance" in x:
+                out.setdefault(str(x["absent"]), []).append(f"{x['appearance']} ({x.get('label')})")
+    return out
 
 
 def load_query_file(path: str | Path) -> tuple[dict[str, str], list[str]]:

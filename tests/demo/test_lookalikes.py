@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import logging
 from pathlib import Path
 
@@ -10,10 +11,12 @@ import pytest
 import yaml
 from _eval_table import table_for
 
+from quash_plugins.cli import cmd_eval
 from quash_plugins.demo.classes import SceneClass
 from quash_plugins.demo.lookalikes import absent_lookalikes
 from quash_plugins.demo.scene import SceneOptions, class_set, make_scene, write_scene
 from quash_plugins.encoders import TableEncoder
+from quash_plugins.evaluation.queries import load_query_file, query_file_lookalikes
 
 OPTS = dict(rooms=2, voxel_size=0.25, room_size=4.0, extra_objects=1)
 
@@ -110,8 +113,21 @@ def test_make_scene_warns_and_records_it(tmp_path, caplog):
     assert s.absent_lookalikes[0]["cosine"] == pytest.approx(1.0, abs=1e-4)
     assert any("'fish tank gravel' of 'floor'" in r.message for r in caplog.records)
     write_scene(s, tmp_path / "s.npz", opts)
-    info = yaml.safe_load((tmp_path / "s.queries.yaml").read_text())
-    assert info["absent_lookalikes"][0]["absent"] == "aquarium"
+    for name in ("s.queries.yaml", "s.open-queries.yaml"):
+        info = yaml.safe_load((tmp_path / name).read_text())
+        assert info["absent_lookalikes"][0]["absent"] == "aquarium"
+        # quash eval --queries-file reads the file, and warns about the look-alike
+        present, absent = load_query_file(tmp_path / name)
+        assert present and absent
+        assert query_file_lookalikes(tmp_path / name) == {"aquarium": ["fish tank gravel (floor)"]}
+        args = argparse.Namespace(
+            queries=None, absent=None, queries_file=str(tmp_path / name), empty_tolerance=0
+        )
+        caplog.clear()
+        with caplog.at_level(logging.WARNING, logger="quash_plugins.cli.cmd_eval"):
+            _, absent_queries, _ = cmd_eval._queries(args)
+        assert absent_queries == absent
+        assert any("fish tank gravel (floor)" in r.message for r in caplog.records)
 
 
 def test_a_clean_table_and_a_table_encoder_without_the_names(tmp_path, caplog):
