@@ -20,8 +20,8 @@ holds only "language" names, disjoint from the appearance names; OUT.queries.yam
 present labels and absence queries, OUT.open-queries.yaml open-vocabulary ones (sub-class
 names and free text with their label, absent ones). Both are `quash eval --queries-file`
 files. An appearance name that the encoder reads as an absent label (nearer its names
-than its own class's by more than 0.2 in cosine) is warned about and listed in
-OUT.queries.yaml (absent_lookalikes): the map's features would hold that absent object.
+than its own class's by more than 0.2 in cosine) is warned about and listed in both
+query files (absent_lookalikes): the map's features would hold that absent object.
 Existing files are replaced only when they are a previous make-scene output, or with
 --force."""
 EPILOG = """\

@@ -9,8 +9,9 @@ names, and every method's features-first answer to "aquarium" is then that floor
 scene's ground truth says "absent" where its features say "present".
 
 :func:`absent_lookalikes` finds them; ``quash make-scene`` logs each one as a warning and
-writes them to ``SCENE.queries.yaml`` (``absent_lookalikes``), so that an absence query
-lost to one can be told from a method's false match.
+writes them to ``SCENE.queries.yaml`` and ``SCENE.open-queries.yaml``
+(``absent_lookalikes``), and ``quash eval --queries-file`` warns about them, so that an
+absence query lost to one can be told from a method's false match.
 
 Examples
 --------
