@@ -17,12 +17,13 @@ Examples
 --------
 >>> import numpy as np
 >>> from quash_plugins.demo.classes import SceneClass
->>> class Enc:  # two axes: floor-like and aquarium-like
+>>> class Enc:  # two axes: floor-like and aquarium-like (unit rows, as encoders give)
 ...     dim = 2
 ...     rows = {"floor": [1, 0], "ground": [1, 0.1], "tile": [0.2, 1], "plank": [1, 0.2],
 ...             "aquarium": [0, 1], "fish tank": [0.1, 1]}
 ...     def encode_text(self, texts):
-...         return np.asarray([self.rows[t] for t in texts], np.float32)
+...         x = np.asarray([self.rows[t] for t in texts], np.float32)
+...         return x / np.linalg.norm(x, axis=1, keepdims=True)
 >>> floor = SceneClass("floor", ("tile", "plank"), ("ground",), (0, 0, 0), "structure")
 >>> [(x.appearance, x.absent) for x in absent_lookalikes([floor], {"aquarium": ("fish tank",)}, Enc())]
 [('tile', 'aquarium')]
@@ -71,11 +72,6 @@ class Lookalike:
         return out
 
 
-def _unit(x: np.ndarray) -> np.ndarray:
-    x = np.asarray(x, np.float32)
-    return x / np.maximum(np.linalg.norm(x, axis=1, keepdims=True), 1e-12)
-
-
 def absent_lookalikes(
     classes: Sequence[Any],
     absent: Mapping[str, Sequence[str]],
@@ -98,7 +94,8 @@ def absent_lookalikes(
         | {n for g in (*groups.values(), *gone.values()) for n in g}
     )
     row = {n: i for i, n in enumerate(names)}
-    emb = _unit(encode_texts(encoder, names, cache))
+    emb = encode_texts(encoder, names, cache)  # unit-norm rows
+    gone_emb = {k: emb[[row[n] for n in members]] for k, members in gone.items()}
     found = []
     for c in classes:
         own = emb[[row[n] for n in groups[c.label]]]
@@ -107,7 +104,7 @@ def absent_lookalikes(
             own_cos = own @ v
             best_own = int(np.argmax(own_cos))
             for label, members in gone.items():
-                cos = emb[[row[n] for n in members]] @ v
+                cos = gone_emb[label] @ v
                 j = int(np.argmax(cos))
                 if cos[j] > own_cos[best_own] + lead:
                     found.append(

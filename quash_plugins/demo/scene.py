@@ -485,7 +485,8 @@ def _lookalikes(cs: ClassSet, present: list[str], encoder: Any, cache: Any) -> l
     from ..core.errors import EncoderError
     from .lookalikes import absent_lookalikes
 
-    here = [c for c in cs.classes if c.label in set(present)]
+    in_map = set(present)
+    here = [c for c in cs.classes if c.label in in_map]
     try:
         found = absent_lookalikes(here, cs.absent, encoder, cache)
     except EncoderError as exc:  # a table encoder that holds the appearance names only

@@ -289,8 +289,7 @@ def _reseeded(
     a small object (a laptop of 6-21 items) they are mostly its desk; the first pass's
     own presence check had told the laptop from the desk.
     """
-    first_raw = p.first[1]
-    first_mask = (first_raw > quash.threshold) & observed
+    _, first_raw, first_mask = _first_pass(p, quash.threshold, observed)
     f_keep, f_info = check(first_mask, quash.presence)
     f_keep &= observed
     record: dict[str, Any] = {
@@ -306,6 +305,14 @@ def _reseeded(
     clf, ym = fitted
     record["positives"] = int(ym.sum())
     return clf, record
+
+
+def _first_pass(
+    p: Pending, threshold: float, observed: np.ndarray
+) -> tuple[Any, np.ndarray, np.ndarray]:
+    """The first pass's classifier, scores and mask, kept for ``reseed`` and ``fallback``."""
+    clf, raw = p.first
+    return clf, raw, (raw > threshold) & observed
 
 
 def _refit(
@@ -349,8 +356,7 @@ def _answer_presence(
         # the refit can lose a small object that the first pass had (a laptop whose
         # 100 best-scored items are mostly its desk): the first pass's mask is checked
         # with every presence margin raised, and answers if an object passes there
-        first_clf, first_raw = p.first
-        first_mask = (first_raw > threshold) & observed
+        first_clf, first_raw, first_mask = _first_pass(p, threshold, observed)
         f_keep, f_info = check(first_mask, fallback_options(opts))
         info["fallback"] = {
             k: f_info.get(k) for k in ("present", "kept", "kept_items", "best_margin")
