@@ -31,11 +31,14 @@ Examples
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
+
+log = logging.getLogger(__name__)
 
 #: How much nearer (in cosine) an absent label's best name must be than the class's own
 #: best name for an appearance name to count as a look-alike. Tables A, B and C stay under
@@ -119,3 +122,31 @@ def absent_lookalikes(
                         )
                     )
     return sorted(found, key=lambda x: x.own_cosine - x.cosine)
+
+
+def scene_lookalikes(
+    cs: Any, present: Sequence[str], encoder: Any, cache: Any = None
+) -> list[dict]:
+    """What ``make_scene`` records: the look-alikes among the appearance names of the
+    classes in the map (``present``) of class table ``cs``, each logged as a warning, as
+    plain records for ``SCENE.queries.yaml``. An encoder that cannot embed the label and
+    language names (a table encoder holding the appearance names only) skips the check."""
+    from ..core.errors import EncoderError
+
+    in_map = set(present)
+    here = [c for c in cs.classes if c.label in in_map]
+    try:
+        found = absent_lookalikes(here, cs.absent, encoder, cache)
+    except EncoderError as exc:
+        log.info("skipped the check for appearance names that read as absent labels: %s", exc)
+        return []
+    for x in found:
+        log.warning(
+            "class table %s: %s, so this scene's features hold what the absence query %r "
+            "asks for; rename that appearance name (quash make-scene --show-classes "
+            "prints the format)",
+            cs.name,
+            x.words(),
+            x.absent,
+        )
+    return [x.record() for x in found]

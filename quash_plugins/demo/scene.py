@@ -29,6 +29,7 @@ from ..core.errors import ConfigError
 from ..core.interfaces import plugin_name
 from ..core.types import LatentMap
 from .classes import ABSENT, ABSENT_FREE_TEXT, CLASSES, SUPPORTS, SceneClass
+from .lookalikes import scene_lookalikes
 from .queries import open_queries
 
 log = logging.getLogger(__name__)
@@ -464,7 +465,7 @@ def make_scene(encoder: Any, options: SceneOptions | None = None, cache: Any = N
     )
     present = [c.label for i, c in enumerate(CLASSES) if np.any(labels == i)]
     open_present, open_absent = open_queries(cs, present, opts.seed)
-    lookalikes = _lookalikes(cs, present, encoder, cache)
+    lookalikes = scene_lookalikes(cs, present, encoder, cache)
     return Scene(
         lmap,
         taxonomy,
@@ -477,31 +478,6 @@ def make_scene(encoder: Any, options: SceneOptions | None = None, cache: Any = N
         cs.sha256,
         lookalikes,
     )
-
-
-def _lookalikes(cs: ClassSet, present: list[str], encoder: Any, cache: Any) -> list[dict]:
-    """The present classes' appearance names that read as an absent label
-    (:func:`~quash_plugins.demo.lookalikes.absent_lookalikes`), each logged as a warning."""
-    from ..core.errors import EncoderError
-    from .lookalikes import absent_lookalikes
-
-    in_map = set(present)
-    here = [c for c in cs.classes if c.label in in_map]
-    try:
-        found = absent_lookalikes(here, cs.absent, encoder, cache)
-    except EncoderError as exc:  # a table encoder that holds the appearance names only
-        log.info("skipped the check for appearance names that read as absent labels: %s", exc)
-        return []
-    for x in found:
-        log.warning(
-            "class table %s: %s, so this scene's features hold what the absence query %r "
-            "asks for; rename that appearance name (quash make-scene --show-classes "
-            "prints the format)",
-            cs.name,
-            x.words(),
-            x.absent,
-        )
-    return [x.record() for x in found]
 
 
 def _built_by(encoder: Any) -> dict[str, str]:

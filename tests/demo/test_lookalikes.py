@@ -107,7 +107,7 @@ def test_make_scene_warns_and_records_it(tmp_path, caplog):
     table = _table(data)
     table["fish tank gravel"] = table["terrarium"]  # reads exactly as the absent label
     opts = SceneOptions(**OPTS, classes=str(path))
-    with caplog.at_level(logging.WARNING, logger="quash_plugins.demo.scene"):
+    with caplog.at_level(logging.WARNING, logger="quash_plugins.demo.lookalikes"):
         s = make_scene(TableEncoder(table=table), opts)
     assert [x["appearance"] for x in s.absent_lookalikes] == ["fish tank gravel"]
     assert s.absent_lookalikes[0]["cosine"] == pytest.approx(1.0, abs=1e-4)
@@ -142,7 +142,7 @@ def test_a_clean_table_and_a_table_encoder_without_the_names(tmp_path, caplog):
     # a table encoder that holds only the appearance names still builds the scene
     table = _table(data)
     only = {n: table[n] for c in data["classes"] for n in c["appearance"]}
-    with caplog.at_level(logging.INFO, logger="quash_plugins.demo.scene"):
+    with caplog.at_level(logging.INFO, logger="quash_plugins.demo.lookalikes"):
         t = make_scene(TableEncoder(table=only), opts)
     assert np.array_equal(t.map.embeddings, s.map.embeddings)
     assert t.absent_lookalikes == []
