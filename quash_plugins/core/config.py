@@ -193,7 +193,11 @@ class QuashConfig:
             "refined mask passes, the first pass's mask is checked with every presence "
             "margin raised by it and answers if an object passes), reseed: true (with a "
             "label list and refinement: when nothing of the refined mask passes, refine "
-            "again from what passes on the first pass's mask, and check that refit)}; "
+            "again from what passes on the first pass's mask, and check that refit), "
+            "reseed_min_component: null (e.g. 4: the smallest object of reseed's two checks, "
+            "counted by its own items only under min_component; null: min_component), "
+            "grown_min_component: null (a component under it is present by its own items "
+            "only, not by its grown region)}; "
             "{} takes these defaults). Needs a voxel grid, positions or frames. null turns it off."
         },
     )

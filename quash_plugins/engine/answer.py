@@ -24,7 +24,7 @@ The pipeline's ``_answer`` is a thin delegate to :func:`answer`.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -193,22 +193,24 @@ def presence_pass(
     ``score > threshold``. Two second chances for a refined query (with label groups) of
     which nothing passes, in this order:
 
-    - ``reseed``: the first pass's mask is checked with the same margins; if an object
-      passes there, the refit is done again with only that object's kept items as its
-      map positives (:func:`_reseeded`), every such query classified again in one shared
-      pass, and the new mask is checked as the first refit's was; it answers if an
-      object passes (``provenance["presence"]["reseed"]``);
+    - ``reseed``: the first pass's mask is checked with the same margins (an object of
+      ``reseed_min_component`` items counting, if set); if an object passes there, the refit is
+      done again with only that object's kept items as its map positives
+      (:func:`_reseeded`), every such query classified again in one shared pass, and the
+      new mask is checked the same way; it answers if an object passes
+      (``provenance["presence"]["reseed"]``);
     - ``fallback``: the first pass's mask is checked with each presence margin raised by
       ``fallback``; if an object passes there, the first pass's kept components and
       scores are the answer (``provenance["presence"]["fallback"]``).
     """
-    from .presence import presence_check
+    from .presence import presence_check, reseed_options
     from .refine import take_rows
 
     def rows_of(index: np.ndarray) -> np.ndarray:
         return take_rows(lmap, index)
 
     opts = quash.presence
+    reseed_opts = reseed_options(opts)
     topology, mu = quash._topology.get(lmap, rows_of)
     checked: list[tuple[Pending, Any, np.ndarray, dict[str, Any], float]] = []
     again: list[tuple[int, Any, dict[str, Any]]] = []
@@ -243,7 +245,7 @@ def presence_pass(
 
         keep, info = check(p.mask, opts, _candidates(quash, p, p.raw, observed))
         if not info["present"] and groups and p.first is not None and opts.reseed:
-            clf, record = _reseeded(quash, lmap, p, observed, check)
+            clf, record = _reseeded(quash, lmap, p, observed, check, reseed_opts)
             info["reseed"] = record
             if clf is not None:
                 again.append((len(checked), clf, record))
@@ -256,7 +258,7 @@ def presence_pass(
         for (i, clf, record), raw in zip(again, scores):
             p, check, keep, info, spent = checked[i]
             raw, mask, display = finish(clf, raw, observed, quash.threshold)
-            r_keep, r_info = check(mask, opts, _candidates(quash, p, raw, observed))
+            r_keep, r_info = check(mask, reseed_opts, _candidates(quash, p, raw, observed))
             record["present"] = bool(r_info["present"])
             if r_info["present"]:
                 p.clf, p.raw, p.mask, p.display = clf, raw, mask, display
@@ -278,28 +280,42 @@ def _candidates(quash: Quash, p: Pending, raw: np.ndarray, observed: np.ndarray)
 
 
 def _reseeded(
-    quash: Quash, lmap: LatentMap, p: Pending, observed: np.ndarray, check: Any
+    quash: Quash,
+    lmap: LatentMap,
+    p: Pending,
+    observed: np.ndarray,
+    check: Any,
+    options: Any,
 ) -> tuple[Any, dict[str, Any]]:
     """The presence check's ``reseed`` for one query whose refined mask passed nothing:
     the refit done again on the items the check keeps of the first pass's mask (the same
-    margins, no growth), and its provenance record; the refit is None when nothing
-    passes there, or too few items are kept to seed it (``refine.min_seed``).
+    margins, objects down to ``reseed_min_component`` items if set: ``options``, from
+    :func:`~quash_plugins.engine.presence.reseed_options`; no growth), and its provenance
+    record; the refit is None when nothing passes there, or fewer items are kept than
+    ``refine.min_seed`` (with ``reseed_min_component``: than both it and that smallest
+    object).
 
     Why: the refit takes the ``n_positives`` best-scored items as its positives, and for
-    a small object (a laptop of 6-21 items) they are mostly its desk; the first pass's
+    a small object (a laptop of 4-21 items) they are mostly its desk; the first pass's
     own presence check had told the laptop from the desk.
     """
     _, first_raw, first_mask = _first_pass(p, quash.threshold, observed)
-    f_keep, f_info = check(first_mask, quash.presence)
+    f_keep, f_info = check(first_mask, options)
     f_keep &= observed
     record: dict[str, Any] = {
         "first_pass_present": bool(f_info["present"]),
         "first_pass_kept": int(f_keep.sum()),
         "present": False,
     }
-    if not f_info["present"] or f_keep.sum() < quash.refine.min_seed:
+    # refine.min_seed kept items seed the refit; with reseed_min_component, an object the
+    # check kept does, however few its items (down to the check's own smallest object)
+    min_seed = quash.refine.min_seed
+    if quash.presence.reseed_min_component is not None:
+        min_seed = min(min_seed, options.min_component)
+    if not f_info["present"] or f_keep.sum() < min_seed:
         return None, record
-    fitted = _refit(quash, lmap, p, first_raw, f_keep, observed, "matched")
+    opts = replace(quash.refine, min_seed=min_seed)
+    fitted = _refit(quash, lmap, p, first_raw, f_keep, observed, "matched", opts)
     if fitted is None:
         return None, record
     clf, ym = fitted
@@ -323,11 +339,13 @@ def _refit(
     mask: np.ndarray,
     observed: np.ndarray,
     seeds: str,
+    opts: Any = None,
 ) -> tuple[Any, np.ndarray] | None:
     """The refinement classifier fitted on ``p``'s text rows and the map samples that
     ``scores`` and ``mask`` give (:func:`~quash_plugins.engine.refine.pseudo_labels`),
     and the samples' labels; None when there are too few to fit. Both the refinement
-    pass and ``reseed`` fit here.
+    pass and ``reseed`` fit here; ``opts`` (default ``quash.refine``) are the refine
+    options of the fit.
     """
     from .refine import pseudo_labels
 
@@ -335,7 +353,8 @@ def _refit(
     # resolves to), so "wood stove", "a fireplace" and "fireplace" draw the same ones
     # and a sub-class query answers as its label does
     salt = p.queryset.provenance.get("label") or p.queryset.query
-    extra = pseudo_labels(lmap, scores, mask, observed, quash.refine, str(salt), seeds)
+    opts = quash.refine if opts is None else opts
+    extra = pseudo_labels(lmap, scores, mask, observed, opts, str(salt), seeds)
     if extra is None:
         return None
     Xm, ym = extra

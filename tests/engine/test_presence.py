@@ -800,10 +800,13 @@ def test_an_empty_unresolved_query_names_the_label_it_was_nearest_to():
     assert "nearest:" not in presence_words(prov)
 
 
-def _refit_lost_the_object(fallback=0.03, first_on_bed=True, presence=None, quash=None):
+def _refit_lost_the_object(
+    fallback=0.03, first_on_bed=True, presence=None, quash=None, first_items=27
+):
     """A bed query whose refit matched only the sofa specks (single items: nothing passes)
-    while its first pass had matched the bed block (or, ``first_on_bed=False``, the
-    specks too), run through the presence pass as the pipeline runs it."""
+    while its first pass had matched the bed block (its first ``first_items`` items, a
+    connected part of it; or, ``first_on_bed=False``, the specks too), run through the
+    presence pass as the pipeline runs it."""
     from quash_plugins.core import registry
     from quash_plugins.engine.answer import Pending, classifier_words, presence_pass
 
@@ -819,7 +822,12 @@ def _refit_lost_the_object(fallback=0.03, first_on_bed=True, presence=None, quas
     first_clf = registry.create("classifiers", "nearest-sample", k=2).fit(X, y)
     refit = registry.create("classifiers", "nearest-sample", k=2).fit(X, y)
     specks = np.r_[np.zeros(27, bool), np.ones(m.n - 27, bool)]
-    first_raw = np.where(~specks if first_on_bed else specks, 1.0, -1.0).astype(np.float32)
+    first_hit = np.arange(m.n) < first_items if first_on_bed else specks
+    # the rest of the bed scores just under the threshold, as a first pass scores the rest
+    # of an object it half found (so the refit's negatives, drawn from the lower half of
+    # the scores, are specks)
+    rest = ~specks & ~first_hit & first_on_bed
+    first_raw = np.where(first_hit, 1.0, np.where(rest, -0.1, -1.0)).astype(np.float32)
     raw = np.where(specks, 1.0, -1.0).astype(np.float32)
     qs.provenance["refine"] = {"applied": True, "first_pass": "first"}
     p = Pending(qs, X, y, refit, {}, raw=raw, mask=raw > 0, display=raw.copy())
@@ -921,6 +929,107 @@ def test_reseed_refits_on_what_the_first_pass_check_kept():
     expected = by_hand.decision_function(np.asarray(m.embeddings))
     assert np.allclose(p.raw[p.mask], expected[p.mask], atol=1e-5)
     assert (expected[:27] > 0).all() and (expected[27:] <= 0).all()
+
+
+def test_reseed_can_count_an_object_smaller_than_min_component():
+    """reseed_min_component (opt-in): the first pass matched only 6 of the bed's 27 items
+    (a laptop of 7 voxels found alone), under min_component (8). At 4, reseed's checks
+    count an object of 4 items, so those 6 seed the second refit, which finds most of
+    the bed. Unset (the shipped rule), 6 items are no object and nothing is reseeded."""
+    from quash_plugins.engine.presence import reseed_options
+
+    p, _ = _refit_lost_the_object(presence={"reseed_min_component": 4}, first_items=6)
+    record = p.queryset.provenance["presence"]
+    assert record["present"] is True
+    assert record["reseed"] == {
+        "first_pass_present": True,
+        "first_pass_kept": 6,
+        "present": True,
+        "positives": 6,
+    }
+    # the second refit finds more of the bed than its 6 seeds, and no speck
+    assert p.mask[:6].all() and p.mask[:27].sum() > 20 and not p.mask[27:].any()
+    # unset: 6 items are no object, nothing seeds a second refit
+    for presence in ({}, {"reseed_min_component": None}, {"reseed_min_component": 8}):
+        p, _ = _refit_lost_the_object(presence=presence, first_items=6)
+        record = p.queryset.provenance["presence"]
+        assert not p.mask.any() and record["present"] is False
+        assert record["reseed"] == {
+            "first_pass_present": False,
+            "first_pass_kept": 0,
+            "present": False,
+        }
+    # unset, refine.min_seed (10) kept items still seed it: 9 are an object, too few
+    p, _ = _refit_lost_the_object(presence={}, first_items=9)
+    assert not p.mask.any()
+    assert p.queryset.provenance["presence"]["reseed"] == {
+        "first_pass_present": True,
+        "first_pass_kept": 9,
+        "present": False,
+    }
+    p, _ = _refit_lost_the_object(presence={"reseed_min_component": 4}, first_items=9)
+    assert p.queryset.provenance["presence"]["reseed"]["positives"] == 9 and p.mask[:9].all()
+    # under the smallest object, nothing either: 3 items
+    p, _ = _refit_lost_the_object(presence={"reseed_min_component": 4}, first_items=3)
+    assert not p.mask.any() and p.queryset.provenance["presence"]["reseed"]["present"] is False
+    # the options of reseed's two checks: only min_component changes
+    opts = PresenceOptions(reseed_min_component=4)
+    assert PresenceOptions().reseed_min_component is None
+    assert reseed_options(PresenceOptions()) == PresenceOptions()
+    assert reseed_options(opts) == PresenceOptions(
+        **{**vars(opts), "min_component": 4, "grown_min_component": 8}
+    )
+    assert (
+        reseed_options(PresenceOptions(min_component=2, reseed_min_component=4)).min_component == 2
+    )
+    assert PresenceOptions.parse({"reseed_min_component": "5"}).reseed_min_component == 5
+    with pytest.raises(ConfigError, match="reseed_min_component must be >= 1 or null"):
+        PresenceOptions.parse({"reseed_min_component": 0})
+
+
+def _five_sofa_items_inside_a_bed(seed=0):
+    """A 5x5x5 block of bed items with a line of 5 sofa items through its middle, and
+    far from it a 6x6x6 block of chair items and one of background (so the map's mean,
+    which the check subtracts, is not the bed's)."""
+    rng = np.random.default_rng(seed)
+    cube = lambda n, at: [(at + x, y, z) for x in range(n) for y in range(n) for z in range(n)]  # noqa: E731
+    grid = np.asarray(cube(5, 0) + cube(6, 20) + cube(6, 40))
+    bed = np.arange(len(grid)) < 125
+    line = bed & (grid[:, 0] == 2) & (grid[:, 1] == 2)
+    E = np.concatenate(
+        [
+            np.where(line[:125, None], _rows("sofa", 125, rng), _rows("bed", 125, rng)),
+            _rows("chair", 216, rng),
+            _rows("background", 216, rng),
+        ]
+    )
+    m = LatentMap(E.astype(np.float32), kind="voxels", grid_index=grid, voxel_size=0.1)
+    return m, line
+
+
+def test_grown_min_component_counts_a_small_component_by_its_own_items_only():
+    """A bed query that matched only the 5 sofa items in the middle of a bed: their grown
+    region is mostly bed, so it wins; their own items are sofa. With min_component 4 the
+    grown test makes them an object; with grown_min_component 8 they must win by their
+    own items (core or support), and do not."""
+    m, line = _five_sofa_items_inside_a_bed()
+    keep, info = _run(m, line.copy(), min_component=4, grow=None)
+    assert info["present"] and info["best_margin"] > 0.05 and keep[line].all()
+    assert info["best_core_margin"] < 0.12 and info["best_support_margin"] < 0.12
+    keep, info = _run(m, line.copy(), min_component=4, grow=None, grown_min_component=8)
+    assert not info["present"] and not keep.any()
+    # the bed's own items are an object either way: a 6-item piece of it passes by its core
+    bed = np.zeros(m.n, bool)
+    bed[np.flatnonzero(~line)[:6]] = True
+    for extra in ({}, {"grown_min_component": 8}):
+        _, info = _run(m, bed, min_component=4, grow=None, **extra)
+        assert info["present"] and info["best_core_margin"] > 0.12
+    # reseed_options sets it for reseed's two checks
+    from quash_plugins.engine.presence import reseed_options
+
+    assert reseed_options(PresenceOptions(reseed_min_component=4)).grown_min_component == 8
+    with pytest.raises(ConfigError, match="grown_min_component must be >= 1 or null"):
+        PresenceOptions.parse({"grown_min_component": 0})
 
 
 def test_reseed_keeps_absence_and_can_be_turned_off():
