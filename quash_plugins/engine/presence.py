@@ -293,16 +293,6 @@ def presence_check(
         core_best = round(float(J["core"].max(axis=0)[big].max()), 4) if big.any() else None
     if "support" in J:
         support_best = round(float(J["support"].max(axis=0)[big].max()), 4) if big.any() else None
-    if opts.grown_min_component is not None and ("core" in J or "support" in J):
-        # a component under grown_min_component items is strong by its own items only
-        # (core or support): its grown region is mostly its neighbours, and on the
-        # proxy scenes a look-alike's few items of white cabinets win theirs
-        own = np.zeros_like(strong)
-        if "core" in J:
-            own |= J["core"] > opts.core_margin
-        if "support" in J:
-            own |= J["support"] > opts.support_margin
-        strong = np.where((sizes < opts.grown_min_component)[None, :], own, strong)
     # a component is strong when it is under either reading, and kept when it is kept
     # under a reading where it is strong, or under both: a near tie under one reading
     # cannot carry a look-alike along

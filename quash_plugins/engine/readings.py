@@ -190,19 +190,21 @@ class Readings:
         """Per reading, ``(readings, parts)`` strong and kept flags with the margins behind
         them. A piece of a split component (``whole_grown``: its whole's grown margins) is
         judged by its whole's surroundings, by its own items (core) and against what wins
-        its own surroundings (support)."""
+        its own surroundings (support). With ``grown_min_component``, a part under that
+        many items is strong by its own items only (core or support)."""
         opts = self.opts
         own_r, flat = self.margins(opts.dilate, parts)
         grown_r = own_r if whole_grown is None else whole_grown
         grown = np.stack([a.min(axis=1) for a in grown_r])  # (readings, parts)
         out = {"grown_r": grown_r, "flat": flat, "grown": grown}
-        out["strong"], out["ok"] = grown > opts.margin, grown > opts.keep_margin
+        by_grown, out["ok"] = grown > opts.margin, grown > opts.keep_margin
+        own = np.zeros_like(by_grown)  # strong by the part's own items
         if opts.core_margin is not None or opts.support_margin is not None:
             core_r = self.margins(0, parts)[0] if opts.dilate else own_r
             penalty = opts.size_margin / np.sqrt([len(m) for m in parts])
         if opts.core_margin is not None:
             out["core"] = np.stack([a.min(axis=1) for a in core_r]) - penalty
-            out["strong"] |= out["core"] > opts.core_margin
+            own |= out["core"] > opts.core_margin
             out["ok"] |= out["core"] > opts.core_keep_margin
         if opts.support_margin is not None:
             # the core against the group that wins the grown region: a small object's support
@@ -210,6 +212,13 @@ class Readings:
             out["support"] = (
                 np.stack([c[rows, g.argmin(axis=1)] for c, g in zip(core_r, own_r)]) - penalty
             )
-            out["strong"] |= out["support"] > opts.support_margin
+            own |= out["support"] > opts.support_margin
             out["ok"] |= out["support"] > opts.support_margin
+        if opts.grown_min_component is not None:
+            # a part under grown_min_component items is strong by its own items only: its
+            # grown region is mostly its neighbours (a look-alike's few items of white
+            # cabinets win theirs)
+            small = np.asarray([len(m) for m in parts]) < opts.grown_min_component
+            by_grown = by_grown & ~small[None, :]
+        out["strong"] = by_grown | own
         return out
