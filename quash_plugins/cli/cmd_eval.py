@@ -194,7 +194,7 @@ def _queries(args: argparse.Namespace) -> tuple[Any, list[str], list[str]]:
     """The queries to score (None: every label), the absence queries, and those of them
     that came from the query file (the others came from --absent)."""
     from ..core.errors import UsageError
-    from ..evaluation.report import load_query_file
+    from ..evaluation.queries import read_query_file
 
     if args.empty_tolerance < 0:
         raise UsageError("--empty-tolerance takes N >= 0 (items an empty mask may have).")
@@ -206,11 +206,9 @@ def _queries(args: argparse.Namespace) -> tuple[Any, list[str], list[str]]:
         )
     absent, in_file = _split(args.absent), []
     if args.queries_file:
-        from ..evaluation.queries import query_file_lookalikes
-
-        queries, in_file = load_query_file(args.queries_file)
+        queries, in_file, lookalikes = read_query_file(args.queries_file)
         absent = list(dict.fromkeys([*in_file, *absent]))
-        for label, names in query_file_lookalikes(args.queries_file).items():
+        for label, names in lookalikes.items():
             log.warning(
                 "%s: the scene's appearance names %s read as the absent %r (make-scene's "
                 "absent_lookalikes): a match of its absence queries may be the scene's "

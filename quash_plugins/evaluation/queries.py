@@ -151,6 +151,10 @@ def query_file_lookalikes(path: str | Path) -> dict[str, list[str]]:
     from ..core.config import load_yaml
 
     data, _ = load_yaml(path, "query file")
+    return _lookalikes(data)
+
+
+def _lookalikes(data: Any) -> dict[str, list[str]]:
     out: dict[str, list[str]] = {}
     if isinstance(data, dict):
         for x in data.get("absent_lookalikes") or []:
@@ -160,6 +164,15 @@ def query_file_lookalikes(path: str | Path) -> dict[str, list[str]]:
 
 
 def load_query_file(path: str | Path) -> tuple[dict[str, str], list[str]]:
+    """Presence queries ``{text: label}`` and absence queries from a YAML file
+    (:func:`read_query_file` without the look-alikes)."""
+    present, absent, _ = read_query_file(path)
+    return present, absent
+
+
+def read_query_file(
+    path: str | Path,
+) -> tuple[dict[str, str], list[str], dict[str, list[str]]]:
     """Presence queries ``{text: label}`` and absence queries from a YAML file.
 
     The file is ``{present: ..., absent: [...]}``; ``present`` is a list of labels and
@@ -168,6 +181,8 @@ def load_query_file(path: str | Path) -> tuple[dict[str, str], list[str]]:
     :data:`QUERY_FILE_INFO` too). A plain ``{text: label}`` mapping without those keys is
     all presence queries. A missing file, another key beside ``present`` and ``absent``
     (``presnt``), or a label that is not text is refused, naming the file and the fix.
+    The third item is the file's look-alikes (:func:`query_file_lookalikes`), from the
+    same single read.
     """
     from ..core.config import load_yaml
     from ..core.errors import closest
@@ -203,7 +218,14 @@ def load_query_file(path: str | Path) -> tuple[dict[str, str], list[str]]:
         )
     if not isinstance(absent, list):
         raise QuashError(f"{path}: 'absent' is {absent!r}; write a list of texts ([{absent}]).")
-    return parse_queries(present, source=str(path)), [" ".join(str(a).split()) for a in absent]
+    absent = [" ".join(str(a).split()) for a in absent]
+    return parse_queries(present, source=str(path)), absent, _lookalikes(data)
 
 
-__all__ = ["load_query_file", "match_labels", "parse_queries"]
+__all__ = [
+    "load_query_file",
+    "match_labels",
+    "parse_queries",
+    "query_file_lookalikes",
+    "read_query_file",
+]

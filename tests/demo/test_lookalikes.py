@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import logging
 from pathlib import Path
+from unittest import mock
 
 import numpy as np
 import pytest
@@ -12,6 +13,7 @@ import yaml
 from _eval_table import table_for
 
 from quash_plugins.cli import cmd_eval
+from quash_plugins.core import config
 from quash_plugins.demo.classes import SceneClass
 from quash_plugins.demo.lookalikes import absent_lookalikes
 from quash_plugins.demo.scene import SceneOptions, class_set, make_scene, write_scene
@@ -124,9 +126,13 @@ def test_make_scene_warns_and_records_it(tmp_path, caplog):
             queries=None, absent=None, queries_file=str(tmp_path / name), empty_tolerance=0
         )
         caplog.clear()
-        with caplog.at_level(logging.WARNING, logger="quash_plugins.cli.cmd_eval"):
+        with (
+            caplog.at_level(logging.WARNING, logger="quash_plugins.cli.cmd_eval"),
+            mock.patch.object(config, "load_yaml", wraps=config.load_yaml) as load,
+        ):
             _, absent_queries, _ = cmd_eval._queries(args)
         assert absent_queries == absent
+        assert load.call_count == 1  # the queries and their look-alikes come from one read
         assert any("fish tank gravel (floor)" in r.message for r in caplog.records)
 
 
