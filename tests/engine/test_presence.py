@@ -946,6 +946,7 @@ def test_reseed_can_count_an_object_smaller_than_min_component():
         "first_pass_kept": 6,
         "present": True,
         "positives": 6,
+        "first_pass_small_object": True,
     }
     # the second refit finds more of the bed than its 6 seeds, and no speck
     assert p.mask[:6].all() and p.mask[:27].sum() > 20 and not p.mask[27:].any()
@@ -985,6 +986,42 @@ def test_reseed_can_count_an_object_smaller_than_min_component():
     assert PresenceOptions.parse({"reseed_min_component": "5"}).reseed_min_component == 5
     with pytest.raises(ConfigError, match="reseed_min_component must be >= 1 or null"):
         PresenceOptions.parse({"reseed_min_component": 0})
+
+
+def test_reseed_min_component_never_changes_what_the_shipped_check_finds():
+    """The smaller object is only a second check, where the shipped one found none: with
+    the whole bed in the first pass's mask, the option's answer and record are the
+    shipped rule's and no check counts a 4-item object (hard selection seed 102: one
+    check counting both let 13 small pieces seed the floor's refit beside its object,
+    and the refit passed nothing)."""
+    from unittest import mock
+
+    import quash_plugins.engine.presence as presence
+    from quash_plugins.engine.answer import _check_small
+
+    shipped, _ = _refit_lost_the_object(presence={})
+    with mock.patch.object(presence, "presence_check", wraps=presence.presence_check) as spy:
+        p, _ = _refit_lost_the_object(presence={"reseed_min_component": 4})
+    assert [c.args[3].min_component for c in spy.call_args_list] == [8, 8, 8]
+    assert np.array_equal(p.mask, shipped.mask) and np.array_equal(p.raw, shipped.raw)
+    assert p.queryset.provenance["presence"] == shipped.queryset.provenance["presence"]
+    assert shipped.queryset.provenance["presence"]["reseed"]["positives"] == 27
+    # _check_small by itself: a found object is returned as it is, without a second check
+    calls = []
+
+    def check(mask, options, candidates=None):
+        calls.append(options)
+        return mask, {"present": options == "small"}
+
+    found = {"present": True}
+    assert _check_small(check, "m", "k", found, "small") == ("k", found, False) and not calls
+    none = {"present": False}
+    assert _check_small(check, "m", "k", none, None) == ("k", none, False) and not calls
+    assert _check_small(check, "m", "k", none, "small") == ("m", {"present": True}, True)
+    assert calls == ["small"]
+    calls.clear()
+    assert _check_small(check, "m", "k", none, "other") == ("k", none, False)
+    assert calls == ["other"]
 
 
 def _five_sofa_items_inside_a_bed(seed=0):
