@@ -259,9 +259,10 @@ def presence_pass(
         for (i, clf, record), raw in zip(again, scores):
             p, check, keep, info, spent = checked[i]
             raw, mask, display = finish(clf, raw, observed, quash.threshold)
-            r_keep, r_info = check(mask, opts, _candidates(quash, p, raw, observed))
+            candidates = _candidates(quash, p, raw, observed)
+            r_keep, r_info = check(mask, opts, candidates)
             r_keep, r_info, small = _check_small(
-                check, mask, r_keep, r_info, small_opts, _candidates(quash, p, raw, observed)
+                check, mask, r_keep, r_info, small_opts, candidates
             )
             record["present"] = bool(r_info["present"])
             if small:
