@@ -299,7 +299,7 @@ def _check_small(
     second check's answer is the one returned.
 
     The second check runs only where the first found nothing, so the option can turn an
-    empty answer into an object and never changes an object the shipped rule found. Why
+    empty answer into an object and never changes an object the check without it found. Why
     not one check counting small objects as well: its small pieces then seed the refit
     beside the object (hard selection seed 102: the floor's 19 kept items became 87, from
     13 more components of 4-7 items, and the refit they seeded passed nothing).

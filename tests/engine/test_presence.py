@@ -932,10 +932,11 @@ def test_reseed_refits_on_what_the_first_pass_check_kept():
 
 
 def test_reseed_can_count_an_object_smaller_than_min_component():
-    """reseed_min_component (opt-in): the first pass matched only 6 of the bed's 27 items
-    (a laptop of 7 voxels found alone), under min_component (8). At 4, reseed's checks
-    count an object of 4 items, so those 6 seed the second refit, which finds most of
-    the bed. Unset (the shipped rule), 6 items are no object and nothing is reseeded."""
+    """reseed_min_component (4 by default): the first pass matched only 6 of the bed's 27
+    items (a laptop of 7 voxels found alone), under min_component (8). At 4, reseed's
+    checks count an object of 4 items, so those 6 seed the second refit, which finds most
+    of the bed. Turned off (null, or min_component itself), 6 items are no object and
+    nothing is reseeded."""
     from quash_plugins.engine.presence import reseed_options
 
     p, _ = _refit_lost_the_object(presence={"reseed_min_component": 4}, first_items=6)
@@ -950,8 +951,12 @@ def test_reseed_can_count_an_object_smaller_than_min_component():
     }
     # the second refit finds more of the bed than its 6 seeds, and no speck
     assert p.mask[:6].all() and p.mask[:27].sum() > 20 and not p.mask[27:].any()
-    # unset: 6 items are no object, nothing seeds a second refit
-    for presence in ({}, {"reseed_min_component": None}, {"reseed_min_component": 8}):
+    # the default ({}) is the same rule
+    default, _ = _refit_lost_the_object(presence={}, first_items=6)
+    assert np.array_equal(default.mask, p.mask) and np.array_equal(default.raw, p.raw)
+    assert default.queryset.provenance["presence"] == record
+    # turned off: 6 items are no object, nothing seeds a second refit
+    for presence in ({"reseed_min_component": None}, {"reseed_min_component": 8}):
         p, _ = _refit_lost_the_object(presence=presence, first_items=6)
         record = p.queryset.provenance["presence"]
         assert not p.mask.any() and record["present"] is False
@@ -960,8 +965,8 @@ def test_reseed_can_count_an_object_smaller_than_min_component():
             "first_pass_kept": 0,
             "present": False,
         }
-    # unset, refine.min_seed (10) kept items still seed it: 9 are an object, too few
-    p, _ = _refit_lost_the_object(presence={}, first_items=9)
+    # turned off, refine.min_seed (10) kept items still seed it: 9 are an object, too few
+    p, _ = _refit_lost_the_object(presence={"reseed_min_component": None}, first_items=9)
     assert not p.mask.any()
     assert p.queryset.provenance["presence"]["reseed"] == {
         "first_pass_present": True,
@@ -975,8 +980,9 @@ def test_reseed_can_count_an_object_smaller_than_min_component():
     assert not p.mask.any() and p.queryset.provenance["presence"]["reseed"]["present"] is False
     # the options of reseed's two checks: only min_component changes
     opts = PresenceOptions(reseed_min_component=4)
-    assert PresenceOptions().reseed_min_component is None
-    assert reseed_options(PresenceOptions()) == PresenceOptions()
+    assert PresenceOptions().reseed_min_component == 4
+    off = PresenceOptions(reseed_min_component=None)
+    assert reseed_options(off) == off
     assert reseed_options(opts) == PresenceOptions(
         **{**vars(opts), "min_component": 4, "grown_min_component": 8}
     )
@@ -988,10 +994,10 @@ def test_reseed_can_count_an_object_smaller_than_min_component():
         PresenceOptions.parse({"reseed_min_component": 0})
 
 
-def test_reseed_min_component_never_changes_what_the_shipped_check_finds():
-    """The smaller object is only a second check, where the shipped one found none: with
-    the whole bed in the first pass's mask, the option's answer and record are the
-    shipped rule's and no check counts a 4-item object (hard selection seed 102: one
+def test_reseed_min_component_never_changes_what_the_check_without_it_finds():
+    """The smaller object is only a second check, where the usual one found none: with
+    the whole bed in the first pass's mask, the option's answer and record are those of
+    the rule without it, and no check counts a 4-item object (hard selection seed 102: one
     check counting both let 13 small pieces seed the floor's refit beside its object,
     and the refit passed nothing)."""
     from unittest import mock
@@ -999,13 +1005,13 @@ def test_reseed_min_component_never_changes_what_the_shipped_check_finds():
     import quash_plugins.engine.presence as presence
     from quash_plugins.engine.answer import _check_small
 
-    shipped, _ = _refit_lost_the_object(presence={})
+    without, _ = _refit_lost_the_object(presence={"reseed_min_component": None})
     with mock.patch.object(presence, "presence_check", wraps=presence.presence_check) as spy:
         p, _ = _refit_lost_the_object(presence={"reseed_min_component": 4})
     assert [c.args[3].min_component for c in spy.call_args_list] == [8, 8, 8]
-    assert np.array_equal(p.mask, shipped.mask) and np.array_equal(p.raw, shipped.raw)
-    assert p.queryset.provenance["presence"] == shipped.queryset.provenance["presence"]
-    assert shipped.queryset.provenance["presence"]["reseed"]["positives"] == 27
+    assert np.array_equal(p.mask, without.mask) and np.array_equal(p.raw, without.raw)
+    assert p.queryset.provenance["presence"] == without.queryset.provenance["presence"]
+    assert without.queryset.provenance["presence"]["reseed"]["positives"] == 27
     # _check_small by itself: a found object is returned as it is, without a second check
     calls = []
 
