@@ -163,6 +163,8 @@ def run(args: argparse.Namespace) -> int:
             query_file=args.queries_file,
             absent_in_file=absent_in_file,
         )
+    if not report.absent:
+        _warn_no_absence(args.map)
     if args.json:
         atomic_write_text(args.json, json.dumps(report.to_json(), indent=2) + "\n")
     md = report.to_markdown()
@@ -188,6 +190,25 @@ def run(args: argparse.Namespace) -> int:
     if viewer is not None:
         viewer.close()  # with --serve-web this serves until Ctrl-C or SIGTERM
     return 0
+
+
+def _warn_no_absence(map_path: str) -> None:
+    """Say that a report with no absence query does not measure the empty answer, and
+    name make-scene's query file beside the map where there is one (a map holds only the
+    labels its items carry, so the absent ones must come from somewhere else)."""
+    from pathlib import Path
+
+    beside = Path(map_path).with_suffix(".queries.yaml")
+    hint = (
+        f"; {beside} beside the map lists the scene's absent labels: add --queries-file {beside}"
+        if beside.is_file()
+        else ""
+    )
+    log.warning(
+        "no absence query: this report does not measure whether an absent object comes "
+        "back empty (give --absent X,Y or a query file's absent list%s)",
+        hint,
+    )
 
 
 def _queries(args: argparse.Namespace) -> tuple[Any, list[str], list[str]]:

@@ -322,3 +322,34 @@ def test_eval_exclude_ignores_those_items_and_never_queries_them(world, tmp_path
     got = data["per_query"]["floor"]
     assert (got["tp"], got["fp"], got["fn"]) == (ref["tp"], ref["fp"], ref["fn"])
     assert got["fp"] == default["per_query"]["floor"]["fp"] - int((mask & wall).sum())
+
+
+def test_eval_without_absence_queries_says_so_and_names_the_scenes_query_file(
+    world, tmp_path, capsys
+):
+    """A map holds only the labels its items carry, so scoring every label measures no
+    empty answer: eval warns, and names make-scene's SCENE.queries.yaml beside the map,
+    which lists the scene's absent labels."""
+
+    def warned():
+        return [ln for ln in capsys.readouterr().err.splitlines() if "no absence query" in ln]
+
+    queries_file = world / "scene.queries.yaml"
+    absent = yaml.safe_load(queries_file.read_text())["absent"]
+    assert absent  # make-scene lists the scene's absent labels there
+    capsys.readouterr()
+    data = _eval_json(world, tmp_path)
+    said = warned()
+    assert data["absence"]["per_query"] == {} and len(said) == 1
+    assert said[0].startswith("WARNING") and f"--queries-file {queries_file}" in said[0]
+    # with an absence query there is nothing to warn about
+    data = _eval_json(world, tmp_path, "--absent", "an elephant")
+    assert set(data["absence"]["per_query"]) == {"an elephant"} and not warned()
+    # a map with no query file beside it: the warning names no file
+    alone = tmp_path / "alone"
+    alone.mkdir()
+    for f in ("scene.npz", "base.yaml", "table.npz"):
+        (alone / f).write_bytes((world / f).read_bytes())
+    _eval_json(alone, tmp_path)
+    said = warned()
+    assert len(said) == 1 and "--queries-file" not in said[0]
