@@ -4,7 +4,8 @@
 first pass's mask for every refined query whose check finds nothing (every absent query
 among them), and, for the queries where an object passes there, one more shared pass over
 the map. This runs a scene's closed-vocabulary queries (present and absent labels) through
-``demo:quash-labels`` with ``reseed`` off and on, alternating, ``--repeats`` times each, in
+``demo:quash-labels`` with ``reseed`` off and on (as shipped: with its smaller-object check,
+``reseed_min_component``), alternating, ``--repeats`` times each, in
 the same process, and reports the median wall time of each and their ratio (the machines
 are shared, so only the ratio within a run means much)::
 
