@@ -89,7 +89,9 @@ def local_cluster_client(
         threads_per_worker=threads_per_worker,
         processes=True,
         host="127.0.0.1",
-        dashboard_address=None,
+        # its web server (health and metrics; the dashboard where bokeh is installed) on
+        # loopback too, on a free port: a dashboard already on 8787 is left alone
+        dashboard_address="127.0.0.1:0",
         memory_limit=memory_limit,
         security=security,
     )

@@ -99,7 +99,7 @@ def client():
         threads_per_worker=1,
         processes=True,
         host="127.0.0.1",
-        dashboard_address=None,
+        dashboard_address="127.0.0.1:0",
         memory_limit="1GiB",
     )
     c = distributed.Client(cluster)
@@ -321,7 +321,7 @@ def test_failing_workers_raise_a_clear_error(world):
             threads_per_worker=1,
             processes=True,
             host="127.0.0.1",
-            dashboard_address=None,
+            dashboard_address="127.0.0.1:0",
         )
         c = distributed.Client(cluster)
     try:

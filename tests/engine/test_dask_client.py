@@ -73,6 +73,40 @@ def test_web_server_is_named() -> None:
 def test_a_real_scheduler_passes() -> None:
     distributed = pytest.importorskip("distributed")
     with distributed.LocalCluster(
-        n_workers=0, host="127.0.0.1", dashboard_address=None, protocol="tcp://"
+        n_workers=0, host="127.0.0.1", dashboard_address="127.0.0.1:0", protocol="tcp://"
     ) as cluster:
         check_scheduler_address(cluster.scheduler_address)
+
+
+def test_the_local_cluster_serves_on_loopback_only_and_takes_a_free_web_port() -> None:
+    """The LocalCluster that --backend dask starts listens on 127.0.0.1 only: its
+    scheduler, its workers and the scheduler's web server (health and metrics routes).
+    That web server takes a free port, so a Dask dashboard already on 8787 (the user's
+    own, or another quash run's) neither collides nor prints "Port 8787 is already in
+    use"."""
+    import warnings
+
+    from quash_plugins.engine.dask_client import local_cluster_client
+
+    held = socket.socket()
+    try:
+        held.bind(("127.0.0.1", 8787))  # as a running dashboard would
+        held.listen()
+    except OSError:  # something already listens there: the same case
+        pass
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            client = local_cluster_client(n_workers=1, memory_limit="1GiB")
+        cluster = client.cluster
+        try:
+            assert not [w for w in caught if "already in use" in str(w.message)]
+            web = cluster.scheduler.http_server
+            assert web.address == "127.0.0.1" and web.port != 8787
+            addresses = [cluster.scheduler.address, *(w.address for w in cluster.workers.values())]
+            assert addresses and all("://127.0.0.1:" in a for a in addresses), addresses
+        finally:
+            client.close()
+            cluster.close()
+    finally:
+        held.close()
