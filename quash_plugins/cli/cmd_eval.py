@@ -196,9 +196,9 @@ def _warn_no_absence(map_path: str) -> None:
     """Say that a report with no absence query does not measure the empty answer, and
     name make-scene's query file beside the map where there is one (a map holds only the
     labels its items carry, so the absent ones must come from somewhere else)."""
-    from pathlib import Path
+    from ..demo.scene import scene_paths
 
-    beside = Path(map_path).with_suffix(".queries.yaml")
+    beside = scene_paths(map_path)["queries"]
     hint = (
         f"; {beside} beside the map lists the scene's absent labels: add --queries-file {beside}"
         if beside.is_file()
