@@ -52,8 +52,9 @@ class Pending:
     #: the items the presence check dropped (None until it runs)
     rejected: np.ndarray | None = None
     #: the first pass's classifier and scores, kept by refinement for the presence
-    #: check's ``fallback`` (None without it)
-    first: tuple[Any, np.ndarray] | None = None
+    #: check's ``reseed`` and ``fallback`` (None without them); the presence check adds
+    #: the first pass's mask the first time it needs it (:func:`_first_pass`)
+    first: tuple[Any, np.ndarray] | tuple[Any, np.ndarray, np.ndarray] | None = None
 
 
 def answer(
@@ -367,9 +368,16 @@ def _reseeded(
 def _first_pass(
     p: Pending, threshold: float, observed: np.ndarray
 ) -> tuple[Any, np.ndarray, np.ndarray]:
-    """The first pass's classifier, scores and mask, kept for ``reseed`` and ``fallback``."""
-    clf, raw = p.first
-    return clf, raw, (raw > threshold) & observed
+    """The first pass's classifier, scores and mask, kept for ``reseed`` and ``fallback``.
+
+    The mask is computed once, on the first call, and kept in ``p.first`` until the
+    presence check drops it: a query that ``reseed`` could not save and ``fallback``
+    then checks reads it twice.
+    """
+    if len(p.first) == 2:
+        clf, raw = p.first
+        p.first = (clf, raw, (raw > threshold) & observed)
+    return p.first
 
 
 def _refit(

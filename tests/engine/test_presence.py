@@ -878,6 +878,29 @@ def test_the_fallback_keeps_absence_and_can_be_turned_off():
     assert PresenceOptions.parse({"fallback": None}).fallback is None
 
 
+def test_the_first_pass_mask_is_computed_once_for_reseed_and_fallback():
+    """A query that ``reseed`` cannot save and ``fallback`` then checks reads the first
+    pass's mask twice: it is computed on the first read, kept, and dropped with the
+    first pass once the presence check is done."""
+    from quash_plugins.engine.answer import Pending, _first_pass
+
+    qs, X, y = _training("bed")
+    raw = np.array([1.0, -1.0, 0.5, 2.0], np.float32)
+    observed = np.array([True, True, True, False])
+    p = Pending(qs, X, y, None, {}, raw=raw, mask=raw > 0, display=raw.copy())
+    p.first = ("first", raw)
+    clf, first_raw, mask = _first_pass(p, 0.0, observed)
+    assert clf == "first" and first_raw is raw
+    assert mask.tolist() == [True, False, True, False]  # unobserved items never match
+    assert _first_pass(p, 0.0, observed)[2] is mask  # kept, not computed again
+    # both second chances on one query: the records of both, and the first pass dropped
+    p, _ = _refit_lost_the_object(first_on_bed=False, presence={"reseed": True, "fallback": 0.03})
+    record = p.queryset.provenance["presence"]
+    assert record["present"] is False and not p.mask.any()
+    assert record["reseed"]["first_pass_present"] is False
+    assert record["fallback"]["present"] is False and p.first is None
+
+
 def test_the_fallback_changes_nothing_when_the_refit_passes():
     """A refit whose mask passes answers as without the option (same mask, same scores,
     no fallback record), through the pipeline."""
