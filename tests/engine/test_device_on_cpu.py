@@ -131,6 +131,25 @@ def test_classify_on_device_cpu_matches_the_cpu_pass(normalize, budget):
         np.testing.assert_allclose(g[obs], r[obs], atol=1e-5)
 
 
+@pytest.mark.parametrize("k", [1, 2, 9])  # 9: more than either side's columns
+@pytest.mark.parametrize("use_negatives", [True, False])
+@pytest.mark.parametrize("temperature", [None, 10.0])
+def test_the_torch_margin_is_the_numpy_reference(k, use_negatives, temperature):
+    """The device pass's torch reduction of a declared cosine rule gives what the rule's
+    own numpy reduction (``CosineMargin.apply``, the reference) gives, ties included."""
+    from quash_plugins.core.kernels import CosineMargin
+    from quash_plugins.engine.device._torch_svm import reduce_margin
+
+    rng = np.random.default_rng(k)
+    c = rng.uniform(-1, 1, (64, 7)).astype(np.float32)
+    c[:8, 1] = c[:8, 0]  # tied positives
+    for positives in (1, 3, 7):  # 7: no negative column
+        margin = CosineMargin(positives, k, use_negatives, temperature, offset=0.25)
+        got = reduce_margin(margin, torch.from_numpy(c)).numpy()
+        assert got.dtype == np.float32 and got.shape == (64,)
+        np.testing.assert_allclose(got, margin.apply(c), rtol=0, atol=1e-6)
+
+
 def test_the_pipeline_routes_queries_to_the_device_pass(monkeypatch):
     """``device`` picks the pass: here the device pass on torch's CPU. query_many with a
     refinement pass runs on it, reusing one upload of the map, and gives the CPU pass's
