@@ -232,7 +232,7 @@ def _names_from_file(path: Path) -> list[str]:
             if suffix == ".json":
                 data = json.loads(text)
             else:
-                from ..core.config import load_yaml_text
+                from ..core.yaml_files import load_yaml_text
 
                 data = load_yaml_text(text, str(path))
         except Exception as exc:  # noqa: BLE001 - any parse error is a format error

@@ -177,7 +177,7 @@ def adapter_options(args: argparse.Namespace) -> dict:
 
 def key_values(items: list[str], option: str) -> dict:
     """``KEY=VALUE`` command-line items as a mapping, values parsed as YAML."""
-    from ..core.config import load_yaml_text
+    from ..core.yaml_files import load_yaml_text
 
     out = {}
     for item in items:

@@ -48,7 +48,7 @@ class ShippedConfig:
 
     def data(self) -> dict:
         """The config as a dict (parsed safely, as every config file is)."""
-        from .config import load_yaml_text
+        from .yaml_files import load_yaml_text
 
         return dict(load_yaml_text(self.path.read_text(encoding="utf-8"), str(self.path)))
 
@@ -93,7 +93,7 @@ def _is_method_config(data: object) -> bool:
 
 def shipped_configs() -> list[ShippedConfig]:
     """Every shipped method config, sorted by name."""
-    from .config import load_yaml_text
+    from .yaml_files import load_yaml_text
 
     out = []
     for path in sorted(config_dir().glob("*.yaml")):

@@ -134,7 +134,7 @@ def read_vlmaps_templates(path: str | Path) -> list[str]:
     :mod:`ast` (the file is parsed, never executed)."""
     import ast
 
-    from .config import read_text_file
+    from .yaml_files import read_text_file
 
     path = Path(path)
     text = read_text_file(path, "prompt-template file")
@@ -228,13 +228,13 @@ def resolve_templates(spec: Any) -> Templates:
     if path.suffix == ".py":
         return Templates(_checked_templates(read_vlmaps_templates(path)), str(path))
     if path.suffix in (".yaml", ".yml"):
-        from .config import load_yaml
+        from .yaml_files import load_yaml
 
         data, _ = load_yaml(path)
         if not isinstance(data, list):
             raise ConfigError(f"{path}: expected a YAML list of templates with '{{}}'.")
         return Templates(_checked_lines([str(t) for t in data]), str(path))
-    from .config import read_text_file
+    from .yaml_files import read_text_file
 
     text = read_text_file(path, "prompt-template file")
     return Templates(_checked_lines([ln.strip() for ln in text.splitlines()]), str(path))

@@ -85,7 +85,7 @@ def load_class_table(path: str | Path):
     import dataclasses
     import hashlib
 
-    from ..core.config import load_yaml_text
+    from ..core.yaml_files import load_yaml_text
 
     path = Path(path)
     if not path.is_file():

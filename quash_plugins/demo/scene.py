@@ -544,12 +544,12 @@ def is_scene_file(path: str | Path) -> bool:
     p = Path(path)
     try:
         if p.name.endswith(".queries.yaml"):
-            from ..core.config import load_yaml
+            from ..core.yaml_files import load_yaml
 
             data, _ = load_yaml(p)
             return isinstance(data, dict) and {"present", "absent", "room_types"} <= set(data)
         if p.name.endswith(".open-queries.yaml"):
-            from ..core.config import load_yaml
+            from ..core.yaml_files import load_yaml
 
             data, _ = load_yaml(p)
             return isinstance(data, dict) and {"present", "absent", "kind"} <= set(data)

@@ -64,7 +64,7 @@ class TableEncoder(Encoder):
                     texts = [str(t) for t in z["texts"]]
                     emb = np.asarray(z["embeddings"], dtype=np.float32)
             elif path.suffix in (".yaml", ".yml"):
-                from ..core.config import load_yaml
+                from ..core.yaml_files import load_yaml
 
                 data, _ = load_yaml(path)
                 if not isinstance(data, dict):

@@ -148,7 +148,7 @@ def query_file_lookalikes(path: str | Path) -> dict[str, list[str]]:
     """``{absent label: [appearance names]}`` from a query file's ``absent_lookalikes``
     (what ``quash make-scene`` found: appearance names of the scene that read as that
     absent label, :mod:`quash_plugins.demo.lookalikes`); empty when it has none."""
-    from ..core.config import load_yaml
+    from ..core.yaml_files import load_yaml
 
     data, _ = load_yaml(path, "query file")
     return _lookalikes(data)
@@ -184,8 +184,8 @@ def read_query_file(
     The third item is the file's look-alikes (:func:`query_file_lookalikes`), from the
     same single read.
     """
-    from ..core.config import load_yaml
     from ..core.errors import closest
+    from ..core.yaml_files import load_yaml
 
     if not Path(path).exists():  # a pipe, a device or a folder: load_yaml says which
         raise QuashError(

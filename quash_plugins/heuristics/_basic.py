@@ -51,7 +51,7 @@ class StaticHeuristic(Heuristic):
         data: Any = self.querysets
         lines: dict = {}
         if self.file is not None:
-            from ..core.config import load_yaml
+            from ..core.yaml_files import load_yaml
 
             path = Path(self.file)
             if not path.exists():

@@ -28,14 +28,14 @@ def read_word_list(spec: str | list[str] | None, default: str, what: str) -> lis
         if not path.exists():
             raise ConfigError(f"{what.capitalize()} file not found: {path}")
         if path.suffix in (".yaml", ".yml"):
-            from ..core.config import load_yaml
+            from ..core.yaml_files import load_yaml
 
             data, _ = load_yaml(path)
             if not isinstance(data, list):
                 raise ConfigError(f"{path}: expected a YAML list of {what} entries.")
             items = [" ".join(str(s).split()) for s in data]
         else:
-            from ..core.config import read_text_file
+            from ..core.yaml_files import read_text_file
 
             items = _lines(read_text_file(path, f"{what} file"))
     items = list(dict.fromkeys(s for s in items if s))
@@ -46,7 +46,7 @@ def read_word_list(spec: str | list[str] | None, default: str, what: str) -> lis
 
 def read_mapping(spec: str | dict[str, Any] | None, default: str | None, what: str) -> dict:
     """A YAML mapping from ``spec`` (path, dict) or the shipped ``default`` file."""
-    from ..core.config import load_yaml, load_yaml_text
+    from ..core.yaml_files import load_yaml, load_yaml_text
 
     if isinstance(spec, dict):
         return dict(spec)

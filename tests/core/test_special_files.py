@@ -14,8 +14,8 @@ import pytest
 from _time_limit import time_limit
 
 from quash_plugins import QuashConfig
-from quash_plugins.core.config import load_yaml, read_text_file
 from quash_plugins.core.errors import ConfigError, QuashError
+from quash_plugins.core.yaml_files import load_yaml, read_text_file
 
 pytestmark = pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="needs FIFOs (POSIX)")
 

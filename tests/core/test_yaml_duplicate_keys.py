@@ -2,7 +2,7 @@
 
 PyYAML keeps the last value without a word, so a config that sets ``threshold:`` twice,
 or a query file with two ``present:`` sections, silently lost one of them. Every loader
-of the package goes through :func:`quash_plugins.core.config.load_yaml` (or
+of the package goes through :func:`quash_plugins.core.yaml_files.load_yaml` (or
 ``load_yaml_text``); what the package ships and writes, and the docs' YAML, still load.
 """
 
@@ -16,9 +16,9 @@ from pathlib import Path
 import pytest
 
 from quash_plugins import QuashConfig
-from quash_plugins.core.config import load_yaml, load_yaml_text
 from quash_plugins.core.errors import ConfigError, QuashError
 from quash_plugins.core.shipped import config_dir, shipped_configs
+from quash_plugins.core.yaml_files import load_yaml, load_yaml_text
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -19,8 +19,9 @@ from hypothesis import strategies as st
 
 from quash_plugins import QuashConfig
 from quash_plugins.core import config as config_module
-from quash_plugins.core.config import load_yaml, load_yaml_text
+from quash_plugins.core import yaml_files
 from quash_plugins.core.errors import ConfigError, QuashError
+from quash_plugins.core.yaml_files import load_yaml, load_yaml_text
 
 
 def _levels(prefix: str) -> list[str]:
@@ -105,7 +106,7 @@ def test_ordinary_aliases_still_work_and_the_bound_is_on_expansion(monkeypatch):
     )
     cfg = QuashConfig.from_dict(load_yaml_text(text, "c.yaml"))
     assert cfg.heuristic.params["antonyms"] == cfg.heuristic.params["synonyms"]
-    monkeypatch.setattr(config_module, "MAX_ALIAS_EXPANSION", 50)
+    monkeypatch.setattr(yaml_files, "MAX_ALIAS_EXPANSION", 50)
     doc = "a: &a [" + ", ".join(["x"] * 9) + "]\n"
     assert load_yaml_text(doc + "b: [*a, *a, *a, *a]\n")  # 40 extra nodes
     with pytest.raises(ConfigError, match="more than 50 extra nodes"):

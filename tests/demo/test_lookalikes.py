@@ -13,7 +13,7 @@ import yaml
 from _eval_table import table_for
 
 from quash_plugins.cli import cmd_eval
-from quash_plugins.core import config
+from quash_plugins.core import yaml_files
 from quash_plugins.demo.classes import SceneClass
 from quash_plugins.demo.lookalikes import absent_lookalikes
 from quash_plugins.demo.scene import SceneOptions, class_set, make_scene, write_scene
@@ -128,7 +128,7 @@ def test_make_scene_warns_and_records_it(tmp_path, caplog):
         caplog.clear()
         with (
             caplog.at_level(logging.WARNING, logger="quash_plugins.cli.cmd_eval"),
-            mock.patch.object(config, "load_yaml", wraps=config.load_yaml) as load,
+            mock.patch.object(yaml_files, "load_yaml", wraps=yaml_files.load_yaml) as load,
         ):
             _, absent_queries, _ = cmd_eval._queries(args)
         assert absent_queries == absent
