@@ -18,8 +18,8 @@ from typing import Any
 
 import numpy as np
 
+from ..core.expansions import CosineExpansion, CosineMargin, top_mean
 from ..core.interfaces import Classifier
-from ..core.kernels import CosineExpansion, CosineMargin, top_mean
 from ._params import (
     ClassifierParamError,
     check_choice,

@@ -17,14 +17,9 @@ from sklearn.svm import SVC
 
 from ..core.config import check_device
 from ..core.errors import ConfigError
+from ..core.expansions import KernelExpansion, KernelPart, reference_kernel
 from ..core.interfaces import Classifier
-from ..core.kernels import (
-    KernelExpansion,
-    KernelPart,
-    KernelStack,
-    reference_kernel,
-    resolve_backend,
-)
+from ..core.kernels import KernelStack, resolve_backend
 from ._params import (
     ClassifierParamError,
     check_choice,

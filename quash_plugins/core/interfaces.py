@@ -24,7 +24,7 @@ from sklearn.base import BaseEstimator
 from sklearn.utils import ClassifierTags
 
 from .errors import EncoderError
-from .kernels import CosineExpansion, KernelExpansion
+from .expansions import CosineExpansion, KernelExpansion
 from .once import first_time
 from .types import DEFAULT_NEGATIVES, LatentMap, QuerySet
 

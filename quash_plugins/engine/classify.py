@@ -47,7 +47,8 @@ import numpy as np
 
 from ..core.cpu import HALF_SQ_LIMIT, blas_single_thread, cpu_threads, half_to_float, sq_norms
 from ..core.errors import MapFormatError, QuashError
-from ..core.kernels import CosineExpansion, KernelExpansion, KernelStack, StackEpilogue
+from ..core.expansions import CosineExpansion, KernelExpansion
+from ..core.kernels import KernelStack, StackEpilogue
 from ..core.maps import map_read_error
 from ..core.once import first_time
 from ..core.types import LatentMap

@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from ..core.kernels import top_mean
+from ..core.expansions import top_mean
 from ..core.types import LatentMap
 from .topology import MapTopology
 

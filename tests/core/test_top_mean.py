@@ -1,11 +1,11 @@
-"""core.kernels.top_mean: the one reduction of the cosine rules and the presence check."""
+"""core.expansions.top_mean: the one reduction of the cosine rules and the presence check."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from quash_plugins.core.kernels import CosineMargin, top_mean
+from quash_plugins.core.expansions import CosineMargin, top_mean
 
 
 @pytest.mark.parametrize("k", [1, 2, 3, 7, 50])
@@ -21,3 +21,15 @@ def test_cosine_margin_reduces_with_it():
     by_hand = np.sort(c[:, :4], axis=1)[:, -2:].mean(axis=1)
     by_hand = by_hand - np.sort(c[:, 4:], axis=1)[:, -2:].mean(axis=1)
     np.testing.assert_allclose(got, by_hand, rtol=1e-5, atol=1e-6)
+
+
+def test_the_declarations_stay_importable_from_core_kernels():
+    """A plugin written against ``quash_plugins.core.kernels`` (where the declarations
+    lived) gets the very same classes and functions from there."""
+    from quash_plugins.core import expansions, kernels
+
+    for name in ("KINDS", "KernelPart", "KernelExpansion", "CosineExpansion", "CosineMargin"):
+        assert getattr(kernels, name) is getattr(expansions, name)
+    assert kernels.top_mean is top_mean
+    assert kernels.reference_kernel is expansions.reference_kernel
+    assert set(kernels.__all__) <= set(dir(kernels))
