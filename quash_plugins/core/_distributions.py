@@ -16,8 +16,17 @@ _DISTRIBUTIONS: dict[str, str] = {}
 
 
 def note_distribution(module: str, dist: str, version: str) -> None:
-    """Record that ``module``'s top-level package comes from ``dist`` at ``version``."""
-    _DISTRIBUTIONS[module.partition(".")[0]] = f"{dist}=={version}"
+    """Record that ``module``'s top-level package comes from ``dist`` at ``version``.
+
+    ``module`` may be an entry point's value, whose object follows a colon
+    (``"acme:AcmeText"``, ``"acme.text:AcmeText"``): its top-level package is ``acme``.
+
+    >>> note_distribution("acme_doc:AcmeText", "acme-vision-encoders", "1.0")
+    >>> distribution_of("acme_doc.text")
+    'acme-vision-encoders==1.0'
+    """
+    top = module.partition(":")[0].strip().partition(".")[0]
+    _DISTRIBUTIONS[top] = f"{dist}=={version}"
 
 
 _LOOKED_UP: dict[str, str | None] = {}
@@ -26,9 +35,10 @@ _LOOKED_UP: dict[str, str | None] = {}
 def distribution_of(module: str) -> str | None:
     """``"name==version"`` of the installed distribution providing ``module``, else None.
 
-    Known from the plugin entry points the registry scanned, else looked up by the
-    top-level package's name; None for a module that no distribution installed (a
-    script, a test file).
+    Known from the plugin entry points the registry scanned, else looked up: the
+    distribution whose files hold the top-level package (``acme`` installed by
+    ``acme-vision-encoders``), else the distribution named as the package. None for a
+    module that no distribution installed (a script, a test file).
 
     Examples
     --------
@@ -42,7 +52,9 @@ def distribution_of(module: str) -> str | None:
         return _DISTRIBUTIONS[top]
     if top not in _LOOKED_UP:
         try:
-            dist = metadata.distribution(top)
+            # the import name need not be the distribution's name
+            names = metadata.packages_distributions().get(top) or [top]
+            dist = metadata.distribution(names[0])
             _LOOKED_UP[top] = f"{dist.metadata['Name']}=={dist.version}"
         except Exception:  # not installed, or broken metadata: never fail a query
             _LOOKED_UP[top] = None
