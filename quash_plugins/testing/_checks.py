@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from ..core import registry
-from ..core.errors import QuashError
+from ..core.errors import ConfigError, QuashError
 from ..core.interfaces import Encoder, ExpansionContext
 from ..core.types import LatentMap, QuerySet
 
@@ -91,17 +91,35 @@ class PluginCheck:
         tmp_path = Path(tmp_path)
         tmp_path.mkdir(parents=True, exist_ok=True)
         plugin = build(self.kind, self.name, tmp_path)
-        self.check(plugin, tmp_path)
+        try:
+            self.check(plugin, tmp_path)
+        except AssertionError as exc:
+            # run outside pytest's ids (check_plugin), a failure names whose check it is
+            raise AssertionError(f"{self.id}: {exc}") from exc
 
 
 def build(kind: str, name: str, tmp_path: Path) -> Any:
-    """Build a plugin with its ``conformance_params`` (if any)."""
+    """Build a plugin with its ``conformance_params`` (if any).
+
+    A plugin without them that cannot be built with no arguments fails with what to
+    add: the kit cannot guess a file or a URL.
+    """
     cls = registry.load(kind, name)
     params = {}
     factory = getattr(cls, "conformance_params", None)
     if callable(factory):
         params = dict(factory(Path(tmp_path)))
-    return registry.create(kind, name, **params)
+    try:
+        return registry.create(kind, name, **params)
+    except ConfigError as exc:
+        if callable(factory):
+            raise
+        raise ConfigError(
+            f"{exc} The conformance kit builds {kind[:-1]} {name!r} with no arguments: "
+            "give its class a classmethod conformance_params(tmp_path) -> dict with the "
+            "arguments to build it with (files may be written under tmp_path), or set "
+            "conformance_skip = 'why' on it."
+        ) from exc
 
 
 # ---------------------------------------------------------------- encoders
@@ -530,8 +548,20 @@ def _ambiguous(kind: str, name: str) -> bool:
 
 
 def check_plugin(kind: str, name: str, tmp_path: str | Path) -> None:
-    """Run every check for one plugin; raise AssertionError on the first failure."""
-    for c in plugin_checks(kinds=kind, names=[name.split(":")[-1]]):
+    """Run every check for one plugin; raise AssertionError on the first failure.
+
+    ``name`` is a plugin name, or ``dist:name`` for one distribution's plugin when
+    several register the name (only that one is checked). A name no plugin has is an
+    error: a check that ran nothing would pass.
+    """
+    dist, _, short = name.rpartition(":")
+    checks = plugin_checks(kinds=kind, names=[short], dist=dist or None)
+    if not checks:
+        raise ConfigError(
+            f"No {registry.normalize_kind(kind)[:-1]} plugin named {name!r} is installed; "
+            "`quash plugins` lists them."
+        )
+    for c in checks:
         c(Path(tmp_path) / c.check.__name__)
 
 

@@ -1,0 +1,84 @@
+"""``quash_plugins.testing.check_plugin``: one plugin's checks, named as the user names it.
+
+Two distributions register the same name here (as after ``pip install`` of a plugin
+that shadows another): ``dist:name`` checks that distribution's plugin only, and a
+failure names the plugin and the check. A plugin the kit cannot build says what to add.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from quash_plugins import Encoder
+from quash_plugins.core import registry
+from quash_plugins.core.errors import ConfigError
+from quash_plugins.testing import check_plugin
+
+
+class _Good(Encoder):
+    name = "kit-twin"
+
+    @property
+    def dim(self):
+        return 4
+
+    def encode_text(self, texts):
+        rows = np.zeros((len(texts), 4), np.float32)
+        for i, t in enumerate(texts):
+            rows[i, len(t) % 4] = 1.0
+        return rows
+
+
+class _Float64(_Good):
+    def encode_text(self, texts):
+        return super().encode_text(texts).astype(np.float64)
+
+
+class _NeedsFile(_Good):
+    name = "kit-needs-file"
+
+    def __init__(self, file: str):
+        self.file = file
+
+
+@pytest.fixture
+def twins():
+    registry.register("encoders", "kit-twin", _Good, dist="kit-good")
+    registry.register("encoders", "kit-twin", _Float64, dist="kit-bad")
+    registry.register("encoders", "kit-needs-file", _NeedsFile, dist="kit-good")
+    yield
+    registry.unregister("encoders", "kit-twin", dist="kit-good")
+    registry.unregister("encoders", "kit-twin", dist="kit-bad")
+    registry.unregister("encoders", "kit-needs-file", dist="kit-good")
+
+
+def test_a_qualified_name_checks_that_distribution_only(twins, tmp_path):
+    check_plugin("encoders", "kit-good:kit-twin", tmp_path / "good")  # passes: float32
+    with pytest.raises(AssertionError) as err:
+        check_plugin("encoders", "kit-bad:kit-twin", tmp_path / "bad")
+    message = str(err.value)
+    # the plugin and the check it failed, then what is wrong
+    assert message.startswith("encoders:kit-bad:kit-twin-check_encoder_output: ")
+    assert "float64" in message
+
+
+def test_an_unknown_name_is_an_error_not_a_pass(twins, tmp_path):
+    with pytest.raises(ConfigError, match="No encoder plugin named 'kit-none'"):
+        check_plugin("encoders", "kit-none", tmp_path)
+    with pytest.raises(ConfigError, match="'kit-other:kit-twin'"):
+        check_plugin("encoders", "kit-other:kit-twin", tmp_path)
+
+
+def test_a_plugin_the_kit_cannot_build_says_what_to_add(twins, tmp_path):
+    with pytest.raises(ConfigError) as err:
+        check_plugin("encoders", "kit-needs-file", tmp_path)
+    message = str(err.value)
+    assert "missing 1 required positional argument: 'file'" in message
+    assert "conformance_params(tmp_path)" in message and "conformance_skip" in message
+    # with conformance_params the kit builds it, and the checks run
+    _NeedsFile.conformance_params = classmethod(lambda cls, tmp: {"file": str(tmp / "f")})
+    try:
+        check_plugin("encoders", "kit-needs-file", tmp_path)
+    finally:
+        del _NeedsFile.conformance_params
