@@ -30,6 +30,7 @@ import numpy as np
 from ..core.errors import MapFormatError, QuashError
 from ..core.interfaces import MapAdapter
 from ..core.types import LatentMap, record_inputs
+from ._h5 import open_h5_read
 from ._rows import colors_to_uint8, scan_finite, should_scan
 
 log = logging.getLogger(__name__)
@@ -67,7 +68,7 @@ def open_dataset(path: Path, name: str):
     """Open ``path`` read-only and return its dataset ``name``; clear errors otherwise."""
     h5py = _h5py()
     try:
-        f = h5py.File(path, "r")
+        f = open_h5_read(h5py, path)
     except OSError as exc:
         raise MapFormatError(
             f"{path}: not a readable HDF5 file ({exc}). The file may be truncated or corrupt; "

@@ -30,7 +30,8 @@ was fused: ``grid_feat`` of shape (0, D)) is read as a map of 0 items. ``grid_fe
 (never copied; float16 stays float16) and is L2-normalised chunk by chunk when read
 (``LatentMap.normalize``). Zero rows are unobserved and never match.
 
-The ``h5py.File`` is opened read-only and stays open as long as the returned
+The ``h5py.File`` is opened read-only, without HDF5's file lock (so a mapping process
+that saves the map again is never blocked: :mod:`._h5`), and stays open as long as the returned
 :class:`~quash_plugins.core.types.LatentMap` lives: it is kept on the attribute
 ``lmap.h5file`` (not in ``source``, which must stay plain metadata that serialises to
 YAML/JSON) and closed by a ``weakref.finalize`` when the map is garbage-collected.
@@ -50,6 +51,7 @@ import numpy as np
 from ..core.errors import MapFormatError, QuashError
 from ..core.interfaces import MapAdapter
 from ..core.types import LatentMap, record_inputs
+from ._h5 import open_h5_read
 from ._npz import encoder_record
 from ._rows import scan_finite
 from ._vlmaps_common import (
@@ -180,7 +182,7 @@ class VLMapsAdapter(MapAdapter):
 
             if not h5py.is_hdf5(path):
                 return False
-            with h5py.File(path, "r") as f:
+            with open_h5_read(h5py, path) as f:
                 return all(k in f for k in REQUIRED)
         except Exception:  # noqa: BLE001 - sniff never raises
             return False
@@ -197,7 +199,7 @@ class VLMapsAdapter(MapAdapter):
             )
         h5py = import_h5py()
         try:
-            f = h5py.File(path, "r")
+            f = open_h5_read(h5py, path)
         except OSError as exc:
             raise MapFormatError(
                 f"{path}: not a readable HDF5 file ({exc}). It may be truncated or not HDF5."

@@ -59,7 +59,8 @@ class H5Rows:
     def __getitem__(self, key: Any) -> np.ndarray:
         import h5py
 
-        with h5py.File(self.filename, "r") as f:
+        # without HDF5's file lock, as the adapters open it: a writer is never blocked
+        with h5py.File(self.filename, "r", locking=False) as f:
             return np.asarray(f[self.dataset][key])
 
 

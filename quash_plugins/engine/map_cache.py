@@ -1,9 +1,11 @@
 """The maps a :class:`~quash_plugins.engine.pipeline.Quash` has read, reused while their
 source is unchanged.
 
-A file is keyed by its resolved path, adapter and options and versioned by its
-modification time and size (a map that a mapping process keeps rewriting is read
-again); a live object (a ``VLMap``) by its id, adapter and options, versioned by the
+A file or folder is keyed by its resolved path, adapter and options and versioned by
+the modification time and size of it and of every file the adapter read for the map
+(``source["inputs"]``: VLMaps' ``vlmap/vlmaps.h5df`` inside the folder given, the labels
+beside a map), so a map that a mapping process keeps rewriting is read again, whether
+it was given as its file or as its folder; a live object (a ``VLMap``) by its id, adapter and options, versioned by the
 identity and shape of every array it holds, with a reference to it so that a new object
 at a freed id is not taken for it. Least recently used maps go first.
 """
@@ -31,9 +33,16 @@ class MapCache:
         if key is not None:
             hit = self._maps.pop(key, None)
             # a live source must be the same object, not a new one at a freed id
-            if hit is not None and hit[0] == version and (hit[1] is None or hit[1]() is source):
+            if (
+                hit is not None
+                and hit[0] == _with_inputs(version, ref, hit[2])
+                and (hit[1] is None or hit[1]() is source)
+            ):
                 self._maps[key] = hit  # the most recently used goes last
                 return hit[2], None
+            # an outdated map is dropped here, before the source is read again (an HDF5
+            # file still open in this process would be shared with the new read)
+            del hit
         return None, (key, version, ref)
 
     def store(self, token: Any, lmap: LatentMap, keep: int) -> None:
@@ -41,12 +50,29 @@ class MapCache:
         key, version, ref = token
         if key is None:  # a source that cannot be told unchanged is read every time
             return
-        self._maps[key] = (version, ref, lmap)
+        self._maps[key] = (_with_inputs(version, ref, lmap), ref, lmap)
         while len(self._maps) > max(int(keep), 0):
             del self._maps[next(iter(self._maps))]
 
     def clear(self) -> None:
         self._maps.clear()
+
+
+def _with_inputs(version: Any, ref: Any, lmap: LatentMap) -> Any:
+    """A file source's ``version`` with the modification time and size of every file
+    or folder the map was read from (its ``source["inputs"]``); a live source's as is."""
+    if ref is not None:
+        return version
+    from ..core.types import source_inputs
+
+    stats = []
+    for path in source_inputs(lmap.source):
+        try:
+            st = Path(path).stat()
+            stats.append((path, st.st_mtime_ns, st.st_size))
+        except (OSError, RuntimeError):  # gone (a taxonomy that was never there)
+            stats.append((path, None, None))
+    return version, tuple(stats)
 
 
 def _map_key(source: Any, adapter: str, opts: dict[str, Any]) -> tuple[Any, Any, Any]:
