@@ -14,8 +14,9 @@ file                   dataset             content
 ``pc_confidences.h5``  ``pc_confidences``  ``(N,)`` or ``(N, 1)`` (checked, unused)
 =====================  ==================  ===============================================
 
-The embeddings stay an open, read-only ``h5py.Dataset``: nothing is copied and float16
-stays float16 until a block is used. Rows are L2-normalised block by block
+The embeddings stay on disk, an :class:`~quash_plugins.core.h5rows.H5Rows` view that
+opens ``pc_embeddings.h5`` read-only for each block it reads (no file is held open, so
+no HDF5 lock either): nothing is copied and float16 stays float16 until a block is used. Rows are L2-normalised block by block
 (``normalize=True``); zero rows are unobserved and never match.
 """
 
@@ -28,9 +29,9 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import MapFormatError, QuashError
+from ..core.h5rows import H5Rows, open_h5_read
 from ..core.interfaces import MapAdapter
 from ..core.types import LatentMap, record_inputs
-from ._h5 import open_h5_read
 from ._rows import colors_to_uint8, scan_finite, should_scan
 
 log = logging.getLogger(__name__)
@@ -68,7 +69,7 @@ def open_dataset(path: Path, name: str):
     """Open ``path`` read-only and return its dataset ``name``; clear errors otherwise."""
     h5py = _h5py()
     try:
-        f = open_h5_read(h5py, path)
+        f = open_h5_read(path)
     except OSError as exc:
         raise MapFormatError(
             f"{path}: not a readable HDF5 file ({exc}). The file may be truncated or corrupt; "
@@ -82,6 +83,7 @@ def open_dataset(path: Path, name: str):
         )
     ds = f[name]
     if not isinstance(ds, h5py.Dataset):
+        f.close()
         raise MapFormatError(f"{path}: {name!r} is a group, not a dataset.")
     return ds
 
@@ -143,85 +145,98 @@ class ConceptFusionAdapter(MapAdapter):
                     "pc_points.h5 and pc_embeddings.h5."
                 )
 
-        points_ds = open_dataset(files["pc_points"], "pc_points")
-        label_pts = f"{files['pc_points']} (dataset 'pc_points')"
-        if points_ds.ndim != 2 or points_ds.shape[1] != 3:
-            raise MapFormatError(
-                f"{label_pts}: field 'positions' must be (N, 3); got shape "
-                f"{points_ds.shape}.{_batch_hint(points_ds.shape, 'points')}"
-            )
-        n = int(points_ds.shape[0])
+        opened: list[Any] = []  # every file is closed once read: no lock is held
 
-        emb = open_dataset(files["pc_embeddings"], "pc_embeddings")
-        label_emb = f"{files['pc_embeddings']} (dataset 'pc_embeddings')"
-        if emb.ndim != 2:
-            raise MapFormatError(
-                f"{label_emb}: field 'embeddings' must be 2-D (N, D); got shape {emb.shape}."
-                f"{_batch_hint(emb.shape, 'embeddings')}"
-            )
-        if emb.shape[1] == 0:
-            raise MapFormatError(
-                f"{label_emb}: field 'embeddings' has no feature dimension (shape {emb.shape})."
-            )
-        if emb.dtype.kind not in "fiu":
-            raise MapFormatError(
-                f"{label_emb}: field 'embeddings' must hold numbers; got {emb.dtype}."
-            )
-        if emb.shape[0] != n:
-            raise MapFormatError(
-                f"{label_emb}: {emb.shape[0]} rows, but {files['pc_points'].name} has {n} points; "
-                "row counts must match."
-            )
+        def dataset(path: Path, name: str) -> Any:
+            ds = open_dataset(path, name)
+            opened.append(ds.file)
+            return ds
 
-        positions = np.asarray(points_ds[()], dtype=np.float32)
-        if not np.isfinite(positions).all():
-            bad = int(np.argwhere(~np.isfinite(positions))[0][0])
-            raise MapFormatError(
-                f"{label_pts}: field 'positions' contains NaN or Inf (first at row {bad})."
-            )
-
-        colors = None
-        if files["pc_colors"].is_file():
-            cds = open_dataset(files["pc_colors"], "pc_colors")
-            label = f"{files['pc_colors']} (dataset 'pc_colors')"
-            if cds.shape != (n, 3):
+        try:
+            points_ds = dataset(files["pc_points"], "pc_points")
+            label_pts = f"{files['pc_points']} (dataset 'pc_points')"
+            if points_ds.ndim != 2 or points_ds.shape[1] != 3:
                 raise MapFormatError(
-                    f"{label}: field 'colors' must be (N, 3) with N = {n}; got shape {cds.shape}."
+                    f"{label_pts}: field 'positions' must be (N, 3); got shape "
+                    f"{points_ds.shape}.{_batch_hint(points_ds.shape, 'points')}"
                 )
-            colors = colors_to_uint8(cds[()], label, opts["color_range"])
+            n = int(points_ds.shape[0])
 
-        extra: dict[str, Any] = {}
-        for key in ("pc_features", "pc_confidences"):
-            if files[key].is_file():
-                ds = open_dataset(files[key], key)
-                if ds.ndim == 0 or ds.shape[0] != n:
+            emb = dataset(files["pc_embeddings"], "pc_embeddings")
+            label_emb = f"{files['pc_embeddings']} (dataset 'pc_embeddings')"
+            if emb.ndim != 2:
+                raise MapFormatError(
+                    f"{label_emb}: field 'embeddings' must be 2-D (N, D); got shape {emb.shape}."
+                    f"{_batch_hint(emb.shape, 'embeddings')}"
+                )
+            if emb.shape[1] == 0:
+                raise MapFormatError(
+                    f"{label_emb}: field 'embeddings' has no feature dimension (shape {emb.shape})."
+                )
+            if emb.dtype.kind not in "fiu":
+                raise MapFormatError(
+                    f"{label_emb}: field 'embeddings' must hold numbers; got {emb.dtype}."
+                )
+            if emb.shape[0] != n:
+                raise MapFormatError(
+                    f"{label_emb}: {emb.shape[0]} rows, but {files['pc_points'].name} has {n} points; "
+                    "row counts must match."
+                )
+
+            positions = np.asarray(points_ds[()], dtype=np.float32)
+            if not np.isfinite(positions).all():
+                bad = int(np.argwhere(~np.isfinite(positions))[0][0])
+                raise MapFormatError(
+                    f"{label_pts}: field 'positions' contains NaN or Inf (first at row {bad})."
+                )
+
+            colors = None
+            if files["pc_colors"].is_file():
+                cds = dataset(files["pc_colors"], "pc_colors")
+                label = f"{files['pc_colors']} (dataset 'pc_colors')"
+                if cds.shape != (n, 3):
                     raise MapFormatError(
-                        f"{files[key]} (dataset {key!r}): {ds.shape[0] if ds.ndim else 0} rows, "
-                        f"but the map has {n} points; row counts must match."
+                        f"{label}: field 'colors' must be (N, 3) with N = {n}; got shape {cds.shape}."
                     )
-                extra[f"{key}_file"] = str(files[key])
+                colors = colors_to_uint8(cds[()], label, opts["color_range"])
 
-        if should_scan(
-            opts["check_finite"], emb.size * emb.dtype.itemsize, opts["finite_check_mb"]
-        ):
-            scan_finite(emb, label_emb, "embeddings")
+            extra: dict[str, Any] = {}
+            for key in ("pc_features", "pc_confidences"):
+                if files[key].is_file():
+                    ds = dataset(files[key], key)
+                    if ds.ndim == 0 or ds.shape[0] != n:
+                        raise MapFormatError(
+                            f"{files[key]} (dataset {key!r}): {ds.shape[0] if ds.ndim else 0} rows, "
+                            f"but the map has {n} points; row counts must match."
+                        )
+                    extra[f"{key}_file"] = str(files[key])
 
-        log.debug("conceptfusion: %d points x %d (%s) from %s", n, emb.shape[1], emb.dtype, folder)
-        return LatentMap(
-            embeddings=emb,
-            kind="points",
-            positions=positions,
-            colors=colors,
-            normalize=True,
-            source=record_inputs(  # the folder: every file read is in it
-                {
-                    "adapter": self.name,
-                    "path": str(folder),
-                    "embeddings_file": str(files["pc_embeddings"]),
-                    **extra,
-                }
-            ),
-        )
+            if should_scan(
+                opts["check_finite"], emb.size * emb.dtype.itemsize, opts["finite_check_mb"]
+            ):
+                scan_finite(emb, label_emb, "embeddings")
+
+            log.debug(
+                "conceptfusion: %d points x %d (%s) from %s", n, emb.shape[1], emb.dtype, folder
+            )
+            return LatentMap(
+                embeddings=H5Rows.from_dataset(emb),
+                kind="points",
+                positions=positions,
+                colors=colors,
+                normalize=True,
+                source=record_inputs(  # the folder: every file read is in it
+                    {
+                        "adapter": self.name,
+                        "path": str(folder),
+                        "embeddings_file": str(files["pc_embeddings"]),
+                        **extra,
+                    }
+                ),
+            )
+        finally:
+            for f in opened:
+                f.close()
 
     def write_example(self, directory: Path) -> Path:
         """Write a small gradslam-style ``saved-map/pointclouds/`` and return ``saved-map``."""

@@ -26,32 +26,30 @@ do not store ``cs``: it comes from the ``cs`` option (VLMaps' default 0.05).
 
 Positions are cell centres by default (see :mod:`._vlmaps_common`); pass
 ``positions="upstream"`` for VLMaps' own ``grid_id2base_pos_3d``. An empty map (no point
-was fused: ``grid_feat`` of shape (0, D)) is read as a map of 0 items. ``grid_feat`` stays an ``h5py.Dataset``
-(never copied; float16 stays float16) and is L2-normalised chunk by chunk when read
-(``LatentMap.normalize``). Zero rows are unobserved and never match.
+was fused: ``grid_feat`` of shape (0, D)) is read as a map of 0 items. ``grid_feat`` stays
+on disk (never copied; float16 stays float16) and is L2-normalised chunk by chunk when
+read (``LatentMap.normalize``). Zero rows are unobserved and never match.
 
-The ``h5py.File`` is opened read-only, without HDF5's file lock (so a mapping process
-that saves the map again is never blocked: :mod:`._h5`), and stays open as long as the returned
-:class:`~quash_plugins.core.types.LatentMap` lives: it is kept on the attribute
-``lmap.h5file`` (not in ``source``, which must stay plain metadata that serialises to
-YAML/JSON) and closed by a ``weakref.finalize`` when the map is garbage-collected.
-Call ``lmap.h5file.close()`` to release it earlier.
+The file is read read-only and closed: ``grid_feat`` is an
+:class:`~quash_plugins.core.h5rows.H5Rows` view that opens the file for each block it
+reads, without HDF5's file lock where it can. No lock is held while the map lives, so a
+mapping process can save the map again (VLMaps' ``save_3d_map``), and the caller can
+open the file with ``h5py`` too. A view whose file changed since the map was read
+refuses to read it; a :class:`~quash_plugins.Quash` reads a changed map anew.
 """
 
 from __future__ import annotations
 
-import contextlib
 import logging
-import weakref
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ..core.errors import MapFormatError, QuashError
+from ..core.h5rows import H5Rows, open_h5_read
 from ..core.interfaces import MapAdapter
 from ..core.types import LatentMap, record_inputs
-from ._h5 import open_h5_read
 from ._npz import encoder_record
 from ._rows import scan_finite
 from ._vlmaps_common import (
@@ -182,7 +180,7 @@ class VLMapsAdapter(MapAdapter):
 
             if not h5py.is_hdf5(path):
                 return False
-            with open_h5_read(h5py, path) as f:
+            with open_h5_read(path) as f:
                 return all(k in f for k in REQUIRED)
         except Exception:  # noqa: BLE001 - sniff never raises
             return False
@@ -197,24 +195,22 @@ class VLMapsAdapter(MapAdapter):
                 f"{source}: not a VLMaps map file. Pass vlmap/vlmaps.h5df (or any .h5df/.h5 "
                 "holding 'grid_feat' and 'grid_pos') or the folder that holds it."
             )
-        h5py = import_h5py()
+        import_h5py()
         try:
-            f = open_h5_read(h5py, path)
+            f = open_h5_read(path)
         except OSError as exc:
             raise MapFormatError(
                 f"{path}: not a readable HDF5 file ({exc}). It may be truncated or not HDF5."
             ) from None
-        try:
-            lmap = self._read_open(f, path, opts)
-        except MapFormatError:
-            f.close()
-            raise
-        except (OSError, KeyError, ValueError, TypeError) as exc:
-            f.close()
-            raise MapFormatError(f"{path}: cannot read the VLMaps map ({exc}).") from None
-        lmap.h5file = f  # type: ignore[attr-defined]  # keeps grid_feat readable
-        weakref.finalize(lmap, _close_quietly, f)
-        return lmap
+        # the file is closed once read: grid_feat stays on disk, an H5Rows view that
+        # opens the file for each read (no lock held while the map lives)
+        with f:
+            try:
+                return self._read_open(f, path, opts)
+            except MapFormatError:
+                raise
+            except (OSError, KeyError, ValueError, TypeError) as exc:
+                raise MapFormatError(f"{path}: cannot read the VLMaps map ({exc}).") from None
 
     def _options(self, options: dict[str, Any]) -> dict[str, Any]:
         opts = self.options(options)
@@ -347,7 +343,7 @@ class VLMapsAdapter(MapAdapter):
         source.update(encoder_record(dict(f.attrs)))
         record_inputs(source, names_spec)  # a file of names (obj2cls_dict.txt) read with it
         return LatentMap(
-            embeddings=feat,
+            embeddings=H5Rows.from_dataset(feat),
             kind="voxels",
             positions=positions,
             colors=colors,
@@ -404,8 +400,3 @@ def _check_cs(cs: Any, where: str) -> None:
         ok = False
     if not ok:
         raise MapFormatError(f"{where}: cell size cs must be a positive number; got {cs!r}.")
-
-
-def _close_quietly(f: Any) -> None:
-    with contextlib.suppress(Exception):  # closing at interpreter exit may fail harmlessly
-        f.close()

@@ -6,7 +6,8 @@ Which reader a chunk task gets depends on what :attr:`LatentMap.embeddings` is:
 - zarr array: a :class:`ZarrRows` around it (it pickles with its store's URL, as
   ``da.from_zarr``'s does); a chunk that fails to read is reported by its rows and its
   zarr chunk key, as the in-memory path reports it;
-- h5py dataset: h5py objects do not pickle, so each task gets an :class:`H5Rows`, a small
+- an HDF5 dataset (the VLMaps and ConceptFusion adapters' :class:`H5Rows`, or a
+  caller's own ``h5py`` dataset, which does not pickle and becomes one): a small
   picklable reader holding only the file name and the dataset path. It opens the file
   read-only on the worker for every chunk, so the file must be reachable at the same
   path from every worker (a shared file system);
@@ -31,37 +32,10 @@ from typing import Any
 
 import numpy as np
 
+from ..core.h5rows import H5Rows
 from ..core.maps import memmap_ref
 from ..core.types import LatentMap, prepare_block
 from .dask_client import require_dask
-
-
-class H5Rows:
-    """Picklable, lazily opened view of one HDF5 dataset for ``da.from_array``.
-
-    Parameters
-    ----------
-    filename
-        Path of the HDF5 file, as the workers see it.
-    dataset
-        Name of the dataset inside the file (``"/embeddings"``).
-    shape, dtype
-        Those of the dataset, recorded once on the client.
-    """
-
-    def __init__(self, filename: str, dataset: str, shape: tuple[int, ...], dtype: Any) -> None:
-        self.filename = str(filename)
-        self.dataset = str(dataset)
-        self.shape = tuple(int(s) for s in shape)
-        self.dtype = np.dtype(dtype)
-        self.ndim = len(self.shape)
-
-    def __getitem__(self, key: Any) -> np.ndarray:
-        import h5py
-
-        # without HDF5's file lock, as the adapters open it: a writer is never blocked
-        with h5py.File(self.filename, "r", locking=False) as f:
-            return np.asarray(f[self.dataset][key])
 
 
 class MemmapRows:
@@ -113,10 +87,10 @@ class ZarrRows:
 def _reader(emb: Any) -> tuple[Any, str | None]:
     """A picklable stand-in for ``emb`` plus a stable name token (None when there is none)."""
     mod = type(emb).__module__ or ""
-    if mod.startswith("h5py"):
-        filename = emb.file.filename
-        stamp = os.stat(filename).st_mtime_ns
-        return H5Rows(filename, emb.name, emb.shape, emb.dtype), f"{filename}:{emb.name}:{stamp}"
+    if mod.startswith("h5py"):  # a caller's own open dataset
+        emb = H5Rows.from_dataset(emb)
+    if isinstance(emb, H5Rows):  # it pickles as its file name and dataset path
+        return emb, f"{emb.filename}:{emb.dataset}:{emb.stamp}"
     ref = memmap_ref(emb)
     if ref is not None:
         filename, offset, shape, dtype = ref

@@ -5,7 +5,6 @@ from __future__ import annotations
 import logging
 from dataclasses import replace
 
-import h5py
 import numpy as np
 import pytest
 from _cf_writers import cf_arrays, contrast_config, save_pointclouds, text_table, tree_hash
@@ -15,6 +14,7 @@ from quash_plugins.adapters import detect_adapter, read_map
 from quash_plugins.cli.main import main
 from quash_plugins.core import registry
 from quash_plugins.core.errors import MapFormatError
+from quash_plugins.core.h5rows import H5Rows
 
 
 @pytest.fixture
@@ -43,7 +43,7 @@ def test_reads_directory_or_parent(cf_map, which):
 def test_float16_kept_lazily_and_rows_normalised(cf_map):
     root, arrays = cf_map
     lmap = read_map(root)
-    assert isinstance(lmap.embeddings, h5py.Dataset)
+    assert isinstance(lmap.embeddings, H5Rows)  # on disk, read block by block
     assert lmap.embeddings.dtype == np.float16
     assert lmap.normalize is True
     raw = arrays["pc_embeddings"].astype(np.float32)

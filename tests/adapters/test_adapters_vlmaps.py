@@ -18,6 +18,7 @@ from quash_plugins import Quash
 from quash_plugins.adapters import detect_adapter, read_map
 from quash_plugins.core import registry
 from quash_plugins.core.errors import MapFormatError, QuashError
+from quash_plugins.core.h5rows import H5Rows
 
 D = 8
 TABLE = {
@@ -52,7 +53,7 @@ def test_mobile_base_rows_positions_colours(tmp_path):
     before = sha256(path)
     lmap = vlmaps(gs=60, cs=0.1, positions="upstream").read(path)
     assert lmap.n == 40 and lmap.dim == D and lmap.kind == "voxels"
-    assert isinstance(lmap.embeddings, h5py.Dataset)
+    assert isinstance(lmap.embeddings, H5Rows)  # on disk, read block by block
     assert lmap.normalize is True
     row, col, h = (arrays["grid_pos"][:, i].astype(np.float64) for i in range(3))
     expected = np.column_stack([(30 - row) * 0.1, (30 - col) * 0.1, h * 0.1])
@@ -90,17 +91,25 @@ def test_float16_stays_float16(tmp_path):
     path = write_vlmaps_h5df(tmp_path / "m.h5", arrays)
     lmap = vlmaps().read(path)
     assert lmap.dtype == np.float16 and lmap.embeddings.dtype == np.float16
-    assert isinstance(lmap.embeddings, h5py.Dataset)
+    assert isinstance(lmap.embeddings, H5Rows)  # on disk, never copied
 
 
-def test_file_stays_open_for_map_lifetime(tmp_path):
-    path = write_vlmaps_h5df(tmp_path / "m.h5df", mobile_map(n=12, d=D))
+def test_no_file_is_held_open_while_the_map_lives(tmp_path):
+    """The map's rows are read from the file when used; in between, no handle (and no
+    HDF5 lock) is held, and the caller may open the file with h5py as VLMaps does."""
+    arrays = mobile_map(n=12, d=D)
+    path = write_vlmaps_h5df(tmp_path / "m.h5df", arrays)
     lmap = vlmaps().read(path)
-    assert lmap.h5file.id.valid and lmap.h5file.mode == "r"
-    import gc
-
-    gc.collect()
-    assert np.asarray(lmap.embeddings[:2]).shape == (2, D)
+    assert not hasattr(lmap, "h5file")
+    open_files = h5py.h5f.get_obj_ids(h5py.h5f.OBJ_ALL, h5py.h5f.OBJ_FILE)
+    assert not [f for f in open_files if f.name.decode() == str(path)]
+    with h5py.File(path, "r") as f:  # the caller's own handle, HDF5's lock and all
+        np.testing.assert_array_equal(lmap.embeddings[:2], f["grid_feat"][:2])
+    np.testing.assert_array_equal(lmap.embeddings[3:5], arrays["grid_feat"][3:5])
+    # a file that changed since the map was read is refused, not read as the map's rows
+    write_vlmaps_h5df(path, mobile_map(n=20, d=D, seed=4))
+    with pytest.raises(MapFormatError, match="changed on disk since the map was read"):
+        lmap.embeddings[:2]
 
 
 # ---------------------------------------------------------------------- 3D camera base
@@ -462,7 +471,6 @@ def test_property_shapes_and_dtypes(tmp_path_factory, n, d, dtype, gs, cs, seed)
     got = read_all(lmap)
     ref = unit_rows(arrays["grid_feat"].astype(np.float32))
     np.testing.assert_allclose(got, ref, atol=2e-3 if dtype == np.float16 else 1e-5)
-    lmap.h5file.close()
 
 
 def test_path_objects_accepted(tmp_path):

@@ -1,10 +1,11 @@
-"""A map held open by a query never blocks the mapping process that saves it again.
+"""A map read by a query never blocks the mapping process that saves it again.
 
 HDF5 locks the files it opens by default. A process that then opens the map to write it,
 as VLMaps' ``save_3d_map`` does (``h5py.File(path, "w")``), failed with "unable to lock
 file" after truncating the map to 0 bytes: a query holding the map between two queries
-crashed the mapping process and lost the map. The adapters now open HDF5 maps read-only
-without the lock; the writer runs in another process here, as it does for real.
+crashed the mapping process and lost the map. The adapters now close an HDF5 map once
+read, and its rows are read by opening the file for each block (``H5Rows``), without the
+lock where they can; the writer runs in another process here, as it does for real.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import pytest
 from _vlmaps_writers import mobile_map, write_vlmaps_h5df
 
 from quash_plugins import Quash, registry
+from quash_plugins.core.errors import MapFormatError
 from quash_plugins.encoders import TableEncoder
 
 h5py = pytest.importorskip("h5py")
@@ -58,10 +60,12 @@ def test_a_held_vlmaps_map_is_saved_again_by_another_process(tmp_path, request):
     tests_dir = request.path.parents[1]
     path = write_vlmaps_h5df(tmp_path / "vlmap" / "vlmaps.h5df", mobile_map(n=50, d=8))
     lmap = registry.create("adapters", "vlmaps").read(path)
-    assert lmap.n == 50 and lmap.h5file.id.valid  # the file is held open
+    assert lmap.n == 50 and lmap.embeddings[:1].shape == (1, 8)
     saved = _save_again(path, tests_dir)
     assert saved.returncode == 0, saved.stderr  # not "unable to lock file"
     assert saved.stdout.strip() == "70"  # the writer's map, whole
+    with pytest.raises(MapFormatError, match="changed on disk"):
+        lmap.embeddings[:1]  # the old map's view refuses the new file
 
 
 @pytest.mark.parametrize("given", ["file", "folder"])
