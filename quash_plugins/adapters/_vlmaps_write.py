@@ -21,6 +21,18 @@ positions, rotated. A mobile-base file stores neither; its positions are fixed b
 VLMaps' truncating bins around the grid centre, which a voxel grid from another frame
 does not land on.
 
+Cells are counted the way the positions run, not as ``grid_index`` counts them: VLMaps'
+mobile-base and 2023 top-down grids count rows and columns against x and y
+(``x = (gs/2 - row) * cs``), so those axes are reversed (each cell keeps its neighbours), and
+``pcd_min`` is fitted to the positions. Positions that no ``pcd_min + grid_pos * cs``
+holds are refused with a :class:`~quash_plugins.core.errors.UsageError` naming the file,
+the field and the fix, never written elsewhere: VLMaps' own cell centres across the
+origin (``positions: centre``, the default; the truncating bins make the origin cell two
+cells wide, so they are not evenly spaced: convert with ``positions=upstream``), and
+positions more than half a cell from their ``grid_index`` cell. Positions inside their
+cells but off the centres are written as the centres (the voxel rounding), with a
+warning.
+
 The camera-base builder (``VLMapBuilderCam.create_camera_map``) bins the camera poses'
 world frame, which is y-up: a cell is ``[row, height, col]`` and its top-down image
 keeps, per ``(row, col)``, the point of largest height. So the map is turned rigidly
@@ -80,9 +92,10 @@ def write_vlmaps_map(lmap: LatentMap, folder: str | Path, chunk_rows: int = 6553
     """Write ``lmap`` as ``folder/vlmap_cam/vlmaps_cam.h5df`` in VLMaps' save layout.
 
     What ``quash convert --format vlmaps`` writes (the layout is in this module's
-    docstring). Positions and cells are turned rigidly to VLMaps' y-up frame; rows keep
-    their order. Embeddings are copied ``chunk_rows`` rows at a time, float16 stays
-    float16, other dtypes become float32 (VLMaps' own). Labels, when the map has them,
+    docstring). Positions and cells are turned rigidly to VLMaps' y-up frame, cells
+    counted the way positions run; rows keep their order. Embeddings are copied
+    ``chunk_rows`` rows at a time, float16 stays float16, other dtypes become float32
+    (VLMaps' own). Labels, when the map has them,
     go to ``grid_semantic`` and their names to ``folder/vlmap_cam/obj2cls_dict.txt``
     (:func:`vlmaps_outputs` lists the files). Each file is written beside its target and
     renamed into place; an existing file is replaced (the command line checks
@@ -108,8 +121,10 @@ def write_vlmaps_map(lmap: LatentMap, folder: str | Path, chunk_rows: int = 6553
     ------
     UsageError
         When the map is not a voxel grid, has no positions, has two rows in one cell,
-        or records an up axis that is not one of ``+x``, ``-x``, ``+y``, ``-y``, ``+z``,
-        ``-z``.
+        records an up axis that is not one of ``+x``, ``-x``, ``+y``, ``-y``, ``+z``,
+        ``-z``, or has positions that the file cannot hold (see the module's docstring:
+        VLMaps' own cell centres across the origin, or positions more than half a cell
+        from their ``grid_index`` cell).
     QuashError
         When h5py is not installed.
 
@@ -152,20 +167,7 @@ def write_vlmaps_map(lmap: LatentMap, folder: str | Path, chunk_rows: int = 6553
         )
     idx = _to_y_up(np.asarray(lmap.grid_index, dtype=np.int64).reshape(n, 3), up)
     pos = _to_y_up(np.asarray(lmap.positions, dtype=np.float64).reshape(n, 3), up)
-    lo = idx.min(axis=0) if n else np.zeros(3, np.int64)
-    grid_pos = (idx - lo).astype(np.int32)
-    pcd_min = (pos - grid_pos * cs).mean(axis=0) if n else np.zeros(3)
-    # The mean carries float rounding (3e-9 for an origin of 0); micrometres are far
-    # below any cell size and read back as the round number the source meant.
-    pcd_min = np.round(pcd_min, 6) + 0.0
-    off = np.abs(pcd_min + grid_pos * cs - pos).max() if n else 0.0
-    if off > 1e-3 * cs:
-        log.warning(
-            "%s: positions are not on the voxel grid (up to %.3g m off); the VLMaps file "
-            "stores cell centres (pcd_min + grid_pos * cs)",
-            where,
-            off,
-        )
+    grid_pos, pcd_min = _cells_of(idx, pos, cs, up, where, lmap.source)
     shape = (grid_pos.max(axis=0) + 1) if n else np.ones(3, np.int64)
     pcd_max = pcd_min + (shape - 1) * cs
     occupied = -np.ones(tuple(int(s) for s in shape), dtype=np.int32)
@@ -217,3 +219,78 @@ def write_vlmaps_map(lmap: LatentMap, folder: str | Path, chunk_rows: int = 6553
 def _to_y_up(a: np.ndarray, up: str) -> np.ndarray:
     """``(N, 3)`` points or cells of a map whose up axis is ``up``, turned y-up."""
     return np.stack([sign * a[:, axis] for axis, sign in TO_Y_UP[up]], axis=1)
+
+
+def _cells_of(
+    idx: np.ndarray, pos: np.ndarray, cs: float, up: str, where: str, source: dict
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(grid_pos, pcd_min)`` of turned cells ``idx`` and positions ``pos``, such that
+    ``pcd_min + grid_pos * cs`` (what the ``vlmaps`` adapter reads back) are ``pos``.
+
+    Cells are counted the way positions run: a grid whose index runs against its
+    positions (VLMaps' mobile-base and 2023 top-down rows and columns, ``x = (gs/2 - row)
+    * cs``) has that axis reversed, so every cell keeps its neighbours and its place.
+    ``pcd_min`` is the midrange of ``pos - grid_pos * cs``, rounded to the micrometre.
+    Positions off their cells are refused (a :class:`UsageError` naming the field and
+    the fix) unless each lies inside its cell, where the file stores the cell's centre
+    (voxel rounding, with a warning); VLMaps' own cell centres (``positions: centre``),
+    which are exact or not representable at all, must be exact.
+    """
+    n = len(idx)
+    if not n:
+        return np.zeros((0, 3), np.int32), np.zeros(3)
+    grid = np.empty((n, 3), dtype=np.int64)
+    pcd_min = np.zeros(3)
+    for a in range(3):
+        best: tuple[float, np.ndarray, float] | None = None
+        for sign in (1, -1):  # +1 first: it wins a tie (one layer, as a top-down grid's)
+            j = sign * idx[:, a]
+            j = j - j.min()
+            rest = pos[:, a] - j * cs
+            lo, hi = float(rest.min()), float(rest.max())
+            if best is None or hi - lo < best[0]:
+                best = (hi - lo, j, (lo + hi) / 2)
+        assert best is not None
+        _, grid[:, a], pcd_min[a] = best
+    # The midrange carries float rounding (3e-9 for an origin of 0); micrometres are far
+    # below any cell size and read back as the round number the source meant.
+    pcd_min = np.round(pcd_min, 6) + 0.0
+    off = np.abs(pcd_min + grid * cs - pos).max(axis=0)
+    # float32 positions carry their own rounding, relative to their size
+    tol = max(1e-3 * cs, 8 * float(np.finfo(np.float32).eps) * float(np.abs(pos).max()))
+    if (off <= tol).all():
+        return grid.astype(np.int32), pcd_min
+    worst = int(np.argmax(off))
+    axis = "xyz"[TO_Y_UP[up][worst][0]]
+    far = float(off[worst])
+    if source.get("positions") == "centre":  # read by a VLMaps adapter from its cells
+        raise UsageError(
+            f"{where}: field 'positions' cannot be written to a VLMaps camera-base file: "
+            "they are the centres of VLMaps' mobile-base (or 2023 top-down) cells, which "
+            "are not evenly spaced (VLMaps' truncating bins make the cell at the origin two "
+            "cells wide: centres ..., -1.5, 0, 1.5, ... cells), so no pcd_min + grid_pos * "
+            f"cs holds them (up to {far:.3g} m off along the source's {axis}). Read the map "
+            "with VLMaps' own evenly spaced positions (its grid_id2base_pos_3d or "
+            "grid_id2pos, the cell face nearest the origin): quash convert SRC DST --format "
+            "vlmaps -o positions=upstream (read_map(src, positions='upstream')); or write "
+            "--format npz, which keeps these positions."
+        )
+    if far > 0.5 * cs - tol:
+        raise UsageError(
+            f"{where}: fields 'positions' and 'grid_index' disagree: positions lie up to "
+            f"{far:.3g} m from their cells along the source's {axis}, more than half a "
+            f"cell (voxel_size {cs:g}), so a VLMaps file (positions read back as pcd_min + "
+            "grid_pos * cs) would move them to other places. Make grid_index the cells "
+            "of positions (round(positions / voxel_size), its axes in positions' order), "
+            "or write --format npz, which keeps both as they are. A VLMaps mobile-base or "
+            "top-down map read with cell centres converts with -o positions=upstream."
+        )
+    log.warning(
+        "%s: positions are not at their cell centres (up to %.3g m off along the source's "
+        "%s, inside their cells); the VLMaps file stores the cell centres (pcd_min + "
+        "grid_pos * cs)",
+        where,
+        far,
+        axis,
+    )
+    return grid.astype(np.int32), pcd_min
