@@ -30,12 +30,27 @@ def add_config_option(parser: argparse.ArgumentParser, multiple: bool = False) -
             "--config",
             metavar="CONFIG",
             default=None,
+            action=_OneConfig,
             help="Method config: a YAML file or a shipped config's name (e.g. "
             "demo:quash-labels; 'quash configs' lists them). Default: "
             f"{_default_summary()}: the map's label list (its label names, or "
             "MAP.taxonomy.yaml beside it), else the shipped vocabulary, with refinement and "
             "the presence check (core.config.DEFAULT_CONFIG; docs/config.md).",
         )
+
+
+class _OneConfig(argparse.Action):
+    """``-c`` of a command that runs one config: given twice is an error, not the last
+    one silently (``quash eval`` compares several)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        first = getattr(namespace, self.dest, None)
+        if first is not None:
+            parser.error(
+                f"{option_string} is given twice ({first}, {values}); this command runs one "
+                "config. To compare methods, run quash eval MAP -c A -c B."
+            )
+        setattr(namespace, self.dest, values)
 
 
 def add_runtime_options(parser: argparse.ArgumentParser) -> None:

@@ -86,6 +86,10 @@ def run(args: argparse.Namespace) -> int:
     )
     from ._viewer_opts import open_viewer
 
+    if args.format != "auto" and not args.out:
+        from ..core.errors import UsageError
+
+        raise UsageError(f"--format {args.format} is the format of --out: give --out too.")
     cfg = apply_runtime_options(load_config(args.config), args)
     options = adapter_options(args)
     _check_outputs(args, cfg)

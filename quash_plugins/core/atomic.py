@@ -85,7 +85,9 @@ def check_distinct_outputs(outputs: Iterable[tuple[str, str | Path | None]]) -> 
     a relative path or a symbolic link, or two hard links to one file.
 
     ``outputs`` holds ``(option, path)`` pairs; ``None`` paths are ignored. The second
-    write would replace the first, so one output would be lost.
+    write would replace the first, so one output would be lost. An output inside another
+    (``--rrd out/q.rrd`` with a folder ``--out out``) is refused too: a folder output is
+    replaced whole, and the file inside it would be lost the next time.
 
     Raises
     ------
@@ -104,6 +106,17 @@ def check_distinct_outputs(outputs: Iterable[tuple[str, str | Path | None]]) -> 
                     f"{other_what} {other} and {what} {out} name the same file: the second "
                     f"would replace the first. Give {what} another file name."
                 )
+            for inner_what, inner, outer_what, outer, outer_real in (
+                (what, out, other_what, other, other_real),
+                (other_what, other, what, out, real),
+            ):
+                if outer_real in _resolved(inner).parents:
+                    raise UsageError(
+                        f"{inner_what} {inner} is inside {outer_what} {outer}, which is "
+                        f"written as a whole: {inner_what} would be lost when "
+                        f"{outer_what} is written again. Give {inner_what} a path outside "
+                        f"{outer}."
+                    )
         seen.append((what, out, real))
 
 
@@ -162,7 +175,9 @@ def check_output(
         if folder and not known and not is_store_dir(out):
             raise UsageError(
                 f"{what} {out} is a folder that is neither a zarr store nor a previous "
-                "output; refusing to replace it (even with --force). Choose another name."
+                "output (a folder holding only the files this command writes); refusing "
+                "to replace it (even with --force): what else is in it would be lost. "
+                "Choose another name."
             )
         if not folder and not stat.S_ISREG(st.st_mode):
             raise UsageError(

@@ -168,9 +168,16 @@ OPENLEX3D_FILES = ("queries.json", "query_scores.npy", "query_scores_raw.npy", "
 
 
 def is_openlex3d_results(path: str | Path) -> bool:
-    """True for a folder written by :func:`write_results_openlex3d` (it may be replaced)."""
+    """True for a folder written by :func:`write_results_openlex3d`, holding nothing else
+    (it may be replaced whole): a file the user put in it (notes, a recording) would be
+    lost, so such a folder is not replaced."""
     p = Path(path)
-    return p.is_dir() and all((p / f).is_file() for f in OPENLEX3D_FILES[:2])
+    if not (p.is_dir() and all((p / f).is_file() for f in OPENLEX3D_FILES[:2])):
+        return False
+    try:
+        return {e.name for e in p.iterdir()} <= set(OPENLEX3D_FILES)
+    except OSError:
+        return False
 
 
 def write_results_openlex3d(

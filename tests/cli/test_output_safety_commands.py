@@ -140,6 +140,43 @@ def test_query_out_and_rrd_naming_one_file_are_refused_before_any_work(
     assert not (tmp_path / "same.rrd").exists()
 
 
+def test_an_openlex3d_results_folder_holding_a_users_file_is_never_replaced(
+    tiny_world, tmp_path, capsys
+):
+    """Replacing a previous --format openlex3d folder deleted every other file in it (a
+    recording, notes). A folder holding anything but the writer's files is not a
+    previous output; --rrd inside a folder --out is refused before any work."""
+    pytest.importorskip("open3d")
+    m, c = str(tiny_world["map"]), str(tiny_world["config"])
+    out = tmp_path / "ol"
+    base = ["-q", "query", m, "chair", "-c", c, "--out", str(out), "--format", "openlex3d"]
+    assert main(base) == 0
+    assert main([*base, "--force"]) == 0  # a previous output, as written: replaced
+    assert main([*base[:3], "sofa", *base[4:]]) == 0
+    assert json.loads((out / "queries.json").read_text())["queries"][0]["query_text"] == "sofa"
+    capsys.readouterr()
+    # a recording inside the folder: refused, whichever is named first
+    assert main([*base, "--rrd", str(out / "q.rrd")]) == 2
+    assert "is inside --out" in capsys.readouterr().err
+    (out / "notes.txt").write_text("mine")
+    before = _tree(out)
+    for extra in ([], ["--force"]):
+        assert main([*base, *extra]) == 2
+        assert "nor a previous output" in capsys.readouterr().err
+        assert _tree(out) == before  # the notes and the results, untouched
+
+
+def test_query_format_without_out_and_two_configs_are_refused(tiny_world, capsys):
+    m, c = str(tiny_world["map"]), str(tiny_world["config"])
+    with pytest.raises(SystemExit) as exc:
+        main(["-q", "query", m, "chair", "-c", c, "-c", "demo:quash-labels"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "-c is given twice" in err and "quash eval" in err
+    assert main(["-q", "query", m, "chair", "-c", c, "--format", "openlex3d"]) == 2
+    assert "give --out too" in capsys.readouterr().err
+
+
 def test_outputs_never_replace_the_taxonomy_beside_the_map_or_a_file_the_config_names(
     tiny_world, capsys
 ):
