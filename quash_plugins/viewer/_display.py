@@ -115,14 +115,36 @@ def ceiling_items(
     return layer
 
 
+def first_match_class(n_classes: int) -> int:
+    """The first of ``n_classes`` score classes labelled a match: the first class ``i``
+    whose display score ``i / (n_classes - 1)`` is at or above 0.5, the threshold.
+
+    >>> first_match_class(32), first_match_class(11), first_match_class(2)
+    (16, 5, 1)
+    """
+    return int(n_classes) // 2
+
+
 def score_classes(values: np.ndarray, n_classes: int) -> np.ndarray:
     """``(M,)`` display scores in [0, 1] to class ids ``0 .. n_classes - 1`` (uint16).
 
+    Class ``i`` is the display score ``i / (n_classes - 1)`` (``np.rint``), except at the
+    threshold, which is always a class boundary: a score at or above 0.5 is in a match
+    class (:func:`first_match_class` and up), one below 0.5 never is. With an even count
+    the rounding already does that; with an odd one, the class at exactly 0.50 would
+    also take the scores from ``0.5 - 0.5 / (n_classes - 1)`` to 0.5: those go to the
+    class below it.
+
     >>> score_classes(np.array([0.0, 0.5, 1.0, np.nan]), 5).tolist()
     [0, 2, 4, 0]
+    >>> score_classes(np.array([0.45, 0.4999, 0.5, 0.54]), 11).tolist()
+    [4, 4, 5, 5]
     """
     v = np.clip(np.nan_to_num(np.asarray(values, dtype=np.float32), nan=0.0), 0.0, 1.0)
-    return np.rint(v * (n_classes - 1)).astype(np.uint16)
+    ids = np.rint(v * (n_classes - 1)).astype(np.int64)
+    first = first_match_class(n_classes)
+    ids = np.where(v >= np.float32(0.5), np.maximum(ids, first), np.minimum(ids, first - 1))
+    return ids.astype(np.uint16)
 
 
 def slugify(text: str, fallback: str = "query") -> str:

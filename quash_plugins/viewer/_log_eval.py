@@ -70,7 +70,7 @@ class EvalLogging:
             step = int(step_or_query)
         rec.set_time("query", sequence=step)
         if isinstance(step_or_query, str):
-            self._list_query(step, step_or_query)
+            self._list_query(step, step_or_query, "log_eval_scalars")
         cfg = self._config_slug(str(config_name))
         for key, value in metrics.items():
             try:
@@ -126,12 +126,15 @@ class EvalLogging:
         the queries shown in the 3D views. An absence query is plotted as ``absence``:
         1 when the config's mask is empty (within the report's tolerance), 0 when it
         matched something. The ``query_list`` names each step, also when no result was
-        logged (``quash eval``).
+        logged (``quash eval``); a step where another query was logged raises
+        :class:`~quash_plugins.core.errors.QuashError` before anything is logged.
         """
         steps = [*queries, *absent]
+        for i, q in enumerate(steps):  # a step named for another query is refused first
+            self._check_step(i, q, "log_evaluation")
         for i, q in enumerate(steps):
             self.recording.set_time("query", sequence=i)
-            self._list_query(i, q)
+            self._list_query(i, q, "log_evaluation")
         for c in configs:
             per_query = c.get("per_query") or {}
             for i, q in enumerate(queries):

@@ -8,16 +8,20 @@ view's orientation: the up axis's view coordinates and the top-down eye.
 
 from __future__ import annotations
 
+import hashlib
+import weakref
 from typing import Any
 
 import numpy as np
 
+from ..core.errors import QuashError
 from ..core.types import LatentMap
 from ._display import (
     UP_AXES,
     ceiling_items,
     colormap,
     display_indices,
+    first_match_class,
     map_up,
     pca_colors,
     slugify,
@@ -38,9 +42,31 @@ class MapLogging:
 
         Colours come from ``lmap.colors``, or from a PCA of the embeddings (fitted on a
         bounded sample, projected in blocks) when the map has none.
+
+        A logger holds one map, as its recording does: the map's layers are static, so a
+        second map would replace the first one's at every step. Logging the same map
+        again (the same object, or the map read again: the same kind, items, geometry,
+        colours and up axis) does nothing; another map raises :class:`QuashError` (log
+        it to a recording and logger of its own).
         """
+        if self._map_ref is not None and self._map_ref() is lmap:
+            return
+        key = self._map_fingerprint(lmap)
+        if self._map_key is not None:
+            if key != self._map_key:
+                raise QuashError(
+                    f"This RerunLogger already logged the map {self._map_name}; "
+                    f"{_describe_map(lmap)} is another map. A recording holds one map: "
+                    "world/map and the score geometry are static, so a second map would "
+                    "replace the first one's at every step and draw the first one's "
+                    "matches over it. Log each map to a recording of its own: a new "
+                    "rerun.RecordingStream and RerunLogger per map (on the command line, "
+                    "one --rrd file per map)."
+                )
+            self._map_ref = _weak(lmap)  # the same map, read again: nothing to log
+            return
         rr, rec = self.rr, self.recording
-        self._map_key = id(lmap)
+        self._map_key, self._map_ref, self._map_name = key, _weak(lmap), _describe_map(lmap)
         self._notes = []
         self._configs = {}
         self._layers = {}
@@ -131,19 +157,36 @@ class MapLogging:
         self._layout_changed()
         self._send_blueprint()
 
+    def _map_fingerprint(self, lmap: LatentMap) -> tuple:
+        """What the map's static layers are drawn from: two maps with the same
+        fingerprint draw the same ``world/`` and ``images/`` layers."""
+        frames = tuple((str(f.frame_id), f.height, f.width, f.offset) for f in lmap.frames or ())
+        if lmap.colors is not None:
+            colors: Any = _digest(lmap.colors)
+        elif lmap.source:  # PCA colours of the embeddings: the same source, the same map
+            source = sorted(lmap.source.items(), key=lambda kv: str(kv[0]))
+            colors = ("pca", lmap.dim, bool(lmap.normalize), repr(source))
+        else:  # an in-memory map with no colours and no source: only itself is itself
+            colors = ("pca", object())
+        positions = None if lmap.positions is None else _digest(lmap.positions)
+        up = map_up(self.up, lmap.source)
+        return (lmap.kind, lmap.n, lmap.voxel_size, up, frames, positions, colors)
+
     def _score_context(self) -> Any:
         """Class ``i`` of the score layers: the colormap at ``i / (score_classes - 1)``,
-        labelled with that display score (``0.53``), ``(match)`` at and above the
-        threshold's 0.5."""
+        labelled with that display score (``0.53``), ``(match)`` from the first class at
+        or above the threshold's 0.5 (:func:`~._display.first_match_class`), which holds
+        only display scores at or above 0.5 (:func:`~._display.score_classes`)."""
         rr = self.rr
         k = self.score_classes
         values = np.linspace(0.0, 1.0, k)
         rgb = colormap(values, self.colormap)
+        first = first_match_class(k)
         return rr.AnnotationContext(
             [
                 rr.AnnotationInfo(
                     id=i,
-                    label=f"{v:.2f}" + (" (match)" if v >= 0.5 else ""),
+                    label=f"{v:.2f}" + (" (match)" if i >= first else ""),
                     color=(*map(int, rgb[i]), 255),
                 )
                 for i, v in enumerate(values)
@@ -170,6 +213,28 @@ class MapLogging:
             return rr.Boxes3D(centers=pos, half_sizes=half, colors=colors, fill_mode="solid")
         radius = self._voxel * point_scale if self._voxel else None
         return rr.Points3D(pos, colors=colors, radii=radius)
+
+
+def _weak(lmap: LatentMap) -> Any:
+    """A weak reference to ``lmap``: a callable that returns it while it lives."""
+    try:
+        return weakref.ref(lmap)
+    except TypeError:  # a map type without weak references: held, so its id stays its own
+        return lambda: lmap
+
+
+def _digest(values: Any) -> tuple:
+    """Shape, dtype and a hash of an array's contents."""
+    a = np.ascontiguousarray(values)
+    h = hashlib.blake2b(a.data if a.size else b"", digest_size=16)
+    return (a.shape, a.dtype.str, h.hexdigest())
+
+
+def _describe_map(lmap: LatentMap) -> str:
+    """``'scene.npz' (voxels, 51,234 items)``, for messages."""
+    path = (lmap.source or {}).get("path")
+    where = f"{str(path)!r} " if path else ""
+    return f"{where}({lmap.kind}, {lmap.n:,} items)"
 
 
 def _view_coordinates(rr: Any, up: str) -> Any:

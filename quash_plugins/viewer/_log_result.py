@@ -21,6 +21,11 @@ from ._log_map import MATCH_COLOR, REJECTED_COLOR
 INSTANCE_COLOR = (255, 200, 0)
 
 
+def _same_query(a: str, b: str) -> bool:
+    """The same query text, white space aside (queries are compared as they are run)."""
+    return " ".join(str(a).split()) == " ".join(str(b).split())
+
+
 class _ConfigState:
     """What was logged for one config."""
 
@@ -46,15 +51,20 @@ class ResultLogging:
         ``images/<frame>/<config>/{mask,scores,instances}`` (the mask's class 2: the pixels
         the presence check dropped). Each replaces the config's
         previous query, so scrubbing the timeline shows one query at a time per config.
+
+        A step is one query in every config: another result of the same query at ``index``
+        (another config's, or this one's again) is fine; another query at a step in use
+        raises :class:`QuashError` naming both and a free index, before anything of it is
+        logged. The map must be the one this logger logged (:meth:`log_map`).
         """
         rr, rec = self.rr, self.recording
-        if self._map_key != id(lmap):
-            self.log_map(lmap)
+        self.log_map(lmap)  # nothing when this map is logged already; another is refused
         if len(result.mask) != lmap.n:
             raise QuashError(
                 f"Result for {result.query!r} has {len(result.mask)} items but the map has {lmap.n}."
             )
         index = int(index)
+        self._check_step(index, result.query, "log_result")
         name = str(result.config_name or "quash")
         c = self._config_slug(name)
         state = self._configs.setdefault(c, _ConfigState(name))
@@ -80,10 +90,39 @@ class ResultLogging:
         rec.log(f"queries/{c}", rr.TextDocument(text, media_type=rr.MediaType.MARKDOWN))
         self._layout_changed()
 
-    def _list_query(self, step: int, query: str) -> None:
+    def _check_step(self, step: int, query: str, caller: str) -> None:
+        """Refuse a second query at ``step``: a step of the ``query`` timeline is one
+        query, shown in every config's tab and named once in the query list."""
+        named = self._listed.get(step)
+        if named is None or _same_query(named, query):
+            return
+        free = max(self._listed) + 1
+        if caller == "log_result":
+            fix = (
+                f"Log {str(query)!r} at a step of its own, e.g. index={free} (the step after "
+                "the last one used); for a second batch of results, continue the numbering "
+                f"(enumerate(results, start={free}))."
+            )
+        elif caller == "log_evaluation":
+            fix = (
+                "log_evaluation puts query i of its list at step i (absence query j at "
+                "len(queries) + j): log the results at those steps, or the evaluation with "
+                "a RerunLogger of its own."
+            )
+        else:
+            fix = f"Give {str(query)!r} a step of its own, e.g. {free}."
+        raise QuashError(
+            f"{caller}: step {step} of the query timeline already holds the query "
+            f"{named!r}, so {str(query)!r} cannot be logged there: a step is one query, "
+            "named once in the query list and shown at that step in every config's tab. " + fix
+        )
+
+    def _list_query(self, step: int, query: str, caller: str = "log_result") -> None:
         """Name the query at ``step`` once, in the ``query_list`` text log (at that step):
-        the list of queries by step, where clicking a row moves the timeline to it."""
+        the list of queries by step, where clicking a row moves the timeline to it.
+        Another query at a named step is refused (:meth:`_check_step`)."""
         if step in self._listed:
+            self._check_step(step, query, caller)
             return
         self._listed[step] = str(query)
         self.recording.log(QUERY_LIST, self.rr.TextLog(str(query)))

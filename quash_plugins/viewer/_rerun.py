@@ -46,6 +46,10 @@ class RerunLogger(MapLogging, ResultLogging, EvalLogging):
     its instance boxes and its document. Results are grouped by config (one tab each in
     the blueprint) and placed on the ``query`` timeline by query index.
 
+    One logger holds one map and one query per step: a second, different map, or another
+    query at a step in use, raises :class:`QuashError` rather than corrupting what was
+    logged (use a new recording and logger per map; continue the step numbering).
+
     Parameters
     ----------
     recording
@@ -74,6 +78,8 @@ class RerunLogger(MapLogging, ResultLogging, EvalLogging):
         from above.
     score_classes
         Number of colour steps of the score layers (class ids of one annotation context).
+        The threshold (display score 0.5) is always a class boundary: the classes
+        labelled ``(match)`` hold only scores at or above it, for odd counts too.
 
     Examples
     --------
@@ -120,7 +126,9 @@ class RerunLogger(MapLogging, ResultLogging, EvalLogging):
         self.colormap = colormap
         self.up = up
         self.score_classes = int(score_classes)
-        self._map_key: int | None = None
+        self._map_key: tuple | None = None  # the fingerprint of the map logged
+        self._map_ref: Any = None  # a weak reference to it
+        self._map_name = ""  # the map logged, in words
         self._layers: dict[str, np.ndarray] = {}
         self._as_boxes = False
         self._voxel = 0.0

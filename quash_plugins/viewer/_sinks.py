@@ -15,6 +15,7 @@ other sinks.
 from __future__ import annotations
 
 import contextlib
+import errno
 import importlib.util
 import logging
 import os
@@ -44,6 +45,8 @@ DEFAULT_WEB_PORT = 9090
 DEFAULT_BIND = "127.0.0.1"
 #: Seconds to wait for a spawned viewer or the web viewer's HTTP server to listen.
 START_TIMEOUT_S = 30.0
+#: Seconds to wait for the recording's gRPC server (in this process) to listen.
+GRPC_START_TIMEOUT_S = 10.0
 #: Seconds :meth:`SinkRerunLogger.close` waits for streaming sinks to take the recording.
 FLUSH_TIMEOUT_S = 120.0
 _WILDCARDS = ("0.0.0.0", "::", "")
@@ -244,6 +247,23 @@ def _listening(host: str, port: int, timeout: float = 0.5) -> bool:
         return False
 
 
+def _bind_error(host: str, port: int) -> OSError | None:
+    """The error a TCP server binding ``host:port`` now would get; None when it can.
+
+    The socket is only bound, never listened on, and closed at once. On POSIX it sets
+    ``SO_REUSEADDR`` as the servers do, so connections of an earlier server that linger
+    in TIME_WAIT do not count as a busy port, while a listener does.
+    """
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+        if os.name == "posix":
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            sock.bind((host, port))
+        except OSError as exc:
+            return exc
+    return None
+
+
 def _connect_host(bind: str) -> str:
     """The address a client on this machine uses for a server bound to ``bind``."""
     return "127.0.0.1" if bind in _WILDCARDS else bind
@@ -366,6 +386,7 @@ class SinkRerunLogger(RerunLogger):
                 outputs.append(server)
             recording.set_sinks(*outputs)
             if server is not None:
+                self._wait_for_grpc_server()
                 grpc_uri = f"rerun+http://{_url_host(self.bind)}:{self.grpc_port}/proxy"
                 self._serve_web_viewer(grpc_uri)
                 self.url = web_viewer_url(self.web_port, grpc_uri, _url_host(self.bind))
@@ -446,10 +467,54 @@ class SinkRerunLogger(RerunLogger):
         return False
 
     def _check_free(self, port: int, option: str) -> None:
-        if _listening(_connect_host(self.bind), port):
-            raise QuashError(
-                f"Port {port} on {self.bind} is in use; choose a free one with {option} PORT."
+        """Refuse ``bind:port`` unless a server can listen there now: tried by binding
+        that very address (0.0.0.0 conflicts with a listener on any of the machine's
+        addresses, which connecting to 127.0.0.1 would not find)."""
+        exc = _bind_error(self.bind, port)
+        if exc is None:
+            return
+        if exc.errno == errno.EADDRNOTAVAIL:
+            raise UsageError(
+                f"--bind {self.bind} is not an address of this machine (none of its network "
+                "interfaces has it), so nothing can listen there. Give --bind one of its own "
+                "addresses: 127.0.0.1 (this machine only, the default), 0.0.0.0 (every "
+                "network interface) or the address of one of its interfaces (ip -4 addr "
+                "lists them)."
             )
+        if exc.errno == errno.EADDRINUSE:
+            where = (
+                "another program listens on it, on this or another of the machine's addresses"
+                if self.bind in _WILDCARDS
+                else "another program listens on it"
+            )
+            raise QuashError(
+                f"Port {port} on {self.bind} is in use ({where}); choose a free one with "
+                f"{option} PORT."
+            )
+        if exc.errno in (errno.EACCES, errno.EPERM):
+            raise QuashError(
+                f"Port {port} on {self.bind} needs privileges this process does not have "
+                f"(ports below 1024 usually do); choose another with {option} PORT."
+            )
+        raise QuashError(
+            f"Cannot listen on {self.bind}:{port} ({exc.strerror or exc}); choose another "
+            f"port with {option} PORT or another address with --bind."
+        )
+
+    def _wait_for_grpc_server(self) -> None:
+        """Wait until the gRPC server listens: it reports a failure to listen only in a
+        log line of its own thread, and the web viewer would point at nothing (or at
+        another program that took the port since :meth:`_check_free`)."""
+        host = _connect_host(self.bind)
+        deadline = time.monotonic() + GRPC_START_TIMEOUT_S
+        while not _listening(host, self.grpc_port):
+            if time.monotonic() >= deadline:
+                raise QuashError(
+                    f"The recording's gRPC server did not listen on {self.bind}:"
+                    f"{self.grpc_port} within {GRPC_START_TIMEOUT_S:.0f} s (see the error "
+                    "above); choose a free port with --grpc-port PORT."
+                )
+            time.sleep(0.05)
 
     def _serve_web_viewer(self, grpc_uri: str) -> None:
         """Serve the web viewer's files over HTTP on ``bind:web_port`` (a ``rerun`` child)."""
@@ -474,9 +539,19 @@ class SinkRerunLogger(RerunLogger):
             while time.monotonic() < deadline:
                 if self._web.poll() is not None:
                     why = _tail(err) or f"exit code {self._web.returncode}"
+                    low = why.lower()
+                    if "assign requested address" in low or "os error 99" in low:
+                        fix = (
+                            f"--bind {self.bind} is not an address of this machine: give "
+                            "one of its own with --bind (127.0.0.1, the default, or 0.0.0.0)."
+                        )
+                    elif "in use" in low:
+                        fix = "Choose a free port with --web-port."
+                    else:
+                        fix = "Choose another port with --web-port or another address with --bind."
                     raise QuashError(
                         f"Could not serve the web viewer on {self.bind}:{self.web_port} ({why}). "
-                        "Choose a free port with --web-port."
+                        + fix
                     )
                 if _listening(host, self.web_port):
                     return

@@ -810,3 +810,159 @@ def test_cli_eval_rrd_plots_ap_and_the_absence_queries(tmp_path):
     assert absence == [(2, [want[0]]), (3, [want[1]])]
     assert ("TimeSeries", "eval/absence") in blueprint_views(reader)
     assert ("TimeSeries", "eval/ap") in blueprint_views(reader)
+
+
+def _near_threshold_result(lmap):
+    """A chair result whose display scores cover [0, 1] evenly, with the scores just
+    below and at the threshold's 0.5; a match is a raw score above the threshold (0.5
+    on the display scale), as the engine decides it."""
+    import dataclasses
+
+    [r] = make_quash().query_many(lmap, ["chair"])
+    display = np.linspace(0.0, 1.0, lmap.n, dtype=np.float32)
+    below = np.nextafter(np.float32(0.5), np.float32(0.0))
+    display[:6] = [0.45, 0.47, 0.4999, below, 0.5, 0.55]
+    scores = display - np.float32(0.5)
+    return dataclasses.replace(
+        r, display_scores=display, scores=scores, mask=scores > 0, threshold=0.0
+    )
+
+
+@pytest.mark.parametrize("k", [2, 3, 5, 6, 11, 32, 33])
+def test_only_scores_at_or_above_the_threshold_are_in_a_match_class(k, tmp_path):
+    """score_classes=11 put the display scores from 0.45 to 0.5 in class 5, labelled
+    '0.50 (match)': 95 unmatched items carried a match colour. The threshold is a class
+    boundary for every class count, odd or even."""
+    lmap = voxel_map()
+    r = _near_threshold_result(lmap)
+    out = tmp_path / "k.rrd"
+    log_to_file(out, lmap, [r], score_classes=k)
+    _, by_path = read_rrd(out)
+    [(_, [context])] = rows(by_path["world/scores"], "AnnotationContext:context")
+    labels = {c["class_id"]: c["class_description"]["info"]["label"] for c in context}
+    assert sorted(labels) == list(range(k))
+    match_classes = {i for i, label in labels.items() if label.endswith("(match)")}
+    assert match_classes == set(range(min(match_classes), k))  # the top classes
+    [(_, ids)] = rows(by_path["world/scores/quash"], "Boxes3D:class_ids")
+    in_match_class = np.isin(np.array(ids), list(match_classes))
+    display = r.display_scores
+    assert not (in_match_class & (display < 0.5)).any(), "a non-match in a '(match)' class"
+    assert (in_match_class == (display >= 0.5)).all()
+    assert in_match_class[r.mask].all()  # every match is in a match class
+    for i in set(ids):  # each class holds scores around its label's value
+        held = display[np.array(ids) == i]
+        value = float(labels[i].split()[0])
+        assert held.min() - 0.5 / (k - 1) - 0.01 <= value <= held.max() + 0.5 / (k - 1) + 0.01
+
+
+def test_the_default_score_classes_are_the_rounded_display_score():
+    """32 classes (the default) were already right: the threshold falls between classes
+    15 and 16, so nothing changes for them, down to the float32 neighbours of 0.5."""
+    half = np.float32(0.5)
+    around = [half]
+    for direction in (0.0, 1.0):
+        v = half
+        for _ in range(64):
+            v = np.nextafter(v, np.float32(direction))
+            around.append(v)
+    values = np.concatenate([np.linspace(0, 1, 100_001, dtype=np.float32), around])
+    want = np.rint(values * np.float32(31)).astype(np.uint16)
+    assert score_classes(values, 32).tolist() == want.tolist()
+
+
+def test_a_second_query_at_a_step_in_use_is_refused_naming_both(tmp_path):
+    """Two query_many calls each logged from index=0: the second's rows went to the
+    first's steps and the query list kept only the first's names, so the viewer showed
+    'sofa' under the name 'chair'. Now the second query is refused before anything of it
+    is logged, saying which step, which queries and which index to use."""
+    lmap = voxel_map()
+    quash = make_quash()
+    [chair] = quash.query_many(lmap, ["chair"])
+    [sofa] = quash.query_many(lmap, ["sofa"])
+    other = make_quash()
+    other.name = "other method"
+    [other_chair] = other.query_many(lmap, ["chair"])
+    out = tmp_path / "s.rrd"
+    rec = rr.RecordingStream("quash-test")
+    rec.save(out)
+    logger = RerunLogger(rec)
+    logger.log_result(lmap, chair, index=0)
+    logger.log_result(lmap, other_chair, index=0)  # the same query in another config: fine
+    with pytest.raises(QuashError) as refused:
+        logger.log_result(lmap, sofa, index=0)
+    said = str(refused.value)
+    assert "step 0" in said and "'chair'" in said and "'sofa'" in said
+    assert "index=1" in said
+    logger.log_result(lmap, sofa, index=1)  # as the message says
+    with pytest.raises(QuashError, match="log_evaluation: step 0 .* 'chair'"):
+        logger.log_evaluation([{"name": "quash", "per_query": {}}], ["sofa", "chair"])
+    logger.close()
+    rec.disconnect()
+    _, by_path = read_rrd(out)
+    assert rows(by_path["query_list"], "TextLog:text") == [(0, ["chair"]), (1, ["sofa"])]
+    matches = rows(by_path["world/matches/quash"], "Boxes3D:centers")
+    assert [t for t, _ in matches] == [0, 1]
+    assert [len(c) for _, c in matches] == [chair.n_matched, sofa.n_matched]
+    docs = rows(by_path["queries/quash"], "TextDocument:text")
+    assert [(t, text.split(" · ")[0]) for t, [text] in docs] == [(0, "# chair"), (1, "# sofa")]
+
+
+@pytest.mark.parametrize("second", ["room", "same source, other items"])
+def test_a_second_map_is_refused_and_the_first_kept(second, tmp_path):
+    """world/map and the score geometry are static: a second map replaced the first
+    one's at every step, and the first map's matches were drawn over the second."""
+    map1 = voxel_map()
+    map2 = room_map() if second == "room" else voxel_map(shape=(7, 5, 3))
+    r1 = make_quash().query(map1, "chair")
+    r2 = make_quash().query(map2, "chair")
+    out = tmp_path / "m.rrd"
+    rec = rr.RecordingStream("quash-test")
+    rec.save(out)
+    logger = RerunLogger(rec)
+    logger.log_result(map1, r1, index=0)
+    with pytest.raises(QuashError) as refused:
+        logger.log_result(map2, r2, index=1)
+    said = str(refused.value)
+    assert "another map" in said and "RerunLogger" in said and "recording" in said
+    with pytest.raises(QuashError, match="another map"):
+        logger.log_map(map2)
+    logger.close()
+    rec.disconnect()
+    _, by_path = read_rrd(out)
+    [(t, centers)] = rows(by_path["world/map"], "Boxes3D:centers")
+    assert t is None and len(centers) == map1.n
+    [(t, centers)] = rows(by_path["world/scores/quash"], "Boxes3D:centers")
+    assert t is None and len(centers) == map1.n
+    assert [t for t, _ in rows(by_path["world/matches/quash"], "Boxes3D:centers")] == [0]
+    assert "world/ceiling" not in by_path  # the room's
+
+
+def test_the_same_map_again_is_logged_once_and_keeps_every_tab(tmp_path):
+    """The same object, or the same map read again (another object with the same source
+    and contents), logs nothing new: the static layers once, and the tabs of the configs
+    logged before stay (a second log_map used to drop them from the blueprint)."""
+    lmap = voxel_map()
+    again = voxel_map()  # read again: the same source and contents, another object
+    assert again is not lmap and again.source == lmap.source
+    other = make_quash()
+    other.name = "other method"
+    out = tmp_path / "m.rrd"
+    rec = rr.RecordingStream("quash-test")
+    rec.save(out)
+    logger = RerunLogger(rec)
+    logger.log_map(lmap)
+    logger.log_map(lmap)
+    for i, r in enumerate(make_quash().query_many(lmap, ["chair", "sofa"])):
+        logger.log_result(lmap, r, index=i)
+    for i, r in enumerate(other.query_many(again, ["chair", "sofa"])):
+        logger.log_result(again, r, index=i)
+    logger.close()
+    rec.disconnect()
+    reader, by_path = read_rrd(out)
+    [(t, centers)] = rows(by_path["world/map"], "Boxes3D:centers")
+    assert t is None and len(centers) == lmap.n
+    for c in ("quash", "other_method"):
+        [(t, _)] = rows(by_path[f"world/scores/{c}"], "Boxes3D:centers")
+        assert t is None
+        assert [t for t, _ in rows(by_path[f"world/matches/{c}"], "Boxes3D:centers")] == [0, 1]
+    assert {"quash: map and matches", "other method: map and matches"} <= view_names(reader)

@@ -218,3 +218,80 @@ def test_demo_serve_web_in_the_background_stops_on(sig, tmp_path, demo_cache):
     while listening({web, grpc}) and time.monotonic() < deadline:
         time.sleep(0.2)
     assert not listening({web, grpc}), "a server outlived the command"
+
+
+def _listen_on(host: str) -> socket.socket:
+    """A listening socket on a free port of ``host`` (skips where the address is not
+    this machine's, e.g. 127.0.0.2 outside Linux)."""
+    sock = socket.socket()
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        sock.bind((host, 0))
+    except OSError as exc:
+        sock.close()
+        pytest.skip(f"cannot listen on {host}: {exc}")
+    sock.listen()
+    return sock
+
+
+def test_serve_web_on_every_interface_refuses_a_port_taken_on_another_address(tmp_path, small_map):
+    """The walkthrough's case: a program listens on port P of another address of the
+    machine (here 127.0.0.2), so binding 0.0.0.0:P fails. The check connected to
+    127.0.0.1:P, found nothing, and the command printed the gRPC server's raw error, then
+    served a web viewer pointing at the other program. Now it is refused first."""
+    map_path, cfg = small_map
+    web = free_port()
+    with _listen_on("127.0.0.2") as other:
+        grpc = other.getsockname()[1]
+        args = ["query", str(map_path), "chair", "-c", str(cfg), "--serve-web"]
+        args += ["--bind", "0.0.0.0", "--web-port", str(web), "--grpc-port", str(grpc)]
+        try:
+            proc = run_cli(args, tmp_path, headless_env(), timeout=90)
+        except subprocess.TimeoutExpired as exc:
+            pytest.fail(f"it served instead of refusing the busy port:\n{exc.stderr}")
+    assert proc.returncode == 1, proc.stderr
+    assert f"Port {grpc} on 0.0.0.0 is in use" in proc.stderr
+    assert "--grpc-port PORT" in proc.stderr
+    assert "Failed to listen" not in proc.stderr  # the gRPC server never started
+    assert "Rerun web viewer:" not in proc.stderr  # nor the web viewer
+    assert not listening({web, grpc}) - {("127.0.0.2", grpc)}
+
+
+def _refusal(**options) -> str:
+    """The message of a SinkRerunLogger refused with these ViewerOptions."""
+    from quash_plugins.core.errors import QuashError
+    from quash_plugins.viewer import SinkRerunLogger, ViewerOptions
+
+    try:
+        logger = SinkRerunLogger(ViewerOptions(serve_web=True, **options))
+    except QuashError as exc:
+        return str(exc)
+    logger._discard()  # it started: stop its servers without serving
+    logger.recording.disconnect()
+    pytest.fail(f"{options} was not refused")
+
+
+def test_serve_web_refuses_a_busy_port_of_its_own_address():
+    with _listen_on("127.0.0.1") as other:
+        port = other.getsockname()[1]
+        said = _refusal(bind="127.0.0.1", grpc_port=port, web_port=free_port())
+        assert f"Port {port} on 127.0.0.1 is in use" in said and "--grpc-port PORT" in said
+        said = _refusal(bind="127.0.0.1", grpc_port=free_port(), web_port=port)
+        assert f"Port {port} on 127.0.0.1 is in use" in said and "--web-port PORT" in said
+
+
+def test_serve_web_on_an_address_the_machine_does_not_have_names_bind():
+    """192.0.2.99 (TEST-NET-1) is no interface's: no port can help, --bind can."""
+    from quash_plugins.core.errors import UsageError
+
+    with pytest.raises(UsageError) as refused:
+        from quash_plugins.viewer import SinkRerunLogger, ViewerOptions
+
+        SinkRerunLogger(
+            ViewerOptions(
+                serve_web=True, bind="192.0.2.99", web_port=free_port(), grpc_port=free_port()
+            )
+        )
+    said = str(refused.value)
+    assert "--bind 192.0.2.99 is not an address of this machine" in said, said
+    assert "--web-port" not in said and "--grpc-port" not in said
