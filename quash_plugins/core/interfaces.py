@@ -259,10 +259,12 @@ def check_text_embeddings(
     normalize: bool = True,
     *,
     warn_norm: bool = True,
+    origin: str | None = None,
 ) -> np.ndarray:
     """Validate an encoder's output at the boundary and return unit-norm float32.
 
-    Raises :class:`EncoderError` naming the encoder when the shape or values are wrong.
+    Raises :class:`EncoderError` naming the encoder (and ``origin``, its module and
+    distribution, when given) when the shape or values are wrong, with what to run.
     Output that breaks the contract in a way that can be mended (not float32, rows not of
     unit norm) is mended, with one warning per encoder and process: the conformance kit
     fails such an encoder. ``warn_norm=False``: rows off unit norm are expected (an
@@ -289,18 +291,24 @@ def check_text_embeddings(
             f"Encoder {who!r} returned a {kind} that is not an array of numbers "
             f"({exc}); return a (len(texts), {dim}) float32 numpy array."
         ) from exc
+    named = f"Encoder {who!r}" + (f" ({origin})" if origin else "")
+    fix = (
+        " Fix its encode_text: it must return one unit-norm (len(texts), dim) float32 row "
+        "per text; quash_plugins.testing.check_encoder(encoder) checks the contract."
+    )
     if arr.shape != (len(texts), dim):
         raise EncoderError(
-            f"Encoder {who!r} returned shape {arr.shape} for {len(texts)} texts; "
-            f"expected ({len(texts)}, {dim})."
+            f"{named} returned shape {arr.shape} for {len(texts)} texts; "
+            f"expected ({len(texts)}, {dim}), dim being its 'dim'.{fix}"
         )
     if not np.isfinite(arr).all():
-        raise EncoderError(f"Encoder {who!r} returned NaN or Inf embeddings.")
+        row = int(np.argwhere(~np.isfinite(arr))[0][0])
+        raise EncoderError(f"{named} returned NaN or Inf embeddings (for {texts[row]!r}).{fix}")
     if normalize and len(arr):
         norms = np.linalg.norm(arr, axis=1, keepdims=True)
         if (norms == 0).any():
             bad = texts[int(np.argmin(norms[:, 0]))]
-            raise EncoderError(f"Encoder {who!r} returned a zero embedding for {bad!r}.")
+            raise EncoderError(f"{named} returned a zero embedding for {bad!r}.{fix}")
         off = float(np.abs(norms - 1.0).max())
         if warn_norm and off > 1e-3:
             _contract_warning(

@@ -77,12 +77,14 @@ def encode_texts(
                 "Fix the encoder or its parameters (the config's 'encoder:' section); "
                 "--debug shows the traceback."
             ) from exc
+        dist = distribution_of(type(encoder).__module__)
         emb = check_text_embeddings(
             raw,
             missing,
             dim,
             plugin_name(encoder),
             warn_norm=getattr(encoder, "normalize", True) is not False,
+            origin=type(encoder).__module__ + (f", distribution {dist}" if dist else ""),
         )
         new = dict(zip(missing, emb))
         found.update(new)

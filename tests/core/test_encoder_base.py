@@ -263,6 +263,34 @@ def test_rows_that_are_not_an_array_name_the_encoder():
         encode_texts(Ragged(), ["chair", "sofa"], None)
 
 
+@pytest.mark.parametrize(
+    "rows, what",
+    [
+        (lambda n: np.ones((n, 3), np.float32), "returned shape (2, 3) for 2 texts"),
+        (lambda n: np.ones((n, 8), np.float32).T, "returned shape (8, 2) for 2 texts"),
+        (lambda n: np.full((n, 8), np.nan, np.float32), "returned NaN or Inf embeddings"),
+        (lambda n: np.zeros((n, 8), np.float32), "returned a zero embedding for 'chair'"),
+    ],
+)
+def test_output_that_breaks_the_contract_names_the_module_and_the_kit(rows, what):
+    """A wrong shape, NaN or a zero row used to name the encoder only: now its module
+    (and distribution, for an installed one) and the conformance check to run."""
+    from quash_plugins.core.errors import EncoderError
+    from quash_plugins.core.text import encode_texts
+
+    class Broken(_PrivateSeed):
+        name = "broken-output"
+
+        def encode_text(self, texts):
+            return rows(len(texts))
+
+    with pytest.raises(EncoderError) as err:
+        encode_texts(Broken(), ["chair", "sofa"], None)
+    msg = str(err.value)
+    assert msg.startswith(f"Encoder 'broken-output' ({__name__}) {what}")
+    assert "quash_plugins.testing.check_encoder(encoder)" in msg
+
+
 def test_an_error_inside_encode_text_names_the_encoder():
     """Before: the plugin's own exception reached the command line as an 'unexpected
     error' naming no encoder (a CUDA out-of-memory error, say)."""
