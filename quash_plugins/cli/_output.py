@@ -50,6 +50,27 @@ def setup_logging(verbose: int, quiet: bool) -> None:
     root.handlers[:] = [handler]
     root.setLevel(level)
     root.propagate = False
+    _format_own_warnings()
+
+
+def _format_own_warnings() -> None:
+    """Print this package's warnings (an empty map's :class:`EmptyMapWarning`...) as log
+    lines are printed, ``WARNING  message``, not as Python's default
+    ``/path/to/quash_plugins/cli/cmd_query.py:108: EmptyMapWarning: message``, which
+    points at our code rather than at the user's input. Other packages' warnings, and
+    code that records warnings (``warnings.catch_warnings(record=True)``), are as before.
+    """
+    import warnings
+
+    default = getattr(warnings.formatwarning, "_quash_default", warnings.formatwarning)
+
+    def formatwarning(message, category, filename, lineno, line=None):
+        if getattr(category, "__module__", "").startswith("quash_plugins"):
+            return f"WARNING  {message}\n"
+        return default(message, category, filename, lineno, line)
+
+    formatwarning._quash_default = default  # type: ignore[attr-defined]
+    warnings.formatwarning = formatwarning
 
 
 class _Once(logging.Filter):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import time
 
 NAME = "query"
 HELP = "Answer queries against a map; print matches, write masks and scores."
@@ -96,7 +97,9 @@ def run(args: argparse.Namespace) -> int:
     quash = Quash.from_config(cfg, **backend_overrides(args))
     if args.out and _out_format(args) == "zarr":
         return _query_to_zarr(args, quash)
+    t_read = time.perf_counter()
     lmap = quash.read_map(args.map, adapter=args.adapter, **options)
+    t_read = time.perf_counter() - t_read
     check_map_inputs(lmap, [("--out", args.out), ("--rrd", getattr(args, "rrd", None))])
     if args.out and _out_format(args) == "openlex3d":  # refused before any query runs
         from ..adapters import check_openlex3d_exportable
@@ -110,6 +113,9 @@ def run(args: argparse.Namespace) -> int:
     passes = f" ({quash.passes} passes)" if quash.passes > 1 else ""
     with progress(lmap.n * quash.passes, f"classifying {lmap.n} items{passes}") as advance:
         results = quash.query_many(lmap, args.queries, progress=advance)
+    for r in results:  # the map was read here, before query_many: its share of that read
+        r.timings["total"] += t_read / len(results) - r.timings.get("read", 0.0)
+        r.timings["read"] = t_read / len(results)
     up = None if args.up == "auto" else args.up  # else the map's own, where it records one
     if args.out and _out_format(args) == "openlex3d":
         from ..engine.results import write_results_openlex3d

@@ -155,7 +155,7 @@ class TaxonomyHeuristic(Heuristic):
         raise HeuristicError(
             f"Heuristic {self.name!r} has no taxonomy (no label list): give 'file' "
             "({label: [sub-class, ...]}) or query a map that has label_names (or a "
-            "MAP.taxonomy.yaml beside its file)."
+            "MAP.taxonomy.yaml beside its file); quash expand reads that map with --map MAP."
         )
 
     def _labels_source(self, context: ExpansionContext | None) -> str:

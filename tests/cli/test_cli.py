@@ -89,6 +89,45 @@ def test_query_json_summary(tiny_world, capsys):
     assert 0 < data["results"][0]["matched"] < 600
 
 
+def test_query_timings_count_the_map_read_by_the_command(tiny_world, capsys, monkeypatch):
+    """quash query reads the map before query_many, which then found it read: the
+    table said 'read* 0.0' ms whatever the read cost. The command's own read is shown."""
+    import time
+
+    from quash_plugins.core import maps
+
+    read = maps.read_map
+
+    def slow_read(*args, **kwargs):  # the adapter's read of the file, not the cache's
+        time.sleep(0.2)
+        return read(*args, **kwargs)
+
+    monkeypatch.setattr(maps, "read_map", slow_read)
+    code, out, _ = run_cli(
+        "query", tiny_world["map"], "chair", "sofa", "-c", tiny_world["config"], capsys=capsys
+    )
+    assert code == 0
+    shown = float(re.search(r"read\*\s+([0-9.]+)", out).group(1))
+    assert shown >= 100.0  # ms per query: its share of the 200 ms read, split over two
+
+
+def test_the_packages_warnings_print_as_log_lines():
+    """Not Python's '/path/to/quash_plugins/cli/cmd_query.py:108: EmptyMapWarning: ...',
+    which points at our code; other warnings keep Python's format."""
+    import warnings
+
+    from quash_plugins.cli._output import setup_logging
+    from quash_plugins.core.errors import EmptyMapWarning
+
+    setup_logging(0, False)
+    own = warnings.formatwarning("m.npz is empty", EmptyMapWarning, "/x/cmd_query.py", 108)
+    assert own == "WARNING  m.npz is empty\n"
+    other = warnings.formatwarning("careful", UserWarning, "/x/y.py", 3)
+    assert "/x/y.py:3: UserWarning: careful" in other
+    setup_logging(0, False)  # installed once: the default is kept, not wrapped again
+    assert "/x/y.py:3" in warnings.formatwarning("careful", UserWarning, "/x/y.py", 3)
+
+
 def test_expand_json(tiny_world, capsys):
     code, out, _ = run_cli("expand", "chair", "-c", tiny_world["config"], "--json", capsys=capsys)
     assert code == 0
