@@ -422,5 +422,7 @@ def create(kind: str, name: str, /, **params: Any) -> Any:
         with contextlib.suppress(AttributeError):
             instance.name = entry.name
     with contextlib.suppress(AttributeError):  # what messages call it (interfaces.plugin_name)
-        instance._quash_plugin_name = entry.name
+        # as the config wrote it: 'dist:name' names another distribution's plugin than
+        # the bare name (the built-in one), and messages must tell them apart
+        instance._quash_plugin_name = entry.qualified if ":" in str(name) else entry.name
     return instance

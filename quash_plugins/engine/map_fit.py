@@ -82,15 +82,12 @@ def check_encoder_fits(encoder: Any, lmap: LatentMap, config_source: Any = None)
 
 
 def _registered_encoder(name: str) -> bool:
-    """Whether a config can write ``encoder: name`` (one registered encoder has it)."""
-    from ..core.errors import PluginError
-    from ..core.registry import info
+    """Whether a config can write ``encoder: name`` (a registered encoder has that name,
+    or that ``dist:name``). Looked up without resolving it, so a name that a plugin
+    shadows is not warned about here: this config does not use it."""
+    from ..core.registry import plugins
 
-    try:
-        info("encoders", name)
-    except PluginError:
-        return False
-    return True
+    return any(name in (i.name, i.qualified) for i in plugins("encoders"))
 
 
 def same_embedding_function(encoder: Any, fingerprint: str) -> bool:
@@ -117,7 +114,10 @@ def warn_built_by(encoder: Any, lmap: LatentMap) -> None:
     name = plugin_name(encoder)  # what the config's encoder section calls it
     built_name = lmap.source.get("encoder", "?")
     # A map may record either name: the registered one, or the instance's ``name``.
-    if built_name in (name, getattr(encoder, "name", None)):  # one name, two functions
+    # 'dist:name' is another distribution's plugin than the bare name: a map that
+    # records the bare name was not built with it
+    qualified = ":" in name
+    if built_name == name or (not qualified and built_name == getattr(encoder, "name", None)):
         differs = (
             f"this config's {name!r} is another embedding function ({ours}): other weights, "
             "another model or other settings (normalize, dim, templates) under the same "

@@ -184,3 +184,40 @@ def test_the_warning_says_an_edit_counts_for_an_encoder_whose_source_is_hashed(c
     with caplog.at_level("WARNING", logger="quash_plugins.engine.map_fit"):
         map_fit.check_encoder_fits(enc, lmap)
     assert len(warned()) == 1 and "editable install" not in warned()[0]
+
+
+def test_a_plugin_that_shadows_the_maps_encoder_is_named_as_the_config_names_it(tmp_path, caplog):
+    """A map built by the built-in 'hashing-test', queried with another distribution's
+    plugin of that name ('pkg-shadow:hashing-test'): the warning named the config's
+    encoder 'hashing-test' and called it the same encoder with other settings. And a
+    dimension error on such a map warned that 'hashing-test' is shadowed, although the
+    config did not use that name."""
+    import pytest
+
+    from quash_plugins.core import registry
+    from quash_plugins.core.errors import DimensionMismatchError
+
+    paths = write_scene(make_scene(HashingEncoder(32), SceneOptions(**OPTS)), tmp_path / "s.npz")
+    registry.register("encoders", "hashing-test", HashingEncoder, dist="quash-plugins")
+    registry.register("encoders", "hashing-test", _OtherHashing, dist="pkg-shadow")
+    try:
+        shadow = registry.create("encoders", "pkg-shadow:hashing-test", dim=32)
+        once.forget("built-by")
+        with caplog.at_level("WARNING", logger="quash_plugins"):
+            _quash(shadow).query(str(paths["map"]), "chair")
+        warned = [r.getMessage() for r in caplog.records]
+        built = [m for m in warned if "was built with encoder" in m]
+        assert len(built) == 1, warned
+        assert "this config's encoder is 'pkg-shadow:hashing-test'" in built[0]
+        assert "under the same encoder name" not in built[0]
+        caplog.clear()
+        once.forget("registry")  # a shadow warning given before is given again
+        with (
+            caplog.at_level("WARNING", logger="quash_plugins"),
+            pytest.raises(DimensionMismatchError, match="write 'encoder: hashing-test'"),
+        ):
+            _quash(_DimHashing(24)).query(str(paths["map"]), "chair")
+        assert not [r for r in caplog.records if "also claimed by" in r.getMessage()]
+    finally:
+        registry.unregister("encoders", "hashing-test", dist="quash-plugins")
+        registry.unregister("encoders", "hashing-test", dist="pkg-shadow")
