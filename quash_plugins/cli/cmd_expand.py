@@ -35,6 +35,8 @@ def run(args: argparse.Namespace) -> int:
     # (llm): the expansion goes on, with a warning; one that needs it stops with the error.
     quash = Quash.from_config(cfg, defer_encoder_error=True)
     lmap = quash.read_map(args.map) if args.map else None
+    if lmap is not None:
+        _warn_if_the_map_does_not_fit(quash, lmap)
     qs = quash.expand(args.query, lmap)
     if args.json:
         print_json(qs.to_dict())
@@ -49,6 +51,25 @@ def run(args: argparse.Namespace) -> int:
     out.print("[dim]provenance:[/]")
     out.print(f"[dim]{escape(_provenance_yaml(qs, out.width - 2))}[/]")
     return 0
+
+
+def _warn_if_the_map_does_not_fit(quash, lmap) -> None:
+    """A map whose dimension is not the encoder's: the expansion needs no embeddings of
+    the map, so it goes on, but a query with this config on the map would stop here."""
+    import logging
+
+    from ..core.errors import DimensionMismatchError, QuashError
+
+    try:
+        quash.check_dimension(lmap)
+    except DimensionMismatchError as exc:
+        logging.getLogger(__name__).warning(
+            "%s quash expand goes on (it embeds no map item), but quash query with this "
+            "config on this map stops here.",
+            exc,
+        )
+    except QuashError:  # an encoder that cannot be built: expand already said so
+        pass
 
 
 def _summary(prov: dict) -> str:

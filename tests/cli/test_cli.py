@@ -128,6 +128,19 @@ def test_the_packages_warnings_print_as_log_lines():
     assert "/x/y.py:3" in warnings.formatwarning("careful", UserWarning, "/x/y.py", 3)
 
 
+def test_expand_warns_when_the_map_does_not_fit_the_encoder(tiny_world, capsys):
+    """A 16-d map given to quash expand with MiniLM (384-d): the expansion goes on, and
+    says that a query with this config on that map would stop."""
+    pytest.importorskip("sentence_transformers")
+    code, out, err = run_cli(
+        "expand", "chair", "--map", tiny_world["map"], "-c", "demo:quash-labels", capsys=capsys
+    )
+    assert code == 0 and "positives" in out
+    warned = " ".join(err.split())  # one log record, however the terminal wraps it
+    assert "16-dimensional embeddings" in warned
+    assert "quash query with this config on this map stops here" in warned
+
+
 def test_expand_json(tiny_world, capsys):
     code, out, _ = run_cli("expand", "chair", "-c", tiny_world["config"], "--json", capsys=capsys)
     assert code == 0
