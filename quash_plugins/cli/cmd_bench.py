@@ -95,9 +95,20 @@ def run(args: argparse.Namespace) -> int:
     from ._output import console, each_log_line_once, print_markdown
 
     tables = tuple(t.strip() for t in args.tables.split(",") if t.strip())
+    if not tables:
+        raise UsageError(
+            f"--tables is empty: name one or more of {', '.join(TABLES)}, or leave it out "
+            "for every table."
+        )
     bad = [t for t in tables if t not in TABLES]
     if bad:
         raise UsageError(f"Unknown table {bad[0]!r}; known: {', '.join(TABLES)}.")
+    split = lambda s: [t.strip() for t in (s or "").split(",") if t.strip()]  # noqa: E731
+    if args.queries is not None and not split(args.queries):
+        raise UsageError(
+            "--queries is empty: give labels or TEXT=LABEL items, or leave it out to score "
+            "every label of the map."
+        )
     if args.taxonomy and not Path(args.taxonomy).exists():
         raise UsageError(f"Taxonomy file not found: {args.taxonomy}")
     if args.llm_base_url and not args.llm_model:
@@ -113,7 +124,6 @@ def run(args: argparse.Namespace) -> int:
     overrides = backend_overrides(args)
     if args.no_cache:
         overrides["cache"] = False
-    split = lambda s: [t.strip() for t in (s or "").split(",") if t.strip()]  # noqa: E731
     out = console()
     with each_log_line_once():
         run_bench(

@@ -80,15 +80,15 @@ def macro_mean(per_query: dict[str, dict[str, Any]]) -> dict[str, float | None]:
     nothing was scored, which a 0 would misreport as a method that found nothing).
 
     The ranking metrics (:data:`RANKING`) are averaged over the queries that have them
-    (None: undefined, e.g. no neighbourhood for the inverse rank), when any has.
+    (None: undefined, e.g. no neighbourhood for the inverse rank); None when none has.
+    Every key of :data:`METRICS` and :data:`RANKING` is always there.
     """
     if not per_query:
-        return dict.fromkeys(METRICS)
+        return dict.fromkeys((*METRICS, *RANKING))
     out = {k: float(np.mean([q[k] for q in per_query.values()])) for k in METRICS}
     for k in RANKING:
         vals = [q[k] for q in per_query.values() if q.get(k) is not None]
-        if vals:
-            out[k] = float(np.mean(vals))
+        out[k] = float(np.mean(vals)) if vals else None
     return out
 
 

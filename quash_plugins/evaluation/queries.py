@@ -31,24 +31,33 @@ def parse_queries(queries: Any, source: str = "") -> dict[str, str]:
     if isinstance(queries, dict):
         items = []
         for k, v in queries.items():
-            if v is None or isinstance(v, (dict, list, tuple, set, bool)):
+            if v is None or not isinstance(v, str):
+                given = "no label" if v is None else f"the label {v!r} ({type(v).__name__})"
                 raise QuashError(
-                    f"{what} {k!r} has the label {v!r}; each query names one "
-                    f"label as text ({k}: LABEL, e.g. 'bunk bed: bed')."
+                    f"{what} {k!r} has {given}; each query names one label by its "
+                    f"name, as text ({k}: LABEL, e.g. 'bunk bed: bed'), not by an index "
+                    "(quote a label name that reads as a number: 'bunk bed: \"8\"')."
                 )
-            items.append((str(k), str(v)))
+            items.append((str(k), v))
     else:
         items = []
         for q in queries:
             text, sep, label = str(q).partition("=")
+            if "=" in label:
+                raise QuashError(
+                    f"{what} item {str(q)!r} holds more than one '=': write TEXT=LABEL, "
+                    "one '=' between the query text and its label (e.g. 'bunk bed=bed')."
+                )
             items.append((text, label if sep else text))
     out: dict[str, str] = {}
     for text, label in items:
         text, label = " ".join(text.split()), " ".join(label.split())
         if not text or not label:
+            empty = "query text" if not text else "label"
             raise QuashError(
-                f"{what} {text or label!r}: write an open-vocabulary query as TEXT=LABEL "
-                "(e.g. 'bunk bed=bed'), with neither side empty."
+                f"{what} item {(text or '') + '=' + (label or '')!r} has an empty {empty}: "
+                "write an open-vocabulary query as TEXT=LABEL (e.g. 'bunk bed=bed'), with "
+                "neither side empty."
             )
         if out.get(text, label) != label:
             raise QuashError(

@@ -141,6 +141,18 @@ def plan_queries(
     labels = np.asarray(lmap.labels)
     names = list(lmap.label_names)
     valid = valid_items(labels, names, exclude)
+    if not valid.any():
+        where = lmap.source.get("path", "the map")
+        why = (
+            "every item's label is negative (unlabelled)"
+            if not (labels >= 0).any()
+            else f"every labelled item has an excluded label ({', '.join(exclude)})"
+        )
+        raise QuashError(
+            f"{where}: no item can be scored: {why}. With no ground truth, a query that "
+            "matches nothing would count as a right absence. Give a map whose 'labels' "
+            "name its items (quash make-scene writes one), or fewer --exclude labels."
+        )
     counts = (
         np.bincount(labels[valid], minlength=len(names))
         if valid.any()

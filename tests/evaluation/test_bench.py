@@ -203,6 +203,9 @@ def test_bench_usage_errors(scene, tmp_path, capsys, args, message):
     [
         (["--absent", "Wall"], "Absence query 'Wall' (--absent): "),
         (["--queries", "bunk bed="], "write an open-vocabulary query as TEXT=LABEL"),
+        (["--queries", "a=b=bed"], "holds more than one '='"),
+        (["--queries", ""], "--queries is empty"),  # as quash eval refuses it
+        (["--tables", ""], "--tables is empty"),  # was: {} written over earlier results
     ],
 )
 def test_bench_refuses_a_query_list_before_any_table(scene, tmp_path, capsys, args, message):

@@ -44,3 +44,32 @@ def test_an_unlabelled_map_says_how_to_add_ground_truth():
     msg = missing_ground_truth(bare)
     assert "saved-map/pointclouds" in msg and "no ground-truth labels" in msg
     assert "quash convert MAP map.npz" in msg and "labels (N,)" in msg and "label_names" in msg
+
+
+def test_a_map_whose_every_item_is_unlabelled_is_refused_not_scored_as_absent(tmp_path):
+    """Every label -1: each query was scored as an absence query, and a method that
+    matched 107 items got absence 1.000. No item can be scored, so nothing is."""
+    path = write_npz_map(
+        LatentMap(E, labels=np.full(4, -1), label_names=["bed", "sofa"]), tmp_path / "m.npz"
+    )
+    q = Quash.from_config({"encoder": {"name": "table", "table": {"bed": [1, 0, 0, 0]}}})
+    with pytest.raises(QuashError, match="every item's label is negative"):
+        evaluate(str(path), [q], queries=["bed"])
+    labelled = write_npz_map(
+        LatentMap(E, labels=np.array([0, 0, 1, 1]), label_names=["bed", "wall"]), tmp_path / "w.npz"
+    )
+    with pytest.raises(
+        QuashError, match=r"every labelled item has an excluded label \(bed, wall\)"
+    ):
+        evaluate(str(labelled), [q], exclude=["bed", "wall"])
+
+
+def test_the_mean_always_holds_every_metric():
+    """With no present query (absence queries only), 'mean' lacked ap and inv_rank, which
+    the docs and --help list: every key is there, null."""
+    from quash_plugins.evaluation.metrics import METRICS, RANKING, macro_mean
+
+    assert macro_mean({}) == dict.fromkeys((*METRICS, *RANKING))
+    one = {"precision": 1.0, "recall": 0.5, "f1": 2 / 3, "iou": 0.5, "ap": None}
+    mean = macro_mean({"chair": one})
+    assert set(mean) == {*METRICS, *RANKING} and mean["ap"] is None and mean["inv_rank"] is None

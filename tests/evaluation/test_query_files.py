@@ -28,9 +28,11 @@ def test_a_query_given_twice_with_two_labels_is_refused():
         ("present:\n  a cobot: [robot arm]\n", r"q\.yaml: query 'a cobot' has the label \['robot"),
         (
             "present:\n  a cobot:\nabsent: [a giraffe]\n",
-            r"q\.yaml: query 'a cobot' has the label None",
+            r"q\.yaml: query 'a cobot' has no label",
         ),
-        ("a cobot:\n", r"q\.yaml: query 'a cobot' has the label None"),
+        ("a cobot:\n", r"q\.yaml: query 'a cobot' has no label"),
+        # a label index, not a name: the item it names would be scored as absent
+        ("present:\n  bunk bed: 8\n", r"q\.yaml: query 'bunk bed' has the label 8 \(int\).*index"),
         (
             "presnt:\n  a cobot: robot arm\nabsent: [a giraffe]\n",
             r"q\.yaml: unknown key 'presnt'.*Did you mean 'present'\?",
@@ -317,3 +319,19 @@ def test_a_query_file_that_is_a_pipe_or_a_folder_is_named_as_such(tmp_path):
     assert "not found" not in str(err.value) and "uery file" in str(err.value)
     with pytest.raises(QuashError, match="Query file not found"):
         load_query_file(tmp_path / "missing.yaml")
+
+
+@pytest.mark.parametrize(
+    ("items", "message"),
+    [
+        (["a=b=bed"], r"Query item 'a=b=bed' holds more than one '='"),
+        (["=bed"], r"Query item '=bed' has an empty query text"),
+        (["bunk bed="], r"Query item 'bunk bed=' has an empty label"),
+    ],
+)
+def test_malformed_text_label_items_are_refused_and_named(items, message):
+    from quash_plugins.core.errors import QuashError
+    from quash_plugins.evaluation.queries import parse_queries
+
+    with pytest.raises(QuashError, match=message):
+        parse_queries(items)
