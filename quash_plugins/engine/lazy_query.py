@@ -33,6 +33,7 @@ from .answer import _describe, classifier_words
 from .classify import BlockScorer
 from .dask_client import current_client, require_dask, require_zarr
 from .dask_executor import compute, scores_graph, ship
+from .results import is_results_zarr
 
 log = logging.getLogger(__name__)
 
@@ -260,6 +261,10 @@ class LazyQuery:
     ) -> Path:
         """Write ``scores``, ``masks`` and ``observed`` to a zarr store, atomically.
 
+        An existing ``path`` is replaced (with ``overwrite``) only when it is empty or a
+        results store this method wrote: any other folder, a converted map's zarr store
+        included, is refused (:class:`~quash_plugins.core.errors.UsageError`).
+
         The arrays equal :meth:`Quash.query_many`'s ``scores`` and ``mask``. Without
         ``refine`` and ``presence`` in the config: three passes, each bounded by the
         chunk size: the map pass writes raw scores (``4 (Q + 1)`` bytes per row) into the
@@ -281,7 +286,9 @@ class LazyQuery:
         refuse_own_input(path, self.lmap.source, folder=True)
         n, q = self.raw.shape[0], len(self.classifiers)
         rows = max(1, self.raw.chunks[0][0])  # an empty map has one chunk of 0 rows
-        with atomic_dir(path, overwrite=overwrite) as tmp:
+        with atomic_dir(
+            path, overwrite=overwrite, replaceable=is_results_zarr, kind="results store"
+        ) as tmp:
             group = zarr.open_group(str(tmp), mode="w", zarr_format=3)
             zraw = group.create_array(
                 "_raw", shape=(n, q + 1), chunks=(rows, q + 1), dtype="float32"
@@ -355,7 +362,9 @@ class LazyQuery:
         log.info("%s: %d pass%s per group", what, passes, "es" if passes > 1 else "")
         described: list[str] = []  # the final classifiers, not kept themselves
         t0 = time.perf_counter()
-        with atomic_dir(path, overwrite=overwrite) as tmp:
+        with atomic_dir(
+            path, overwrite=overwrite, replaceable=is_results_zarr, kind="results store"
+        ) as tmp:
             group = zarr.open_group(str(tmp), mode="w", zarr_format=3)
             zs = group.create_array("scores", shape=(q, n), chunks=(size, rows), dtype="float32")
             zm = group.create_array("masks", shape=(q, n), chunks=(size, rows), dtype="bool")

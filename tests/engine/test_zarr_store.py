@@ -186,3 +186,33 @@ def test_an_embeddings_folder_without_its_metadata_is_named(tmp_path):
         warnings.simplefilter("error")  # zarr's own warning is folded into the error
         with pytest.raises(MapFormatError, match=r"'embeddings' holds no zarr array metadata"):
             read_map(store, adapter="zarr")
+
+
+def test_lazy_results_never_replace_a_store_that_is_not_a_results_store(tmp_path):
+    """LazyQuery.to_zarr replaced any zarr store (overwrite=True by default): a map
+    converted to zarr, given as the output, was lost. Only a results store it wrote (or
+    an empty folder) is replaced; quash query --out refused it already."""
+    from quash_plugins import Quash
+    from quash_plugins.core.errors import UsageError
+    from quash_plugins.encoders import TableEncoder
+
+    words = ["chair", "other", "background", "nothing"]
+    table = {w: np.eye(8, dtype=np.float32)[i].tolist() for i, w in enumerate(words)}
+    q = Quash(TableEncoder(table=table), classifier="contrast", instances=None)
+    src = write_zarr_map(_map(seed=1), tmp_path / "src.zarr")
+    other = write_zarr_map(_map(seed=2), tmp_path / "other_map.zarr")
+    before = sorted(p.name for p in other.iterdir())
+    for overwrite, why in ((True, "not a previous results store"), (False, "exists")):
+        with pytest.raises(UsageError, match=why):
+            q.query_many_lazy(str(src), ["chair"]).to_zarr(other, overwrite=overwrite)
+    assert sorted(p.name for p in other.iterdir()) == before  # the map is still there
+    assert read_map(other).n == 500
+    out = q.query_many_lazy(str(src), ["chair"]).to_zarr(tmp_path / "r.zarr")
+    q.query_many_lazy(str(src), ["chair"]).to_zarr(out)  # a previous results store
+    assert sorted(zarr_group_keys(out)) == ["masks", "observed", "scores"]
+
+
+def zarr_group_keys(path):
+    import zarr
+
+    return list(zarr.open_group(str(path), mode="r").array_keys())
