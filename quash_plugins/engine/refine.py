@@ -78,11 +78,24 @@ class RefineOptions:
         return registry.create("classifiers", spec["name"], **params)
 
 
+#: Bytes of stored rows :func:`take_rows` reads at once from a chunked store (zarr).
+TAKE_WINDOW_BYTES = 16 * 2**20
+
+
 def take_rows(lmap: LatentMap, index: np.ndarray) -> np.ndarray:
     """Rows ``index`` of the map's embeddings as ``(k, D)`` float32, prepared as the
-    classification pass prepares them (normalised when the map asks for it)."""
+    classification pass prepares them (normalised when the map asks for it).
+
+    A zarr array is read window by window (:data:`TAKE_WINDOW_BYTES` of rows, plus the
+    stored chunks a window overlaps), never with one fancy index: zarr decodes every
+    stored chunk that scattered rows touch at once. Taking 1,100 scattered rows
+    (refinement's samples; the presence check's regions read rows the same way) from a
+    200,000 x 384 float32 store in 16 MiB chunks peaked at 247 MiB that way, 79 MiB so.
+    """
     index = np.unique(np.asarray(index, dtype=np.int64))
     emb = lmap.embeddings
+    if type(emb).__module__.startswith("zarr") and len(index):
+        return prepare_block(_take_windowed(emb, index, lmap.dim), 0, lmap.normalize, lmap.source)
     try:
         rows = emb[index]
         rows = rows.compute() if hasattr(rows, "compute") else rows
@@ -98,6 +111,22 @@ def take_rows(lmap: LatentMap, index: np.ndarray) -> np.ndarray:
             parts.append(np.asarray(emb[lo:hi], dtype=np.float32)[part - lo])
         block = np.concatenate(parts)
     return prepare_block(np.array(block, dtype=np.float32), 0, lmap.normalize, lmap.source)
+
+
+def _take_windowed(emb: Any, index: np.ndarray, dim: int) -> np.ndarray:
+    """Rows ``index`` (sorted, unique) of ``emb``, reading one window of rows at a time:
+    each window is the slice from its first to its last wanted row, at most
+    :data:`TAKE_WINDOW_BYTES` of float32 rows long."""
+    window = max(1, TAKE_WINDOW_BYTES // (4 * max(1, int(dim))))
+    out = np.empty((len(index), dim), dtype=np.float32)
+    i = 0
+    while i < len(index):
+        lo = int(index[i])
+        j = int(np.searchsorted(index, lo + window, side="left"))
+        hi = int(index[j - 1]) + 1
+        out[i:j] = np.asarray(emb[lo:hi], dtype=np.float32)[index[i:j] - lo]
+        i = j
+    return out
 
 
 def pseudo_labels(

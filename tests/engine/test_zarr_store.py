@@ -216,3 +216,38 @@ def zarr_group_keys(path):
     import zarr
 
     return list(zarr.open_group(str(path), mode="r").array_keys())
+
+
+def test_scattered_rows_of_a_zarr_map_are_read_window_by_window(tmp_path, monkeypatch):
+    """Refinement's samples and the presence check's regions are scattered rows: one
+    fancy index on a zarr array decoded every stored chunk they touch at once (most of
+    the map). take_rows reads bounded windows, and gives the rows the array holds."""
+    from quash_plugins.engine import refine
+
+    m = _map(n=500, d=8, dtype=np.float32)
+    path = write_zarr_map(m, tmp_path / "m.zarr", chunk_mb=0.001)
+    lmap = read_map(path)
+    assert type(lmap.embeddings).__module__.startswith("zarr")
+    index = np.random.default_rng(0).choice(500, size=60, replace=False)
+    monkeypatch.setattr(refine, "TAKE_WINDOW_BYTES", 4 * 8 * 50)  # 50 rows a window
+    windowed = []
+    real = refine._take_windowed
+    monkeypatch.setattr(refine, "_take_windowed", lambda *a: windowed.append(len(a[1])) or real(*a))
+    got = refine.take_rows(lmap, index)
+    assert windowed == [60]  # the zarr array went through the windows
+    np.testing.assert_allclose(got, refine.take_rows(m, index), rtol=1e-6)
+    assert windowed == [60]  # an in-memory array did not
+
+    class Recording:  # the slices a window read asks for
+        def __init__(self, a):
+            self.a, self.slices = a, []
+
+        def __getitem__(self, key):
+            self.slices.append(key)
+            return self.a[key]
+
+    rec = Recording(np.asarray(m.embeddings, dtype=np.float32))
+    rows = refine._take_windowed(rec, np.sort(index), 8)
+    np.testing.assert_array_equal(rows, rec.a[np.sort(index)])
+    assert all(isinstance(k, slice) and k.stop - k.start <= 50 for k in rec.slices)
+    assert len(rec.slices) >= 500 // 50 - 1  # windows, not one read of the whole span
