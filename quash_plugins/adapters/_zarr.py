@@ -44,8 +44,7 @@ class ZarrAdapter(MapAdapter):
     suffixes = (".zarr",)
 
     def __init__(self, dask: bool = False, chunk_rows: int | None = None) -> None:
-        self.dask = dask
-        self.chunk_rows = chunk_rows
+        self.dask, self.chunk_rows = _checked_options(dask, chunk_rows)
 
     def sniff(self, source: Any) -> bool:
         if not isinstance(source, (str, Path)):
@@ -64,7 +63,9 @@ class ZarrAdapter(MapAdapter):
     def read(self, source: Any, **options: Any) -> LatentMap:
         from ._zarr_store import read_zarr_map
 
-        return read_zarr_map(Path(source), **self.options(options))
+        opts = self.options(options)
+        opts["dask"], opts["chunk_rows"] = _checked_options(opts["dask"], opts["chunk_rows"])
+        return read_zarr_map(Path(source), **opts)
 
     def write_example(self, directory: Path) -> Path:
         from ._zarr_store import write_zarr_map
@@ -80,3 +81,22 @@ class ZarrAdapter(MapAdapter):
             voxel_size=0.05,
         )
         return write_zarr_map(lmap, Path(directory) / "example.zarr")
+
+
+def _checked_options(dask: Any, chunk_rows: Any) -> tuple[bool, int | None]:
+    """The ``dask`` and ``chunk_rows`` options, refused (naming the option and what it
+    takes) unless ``dask`` is true or false and ``chunk_rows`` a whole number >= 1 or
+    null: a bad ``chunk_rows`` used to surface as a damaged file, and ``dask: ture`` was
+    taken as true."""
+    from ..core.errors import ConfigError
+
+    if not isinstance(dask, bool):
+        raise ConfigError(f"Adapter 'zarr': option 'dask' must be true or false; got {dask!r}.")
+    if chunk_rows is not None and (
+        isinstance(chunk_rows, bool) or not isinstance(chunk_rows, int) or chunk_rows < 1
+    ):
+        raise ConfigError(
+            "Adapter 'zarr': option 'chunk_rows' must be a whole number of rows >= 1 (the "
+            f"rows of a dask chunk), or null for the store's own chunks; got {chunk_rows!r}."
+        )
+    return dask, chunk_rows

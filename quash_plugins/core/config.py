@@ -15,6 +15,7 @@ Examples
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -350,8 +351,10 @@ def _convert(cls, key: str, value: Any, where: _Where, path) -> Any:
         raise ConfigError(
             f"{where.at((key,))}{key!r} must be a {typ.__name__}; got {value!r}. ({f.metadata['help']})"
         ) from None
-    if key == "chunk_mb" and out <= 0:
-        raise ConfigError(f"{where.at((key,))}'chunk_mb' must be positive.")
+    if key == "chunk_mb" and not (math.isfinite(out) and out > 0):
+        raise ConfigError(
+            f"{where.at((key,))}'chunk_mb' must be a positive, finite number of MiB; got {value!r}."
+        )
     if key == "device":
         out = check_device(value, f"{where.at((key,))}'device'")
     return out

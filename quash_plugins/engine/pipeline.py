@@ -200,10 +200,20 @@ class Quash:
                 )
             cache = None
         self.cache = cache
-        self.chunk_mb = float(chunk_mb)
+        self.chunk_mb = _check_chunk_mb(chunk_mb)
         self.name = name
         #: The config file this pipeline was built from (set by :meth:`from_config`).
         self.config_source: str | None = None
+        if backend not in BACKENDS:
+            raise ConfigError(
+                f"Unknown backend {backend!r}. Known: {', '.join(b for b in BACKENDS if b)}."
+            )
+        if isinstance(client, str):
+            raise ConfigError(
+                f"client={client!r}: pass a dask.distributed.Client, e.g. "
+                f"Client({client!r}), not its address (quash --scheduler ADDRESS connects "
+                "on the command line)."
+            )
         self.backend = backend
         self.client = client
         self._maps = MapCache()  # the maps read_map has read
@@ -532,6 +542,23 @@ class Quash:
         from .lazy_query import query_lazy
 
         return query_lazy(self, source, texts, self.client, **read_options)
+
+
+#: The backends a Quash takes (None and "local": the in-memory pass, as "numpy").
+BACKENDS = ("numpy", "local", "dask", None)
+
+
+def _check_chunk_mb(value: Any) -> float:
+    """``chunk_mb`` as a float, refused unless positive and finite (as a config's is)."""
+    import math
+
+    try:
+        out = float(value)
+    except (TypeError, ValueError):
+        out = math.nan
+    if not (math.isfinite(out) and out > 0):
+        raise ConfigError(f"chunk_mb must be a positive, finite number of MiB; got {value!r}.")
+    return out
 
 
 def _queryset_words(qs: QuerySet, limit: int = 24) -> str:

@@ -114,10 +114,11 @@ def warn_small_chunks(lmap: LatentMap, rows: int, chunk_bytes: int) -> None:
     if not first_time(("small-chunks", int(rows), int(chunk_bytes))):
         return
     log.warning(
-        "chunk_mb %.3g holds only %d rows of this map (%d rows x %d): the pass runs %d "
-        "chunks of %d rows, each with a fixed cost, far slower than chunks of thousands; "
-        "raise chunk_mb (a chunk's memory is about chunk_mb; the default is 256).",
-        chunk_bytes / 2**20,
+        "chunk_mb gives chunks of %s bytes, only %d rows of this map (%d rows x %d): the "
+        "pass runs %d chunks of %d rows, each with a fixed cost, far slower than chunks of "
+        "thousands; raise chunk_mb (a chunk's memory is about chunk_mb MiB; the default "
+        "is 256).",
+        f"{int(chunk_bytes):,}",
         rows,
         n,
         lmap.dim,

@@ -88,8 +88,9 @@ def test_a_tiny_chunk_mb_is_warned_about_once_with_the_same_scores(caplog) -> No
 
     rows = lmap.chunk_rows(tiny, extra_bytes_per_row([clf]))
     assert rows < 256
-    said = [r.getMessage() for r in caplog.records if "holds only" in r.getMessage()]
+    said = [r.getMessage() for r in caplog.records if "chunk_mb gives chunks of" in r.getMessage()]
     assert len(said) == 1 and f"only {rows} rows" in said[0]
+    assert f"chunks of {tiny:,} bytes" in said[0]  # as given, not a rounded chunk_mb
     assert f"{-(-N // rows)} chunks" in said[0]
     np.testing.assert_allclose(got[0], ref[0], rtol=1e-5, atol=1e-6)
     # chunks of a few hundred rows, or few chunks: no warning
@@ -97,4 +98,4 @@ def test_a_tiny_chunk_mb_is_warned_about_once_with_the_same_scores(caplog) -> No
     with caplog.at_level(logging.WARNING, logger="quash_plugins.engine.stored_chunks"):
         classify_local(lmap, [clf], chunk_bytes=300 * 2**10)
         classify_local(LatentMap(emb[:100]), [clf], chunk_bytes=tiny)
-    assert not [r for r in caplog.records if "holds only" in r.getMessage()]
+    assert not [r for r in caplog.records if "chunk_mb gives chunks of" in r.getMessage()]

@@ -251,3 +251,57 @@ def test_scattered_rows_of_a_zarr_map_are_read_window_by_window(tmp_path, monkey
     np.testing.assert_array_equal(rows, rec.a[np.sort(index)])
     assert all(isinstance(k, slice) and k.stop - k.start <= 50 for k in rec.slices)
     assert len(rec.slices) >= 500 // 50 - 1  # windows, not one read of the whole span
+
+
+@pytest.mark.parametrize(
+    "options, message",
+    [
+        ({"chunk_rows": -5}, "option 'chunk_rows' must be a whole number of rows >= 1"),
+        ({"chunk_rows": 0}, "option 'chunk_rows' must be a whole number of rows >= 1"),
+        ({"chunk_rows": "abc"}, "option 'chunk_rows'"),
+        ({"chunk_rows": 2.5}, "option 'chunk_rows'"),
+        ({"dask": "ture"}, "option 'dask' must be true or false; got 'ture'"),
+    ],
+)
+def test_bad_zarr_adapter_options_are_named_not_blamed_on_the_file(tmp_path, options, message):
+    """A bad chunk_rows surfaced as 'The file may be damaged or truncated'; chunk_rows=0
+    was ignored and dask='ture' taken as true."""
+    from quash_plugins.core import registry
+    from quash_plugins.core.errors import ConfigError
+
+    path = write_zarr_map(_map(), tmp_path / "m.zarr")
+    with pytest.raises(ConfigError, match=message):
+        registry.create("adapters", "zarr").read(path, **options)
+    with pytest.raises(ConfigError, match=message):
+        registry.create("adapters", "zarr", **options)
+    assert read_map(path, "zarr", dask=True, chunk_rows=100).embeddings.chunks[0][0] == 100
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"chunk_mb": 0}, "chunk_mb must be a positive, finite number"),
+        ({"chunk_mb": float("nan")}, "chunk_mb must be a positive, finite number"),
+        ({"chunk_mb": float("inf")}, "chunk_mb must be a positive, finite number"),
+        ({"backend": "dsak"}, "Unknown backend 'dsak'. Known: numpy, local, dask"),
+        ({"client": "tcp://127.0.0.1:1"}, r"pass a dask.distributed.Client, e.g. Client\("),
+    ],
+)
+def test_the_python_api_checks_what_a_config_checks(kwargs, message):
+    """Quash(chunk_mb=0) ran one-row chunks for ever; backend='dsak' failed only at the
+    first query, and an address as client= was blamed on the map."""
+    from quash_plugins import Quash
+    from quash_plugins.core.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=message):
+        Quash.from_config({"heuristic": "none", "classifier": "contrast"}, **kwargs)
+
+
+@pytest.mark.parametrize("value", [".nan", ".inf", "1e400", "0", "-1"])
+def test_a_config_chunk_mb_that_is_not_finite_and_positive_is_refused(value):
+    from quash_plugins import QuashConfig
+    from quash_plugins.core.errors import ConfigError
+    from quash_plugins.core.yaml_files import load_yaml_text
+
+    with pytest.raises(ConfigError, match="'chunk_mb' must be a positive, finite number"):
+        QuashConfig.from_dict(load_yaml_text(f"chunk_mb: {value}\n"))
