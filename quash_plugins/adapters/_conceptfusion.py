@@ -16,8 +16,9 @@ file                   dataset             content
 
 The embeddings stay on disk, an :class:`~quash_plugins.core.h5rows.H5Rows` view that
 opens ``pc_embeddings.h5`` read-only for each block it reads (no file is held open, so
-no HDF5 lock either): nothing is copied and float16 stays float16 until a block is used. Rows are L2-normalised block by block
-(``normalize=True``); zero rows are unobserved and never match.
+no HDF5 lock either): nothing is copied and float16 stays float16 until a block is
+used. Rows are L2-normalised block by block (``normalize=True``); zero rows are
+unobserved and never match.
 """
 
 from __future__ import annotations
