@@ -40,8 +40,8 @@ class MapCache:
             ):
                 self._maps[key] = hit  # the most recently used goes last
                 return hit[2], None
-            # an outdated map is dropped here, before the source is read again (an HDF5
-            # file still open in this process would be shared with the new read)
+            # an outdated map is dropped here, before the source is read again, so that
+            # the old map's arrays are not held beside the new one's
             del hit
         return None, (key, version, ref)
 
