@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import re
 import time
 from datetime import UTC, datetime
 from pathlib import Path
@@ -18,18 +19,24 @@ from urllib.parse import urlsplit, urlunsplit
 
 from ..core.errors import ConfigError, HeuristicError, QuashError
 from ..core.interfaces import ExpansionContext, Heuristic
-from ..core.redact import RedactingFilter, redact
+from ..core.redact import RedactingFilter, redact, redact_url, url_secrets
 from ..core.types import QuerySet
 from ._llm_cache import cache_file_name, llm_cache_root
 from ._llm_http import (
+    MAX_REPLY_BYTES,
+    MAX_RETRY_AFTER,
+    REDIRECT_STATUSES,
     ReplyError,
+    bounded_request,
     check_key,
+    cleartext_host,
     client_options,
     connect_reason,
     content_of,
     known_models,
     not_found_hint,
     proxy_note,
+    redirect_hint,
     retry_after,
     snippet,
 )
@@ -38,6 +45,11 @@ from ._parse import clean_lists, parse_reply
 log = logging.getLogger(__name__)
 # Whoever configures logging, nothing this module logs carries a key-like token.
 log.addFilter(RedactingFilter())
+# httpx logs each request's URL at INFO, query string included (base_url's ?key=...): the
+# values of credential-like parameters are masked there too.
+_httpx_log = logging.getLogger("httpx")
+if not any(isinstance(f, RedactingFilter) for f in _httpx_log.filters):
+    _httpx_log.addFilter(RedactingFilter())
 
 #: Bumped whenever the prompt wording changes; part of every cache key.
 PROMPT_VERSION = "quash-llm-2"
@@ -65,6 +77,44 @@ Reply exactly in this form:
 #: HTTP statuses worth retrying.
 RETRY_STATUSES = frozenset({408, 409, 425, 429, 500, 502, 503, 504})
 
+#: What ``api_key_env`` must be: the name of an environment variable.
+_ENV_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+#: A part (between underscores) of a name that looks like a key's random characters:
+#: 16 or more letters and digits, both present (``gsk_ZQX9secretkey7731abcdef``).
+_RANDOM_PART = re.compile(r"(?=[A-Za-z0-9]*[0-9])(?=[A-Za-z0-9]*[A-Za-z])[A-Za-z0-9]{16,}")
+#: Hosts warned about once: an http:// endpoint elsewhere that is sent the key.
+_CLEARTEXT_WARNED: set[str] = set()
+
+
+def _check_key_env(value: Any) -> str | None:
+    """``api_key_env`` as given, when it names an environment variable; ConfigError (which
+    never shows the value: it may be a key pasted in the wrong place) otherwise.
+
+    A value that is a name but looks like a key (a part between underscores of 16
+    characters or more, letters and digits mixed, as in ``gsk_ZQX9secretkey7731abcdef``
+    or ``hf_...``) is refused too, unless a variable of that name is set."""
+    if value is None or value == "":
+        return value
+    fix = (
+        "Export the key in a variable (export OPENAI_API_KEY=...) and set api_key_env to "
+        "its name (api_key_env: OPENAI_API_KEY)."
+    )
+    if not isinstance(value, str) or not _ENV_NAME.fullmatch(value):
+        raise ConfigError(
+            "Heuristic 'llm': api_key_env must be the NAME of the environment variable "
+            "that holds the API key (letters, digits and underscores, not starting with "
+            "a digit); the value given is not such a name (it is not shown: it may be the "
+            f"key itself). {fix}"
+        )
+    random_part = any(_RANDOM_PART.fullmatch(part) for part in value.split("_"))
+    if random_part and value not in os.environ:
+        raise ConfigError(
+            "Heuristic 'llm': api_key_env must be the NAME of the environment variable "
+            "that holds the API key, not the key: the value given looks like a key (not "
+            f"shown) and no variable of that name is set. {fix}"
+        )
+    return value
+
 
 def chat_endpoint(base_url: str) -> str:
     """The chat-completions URL for ``base_url``, without credentials or query string.
@@ -79,8 +129,9 @@ def chat_endpoint(base_url: str) -> str:
     except ValueError:  # a malformed port or address
         ok = False
     if not ok:
+        shown = redact_url(str(base_url))  # no query value, no user-info
         raise ConfigError(
-            f"Heuristic 'llm': base_url {redact(repr(base_url))} is not an http(s) URL; e.g. "
+            f"Heuristic 'llm': base_url {shown!r} is not an http(s) URL; e.g. "
             "http://127.0.0.1:8000/v1 (vLLM), http://127.0.0.1:11434/v1 (Ollama), "
             "http://127.0.0.1:8080/v1 (llama.cpp)."
         )
@@ -91,6 +142,18 @@ def chat_endpoint(base_url: str) -> str:
     if not path.endswith("/chat/completions"):
         path += "/chat/completions"
     return urlunsplit((parts.scheme, netloc, path, "", ""))
+
+
+def request_url(base_url: str) -> str:
+    """The URL requests go to: :func:`chat_endpoint` with ``base_url``'s query string
+    (``?api-version=...``, which Azure-style endpoints require), which
+    :func:`chat_endpoint` leaves out of everything recorded or shown.
+
+    >>> request_url("https://h/openai/deployments/gpt4o?api-version=2024-02-01")
+    'https://h/openai/deployments/gpt4o/chat/completions?api-version=2024-02-01'
+    """
+    query = urlsplit(str(base_url).strip()).query
+    return chat_endpoint(base_url) + (f"?{query}" if query else "")
 
 
 def _import_httpx() -> Any:
@@ -115,16 +178,18 @@ class LLMHeuristic(Heuristic):
     api_key_env
         Name of the environment variable holding the API key, sent as a Bearer token.
         None for local servers without authentication. The key itself is never logged,
-        cached or recorded.
+        cached or recorded; a value that is not a variable name (or looks like a key) is
+        refused without being shown.
     n_synonyms, n_antonyms
         How many of each to ask for (the paper: 20 and 20).
     temperature
         Sampling temperature sent to the server.
     timeout
-        Seconds per HTTP request.
+        Seconds per HTTP request, for the whole of it: connecting, sending, waiting, and
+        reading the reply (at most :data:`~._llm_http.MAX_REPLY_BYTES`, 4 MiB).
     max_retries
-        Retries after the first attempt on 429, 5xx, time-outs, connection errors and
-        unparseable replies.
+        Retries after the first attempt on 429, 5xx, time-outs, connection errors,
+        unparseable replies, bodies that cannot be decoded and replies over the size limit.
     backoff
         Base delay in seconds; attempt ``k`` waits ``backoff * 2**k`` (or the server's
         ``Retry-After``, at most 60 s).
@@ -192,16 +257,20 @@ class LLMHeuristic(Heuristic):
                 raise ConfigError(f"Heuristic 'llm': {field!r} must be >= 0; got {value!r}.")
         if float(timeout) <= 0:
             raise ConfigError(f"Heuristic 'llm': 'timeout' must be positive; got {timeout!r}.")
+        self.api_key_env = _check_key_env(api_key_env)
         self.model = str(model)
         self.endpoint = chat_endpoint(base_url)
+        # the query string goes with each request, never into a cache key, provenance or
+        # a message (it may hold a credential: ?key=, ?sig=, ?code=)
+        self._url = request_url(base_url)
+        self._url_secrets = url_secrets(self._url)
         if urlsplit(str(base_url).strip()).netloc.count("@"):
             log.warning(
                 "llm: base_url %s carries credentials; they are never sent. Put the key in "
                 "the environment variable named by api_key_env.",
-                redact(base_url),
+                redact_url(base_url),
             )
-        self.base_url = redact(base_url)
-        self.api_key_env = api_key_env
+        self.base_url = redact_url(base_url)
         self.n_synonyms = int(n_synonyms)
         self.n_antonyms = int(n_antonyms)
         self.temperature = float(temperature)
@@ -401,17 +470,26 @@ class LLMHeuristic(Heuristic):
     def ask(self, query: str, seed: int | None = None) -> tuple[list[str], list[str]]:
         """Call the server (with retries) and return cleaned ``(synonyms, antonyms)``.
 
-        Whatever the server answers is passed through :func:`redact` (with the key itself)
-        before it reaches an error message or a log line.
+        Whatever the server answers is passed through :func:`redact` (with the key itself
+        and base_url's credential-like query values) before it reaches an error message or
+        a log line. Each attempt lasts at most ``timeout`` seconds in all and reads at most
+        :data:`~._llm_http.MAX_REPLY_BYTES` of reply; redirects are never followed.
         """
         httpx = _import_httpx()
         body = self.request_body(query, seed)
         headers = self._headers()
         key = headers.get("Authorization", "").removeprefix("Bearer ")
+        secrets = [key, *self._url_secrets]
+        if key:
+            self._warn_cleartext()
         last, why = "no attempt made", "connect"
         attempts = self.max_retries + 1
+        # one connection per request: bounded_request's deadline watches the sockets it
+        # sees connected
         with httpx.Client(
-            timeout=httpx.Timeout(self.timeout), **client_options(self.endpoint)
+            timeout=httpx.Timeout(self.timeout),
+            limits=httpx.Limits(max_keepalive_connections=0),
+            **client_options(self.endpoint),
         ) as client:
             for attempt in range(attempts):
                 wait = self.backoff * (2**attempt)
@@ -424,25 +502,48 @@ class LLMHeuristic(Heuristic):
                     attempts,
                 )
                 try:
-                    resp = client.post(self.endpoint, json=body, headers=headers)
+                    resp = bounded_request(
+                        client, "POST", self._url, json=body, headers=headers, timeout=self.timeout
+                    )
                 except httpx.TimeoutException:
                     last, why = f"timed out after {self.timeout:g} s", "timeout"
                 except httpx.TransportError as exc:
-                    last, why = connect_reason(exc, self.endpoint, key), "connect"
+                    last, why = connect_reason(exc, self.endpoint, secrets), "connect"
+                except httpx.RequestError as exc:  # none other is known; never "unexpected"
+                    last = f"request failed ({type(exc).__name__}: {redact(exc, secrets)})"
+                    why = "status"
                 else:
                     status = resp.status_code
-                    if status == 200:
+                    if resp.decode_error:
+                        encoding = resp.headers.get("content-encoding", "")
+                        last = (
+                            f"status {status} with a body that cannot be decoded as its "
+                            f"Content-Encoding {encoding!r} says ({redact(resp.decode_error, secrets)})"
+                        )
+                        why = "decode"
+                    elif status == 200 and resp.truncated:
+                        last = (
+                            f"status 200 with a reply over {MAX_REPLY_BYTES // 2**20} MiB "
+                            "(the most the llm heuristic reads), left unread"
+                        )
+                        why = "size"
+                    elif status == 200:
                         finish = None
                         try:
-                            content, finish = content_of(resp, key)
-                            syn, ant = parse_reply(content)
+                            content, finish = content_of(resp, secrets)
+                            syn, ant = parse_reply(content, secrets)
                             # A reply that echoes a credential never reaches a query set,
                             # a cache file or a log line.
-                            syn = [w for w in syn if redact(w, [key]) == w]
-                            ant = [w for w in ant if redact(w, [key]) == w]
-                            return clean_lists(query, syn, ant, self.n_synonyms, self.n_antonyms)
+                            return clean_lists(
+                                query,
+                                syn,
+                                ant,
+                                self.n_synonyms,
+                                self.n_antonyms,
+                                keep=lambda w: redact(w, secrets) == w,
+                            )
                         except ValueError as exc:
-                            reason = redact(exc, [key])
+                            reason = redact(exc, secrets)
                             last = f"status 200 with an unusable reply ({reason})"
                             why = exc.kind if isinstance(exc, ReplyError) else "reply"
                             if finish == "length":  # a reply cut off at the token limit
@@ -451,21 +552,46 @@ class LLMHeuristic(Heuristic):
                     elif status in RETRY_STATUSES:
                         last, why = f"status {status}", "rate" if status == 429 else "status"
                         if resp.text.strip():
-                            last += f": {snippet(resp.text, [key], 120)}"
+                            last += f": {snippet(resp.text, secrets, 120)}"
                         wait = max(wait, retry_after(resp))
+                    elif status in REDIRECT_STATUSES:
+                        location = resp.headers.get("location")
+                        raise HeuristicError(
+                            f"Heuristic 'llm': {self.endpoint} answered status {status}, a "
+                            f"redirect.{redirect_hint(self.endpoint, location, secrets)}"
+                        )
                     else:
                         raise HeuristicError(
                             f"Heuristic 'llm': {self.endpoint} answered status {status}: "
-                            f"{snippet(resp.text, [key])}.{redact(self._status_hint(status, client), [key])}"
+                            f"{snippet(resp.text, secrets)}."
+                            f"{redact(self._status_hint(status, client), secrets)}"
                             f"{proxy_note(self.endpoint)}"
                         )
                 log.warning("llm: %s %s", self.endpoint, last)
                 if attempt + 1 < attempts:
-                    time.sleep(min(wait, 60.0))
+                    time.sleep(min(wait, MAX_RETRY_AFTER))
+        proxied = ("connect", "timeout", "status", "api", "decode")
         raise HeuristicError(
             f"Heuristic 'llm': no usable reply from {self.endpoint} (model {self.model!r}) for "
             f"{query!r} after {attempts} attempt(s); last: {last}. {self._fix(why)}"
-            f"{proxy_note(self.endpoint) if why in ('connect', 'timeout', 'status', 'api') else ''}"
+            f"{proxy_note(self.endpoint) if why in proxied else ''}"
+        )
+
+    def _warn_cleartext(self) -> None:
+        """Once per host: the key goes over plain http to a host that is not this
+        machine."""
+        host = cleartext_host(self.endpoint)
+        where = urlsplit(self.endpoint).netloc
+        if host is None or where in _CLEARTEXT_WARNED:
+            return
+        _CLEARTEXT_WARNED.add(where)
+        log.warning(
+            "llm: base_url %s is plain http to %s, which is not this machine: the API key "
+            "from %r (api_key_env) crosses the network unencrypted, readable by anyone on "
+            "the way. Use https:// (or an SSH tunnel to 127.0.0.1).",
+            self.base_url,
+            host,
+            self.api_key_env,
         )
 
     def _status_hint(self, status: int, client: Any) -> str:
@@ -479,7 +605,11 @@ class LLMHeuristic(Heuristic):
             )
         if status == 404:
             base, models = known_models(
-                client, self.endpoint, self._headers(), min(self.timeout, 5.0)
+                client,
+                self.endpoint,
+                self._headers(),
+                min(self.timeout, 5.0),
+                urlsplit(self._url).query,
             )
             return not_found_hint(self.endpoint, self.model, base, models)
         if status in (400, 422) and self.json_mode:
@@ -518,6 +648,19 @@ class LLMHeuristic(Heuristic):
                 "model without reasoning, raise the server's context size (Ollama: num_ctx; "
                 "llama.cpp: --ctx-size; vLLM: --max-model-len) or lower n_synonyms and "
                 f"n_antonyms, {cached}"
+            )
+        if why == "decode":
+            return (
+                "The body does not match its Content-Encoding header (plain text labelled "
+                "gzip?): check the compression settings of the server or of a proxy in "
+                f"between, or set base_url to the server itself, {cached}"
+            )
+        if why == "size":
+            return (
+                "A chat reply with the lists asked for is a few kB: base_url may lead to "
+                "something other than a chat API (a file, a stream), or the model did not "
+                "stop. Check base_url, use an instruction-tuned model or lower n_synonyms "
+                f"and n_antonyms, {cached}"
             )
         if why == "reply":
             fix = "" if self.json_mode else "set json_mode: true (vLLM, llama.cpp, Ollama) or "

@@ -7,20 +7,40 @@ directly, never through a proxy named by ``HTTP_PROXY``/``HTTPS_PROXY``/``ALL_PR
 proxy cannot reach this machine's loopback, so on a cluster that sets one a local Ollama
 or vLLM would otherwise look down. Other hosts follow the environment (``NO_PROXY``
 included), and a failure names the proxy it went through.
+
+Every request is bounded (:func:`bounded_request`): ``timeout`` seconds for the whole of
+it, from connecting to the last byte of the body (httpx's own time-outs bound each read,
+so a server sending a byte every half second kept a request alive for ever), and at most
+:data:`MAX_REPLY_BYTES` of body (a reply is streamed, never read whole).
 """
 
 from __future__ import annotations
 
+import contextlib
+import email.utils
 import ipaddress
+import json
+import socket
+import threading
+import time
 import urllib.request
+from collections.abc import Iterable
+from datetime import UTC, datetime
 from typing import Any
-from urllib.parse import urlsplit, urlunsplit
+from urllib.parse import urljoin, urlsplit, urlunsplit
 
 from ..core.errors import HeuristicError
-from ..core.redact import redact
+from ..core.redact import redact, redact_start, redact_url
 
 #: How many of the server's model names a 404 message lists.
 MAX_MODELS_SHOWN = 12
+#: The largest body read from the server, after decompression (4 MiB). A chat reply with
+#: two lists of 20 words is a few kB; a larger body is refused with an error, unread.
+MAX_REPLY_BYTES = 4 * 1024 * 1024
+#: The longest wait a ``Retry-After`` header can ask for, in seconds.
+MAX_RETRY_AFTER = 60.0
+#: Redirect statuses: never followed (the Authorization header would go with them).
+REDIRECT_STATUSES = frozenset({301, 302, 303, 307, 308})
 
 
 class ReplyError(ValueError):
@@ -102,10 +122,15 @@ def check_key(key: str, env: str) -> str:
     return key
 
 
-def connect_reason(exc: Any, endpoint: str, key: str = "") -> str:
+def _secrets(key: str | Iterable[str]) -> list[str]:
+    return [key] if isinstance(key, str) else list(key)
+
+
+def connect_reason(exc: Any, endpoint: str, key: str | Iterable[str] = "") -> str:
     """Why a connection failed, in words: refused, an unknown host, or httpx's reason;
-    through which proxy, when the environment names one for ``endpoint``."""
-    text = redact(str(exc), [key])
+    through which proxy, when the environment names one for ``endpoint``. ``key``: the
+    secrets (one, or several) to redact from httpx's words."""
+    text = redact(str(exc), _secrets(key))
     parts = urlsplit(endpoint)
     low = text.lower()
     proxy = env_proxy(endpoint)
@@ -122,19 +147,21 @@ def connect_reason(exc: Any, endpoint: str, key: str = "") -> str:
     return f"connection failed ({type(exc).__name__}{': ' + text if text else ''})"
 
 
-def content_of(resp: Any, key: str = "") -> tuple[str, str | None]:
+def content_of(resp: Any, key: str | Iterable[str] = "") -> tuple[str, str | None]:
     """The assistant message of a chat-completions response and its ``finish_reason``;
-    :class:`ReplyError` when the body is not a chat completion or holds no text."""
+    :class:`ReplyError` when the body is not a chat completion or holds no text. ``key``:
+    the secrets (one, or several) to redact from the body quoted in the error."""
+    secrets = _secrets(key)
     try:
         data = resp.json()
-    except ValueError:
-        raise ReplyError(f"body is not JSON: {snippet(resp.text, [key])}", "api") from None
+    except (ValueError, RecursionError):
+        raise ReplyError(f"body is not JSON: {snippet(resp.text, secrets)}", "api") from None
     try:
         choice = data["choices"][0]
         content = choice["message"]["content"]
     except (KeyError, IndexError, TypeError):
         raise ReplyError(
-            f"no choices[0].message.content in {snippet(resp.text, [key])}", "api"
+            f"no choices[0].message.content in {snippet(resp.text, secrets)}", "api"
         ) from None
     finish = choice.get("finish_reason") if isinstance(choice, dict) else None
     if not isinstance(content, str):
@@ -149,38 +176,233 @@ def content_of(resp: Any, key: str = "") -> tuple[str, str | None]:
     return content, finish if isinstance(finish, str) else None
 
 
-def retry_after(resp: Any) -> float:
+def retry_after(resp: Any, now: datetime | None = None) -> float:
+    """The wait a response's ``Retry-After`` header asks for, in seconds, at most
+    :data:`MAX_RETRY_AFTER`: a number of seconds, or an HTTP date (``Wed, 21 Oct 2015
+    07:28:00 GMT``); 0 when there is none or it cannot be read, or the date is past."""
     value = resp.headers.get("retry-after")
-    try:
-        return max(0.0, float(value)) if value is not None else 0.0
-    except ValueError:
+    if value is None or not value.strip():
         return 0.0
+    value = value.strip()
+    try:
+        seconds = float(value)
+    except ValueError:
+        try:
+            when = email.utils.parsedate_to_datetime(value)
+        except (TypeError, ValueError, IndexError, OverflowError):
+            return 0.0
+        if when.tzinfo is None:  # "-0000" or no zone: HTTP dates are GMT
+            when = when.replace(tzinfo=UTC)
+        seconds = (when - (now or datetime.now(UTC))).total_seconds()
+    if seconds != seconds:  # NaN
+        return 0.0
+    return min(max(0.0, seconds), MAX_RETRY_AFTER)
 
 
-def snippet(text: str, secrets: list[str] | tuple[str, ...] = (), n: int = 160) -> str:
+def snippet(text: str, secrets: Iterable[str] = (), n: int = 160) -> str:
     """The start of a server reply, credentials redacted before it is shortened."""
-    text = " ".join(redact(text, secrets).split())
-    return repr(text if len(text) <= n else text[:n] + "...")
+    return redact_start(text, secrets, n)
+
+
+def redirect_hint(endpoint: str, location: str | None, secrets: Iterable[str] = ()) -> str:
+    """What to do about a redirect from ``endpoint`` to ``location``: set base_url to where
+    it leads (shown without credentials or query values). Redirects are never followed:
+    the API key would go with them to wherever the server points."""
+    why = (
+        " Redirects are not followed, so that the API key and the query never go where "
+        "base_url does not say."
+    )
+    if not location or not location.strip():
+        return f" The server redirects without saying where (no Location header).{why}"
+    target = urljoin(endpoint, location.strip())
+    parts = urlsplit(target)
+    shown = redact_url(target, secrets)
+    if parts.scheme not in ("http", "https") or not parts.hostname:
+        return f" The server redirects to {shown}.{why}"
+    base = parts.path.rstrip("/").removesuffix("/chat/completions")
+    suggest = redact_url(urlunsplit((parts.scheme, parts.netloc, base, parts.query, "")))
+    return f" The server redirects to {shown}: if that is the API, set base_url: {suggest}.{why}"
+
+
+def cleartext_host(endpoint: str) -> str | None:
+    """The host of an ``http://`` endpoint that is not this machine (a key sent there
+    crosses the network in cleartext), else None."""
+    parts = urlsplit(endpoint)
+    if parts.scheme != "http" or is_loopback(parts.hostname):
+        return None
+    return parts.hostname
+
+
+class Reply:
+    """A response read by :func:`bounded_request`: ``status_code``, ``headers``, the
+    body's first :data:`MAX_REPLY_BYTES` (``content``), whether more was left unread
+    (``truncated``) and the error that decoding its ``Content-Encoding`` raised, if any
+    (``decode_error``)."""
+
+    def __init__(
+        self,
+        status_code: int,
+        headers: Any,
+        content: bytes,
+        encoding: str | None = None,
+        truncated: bool = False,
+        decode_error: str | None = None,
+    ) -> None:
+        self.status_code = status_code
+        self.headers = headers
+        self.content = content
+        self.encoding = encoding
+        self.truncated = truncated
+        self.decode_error = decode_error
+
+    @property
+    def text(self) -> str:
+        try:
+            return self.content.decode(self.encoding or "utf-8", errors="replace")
+        except LookupError:  # a charset Python does not know
+            return self.content.decode("utf-8", errors="replace")
+
+    def json(self) -> Any:
+        """The body as JSON; ValueError when it is not (nesting too deep included)."""
+        try:
+            return json.loads(self.text)
+        except RecursionError:
+            raise ValueError("JSON nested too deep") from None
+
+
+class _Deadline:
+    """Ends a request at its deadline, wherever it waits: at the deadline, every socket
+    the request connected (told by httpcore's ``trace`` extension) is shut down, which
+    wakes a read blocked on it. A read that then fails is reported as the time-out."""
+
+    def __init__(self, seconds: float) -> None:
+        self.fired = False
+        self._done = False
+        self._lock = threading.Lock()
+        self._socks: list[socket.socket] = []
+        self._timer = threading.Timer(max(0.0, seconds), self._fire)
+        self._timer.daemon = True
+        self._timer.start()
+
+    def trace(self, name: str, info: dict[str, Any]) -> None:
+        """httpcore's trace callback: keep a duplicate of each socket it connects."""
+        if not name.endswith("connect_tcp.complete"):
+            return
+        try:
+            sock = info["return_value"].get_extra_info("socket")
+            dup = sock.dup()
+        except Exception:  # noqa: BLE001 - another backend: only httpx's time-outs apply
+            return
+        with self._lock:
+            if self._done:
+                dup.close()
+                return
+            self._socks.append(dup)
+            if self.fired:
+                self._shutdown(dup)
+
+    @staticmethod
+    def _shutdown(sock: socket.socket) -> None:
+        with contextlib.suppress(OSError):
+            sock.shutdown(socket.SHUT_RDWR)
+
+    def _fire(self) -> None:
+        with self._lock:
+            if self._done:
+                return
+            self.fired = True
+            for sock in self._socks:
+                self._shutdown(sock)
+
+    def close(self) -> None:
+        self._timer.cancel()
+        with self._lock:
+            self._done = True
+            for sock in self._socks:
+                sock.close()
+            self._socks.clear()
+
+
+def bounded_request(
+    client: Any,
+    method: str,
+    url: str,
+    *,
+    timeout: float,
+    limit: int = MAX_REPLY_BYTES,
+    **kwargs: Any,
+) -> Reply:
+    """``client.stream(method, url, **kwargs)`` read into a :class:`Reply`, within
+    ``timeout`` seconds in all and at most ``limit`` bytes of (decoded) body.
+
+    Raises httpx's ``ReadTimeout`` when the deadline passes (also while connecting,
+    sending, or waiting for headers or for the body), and its other transport errors as
+    they come. A body with more than ``limit`` bytes is cut there (``truncated``), the
+    rest unread (a ``Content-Length`` over the limit: nothing read); one whose
+    ``Content-Encoding`` cannot be decoded gives ``decode_error``.
+    """
+    import httpx
+
+    deadline = time.monotonic() + timeout
+    watch = _Deadline(timeout)
+    extensions = {**kwargs.pop("extensions", {}), "trace": watch.trace}
+    try:
+        with client.stream(
+            method, url, timeout=httpx.Timeout(timeout), extensions=extensions, **kwargs
+        ) as resp:
+            chunks: list[bytes] = []
+            size, truncated, decode_error = 0, False, None
+            declared = resp.headers.get("content-length", "").strip()
+            if declared.isdigit() and int(declared) > limit:
+                truncated = True
+            else:
+                try:
+                    for chunk in resp.iter_bytes():
+                        if time.monotonic() > deadline:
+                            raise httpx.ReadTimeout(f"no whole reply within {timeout:g} s")
+                        if size + len(chunk) > limit:
+                            chunks.append(chunk[: limit - size])
+                            truncated = True
+                            break
+                        size += len(chunk)
+                        chunks.append(chunk)
+                except httpx.DecodingError as exc:
+                    decode_error = f"{type(exc).__name__}: {exc}"
+            return Reply(
+                resp.status_code,
+                resp.headers,
+                b"".join(chunks),
+                resp.charset_encoding,
+                truncated,
+                decode_error,
+            )
+    except httpx.TransportError as exc:
+        if watch.fired and not isinstance(exc, httpx.TimeoutException):
+            raise httpx.ReadTimeout(f"no whole reply within {timeout:g} s") from None
+        raise
+    finally:
+        watch.close()
 
 
 def known_models(
-    client: Any, endpoint: str, headers: dict[str, str], timeout: float = 5.0
+    client: Any, endpoint: str, headers: dict[str, str], timeout: float = 5.0, query: str = ""
 ) -> tuple[str, list[str]]:
     """Ask the server which models it serves: ``GET .../models`` beside ``endpoint``, then
-    at ``/v1/models`` of its origin. Returns (the base URL that answered, the model ids);
-    ``("", [])`` when neither does. Used only to explain a 404."""
+    at ``/v1/models`` of its origin (with base_url's ``query`` string, which an Azure-style
+    API needs). Returns (the base URL that answered, the model ids); ``("", [])`` when
+    neither does. Used only to explain a 404."""
     parts = urlsplit(endpoint)
     base = parts.path.removesuffix("/chat/completions")
     origin = (parts.scheme, parts.netloc)
     tried = []
     for path in (base, "/v1"):
-        url = urlunsplit((*origin, path.rstrip("/") + "/models", "", ""))
+        url = urlunsplit((*origin, path.rstrip("/") + "/models", query, ""))
         if url in tried:
             continue
         tried.append(url)
         try:
-            resp = client.get(url, headers=headers, timeout=timeout)
-            data = resp.json() if resp.status_code == 200 else None
+            resp = bounded_request(client, "GET", url, headers=headers, timeout=timeout)
+            data = resp.json() if resp.status_code == 200 and not resp.truncated else None
         except Exception:  # noqa: BLE001 - only a hint: any failure means "unknown"
             continue
         rows = data.get("data") if isinstance(data, dict) else None

@@ -13,13 +13,25 @@ Accepted forms, tried in order:
 2. Sections introduced by a heading that names synonyms or antonyms (``Synonyms:``,
    ``**Antonyms**``, ``## Antonyms``), each holding a numbered or bulleted list, one
    item per line, or a comma-separated list (also on the heading line itself).
+
+Parsing costs time linear (or n log n) in the reply's length: the JSON candidates are
+decoded by the C decoder from at most 20 opening braces, thoughts are removed in one pass,
+an item longer than :data:`MAX_ITEM_CHARS` is dropped before it is normalised, and only
+the first :data:`MAX_ITEMS_READ` items of each list are read. Text
+quoted in an error is redacted (with the secrets given) before it is shortened, so that a
+key cut in two can never show its first half.
 """
 
 from __future__ import annotations
 
+import bisect
+import itertools
 import json
 import re
+from collections.abc import Callable, Iterable, Iterator
 from typing import Any
+
+from ..core.redact import redact_start
 
 _SYN_KEYS = ("synonyms", "synonym", "positives", "positive")
 _ANT_KEYS = ("antonyms", "antonym", "negatives", "negative")
@@ -35,14 +47,27 @@ _SEPARATORS = re.compile(r"[,;\uff0c\uff1b\u3001]")
 #: emphasis and sentence punctuation, ASCII and full-width.
 _STRIP = "\"'`*_.,;:!?\u2018\u2019\u201c\u201d\u201e\u00ab\u00bb\u300c\u300d\u300e\u300f\u3002\u3001\uff0c\uff1b\uff1a\uff01\uff1f"
 _MAX_CHARS = 60
+#: An item longer than this, before normalising, is dropped unread: no note or numbering
+#: stripped from it could bring it under :data:`_MAX_CHARS`, and the normalising patterns
+#: cost time that grows faster than its length.
+MAX_ITEM_CHARS = 1000
+#: Items of each list read from a reply: a list asked for is 20 or so items long, and
+#: each item costs a few tens of microseconds to normalise and check.
+MAX_ITEMS_READ = 10_000
+#: Opening braces of a reply (and fenced blocks) tried as the start of a JSON object.
+_MAX_JSON_STARTS = 20
+_DECODER = json.JSONDecoder()
 _THOUGHT_TAGS = "think|thinking|reasoning"
-_THOUGHTS = re.compile(rf"<({_THOUGHT_TAGS})>.*?</\1\s*>", re.S | re.I)
+_THOUGHT_TAG = re.compile(rf"<(/?)({_THOUGHT_TAGS})(\s*)>", re.I)
 _THOUGHTS_END = re.compile(rf"</(?:{_THOUGHT_TAGS})\s*>", re.I)
 _THOUGHTS_OPEN = re.compile(rf"<(?:{_THOUGHT_TAGS})>", re.I)
 
 
-def parse_reply(text: str) -> tuple[list[str], list[str]]:
+def parse_reply(text: str, secrets: Iterable[str | None] = ()) -> tuple[list[str], list[str]]:
     """Return raw ``(synonyms, antonyms)`` from a reply; ValueError when neither is found.
+
+    ``secrets`` (the API key) are redacted from the reply quoted in the ValueError before
+    it is shortened.
 
     Examples
     --------
@@ -53,7 +78,8 @@ def parse_reply(text: str) -> tuple[list[str], list[str]]:
     """
     if not isinstance(text, str) or not text.strip():
         raise ValueError("empty reply")
-    text = _drop_thoughts(text)
+    secrets = list(secrets)
+    text = _drop_thoughts(text, secrets)
     for obj in _json_candidates(text):
         found = _from_json(obj)
         if found is not None:
@@ -61,13 +87,23 @@ def parse_reply(text: str) -> tuple[list[str], list[str]]:
     found = _from_sections(text)
     if found is not None:
         return found
-    raise ValueError(f"no synonyms/antonyms lists found in {_short(text)}")
+    raise ValueError(f"no synonyms/antonyms lists found in {_short(text, secrets)}")
 
 
 def clean_lists(
-    query: str, synonyms: list[str], antonyms: list[str], n_syn: int, n_ant: int
+    query: str,
+    synonyms: list[str],
+    antonyms: list[str],
+    n_syn: int,
+    n_ant: int,
+    keep: Callable[[str], bool] | None = None,
 ) -> tuple[list[str], list[str]]:
     """Normalise, dedupe and cap; drop the query and synonyms from the antonyms.
+
+    ``keep``, when given, is asked about each raw item before it is normalised (the
+    heuristic drops an item that carries a credential). Items are read only until the
+    caps are reached, and at most :data:`MAX_ITEMS_READ` of each list, so a reply with a
+    million items costs little more than one with the counts asked.
 
     Examples
     --------
@@ -75,19 +111,21 @@ def clean_lists(
     (['seat'], ['table'])
     """
     q = _norm(query)
-    syn = [s for s in _dedupe(synonyms) if s != q][: max(0, n_syn)]
+    syn = list(itertools.islice((s for s in _dedupe(synonyms, keep) if s != q), max(0, n_syn)))
     taken = {q, *syn}
-    ant = [a for a in _dedupe(antonyms) if a not in taken][: max(0, n_ant)]
+    ant = list(
+        itertools.islice((a for a in _dedupe(antonyms, keep) if a not in taken), max(0, n_ant))
+    )
     return syn, ant
 
 
-def _drop_thoughts(text: str) -> str:
+def _drop_thoughts(text: str, secrets: Iterable[str | None] = ()) -> str:
     """``text`` without a reasoning model's thoughts; ValueError when nothing else is left.
 
     >>> _drop_thoughts('<think>maybe {"synonyms": ["x"]}</think> {"synonyms": ["seat"]}')
     ' {"synonyms": ["seat"]}'
     """
-    out = _THOUGHTS.sub("", text)
+    out = _drop_closed_thoughts(text)
     ends = list(_THOUGHTS_END.finditer(out))
     if ends:  # the opening tag was in the prompt's template: thoughts run up to the last end
         out = out[ends[-1].end() :]
@@ -96,53 +134,67 @@ def _drop_thoughts(text: str) -> str:
         out = out[: opened.start()]
     if not out.strip():
         raise ValueError(
-            f"the reply holds only the model's reasoning ({_short(text)}), no answer after it"
+            "the reply holds only the model's reasoning "
+            f"({_short(text, secrets)}), no answer after it"
         )
     return out
 
 
+def _drop_closed_thoughts(text: str) -> str:
+    """``text`` without each ``<think>...</think>`` (also ``thinking``, ``reasoning``; any
+    case): from the leftmost opening tag to the first closing tag of its name after it,
+    then on from there. One pass over the tags (a pattern with ``.*?`` rescanned the rest
+    of the text from every opening tag that is never closed)."""
+    opens: list[tuple[int, int, str]] = []
+    closes: dict[str, list[tuple[int, int]]] = {}
+    for m in _THOUGHT_TAG.finditer(text):
+        name = m.group(2).lower()
+        if m.group(1):
+            closes.setdefault(name, []).append((m.start(), m.end()))
+        elif not m.group(3):  # "<think >" opens nothing; "</think >" closes
+            opens.append((m.start(), m.end(), name))
+    if not opens or not closes:
+        return text
+    kept: list[str] = []
+    pos = 0
+    for start, end, name in opens:
+        if start < pos:
+            continue
+        ends = closes.get(name, [])
+        i = bisect.bisect_left(ends, (end, end))
+        if i == len(ends):
+            continue
+        kept.append(text[pos:start])
+        pos = ends[i][1]
+    kept.append(text[pos:])
+    return "".join(kept)
+
+
 # ---------------------------------------------------------------------- JSON
 def _json_candidates(text: str) -> list[Any]:
+    """Each fenced block and the whole text: parsed whole, else the first JSON value that
+    starts at one of its first 20 opening braces (the C decoder reads one value and stops;
+    a Python scan for the matching brace, from each start to the end, took 11 s on a
+    2 MB reply)."""
     out: list[Any] = []
-    blocks = [m.group(1) for m in _FENCE.finditer(text)] + [text]
+    fences = itertools.islice(_FENCE.finditer(text), _MAX_JSON_STARTS)
+    blocks = [m.group(1) for m in fences] + [text]
     for block in blocks:
         try:
             out.append(json.loads(block))
             continue
-        except ValueError:
+        except (ValueError, RecursionError):  # RecursionError: nesting too deep
             pass
-        for start in [i for i, c in enumerate(block) if c == "{"][:20]:
-            sub = _balanced(block, start)
-            if sub is None:
-                continue
-            try:
-                out.append(json.loads(sub))
+        start = block.find("{")
+        for _ in range(_MAX_JSON_STARTS):
+            if start < 0:
                 break
-            except ValueError:
-                continue
+            try:
+                out.append(_DECODER.raw_decode(block, start)[0])
+                break
+            except (ValueError, RecursionError):
+                start = block.find("{", start + 1)
     return out
-
-
-def _balanced(text: str, start: int) -> str | None:
-    depth, in_str, esc = 0, False, False
-    for i in range(start, len(text)):
-        c = text[i]
-        if in_str:
-            if esc:
-                esc = False
-            elif c == "\\":
-                esc = True
-            elif c == '"':
-                in_str = False
-        elif c == '"':
-            in_str = True
-        elif c == "{":
-            depth += 1
-        elif c == "}":
-            depth -= 1
-            if depth == 0:
-                return text[start : i + 1]
-    return None
 
 
 def _from_json(obj: Any) -> tuple[list[str], list[str]] | None:
@@ -217,20 +269,25 @@ def _norm(item: str) -> str:
     return " ".join(s.lower().split())
 
 
-def _dedupe(items: list[str]) -> list[str]:
-    out: list[str] = []
+def _dedupe(items: list[str], keep: Callable[[str], bool] | None = None) -> Iterator[str]:
     seen: set[str] = set()
-    for raw in items:
+    seen_raw: set[str] = set()  # an item repeated verbatim is judged once
+    for raw in itertools.islice(items, MAX_ITEMS_READ):
+        if raw in seen_raw:
+            continue
+        seen_raw.add(raw)
+        if len(str(raw)) > MAX_ITEM_CHARS or (keep is not None and not keep(raw)):
+            continue
         s = _norm(raw)
         if not s or s in seen or len(s) > _MAX_CHARS or len(s.split()) > _MAX_WORDS:
             continue
         if not any(c.isalnum() for c in s):  # a letter or digit of any script
             continue
         seen.add(s)
-        out.append(s)
-    return out
+        yield s
 
 
-def _short(text: str, n: int = 120) -> str:
-    text = " ".join(text.split())
-    return repr(text if len(text) <= n else text[:n] + "...")
+def _short(text: str, secrets: Iterable[str | None] = (), n: int = 120) -> str:
+    """The start of ``text`` for a message: redacted first, then shortened (a key cut at
+    the 120th character no longer matched the key, and its first part showed)."""
+    return redact_start(text, secrets, n)
