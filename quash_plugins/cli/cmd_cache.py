@@ -83,6 +83,14 @@ def run(args: argparse.Namespace) -> int:
     cache = TextEmbeddingCache(args.dir)
     llm = llm_cache_info()
     if action == "clear":
+        if args.fingerprint is not None and not cache._dir(args.fingerprint).is_dir():
+            from ..core.errors import UsageError
+
+            known = cache.fingerprints()
+            raise UsageError(
+                f"No fingerprint {args.fingerprint!r} in {cache.directory}. "
+                + (f"Cached: {', '.join(known)}." if known else "The cache holds none.")
+            )
         freed = cache.clear(args.fingerprint)
         what = f"fingerprint {args.fingerprint}" if args.fingerprint else "all text embeddings"
         out.print(safe_text(f"cleared {what} from {cache.directory} ({_size(freed)} freed)"))
@@ -110,7 +118,13 @@ def run(args: argparse.Namespace) -> int:
 
         table = Table(title="text embeddings by encoder fingerprint")
         for col in ("fingerprint", "strings", "size", "last used"):
-            table.add_column(col, justify="left" if col == "fingerprint" else "right")
+            # the fingerprint whole, never cut ("..."): 'clear --fingerprint' takes it
+            table.add_column(
+                col,
+                justify="left" if col == "fingerprint" else "right",
+                overflow="fold" if col == "fingerprint" else "ellipsis",
+                no_wrap=col != "fingerprint",
+            )
         for e in info["encoders"]:
             when = datetime.datetime.fromtimestamp(e["last_used"]).strftime("%Y-%m-%d %H:%M")
             table.add_row(safe_text(e["fingerprint"]), str(e["entries"]), _size(e["bytes"]), when)

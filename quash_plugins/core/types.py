@@ -137,18 +137,30 @@ def escape_control(text: str) -> str:
     return "".join(c.encode("unicode_escape").decode("ascii") if bad(c) else c for c in text)
 
 
+#: The longest query :func:`check_query` takes, in characters.
+MAX_QUERY_CHARS = 1000
+
+
 def check_query(text: Any) -> str:
     """Collapse a query's white space; reject empty queries and control characters.
 
     Tabs and newlines count as spaces. Any other control character (an escape sequence
     that would drive the terminal, a NUL that C code would cut the text at, a
-    bidirectional override) is refused with its position, never silently dropped.
+    bidirectional override) is refused with its position, never silently dropped. A
+    query longer than :data:`MAX_QUERY_CHARS` is refused (one of 120,000 characters was
+    printed whole in every table and log line).
     """
     if not isinstance(text, str):
         raise QuashError(f"A query must be a string; got {type(text).__name__}.")
     stripped = " ".join(text.split())
     if not stripped:
         raise QuashError("The query is empty. Pass a word or phrase, e.g. 'chair'.")
+    if len(stripped) > MAX_QUERY_CHARS:
+        raise QuashError(
+            f"The query is {len(stripped):,} characters long ('{escape_control(stripped[:40])}"
+            f"...'); a query is a word or phrase, at most {MAX_QUERY_CHARS:,} characters "
+            "(text encoders read far fewer: CLIP 77 tokens, MiniLM 256)."
+        )
     bad = next((i for i, c in enumerate(stripped) if is_control(c)), None)
     if bad is not None:
         code = f"U+{ord(stripped[bad]):04X}"

@@ -27,7 +27,6 @@ import json
 import logging
 import os
 import re
-import shutil
 import stat
 import time
 from collections.abc import Sequence
@@ -43,6 +42,10 @@ log = logging.getLogger(__name__)
 
 #: Bump when the on-disk layout changes; old versions are ignored (and removed by clear).
 FORMAT = "v1"
+#: Texts longer than this are embedded but not cached: a shard stores its texts as one
+#: fixed-width array, so one 120,000-character query widened every entry of its shard
+#: and the eviction that followed emptied most of the cache.
+MAX_CACHED_CHARS = 512
 #: Shard files per encoder fingerprint.
 SHARDS = 16
 #: Default size bound (bytes); overridable by ``QUASH_CACHE_MAX_MB`` or ``max_bytes``.
@@ -251,6 +254,8 @@ class TextEmbeddingCache:
         folder = make_private_dirs(self._dir(fingerprint))
         by_shard: dict[str, dict[str, np.ndarray]] = {}
         for t, v in embeddings.items():
+            if len(t) > MAX_CACHED_CHARS:  # a shard stores its texts at the longest's width
+                continue
             by_shard.setdefault(_shard_of(t), {})[t] = np.asarray(v, dtype=np.float32).ravel()
         for shard, new in by_shard.items():
             path = folder / f"{shard}.npz"
@@ -349,20 +354,60 @@ class TextEmbeddingCache:
             "encoders": recs,
         }
 
+    def fingerprints(self) -> list[str]:
+        """The fingerprints that have shards in this cache (their folder names)."""
+        if not self.root.is_dir():
+            return []
+        return sorted(d.name for d in self.root.iterdir() if d.is_dir() and any(d.glob("*.npz")))
+
     def clear(self, fingerprint: str | None = None) -> int:
-        """Delete every cached embedding (or one fingerprint's). Returns bytes freed."""
+        """Delete every cached embedding (or one fingerprint's). Returns bytes freed.
+
+        Only the cache's own files are deleted (``v<N>/<fingerprint>/*.npz`` shards and
+        their ``.lock`` files), then the folders they leave empty: a folder given as
+        ``--dir`` that holds anything else (a ``v1/notes.txt``) keeps it.
+        """
         if fingerprint is not None:
             target = self._dir(fingerprint)
-            freed = sum(p.stat().st_size for p in target.glob("*.npz")) if target.is_dir() else 0
-            shutil.rmtree(target, ignore_errors=True)
-            return freed
+            return _remove_shards(target) if target.is_dir() else 0
         freed = 0
         if self.directory.is_dir():
             for sub in self.directory.iterdir():
-                if sub.is_dir() and re.fullmatch(r"v\d+", sub.name):
-                    freed += sum(p.stat().st_size for p in sub.rglob("*") if p.is_file())
-                    shutil.rmtree(sub, ignore_errors=True)
+                if sub.is_dir() and not sub.is_symlink() and re.fullmatch(r"v\d+", sub.name):
+                    for fp_dir in sub.iterdir():
+                        if fp_dir.is_dir() and not fp_dir.is_symlink():
+                            freed += _remove_shards(fp_dir)
+                    with contextlib.suppress(OSError):
+                        sub.rmdir()  # only when nothing else is left in it
         return freed
+
+
+def _remove_shards(folder: Path) -> int:
+    """Delete the cache's shard files (``*.npz``, ``*.npz.lock``) in ``folder``, then the
+    folder if that left it empty; every other file stays. Returns bytes freed."""
+    freed = 0
+    for p in folder.iterdir():
+        if (
+            p.is_file()
+            and not p.is_symlink()
+            and (p.suffix == ".npz" or p.name.endswith(".npz.lock"))
+        ):
+            with contextlib.suppress(OSError):
+                size = p.stat().st_size
+                p.unlink()
+                freed += size
+    left = [p.name for p in folder.iterdir()]
+    if left:
+        log.warning(
+            "%s: kept %d file(s) that are not the cache's own (%s)",
+            folder,
+            len(left),
+            ", ".join(sorted(left)[:3]) + (", ..." if len(left) > 3 else ""),
+        )
+    else:
+        with contextlib.suppress(OSError):
+            folder.rmdir()
+    return freed
 
 
 def open_cache(setting: Any) -> Any:

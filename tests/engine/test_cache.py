@@ -262,3 +262,57 @@ def test_cache_folders_are_private_whatever_the_umask(tmp_path, umask):
     for folder in made:
         assert stat.S_IMODE(folder.stat().st_mode) == 0o700, folder
     assert stat.S_IMODE(shared.stat().st_mode) == 0o1777  # not made here: left alone
+
+
+def test_clear_deletes_only_the_caches_own_files(tmp_path, capsys):
+    """'quash cache clear --dir DIR' deleted every 'v<N>' folder whole: a project's
+    'v1/notes.txt' went with it. Only shards and their locks go; the rest stays."""
+    from quash_plugins.cli.main import main
+    from quash_plugins.engine.cache import TextEmbeddingCache
+
+    cache = TextEmbeddingCache(tmp_path)
+    cache.store("enc-1", {"chair": np.array([0.6, 0.8], np.float32)})
+    notes = tmp_path / "v1" / "notes.txt"
+    notes.write_text("important")
+    project = tmp_path / "v2" / "data"
+    project.mkdir(parents=True)
+    (project / "scan.npz").write_bytes(b"")  # a user's file named like a shard, one level up
+    (tmp_path / "v2" / "keep.txt").write_text("mine")
+    assert main(["-q", "cache", "clear", "--dir", str(tmp_path)]) == 0
+    assert notes.read_text() == "important" and (tmp_path / "v2" / "keep.txt").exists()
+    assert not list((tmp_path / "v1").glob("*/*.npz"))  # the shard went
+    assert cache.lookup("enc-1", ["chair"]) == {}
+
+
+def test_clearing_an_unknown_fingerprint_says_so(tmp_path, capsys):
+    from quash_plugins.cli.main import main
+    from quash_plugins.engine.cache import TextEmbeddingCache
+
+    TextEmbeddingCache(tmp_path).store("enc-1", {"chair": np.array([1.0, 0.0], np.float32)})
+    code = main(["-q", "cache", "clear", "--dir", str(tmp_path), "--fingerprint", "bogus"])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "No fingerprint 'bogus'" in err and "Cached: enc-1" in err
+    assert TextEmbeddingCache(tmp_path).lookup("enc-1", ["chair"])  # nothing was cleared
+
+
+def test_a_long_text_is_embedded_but_not_cached(tmp_path):
+    """One 120,000-character query widened every text of its shard to its width (a
+    fixed-width array): the shard grew to gigabytes and eviction emptied the cache."""
+    from quash_plugins.engine.cache import MAX_CACHED_CHARS, TextEmbeddingCache
+
+    cache = TextEmbeddingCache(tmp_path)
+    long = "chair " * 20_000
+    cache.store("enc-1", {"chair": np.array([1.0, 0.0], np.float32), long: np.ones(2, np.float32)})
+    assert set(cache.lookup("enc-1", ["chair", long])) == {"chair"}
+    assert len(long) > MAX_CACHED_CHARS
+    assert sum(p.stat().st_size for p in tmp_path.rglob("*.npz")) < 10_000
+
+
+def test_a_query_of_more_than_a_thousand_characters_is_refused():
+    from quash_plugins.core.errors import QuashError
+    from quash_plugins.core.types import MAX_QUERY_CHARS, check_query
+
+    assert check_query("x" * MAX_QUERY_CHARS)
+    with pytest.raises(QuashError, match="characters long .*a query is a word or phrase"):
+        check_query("chair " * 20_000)
