@@ -168,10 +168,12 @@ def test_vlmaps_export_never_replaces_the_label_file_it_read(tmp_path):
     labels.write_text("chair\nsofa\ntable\n")
     before = labels.read_bytes()
     with pytest.raises(UsageError, match="is the input"):
-        convert_map(h5, other, format="vlmaps", label_names=str(labels))
+        convert_map(h5, other, format="vlmaps", label_names=str(labels), positions="upstream")
     assert labels.read_bytes() == before
     assert not (other / "vlmap_cam" / "vlmaps_cam.h5df").exists()
-    written = convert_map(h5, tmp_path / "fresh", format="vlmaps", label_names=str(labels))
+    written = convert_map(
+        h5, tmp_path / "fresh", format="vlmaps", label_names=str(labels), positions="upstream"
+    )
     assert read_map(written).label_names == ["chair", "sofa", "table"]
 
 
