@@ -101,6 +101,7 @@ def run(args: argparse.Namespace) -> int:
         return _show_classes(opts.classes)
     if args.out is None:
         raise UsageError("give OUT.npz, the map to write (or --show-classes).")
+    opts.validate()  # before the encoder loads
     _check_outputs(args)
     params = {"file": args.encoder_file} if args.encoder_file else {}
     params.update(key_values(args.encoder_option, "--encoder-option"))

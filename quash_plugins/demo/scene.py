@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -186,6 +187,19 @@ class SceneOptions:
 
     def validate(self) -> ClassSet:
         """Check the options; return the class table they name (parsed once)."""
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            if isinstance(v, float) and not math.isfinite(v):
+                raise ConfigError(f"scene option {f.name} must be a finite number, not {v}.")
+        if self.seed < 0:
+            raise ConfigError(f"scene option seed must be >= 0 (numpy's seeds), not {self.seed}.")
+        if self.extra_objects < 0:
+            raise ConfigError(
+                f"scene option extra_objects must be >= 0 (objects added to each room), "
+                f"not {self.extra_objects}."
+            )
+        if self.size_scale <= 0 or self.confusion < 0:
+            raise ConfigError("scene options size_scale must be > 0 and confusion >= 0.")
         if self.rooms < 1:
             raise ConfigError("scene option rooms must be >= 1.")
         if not 0.02 <= self.voxel_size <= 0.5:

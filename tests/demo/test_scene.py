@@ -245,3 +245,30 @@ def test_tables_b_and_c_classes_are_recognisable_with_minilm(table):
         if best != c.label:
             wrong.append((c.label, best))
     assert not wrong
+
+
+@pytest.mark.parametrize(
+    ("flag", "value", "named"),
+    [
+        ("--seed", "-5", "seed must be >= 0"),
+        ("--extra-objects", "-3", "extra_objects must be >= 0"),
+        ("--size-scale", "0", "size_scale must be > 0"),
+        ("--noise", "nan", "noise must be a finite number"),
+        ("--confusion", "-1", "confusion >= 0"),
+    ],
+)
+def test_make_scene_refuses_bad_options_before_loading_an_encoder(
+    tmp_path, capsys, flag, value, named
+):
+    """A negative seed or object count crashed inside numpy; each is now an error naming
+    the option, given before the (slow) encoder is built and before anything is written."""
+    from quash_plugins.cli.main import main
+
+    out = tmp_path / "s.npz"
+    # an encoder that does not exist: reaching it would give another error
+    assert main(["make-scene", str(out), "--encoder", "no-such-encoder", flag, value]) == 1
+    assert named in capsys.readouterr().err
+    assert not list(tmp_path.iterdir())
+    field = flag[2:].replace("-", "_")
+    with pytest.raises(Exception, match=named):
+        SceneOptions(**{field: type(getattr(OPTS, field))(value)}).validate()
