@@ -57,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
     import time
     from pathlib import Path
 
-    from ..core.atomic import atomic_write_text
+    from ..core.atomic import atomic_write_text, make_output_folder
     from ..demo.runner import demo_config_paths, run_demo
     from ..evaluation.plot import plot_precision_recall
     from ._backend_opts import backend_overrides
@@ -76,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
         args.rrd = str(outdir / "demo.rrd")
     _check_outputs(args, outdir)
     _check_rerun(args, outdir)
-    outdir.mkdir(parents=True, exist_ok=True)
+    make_output_folder(outdir, "--out")
     overrides = backend_overrides(args)
     if args.no_cache:
         overrides["cache"] = False

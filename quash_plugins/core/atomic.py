@@ -271,6 +271,24 @@ def _make_parent(path: Path) -> None:
         ) from None
 
 
+def make_output_folder(path: str | Path, what: str) -> Path:
+    """Create the output folder ``path`` (given as option ``what``) and check that a file
+    can be created in it, before any work; raise a :class:`UsageError` naming the folder
+    and the option otherwise (a read-only or missing parent, a file in the way)."""
+    folder = Path(path)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        probe = folder / f".quash-probe-{secrets.token_hex(6)}"
+        os.close(os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600))
+        os.unlink(probe)
+    except OSError as exc:
+        raise UsageError(
+            f"{what} {folder}: cannot write there ({exc.strerror or exc}). "
+            f"Give {what} a folder you can write to."
+        ) from None
+    return folder
+
+
 def _empty_dir(path: Path) -> bool:
     """An empty folder: replacing it loses nothing."""
     try:

@@ -141,3 +141,30 @@ def test_check_output_refuses_outputs_inside_an_input_folder(tmp_path):
     with pytest.raises(UsageError, match="inside the input folder"):
         check_output(tmp_path / "pointclouds" / "r.npz", [tmp_path / "pointclouds"])
     assert check_output(tmp_path / "r.npz", [tmp_path / "pointclouds"]) == tmp_path / "r.npz"
+
+
+def test_demo_out_that_cannot_be_written_is_an_error_before_any_work(tmp_path, capsys, monkeypatch):
+    """``quash demo --out`` in a read-only folder crashed ('unexpected error: OSError')
+    after building the scene; it is now refused first, naming --out and the folder."""
+    import errno
+
+    from quash_plugins.core import atomic
+
+    real_open = os.open
+
+    def read_only(path, flags, *a):
+        if str(path).startswith(str(tmp_path / "ro")):
+            raise OSError(errno.EROFS, os.strerror(errno.EROFS))
+        return real_open(path, flags, *a)
+
+    monkeypatch.setattr(atomic.os, "open", read_only)
+    built = []
+    monkeypatch.setattr("quash_plugins.demo.runner.run_demo", lambda **kw: built.append(kw))
+    assert main(["demo", "--tiny", "--no-rrd", "--out", str(tmp_path / "ro")]) == 2
+    err = capsys.readouterr().err
+    assert "--out" in err and str(tmp_path / "ro") in err and "Read-only" in err
+    assert not built
+    assert list((tmp_path / "ro").iterdir()) == []  # the probe left nothing
+    # a writable folder passes the check and keeps no probe file
+    assert atomic.make_output_folder(tmp_path / "ok" / "sub", "--out").is_dir()
+    assert list((tmp_path / "ok" / "sub").iterdir()) == []
