@@ -15,7 +15,7 @@ say what they need (downloaded weights, an LLM server): a map must be queried wi
 text encoder that built it."""
 EPILOG = """\
 examples:
-  quash configs                                  # name, encoder, needs, description
+  quash configs                                  # name, needs (encoder), description
   quash configs demo:quash-taxonomy              # print one (its path, then the YAML)
   quash query scene.npz chair -c demo:quash-taxonomy"""
 

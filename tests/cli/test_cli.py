@@ -741,3 +741,22 @@ def test_expand_prints_number_lists_on_a_line_within_the_width():
     assert sum("6, 6" in line for line in lines) >= 1 and len(lines) < 12
     assert "- a" in text  # a list of names stays a block list
     assert yaml.safe_load("\n".join(line[2:] for line in lines)) == qs.to_dict()["provenance"]
+
+
+def test_demo_help_counts_what_the_demo_runs():
+    """``quash demo --help`` listed fewer methods than the demo runs."""
+    from quash_plugins.cli import cmd_demo
+    from quash_plugins.demo.runner import DEMO_ABSENT, DEMO_CONFIGS, DEMO_QUERIES
+
+    words = dict(
+        enumerate(
+            ["zero", "one", "two", "three", "four", "five", "six", "seven", "eight", "nine", "ten"]
+        )
+    )
+    words.update({11: "eleven", 12: "twelve"})
+    text = " ".join(cmd_demo.DESCRIPTION.split())
+    assert f"runs {words[len(DEMO_CONFIGS)]} methods" in text
+    assert f"on {words[len(DEMO_QUERIES)]} queries" in text
+    assert f"{words[len(DEMO_ABSENT)]} absence queries" in text
+    for kind in ("VLMaps", "ConceptFusion", "LERF", "OpenScene", "vocabulary", "adjectives"):
+        assert kind in text
