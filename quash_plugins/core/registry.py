@@ -381,7 +381,8 @@ def create(kind: str, name: str, /, **params: Any) -> Any:
         unknown = [p for p in params if p not in accepted]
         if unknown:
             bad = unknown[0]
-            guess = closest(bad, accepted)
+            # 0.6: a typo, not a different word ('check_finite' is not 'cache_frames', 0.5)
+            guess = closest(bad, accepted, cutoff=0.6)
             hint = f" Did you mean {guess!r}?" if guess else ""
             raise ConfigError(
                 f"{_TITLE[kind]} {entry.name!r} does not accept parameter {bad!r}. "

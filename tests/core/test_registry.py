@@ -227,3 +227,16 @@ def test_a_broken_adapter_that_auto_detection_passes_over_is_warned_about_once(c
         assert "broken-dist" in warned[0]
     finally:
         _entry_points._scanned["adapters"].remove(info)
+
+
+def test_unknown_parameter_suggests_a_typo_fix_not_another_word():
+    """'check_finite' (a ConceptFusion option) given to image-features was answered
+    "Did you mean 'cache_frames'?" (difflib ratio 0.5); a real typo still gets its fix."""
+    from quash_plugins.core.errors import ConfigError
+
+    with pytest.raises(ConfigError) as info:
+        registry.create("adapters", "image-features", check_finite=True)
+    assert "check_finite" in str(info.value) and "cache_frames" in str(info.value)
+    assert "Did you mean" not in str(info.value)
+    with pytest.raises(ConfigError, match="Did you mean 'cache_frames'"):
+        registry.create("adapters", "image-features", cache_frame=4)
