@@ -43,9 +43,9 @@ def presence_words(provenance: dict[str, Any]) -> str:
     ]
     n = info.get("components")
     if not n:
-        return "absent: nothing matched"
+        return f"absent: nothing matched{_unresolved(provenance, None)}"
     if not best:
-        return f"absent: {_no_large_component(info, int(n))}"
+        return f"absent: {_no_large_component(info, int(n))}{_unresolved(provenance, None)}"
     rival = info.get("rival")
     against = f"; closest competitor: {rival!r}" if isinstance(rival, str) and rival else ""
     return (

@@ -795,9 +795,18 @@ def test_an_empty_unresolved_query_names_the_label_it_was_nearest_to():
     prov["presence"] = {**prov["presence"], "rival": "sofa"}
     assert "nearest: 'bed'" in presence_words(prov)
     assert "if you meant" not in presence_words(prov)
+    # every component too small, or nothing matched: the resolution is told too (it was
+    # dropped, so the demo's "where the milk is kept cold" named no label)
+    small = {"checked": True, "present": False, "components": 5}
+    small.update(largest_component=3, min_component=8)
+    for info in (small, {"checked": True, "present": False, "components": 0}):
+        words = presence_words({**prov, "presence": info})
+        assert words.startswith("absent: ") and "nearest: 'bed'" in words, words
+        assert "if you meant" not in words
     # a query that resolved adds nothing
     prov["resolved"] = {**prov["resolved"], "how": "embedding", "to": "bed"}
     assert "nearest:" not in presence_words(prov)
+    assert "nearest:" not in presence_words({**prov, "presence": small})
 
 
 def _refit_lost_the_object(
