@@ -21,7 +21,11 @@ examples:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("name", nargs="?", help="Print this config (its file and YAML).")
+    p.add_argument(
+        "name",
+        nargs="?",
+        help="Print this config: its path, then its YAML with the files it names given whole.",
+    )
     p.add_argument("--json", action="store_true", help="Print the list as JSON.")
 
 
@@ -37,7 +41,8 @@ def run(args: argparse.Namespace) -> int:
         except ConfigError as exc:
             raise UsageError(str(exc)) from None
         print(f"# {cfg.name}: {cfg.path}")
-        print(cfg.path.read_text(encoding="utf-8"), end="")
+        print("# (files it names are given whole, so a copy of this text works anywhere)")
+        print(cfg.portable_text(), end="")
         return 0
     configs = shipped_configs()
     if args.json:

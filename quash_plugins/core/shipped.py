@@ -20,12 +20,16 @@ True
 from __future__ import annotations
 
 import dataclasses
+import json
 import re
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
 from .errors import ConfigError, closest
+
+#: A ``key: value`` entry of a config line (block or flow style) with a plain value.
+_ENTRY_RE = re.compile(r"\b([a-z_]+):[ \t]+([^\s,{}\[\]#'\"]+)")
 
 #: A shipped config's name: ``group:name``.
 NAME_RE = re.compile(r"^[a-z0-9][a-z0-9_]*:[a-z0-9][a-z0-9_.-]*$")
@@ -45,6 +49,25 @@ class ShippedConfig:
     def offline(self) -> bool:
         """True when it runs with what the package ships (no downloads, no server)."""
         return self.needs is None
+
+    def portable_text(self) -> str:
+        """The config's text with each path option (``file:``, ``taxonomy:``, ...) that
+        names a file beside it made absolute, so that a copy saved anywhere (``quash
+        configs NAME > mine.yaml``) still finds the shipped taxonomy; everything else,
+        comments included, as shipped."""
+        from .config import _is_path_key
+
+        folder = self.path.parent
+
+        def absolute(m: re.Match) -> str:
+            key, name = m.group(1), m.group(2)
+            target = folder / name
+            if not _is_path_key(key) or Path(name).is_absolute() or not target.is_file():
+                return m.group(0)
+            # a JSON string is a YAML string
+            return m.group(0)[: m.start(2) - m.start(0)] + json.dumps(str(target))
+
+        return _ENTRY_RE.sub(absolute, self.path.read_text(encoding="utf-8"))
 
     def data(self) -> dict:
         """The config as a dict (parsed safely, as every config file is)."""

@@ -125,3 +125,27 @@ def test_a_missing_config_suggests_the_near_names(tmp_path, monkeypatch, capsys)
         resolve_config_path("nothing-like-it")
     assert main(["query", "map.npz", "chair", "-c", "quash-labels"]) != 0
     assert "Did you mean demo:quash-labels or lseg:quash-labels?" in capsys.readouterr().err
+
+
+def test_a_printed_config_saved_elsewhere_still_finds_its_files(tmp_path, capsys, monkeypatch):
+    """``quash configs demo:quash-taxonomy > mine.yaml`` gave a copy whose relative
+    ``file: demo-taxonomy.yaml`` resolved beside the copy (not found); the printed text
+    names shipped files whole and is otherwise the shipped config."""
+    monkeypatch.chdir(tmp_path)
+    with_files = 0
+    for c in shipped_configs():
+        assert main(["configs", c.name]) == 0
+        copy = tmp_path / "mine.yaml"
+        copy.write_text(capsys.readouterr().out)
+        shipped = yaml.safe_load(c.path.read_text())
+        printed = yaml.safe_load(copy.read_text())
+        heuristic = shipped.get("heuristic")
+        if isinstance(heuristic, dict) and "file" in heuristic:
+            with_files += 1
+            whole = printed["heuristic"]["file"]
+            assert whole == str(c.path.parent / heuristic["file"]), c.name
+            loaded = QuashConfig.from_yaml(str(copy))
+            assert loaded.heuristic.params["file"] == whole
+            printed["heuristic"]["file"] = heuristic["file"]
+        assert printed == shipped, c.name
+    assert with_files >= 2  # demo:quash-taxonomy and demo:quash-taxonomy-svm
