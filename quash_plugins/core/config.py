@@ -252,7 +252,17 @@ class QuashConfig:
             kwargs[key] = _convert(cls, key, value, where, path)
         cfg = cls(**kwargs)
         cfg.source = str(path) if path else None
+        cfg._where = where
         return cfg
+
+    def location(self, *keys: Any) -> str:
+        """``"FILE:LINE: "`` of the deepest of ``keys`` (``("presence", "margn")``) that
+        the config file holds, ``"FILE: "`` without one, ``""`` for a config from a dict:
+        the prefix of an error about that entry found after loading."""
+        where = getattr(self, "_where", None)
+        if where is None or where.path is None:
+            return f"{self.source}: " if self.source else ""
+        return where.at(tuple(keys))
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> QuashConfig:

@@ -72,9 +72,11 @@ def check_options(section: str, options: Iterable[object], known: Iterable[str])
         if key not in known:
             guess = closest(str(key), known)
             hint = f" Did you mean {guess!r}?" if guess else ""
-            raise ConfigError(
+            error = ConfigError(
                 f"{section}: unknown option {key!r}. Options: {', '.join(known)}.{hint}"
             )
+            error.keys = (section, key)  # where a config file says it (QuashConfig.location)
+            raise error
 
 
 def unknown_name_message(what: str, name: str, known: Iterable[str], *, guess: bool = True) -> str:

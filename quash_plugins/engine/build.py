@@ -111,9 +111,25 @@ def build_quash(
     )
     kwargs.update(overrides)
     kwargs["cache"] = open_cache(kwargs.get("cache", cfg.cache))
-    quash = cls(encoder, heuristic, classifier, **kwargs)
+    try:
+        quash = cls(encoder, heuristic, classifier, **kwargs)
+    except ConfigError as exc:  # refine:, presence: ... checked by the engine
+        raise _located(exc, cfg, overrides) from exc.__cause__
     quash.config_source = cfg.source
     return quash
+
+
+def _located(exc: ConfigError, cfg: QuashConfig, overrides: dict[str, Any]) -> ConfigError:
+    """``exc`` (about a config section the engine checks) with the config file and line of
+    the entry it names (``presence: unknown option 'margn'`` -> ``m.yaml:6: presence:
+    ...``); as it was when the section came from ``overrides`` or not from a file."""
+    text = str(exc)
+    keys = getattr(exc, "keys", None) or (text.split(":", 1)[0],)
+    if not cfg.source or keys[0] in overrides or text.startswith(cfg.source):
+        return exc
+    if not isinstance(keys[0], str) or keys[0] not in cfg.to_dict():
+        keys = ()
+    return ConfigError(f"{cfg.location(*keys)}{text}")
 
 
 def build_plugin(

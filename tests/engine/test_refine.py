@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import yaml
 
 from quash_plugins import LatentMap, Quash
 from quash_plugins.core import registry
@@ -252,3 +253,33 @@ def test_a_sub_class_query_draws_its_labels_map_negatives():
     # the draw matters: another seed (what another text's salt was) answers otherwise
     other = build(1).query(lmap, "chair")
     assert not np.allclose(other.scores, label.scores, atol=1e-3)
+
+
+@pytest.mark.parametrize(
+    ("section", "line"),
+    [
+        ("refine:\n  classifier: svm-rbf\n  n_positivs: 100\n", 6),  # unknown option: its line
+        ("presence:\n  dilate: 1\n  margn: 0.1\n", 6),
+        ("refine: {classifier: svm-rbf, n_positives: 0}\n", 4),  # a bad value: the section's
+    ],
+)
+def test_refine_and_presence_errors_name_the_config_file_and_line(tmp_path, section, line):
+    """refine: and presence: are checked by the engine, after the file is read: their
+    errors named neither the file nor the line, unlike every other section's."""
+    table = {w: [1.0, 0.0] for w in ("chair", "other", "background", "nothing")}
+    path = tmp_path / "m.yaml"
+    path.write_text(
+        "name: m\nencoder: {name: table, table: {chair: [1, 0], other: [0, 1]}}\n"
+        "heuristic: none\n" + section
+    )
+    with pytest.raises(ConfigError) as info:
+        Quash.from_config(str(path))
+    text = str(info.value)
+    assert text.startswith(f"{path}:{line}: "), text
+    assert text.split(": ", 1)[1].startswith(("refine:", "presence:"))
+    # the same section given in Python (no file) is told as before, with no location
+    data = {"encoder": {"name": "table", "table": table}, "heuristic": "none", "cache": False}
+    data.update(yaml.safe_load(section))
+    with pytest.raises(ConfigError) as info:
+        Quash.from_config(data)
+    assert str(info.value).startswith(("refine:", "presence:"))
