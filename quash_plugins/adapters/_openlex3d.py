@@ -18,7 +18,8 @@ file, offset, shape and dtype, so a Dask task graph does not carry the table.
 
 Pickles (ConceptGraphs ``*.pkl.gz``) are never unpickled unless ``allow_pickle=True``:
 unpickling runs code from the file. With the opt-in, ConceptGraphs' ``objects`` list is
-read the same way (``clip_ft`` per object, ``pcd_np`` / ``pcd_color_np`` per point).
+read the same way (``clip_ft`` per object, ``pcd_np`` / ``pcd_color_np`` per point), and
+its background objects (``bg_objects``) after them unless ``background=False``.
 """
 
 from __future__ import annotations
@@ -96,6 +97,10 @@ class OpenLex3DAdapter(MapAdapter):
     ----------
     allow_pickle
         Allow reading ConceptGraphs ``.pkl`` / ``.pkl.gz`` files. Only for files you trust.
+    background
+        For a ConceptGraphs pickle: read its background objects (``bg_objects``: wall,
+        floor, ceiling) as map items after its ``objects`` (default True), or leave them
+        out (False; an INFO line says how many).
     check_finite
         Scan the embeddings for NaN/Inf while reading: True, False or ``"auto"`` (only up
         to ``finite_check_mb``; larger maps are checked block by block at query time).
@@ -114,10 +119,12 @@ class OpenLex3DAdapter(MapAdapter):
     def __init__(
         self,
         allow_pickle: bool = False,
+        background: bool = True,
         check_finite: bool | str = "auto",
         finite_check_mb: float = 512.0,
     ) -> None:
         self.allow_pickle = allow_pickle
+        self.background = background
         self.check_finite = check_finite
         self.finite_check_mb = finite_check_mb
 
@@ -145,7 +152,7 @@ class OpenLex3DAdapter(MapAdapter):
                 raise pickle_refusal(path)
             from ._conceptgraphs import read_conceptgraphs
 
-            return read_conceptgraphs(path)
+            return read_conceptgraphs(path, background=opts["background"])
         folder = path.parent if path.is_file() else path
         if not folder.is_dir():
             raise MapFormatError(f"Map not found: {path}")
