@@ -56,7 +56,8 @@ def build_quash(
 
     ``overrides`` replace constructor arguments (e.g. ``cache=None``, ``backend="dask"``).
     Errors name the config file and the section (``encoder``, ``heuristic``...).
-    ``defer_encoder_error``: an encoder that cannot be built (weights not on the machine)
+    ``defer_encoder_error``: an encoder that cannot be built (weights not on the machine;
+    not a misspelt encoder name, which is an error as ever)
     becomes an :class:`UnavailableEncoder` that raises that error when it is used, with a
     warning, so that a heuristic that needs no encoder (``llm``) can still expand a query
     (``quash expand``).
@@ -80,7 +81,7 @@ def build_quash(
         try:
             encoder = build("encoders", cfg.encoder, "encoder")
         except QuashError as exc:
-            if not defer_encoder_error:
+            if not defer_encoder_error or _misspelt_encoder(cfg.encoder.name):
                 raise
             encoder = UnavailableEncoder(
                 exc if str(exc).startswith(where) else type(exc)(f"{where}{exc}")
@@ -117,6 +118,16 @@ def build_quash(
         raise _located(exc, cfg, overrides) from exc.__cause__
     quash.config_source = cfg.source
     return quash
+
+
+def _misspelt_encoder(name: str) -> bool:
+    """True when ``name`` is no registered encoder but is close to one (``minilmm``): a
+    typo, an error even where an encoder that cannot be built is put off. A name like no
+    registered one may be a plugin this machine lacks, and is put off."""
+    from ..core.errors import closest
+
+    known = registry.available("encoders")
+    return name not in known and closest(name, known, cutoff=0.8) is not None
 
 
 def _located(exc: ConfigError, cfg: QuashConfig, overrides: dict[str, Any]) -> ConfigError:

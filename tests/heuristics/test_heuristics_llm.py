@@ -622,6 +622,17 @@ def test_quash_expand_needs_no_encoder_weights_for_the_llm(server, tmp_path, cap
     np.savez(lmap, embeddings=np.eye(4, 512, dtype=np.float32))
     assert main(["query", str(lmap), "chair", "-c", str(cfg)]) == 1
     assert "does not exist" in capsys.readouterr().err
+    # a misspelt encoder name is a typo, not weights missing here: an error, as in query
+    typo = tmp_path / "typo.yaml"
+    typo.write_text(cfg.read_text().replace("name: open-clip", "name: openclip"))
+    assert main(["expand", "chair", "-c", str(typo)]) == 1
+    err = " ".join(capsys.readouterr().err.split())
+    assert "Did you mean 'open-clip'" in err and "going on without" not in err
+    # a name like no registered encoder may be a plugin this machine lacks: put off
+    other = tmp_path / "other.yaml"
+    other.write_text(cfg.read_text().replace("name: open-clip, preset: lseg, ", "name: lseg-x, "))
+    assert main(["expand", "chair", "-c", str(other)]) == 0
+    assert "going on without the encoder" in " ".join(capsys.readouterr().err.split())
 
 
 def _llm_chair_map(server, tmp_path, extra: str = "", key_env: str = ""):
