@@ -480,7 +480,7 @@ def read_points(path: Path) -> tuple[np.ndarray, np.ndarray | None, np.ndarray |
             )
         if raw.dtype.kind != "f" or not np.isfinite(raw).all():
             raise MapFormatError(f"{path}: field 'colors' must be finite floats in [-1, 1].")
-        colors = np.clip(np.rint((raw.astype(np.float64) + 1.0) * 127.5), 0, 255).astype(np.uint8)
+        colors = pth_colors(raw, path)
     elif raw.ndim != 0:  # nuScenes stores a scalar 0: no colours
         raise MapFormatError(f"{path}: field 'colors' must be (N, 3) or a scalar; got {raw.shape}.")
     labels = None
@@ -489,6 +489,61 @@ def read_points(path: Path) -> tuple[np.ndarray, np.ndarray | None, np.ndarray |
         lab[np.isin(lab, IGNORE_LABELS)] = -1
         labels = lab
     return coords, colors, labels
+
+
+#: Colours this far beyond [-1, 1] are no overshoot of OpenScene's convention but another
+#: convention (0-255: up to 255; the limit is the one ``colors_to_uint8`` uses for 0-1).
+COLOR_LIMIT = 1.5
+#: ``(file, field)`` pairs already warned about in this process.
+_warned_colors: set[tuple[str, str]] = set()
+
+
+def pth_colors(raw: np.ndarray, path: Path) -> np.ndarray:
+    """OpenScene's ``.pth`` colours ``(N, 3)`` in [-1, 1] as uint8, ``(c + 1) * 127.5``.
+
+    OpenScene's preprocessing writes ``rgb / 127.5 - 1`` for every dataset, and its data
+    loaders take the colours as they are, so a user of OpenScene expects exactly that
+    range. Two cases are told apart:
+
+    - values a little outside [-1, 1] (at most :data:`COLOR_LIMIT`: rounding, a
+      resampling or augmentation step) are the same convention: they are clipped to the
+      nearest colour, with a warning, once per file and process, naming the file, the
+      field and how many values were out of range;
+    - values beyond that (colours in 0..255, a few hundred) are another convention, and
+      clipping them would turn every colour white or black without a word: they are
+      refused, naming the file, the field, the range found and the fix. Guessing the
+      range instead would hide a preprocessing mistake that OpenScene's own loaders
+      would not survive either.
+    """
+    values = raw.astype(np.float64)
+    lo, hi = (float(values.min()), float(values.max())) if values.size else (0.0, 0.0)
+    if hi > COLOR_LIMIT or lo < -COLOR_LIMIT:
+        looks = (
+            "they look like 0-255 colours"
+            if lo >= 0 and hi <= 255.5
+            else "that is no colour range OpenScene writes"
+        )
+        raise MapFormatError(
+            f"{path}: field 'colors' ranges from {lo:.4g} to {hi:.4g}, not over OpenScene's "
+            f"[-1, 1] (rgb / 127.5 - 1, what its preprocessing scripts write); {looks}. "
+            "Re-save the .pth with colours / 127.5 - 1 (from 0-255) as OpenScene's "
+            "preprocess scripts do, or give the points another way with points=PATH (a "
+            ".ply, colours 0-1, or a .npy of coordinates)."
+        )
+    out = int(np.count_nonzero(np.abs(values) > 1.0 + 1e-6))
+    key = (str(path), "colors")
+    if out and key not in _warned_colors:
+        _warned_colors.add(key)
+        log.warning(
+            "%s: field 'colors' has %d of %d values outside OpenScene's [-1, 1] (from %.4g "
+            "to %.4g); they are clipped to the nearest colour",
+            path,
+            out,
+            values.size,
+            lo,
+            hi,
+        )
+    return np.clip(np.rint((values + 1.0) * 127.5), 0, 255).astype(np.uint8)
 
 
 def _coords(arr: Any, path: Path) -> np.ndarray:

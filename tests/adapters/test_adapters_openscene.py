@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import os
 import pickle
 from pathlib import Path
@@ -320,3 +321,42 @@ def test_allow_list_is_narrow_and_reads_numpy1_pickles(tmp_path):
             z.writestr(name, blob)
     lmap = read_map(s["pts"][0])
     np.testing.assert_array_equal(lmap.positions, s["coords"].astype(np.float32))
+
+
+def _pth_with_colors(path, coords, colors, labels):
+    """A ``.pth`` tuple as OpenScene's preprocessing writes it, with given colours."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    torch.save((np.asarray(coords, np.float64), colors, np.asarray(labels, np.float64)), path)
+    return path
+
+
+def test_colours_in_0_255_are_refused_not_read_white(tmp_path):
+    """A ``.pth`` whose colours are 0-255 (not ``rgb / 127.5 - 1``) read all white, without
+    a word; it is refused naming the file, the field and the fix."""
+    s = scannet_scene(tmp_path, n=30, d=8)
+    _pth_with_colors(s["pth"], s["coords"], s["rgb"].astype(np.float64), s["labels"])
+    before = tree_hash(tmp_path)
+    with pytest.raises(MapFormatError) as info:
+        read_map(s["pts"][0])
+    msg = str(info.value)
+    assert str(s["pth"]) in msg and "field 'colors'" in msg and "[-1, 1]" in msg
+    assert f"to {s['rgb'].max():.4g}" in msg and "0-255" in msg and "/ 127.5 - 1" in msg
+    assert "points=PATH" in msg and tree_hash(tmp_path) == before
+
+
+def test_colours_a_little_out_of_range_are_clipped_with_one_warning(tmp_path, caplog):
+    s = scannet_scene(tmp_path, n=30, d=8)
+    colors = s["rgb"] / 127.5 - 1
+    colors[0] = [1.04, -1.02, 0.0]  # e.g. after an augmentation step
+    colors[5, 2] = 1.2
+    _pth_with_colors(s["pth"], s["coords"], colors, s["labels"])
+    with caplog.at_level(logging.WARNING, logger="quash_plugins"):
+        lmap = read_map(s["pts"][0])
+        again = read_map(s["pts"][0])
+    said = [r.getMessage() for r in caplog.records if "field 'colors'" in r.getMessage()]
+    assert len(said) == 1, said  # once per file
+    assert str(s["pth"]) in said[0] and "3 of 90 values outside" in said[0]
+    expected = np.clip(np.rint((colors + 1) * 127.5), 0, 255)
+    np.testing.assert_array_equal(lmap.colors, expected)
+    np.testing.assert_array_equal(lmap.colors[0], [255, 0, 128])
+    np.testing.assert_array_equal(again.colors, lmap.colors)
