@@ -26,6 +26,13 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".PNG", ".JPG", ".JPEG")
 IMAGE_DIRS = ("rgb", "color", "colors", "image", "images", "results", "frames")
 #: Files that belong to other layouts (VLMaps 2D grids, OpenLex3D) and are never frames.
 NOT_FRAMES = re.compile(r"^(grid_|weight_|color_top_down|obstacles|embeddings$|index$)")
+#: Camera and trajectory files that sit beside per-frame features (``poses.npy``,
+#: ``intrinsics.npy``, ``cam_poses.npy``, ``pose_000010.npy``, ``K.npy``): never frames.
+SIDE_FILES = re.compile(
+    r"^((cam(era)?[_-]?)?(poses?|intrinsics?|extrinsics?|traj(ectory)?|timestamps?)([_-].*)?"
+    r"|k|calib(ration)?)$",
+    re.IGNORECASE,
+)
 LAYOUTS = ("auto", "hwd", "1dhw")
 
 
@@ -139,13 +146,79 @@ def as_rows(arr: np.ndarray, layout: str) -> np.ndarray:
     return arr.reshape(-1, arr.shape[-1])
 
 
+def not_a_frame_name(stem: str) -> bool:
+    """True for a file stem that names no frame: another layout's file
+    (:data:`NOT_FRAMES`) or a camera/trajectory file (:data:`SIDE_FILES`)."""
+    return bool(NOT_FRAMES.match(stem) or SIDE_FILES.match(stem))
+
+
 def list_feature_files(folder: Path) -> list[Path]:
+    """The folder's ``.pt``/``.pth``/``.npy`` files in natural order of their stems,
+    other layouts' files (:data:`NOT_FRAMES`) left out; camera files (:data:`SIDE_FILES`)
+    are kept for :func:`split_frames` to leave out and report."""
     files = [
         p
         for p in folder.iterdir()
         if p.is_file() and p.suffix in FEATURE_SUFFIXES and not NOT_FRAMES.match(p.stem)
     ]
     return sorted(files, key=lambda p: _natural_key(p.stem))
+
+
+def _frame_rank(shape: tuple[int, ...], layout: str) -> bool:
+    """Whether ``shape`` has a frame's rank under ``layout``."""
+    rank3 = len(shape) == 3
+    rank4 = len(shape) == 4 and shape[0] == 1
+    return {"hwd": rank3, "1dhw": rank4}.get(layout, rank3 or rank4)
+
+
+def _dims(shape: tuple[int, ...], layout: str) -> tuple[int, ...]:
+    """The axes that may be D: the last of ``(H, W, D)``, also the first for a ``(D, h,
+    w)`` frame (its own error then says so); axis 1 of ``(1, D, h, w)``."""
+    if len(shape) == 4:
+        return (shape[1],)
+    return (shape[2],) if layout == "hwd" else (shape[2], shape[0])
+
+
+def split_frames(
+    files: list[Path], shapes: dict[Path, tuple[int, ...]], layout: str
+) -> tuple[list[Path], list[str]]:
+    """``(frames, skipped)``: the files of a feature folder that are frames, and a note
+    for each one that is plainly not a frame feature map: a camera file by its name
+    (``poses.npy``, ``intrinsics.npy``), or a ``.npy`` whose shape is no frame's (a
+    ``(4, 4)`` pose, ``(3, 3)`` intrinsics), or whose D is not the one most frames have
+    (``(N, 4, 4)`` poses beside ``(H, W, 512)`` frames). ``shapes`` holds the ``.npy``
+    headers and the shapes of loaded tensors.
+
+    A ``.pt`` is never left out by its shape (its error names it), nor a ``.npy`` when
+    no frame would be left, or when no D is held by more frames than the file's own
+    (two frames of two models): the usual error then names the file.
+    """
+    skipped: list[str] = []
+    named = [f for f in files if SIDE_FILES.match(f.stem)]
+    skipped += [f"{f.name} (a camera file, by its name)" for f in named]
+    rest = [f for f in files if f not in named]
+    npy = [f for f in rest if f.suffix == ".npy"]
+    odd = [f for f in npy if not _frame_rank(shapes[f], layout)]
+    kept = [f for f in rest if f not in odd]
+    if not kept:  # nothing would be read: its own error names the file
+        return rest, skipped
+    skipped += [f"{f.name} (shape {shapes[f]}, not (H, W, D) or (1, D, h, w))" for f in odd]
+    counts: dict[int, int] = {}
+    for f in kept:
+        if _frame_rank(shapes[f], layout):  # a .pt of another rank: its error names it
+            d = _dims(shapes[f], layout)[0]
+            counts[d] = counts.get(d, 0) + 1
+    if not counts:
+        return kept, skipped
+    dim = max(counts, key=lambda d: counts[d])
+    others = [f for f in kept if f.suffix == ".npy" and dim not in _dims(shapes[f], layout)]
+    if others and all(counts[dim] > counts[_dims(shapes[f], layout)[0]] for f in others):
+        kept = [f for f in kept if f not in others]
+        skipped += [
+            f"{f.name} (shape {shapes[f]}: D {_dims(shapes[f], layout)[0]}, not the frames' {dim})"
+            for f in others
+        ]
+    return kept, skipped
 
 
 def check_options(opts: dict[str, Any]) -> None:

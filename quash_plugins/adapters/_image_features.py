@@ -23,6 +23,9 @@ Design choices
   ``results``...). ConceptFusion extracts features at a reduced size (e.g. 240 x 320),
   so an image of another size is resized to the feature resolution (bilinear). Frames
   without an image get grey. With no image at all, ``colors`` is None.
+- Camera files beside the frames (``poses.npy``, ``intrinsics.npy``, a ``(4, 4)`` array,
+  an ``(N, 4, 4)`` trajectory whose D is not the frames') are skipped with an INFO line
+  (:func:`~quash_plugins.adapters._feature_files.split_frames`), not read as frames.
 """
 
 from __future__ import annotations
@@ -39,7 +42,7 @@ from ..core.types import FrameInfo, LatentMap, record_inputs
 from ._feature_files import (
     FEATURE_SUFFIXES,
     IMAGE_DIRS,
-    NOT_FRAMES,
+    SIDE_FILES,
     as_rows,
     check_options,
     find_image,
@@ -48,9 +51,11 @@ from ._feature_files import (
     import_torch,
     list_feature_files,
     load_array,
+    not_a_frame_name,
     read_rgb,
     refuse_shared_stems,
     refuse_unmatched_images,
+    split_frames,
 )
 from ._rows import ConcatRows
 
@@ -121,7 +126,7 @@ class ImageFeaturesAdapter(MapAdapter):
             return any(
                 q.is_file()
                 and q.suffix in FEATURE_SUFFIXES
-                and not NOT_FRAMES.match(q.stem)
+                and not not_a_frame_name(q.stem)
                 and (q.suffix != ".npy" or _npy_frame(q))
                 for q in p.iterdir()
             )
@@ -141,34 +146,52 @@ class ImageFeaturesAdapter(MapAdapter):
         opts = self.options(options)
         check_options(opts)
         path = Path(source).expanduser()
+        skipped: list[str] = []
         if path.is_file():
             folder, files = path.parent, [path]
         elif path.is_dir():
             folder, files = path, list_feature_files(path)
         else:
             raise MapFormatError(f"Map not found: {path}")
+        found = {f: _header(f) for f in files if not SIDE_FILES.match(f.stem) or f == path}
+        if path.is_dir():
+            files, skipped = split_frames(
+                files, {f: a.shape for f, a in found.items()}, opts["layout"]
+            )
+        if skipped:
+            log.info(
+                "%s: skipped %d file(s) that are no frame feature maps: %s",
+                path,
+                len(skipped),
+                "; ".join(skipped),
+            )
         if not files:
+            also = f" (skipped: {'; '.join(skipped)})" if skipped else ""
             raise MapFormatError(
-                f"{path}: no feature maps (<stem>.pt or <stem>.npy) found; the map is empty."
-                f"{images_only_hint(path)}"
+                f"{path}: no feature maps (<stem>.pt or <stem>.npy) found; the map is empty"
+                f"{also}.{images_only_hint(path)}"
             )
         refuse_shared_stems(files)
 
         shapes, dtypes, layouts = [], [], []
         for f in files:
-            arr = load_array(f)
+            arr = found[f]
             h, w, d, lay = frame_layout(tuple(arr.shape), opts["layout"], f)
             if arr.dtype.kind not in "fiu":
                 raise MapFormatError(f"{f}: field 'embeddings' must hold numbers; got {arr.dtype}.")
             if shapes and d != shapes[0][2]:
+                stray = (
+                    f" If {f.name} is no frame feature map, move it out of the folder."
+                    if f.suffix == ".npy"
+                    else ""
+                )
                 raise MapFormatError(
                     f"{f}: feature dimension {d} differs from {files[0].name}'s {shapes[0][2]}; "
-                    "all frames must come from the same model."
+                    f"all frames must come from the same model.{stray}"
                 )
             shapes.append((h, w, d))
             dtypes.append(arr.dtype)
             layouts.append(lay)
-            del arr
         dim = shapes[0][2]
         dtype = np.result_type(*dtypes)
 
@@ -216,6 +239,7 @@ class ImageFeaturesAdapter(MapAdapter):
                     "path": str(path),
                     "layout": sorted(set(layouts)),
                     "images": [str(d) for d in image_dirs],
+                    **({"skipped": skipped} if skipped else {}),
                     **_dim_note(files[0], shapes[0], layouts[0], opts["layout"]),
                 },
                 # the feature files when ``path`` is one, and the images used for colour
@@ -281,10 +305,24 @@ def _outside(path: Path, files: list[Path]) -> list[Path]:
     return [f for f in files if root not in f.resolve().parents]
 
 
+class _Header:
+    """A frame file's shape and dtype, read once (``np.load`` of a ``.npy`` reads its
+    header; a ``.pt`` is loaded memory-mapped); the rows are loaded later, when read."""
+
+    def __init__(self, shape: tuple[int, ...], dtype: np.dtype) -> None:
+        self.shape, self.dtype = tuple(int(n) for n in shape), np.dtype(dtype)
+
+
+def _header(path: Path) -> _Header:
+    arr = load_array(path)
+    return _Header(arr.shape, arr.dtype)
+
+
 def _npy_frame(path: Path) -> bool:
     """True when ``path`` is a ``.npy`` whose header is a frame's shape: ``(H, W, D)`` or
-    ``(1, D, h, w)`` (only the header is read); never for a name of :data:`NOT_FRAMES`."""
-    if NOT_FRAMES.match(path.stem):
+    ``(1, D, h, w)`` (only the header is read); never for a name of :data:`NOT_FRAMES`
+    or :data:`SIDE_FILES` (``poses.npy``, ``intrinsics.npy``)."""
+    if not_a_frame_name(path.stem):
         return False
     try:
         shape = np.load(path, mmap_mode="r", allow_pickle=False).shape

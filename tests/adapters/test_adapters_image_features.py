@@ -308,3 +308,53 @@ def test_a_pt_from_a_newer_torch_says_so_and_how_to_read_it(tmp_path):
     msg = str(info.value)
     assert "frame0.pt" in msg and "newer torch" in msg and torch.__version__ in msg
     assert "np.save('frame0.npy'" in msg
+
+
+def test_camera_files_beside_the_frames_are_skipped_and_said(tmp_path, caplog):
+    """A feature folder often holds the run's camera files too (poses.npy, intrinsics.npy,
+    a (4, 4) pose, an (N, 4, 4) trajectory under another name): the adapter read them as
+    frames and failed on intrinsics.npy. They are left out, by name or by shape, with an
+    INFO line naming each; the frames read as before."""
+    import logging
+
+    rng = np.random.default_rng(0)
+    folder = tmp_path / "saved-feat"
+    folder.mkdir()
+    frames = [rng.normal(size=(4, 5, 16)).astype(np.float32) for _ in range(3)]
+    for i, f in enumerate(frames):
+        np.save(folder / f"frame{i}.npy", f)
+    save_feat_pt(folder, "frame3", rng.normal(size=(1, 16, 2, 3)).astype(np.float32))
+    np.save(folder / "poses.npy", np.tile(np.eye(4), (4, 1, 1)))  # (4, 4, 4): frame-shaped
+    np.save(folder / "intrinsics.npy", np.eye(3))
+    np.save(folder / "first_pose.npy", np.eye(4))  # plainly no frame by its shape
+    np.save(folder / "cams.npy", np.zeros((4, 4, 4)))  # D 4, not the frames' 16
+    assert detect_adapter(folder) == "image-features"
+    with caplog.at_level(logging.INFO, logger="quash_plugins"):
+        lmap = read_map(folder)
+    assert [f.frame_id for f in lmap.frames] == ["frame0", "frame1", "frame2", "frame3"]
+    assert lmap.n == 3 * 20 + 6 and lmap.dim == 16
+    np.testing.assert_array_equal(
+        np.asarray(lmap.embeddings[:60]), np.concatenate([f.reshape(-1, 16) for f in frames])
+    )
+    said = " ".join(r.getMessage() for r in caplog.records if "skipped" in r.getMessage())
+    for name in ("poses.npy", "intrinsics.npy", "first_pose.npy (shape (4, 4)", "cams.npy"):
+        assert name in said, said
+    assert "frame0" not in said and len(lmap.source["skipped"]) == 4
+    # a folder of camera files only is no feature folder
+    cams = tmp_path / "cams"
+    cams.mkdir()
+    np.save(cams / "poses.npy", np.tile(np.eye(4), (4, 1, 1)))
+    assert not registry.create("adapters", "image-features").sniff(cams)
+
+
+def test_a_frame_of_another_model_is_still_refused(tmp_path):
+    """Skipping never hides two models' frames: with no D shared by more frames, the
+    error names the file, and for a .npy says to move it out if it is no frame."""
+    from quash_plugins.core.errors import MapFormatError
+
+    np.save(tmp_path / "a.npy", np.ones((2, 3, 16), np.float32))
+    np.save(tmp_path / "b.npy", np.ones((2, 3, 8), np.float32))
+    with pytest.raises(MapFormatError) as info:
+        read_map(tmp_path, "image-features")
+    msg = str(info.value)
+    assert "b.npy: feature dimension 8" in msg and "move it out of the folder" in msg
