@@ -136,9 +136,18 @@ def _load_error(exc: Exception, path: Path, what: str) -> MapFormatError:
     return MapFormatError(f"{path}: not a readable {what} ({first}).")
 
 
+#: The number torch's legacy (non-zip) ``torch.save`` pickles first, before the
+#: protocol version, the system info and the object (``torch.serialization.MAGIC_NUMBER``).
+LEGACY_MAGIC = 0x1950A86A20F9469CFC6C
+#: Leading bytes read from a legacy file to find its object's keys.
+LEGACY_HEAD = 1 << 16
+
+
 def _is_fused_file(path: Path) -> bool:
-    """A torch zip archive holding a dict whose pickle mentions ``feat`` or ``mask_full``
-    (read as bytes, never unpickled).
+    """A ``torch.save`` file holding a dict whose pickle mentions ``feat`` or
+    ``mask_full`` (read as bytes, never unpickled): a zip archive (torch >= 1.6), or a
+    legacy file (``_use_new_zipfile_serialization=False``, which OpenScene's scripts
+    write under older torch), see :func:`_is_legacy_fused`.
 
     One of OpenScene's two keys is enough, so that a fused file missing the other is read
     here and refused naming the missing field, not taken for a per-image feature map
@@ -150,11 +159,43 @@ def _is_fused_file(path: Path) -> bool:
             if len(names) != 1 or z.getinfo(names[0]).file_size > 1 << 16:
                 return False
             data = z.read(names[0])
-    except (OSError, zipfile.BadZipFile, KeyError):
+    except zipfile.BadZipFile:
+        return _is_legacy_fused(path)
+    except (OSError, KeyError):
         return False
     # PROTO n, then EMPTY_DICT: the saved object is a dict (torch.save's pickle protocol 2)
     is_dict = data[:1] == b"\x80" and data[2:3] == b"}"
     return is_dict and (b"mask_full" in data or b"feat" in data)
+
+
+def _is_legacy_fused(path: Path) -> bool:
+    """A legacy ``torch.save`` file whose object is a dict with ``feat`` or
+    ``mask_full``: four pickles in a row (the magic number :data:`LEGACY_MAGIC`, the
+    protocol version, the system info, the object) before the raw storages. Their
+    opcodes are walked with :func:`pickletools.genops`, which parses and never builds
+    or runs anything; only the first :data:`LEGACY_HEAD` bytes are read."""
+    import io
+    import pickletools
+
+    try:
+        with open(path, "rb") as f:
+            head = io.BytesIO(f.read(LEGACY_HEAD))
+        pickles = []
+        for _ in range(4):
+            ops = []
+            for op, arg, _pos in pickletools.genops(head):
+                ops.append((op.name, arg))
+            pickles.append(ops)
+    except (OSError, ValueError, EOFError, UnicodeDecodeError):
+        return False  # not a pickle, truncated, or an object bigger than the head
+    magic = [arg for name, arg in pickles[0] if name not in ("PROTO", "FRAME", "STOP")]
+    if magic != [LEGACY_MAGIC]:
+        return False
+    body = [(name, arg) for name, arg in pickles[3] if name not in ("PROTO", "FRAME")]
+    if not body or body[0][0] != "EMPTY_DICT":
+        return False
+    strings = {arg for name, arg in body if isinstance(arg, str)}
+    return bool(strings & {"feat", "mask_full"})
 
 
 def scene_id(path: Path) -> str:

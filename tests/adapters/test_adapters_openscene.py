@@ -360,3 +360,28 @@ def test_colours_a_little_out_of_range_are_clipped_with_one_warning(tmp_path, ca
     np.testing.assert_array_equal(lmap.colors, expected)
     np.testing.assert_array_equal(lmap.colors[0], [255, 0, 128])
     np.testing.assert_array_equal(again.colors, lmap.colors)
+
+
+def test_a_legacy_non_zip_fused_file_is_detected(tmp_path):
+    """A fused file saved in torch's legacy format (``_use_new_zipfile_serialization=False``,
+    as older torch writes it) was taken by ``auto`` for a per-image feature map and
+    refused; it is detected as OpenScene's by its pickles' bytes and read the same."""
+    s = scannet_scene(tmp_path, n=60, d=8)
+    pt = s["pts"][0]
+    saved = torch.load(pt, weights_only=True)
+    legacy = pt.with_name("scene0011_00_1.pt")
+    torch.save(saved, legacy, _use_new_zipfile_serialization=False)
+    assert legacy.read_bytes()[:2] != b"PK"  # not a zip archive
+    assert registry.create("adapters", "openscene").sniff(legacy)
+    assert detect_adapter(legacy) == "openscene"
+    lmap, zipped = read_map(legacy), read_map(pt)
+    np.testing.assert_array_equal(read_all(lmap), read_all(zipped))
+    np.testing.assert_array_equal(lmap.positions, zipped.positions)
+    # a legacy bare tensor is still a frame, and a legacy dict of other keys no fused file
+    frame = tmp_path / "saved-feat" / "frame0.pt"
+    frame.parent.mkdir()
+    torch.save(torch.zeros(4, 5, 8), frame, _use_new_zipfile_serialization=False)
+    assert detect_adapter(frame) == "image-features"
+    other = tmp_path / "other_0.pt"
+    torch.save({"weights": torch.zeros(3)}, other, _use_new_zipfile_serialization=False)
+    assert not registry.create("adapters", "openscene").sniff(other)
