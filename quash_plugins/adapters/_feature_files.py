@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import MapFormatError, QuashError
+from ._torch_errors import first_line, is_weights_only_error, weights_only_refusal
 
 log = logging.getLogger(__name__)
 
@@ -61,7 +62,16 @@ def _load_tensor(path: Path) -> np.ndarray:
                 raise
             obj = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # noqa: BLE001 - torch raises many types for bad files
-        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        if is_weights_only_error(exc):
+            raise weights_only_refusal(
+                exc,
+                path,
+                "feature file",
+                "Re-save the frame as a bare tensor where it was written, "
+                f"torch.save(torch.as_tensor(features), '{path.name}'), or as numpy, which "
+                f"this adapter reads too: np.save('{path.stem}.npy', features).",
+            ) from None
+        msg = first_line(exc)
         if "maximum supported version" in msg:  # torch's own words for a newer archive
             raise MapFormatError(
                 f"{path}: written by a newer torch than this one ({torch.__version__}): "

@@ -45,6 +45,7 @@ from ..core.errors import MapFormatError, QuashError
 from ..core.interfaces import MapAdapter
 from ..core.types import LatentMap, record_inputs
 from ._rows import MaskedRows, colors_to_uint8, scan_finite, should_scan
+from ._torch_errors import first_line, is_weights_only_error, weights_only_refusal
 from ._vlmaps_common import check_labels, fit_label_names, load_label_names
 
 log = logging.getLogger(__name__)
@@ -118,22 +119,31 @@ def _load(torch: Any, path: Path, numpy_arrays: bool) -> Any:
         return torch.load(path, map_location="cpu", weights_only=True)
 
 
+#: The safe fix for a refused file, by what it is.
+_SAFE_FIX = {
+    "fused-feature file": (
+        "Re-save it as OpenScene's save_fused_feature does, tensors only: "
+        "torch.save({'feat': feat.half(), 'mask_full': mask_full}, PATH); or save the "
+        "per-point features with np.save as <scene>_openscene_feat_<type>.npy."
+    ),
+    "scene file": (
+        "Re-save it as OpenScene's preprocessing does, a tuple of numpy arrays: "
+        "torch.save((coords, colors, labels), PATH); or give the points with "
+        "points=PATH (a .ply, or a .npy of (N, 3) coordinates)."
+    ),
+}
+
+
 def _load_error(exc: Exception, path: Path, what: str) -> MapFormatError:
-    text = str(exc)
-    hit = re.search(r"GLOBAL ([\w.]+)", text)
-    if hit or "Weights only load failed" in text:
-        found = (
-            f"references {hit.group(1)}"
-            if hit
-            else "holds pickled data that is not only tensors and numpy arrays"
+    if is_weights_only_error(exc):
+        return weights_only_refusal(
+            exc,
+            path,
+            what,
+            _SAFE_FIX.get(what, "Re-save it as plain tensors or numpy arrays."),
+            allowed="tensors and plain numpy arrays, in plain containers,",
         )
-        return MapFormatError(
-            f"{path}: refused: the {what} {found}. Only tensors and plain numpy arrays "
-            "are read from OpenScene files; unpickling anything else could run code "
-            "from the file."
-        )
-    first = text.strip().splitlines()[0] if text.strip() else type(exc).__name__
-    return MapFormatError(f"{path}: not a readable {what} ({first}).")
+    return MapFormatError(f"{path}: not a readable {what} ({first_line(exc)}).")
 
 
 #: The number torch's legacy (non-zip) ``torch.save`` pickles first, before the

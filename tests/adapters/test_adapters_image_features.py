@@ -358,3 +358,59 @@ def test_a_frame_of_another_model_is_still_refused(tmp_path):
         read_map(tmp_path, "image-features")
     msg = str(info.value)
     assert "b.npy: feature dimension 8" in msg and "move it out of the folder" in msg
+
+
+def _no_torch_advice(msg):
+    """What a refusal must never pass on from torch: its terminal colours, its advice to
+    load with weights_only=False (which runs the file's code), its allow-list advice."""
+    assert "\x1b[" not in msg, repr(msg)
+    assert "weights_only=False" not in msg and "weights_only` set to `False" not in msg
+    assert "add_safe_globals" not in msg and "trust" not in msg
+
+
+@pytest.mark.parametrize(
+    ("saved", "holds"),
+    [
+        ("numpy", "multiarray._reconstruct"),  # torch.save of a numpy array
+        ("object", "it references"),  # a dict holding an arbitrary object
+    ],
+)
+def test_a_frame_torch_refuses_to_load_is_refused_with_the_safe_fix(tmp_path, saved, holds):
+    """A .pt that torch.load(weights_only=True) refuses was shown with torch's raw text
+    (ANSI codes, advice to load it with weights_only=False): it is refused naming the
+    file, what it holds, and the safe fix (re-save as a bare tensor or as numpy)."""
+    from quash_plugins.core.errors import MapFormatError
+
+    torch = pytest.importorskip("torch")
+    frame = np.ones((2, 3, 4), np.float32)
+    obj = frame if saved == "numpy" else {"feat": torch.from_numpy(frame), "meta": object()}
+    torch.save(obj, tmp_path / "f0.pt")
+    with pytest.raises(MapFormatError) as info:
+        read_map(tmp_path, adapter="image-features")
+    msg = str(info.value)
+    assert msg.startswith(f"{tmp_path / 'f0.pt'}: refused") and holds in msg
+    assert "objects other than tensors and plain containers" in msg
+    assert "torch.save(torch.as_tensor(features), 'f0.pt')" in msg and "np.save('f0.npy'" in msg
+    _no_torch_advice(msg)
+    # the fix it gives works
+    np.save(tmp_path / "f0.npy", frame)
+    (tmp_path / "f0.pt").unlink()
+    assert read_map(tmp_path, adapter="image-features").n == 6
+
+
+def test_torch_text_passed_through_loses_its_colour_codes(tmp_path, monkeypatch):
+    """Any other load error of torch's is shown by its first line, without ANSI codes."""
+    from quash_plugins.core.errors import MapFormatError
+
+    torch = pytest.importorskip("torch")
+    torch.save(torch.zeros(2, 3, 4), tmp_path / "f0.pt")
+
+    def failing_load(*args, **kwargs):
+        raise RuntimeError("\x1b[1mstorage\x1b[0m \x1b[31mis damaged\x1b[0m\nmore text")
+
+    monkeypatch.setattr(torch, "load", failing_load)
+    with pytest.raises(MapFormatError) as info:
+        read_map(tmp_path, adapter="image-features")
+    msg = str(info.value)
+    assert "f0.pt: not a readable tensor file (storage is damaged)" in msg
+    _no_torch_advice(msg)

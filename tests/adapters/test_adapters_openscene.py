@@ -385,3 +385,28 @@ def test_a_legacy_non_zip_fused_file_is_detected(tmp_path):
     other = tmp_path / "other_0.pt"
     torch.save({"weights": torch.zeros(3)}, other, _use_new_zipfile_serialization=False)
     assert not registry.create("adapters", "openscene").sniff(other)
+
+
+def test_refusals_give_the_safe_fix_never_torch_advice(tmp_path):
+    """torch's weights_only text (ANSI codes, 'Re-running torch.load with weights_only set
+    to False') never reaches the user: the refusal names the file, what it references
+    and how to re-save it safely, for the fused .pt and for the scene's .pth."""
+    s = scannet_scene(tmp_path, n=40, d=8)
+    pt, marker, good_pt = s["pts"][0], tmp_path / "pwned", s["pts"][0].read_bytes()
+    torch.save({"feat": torch.zeros(3, 8), "mask_full": Payload(marker)}, pt)
+    with pytest.raises(MapFormatError) as info:
+        read_map(pt, "openscene")
+    msg = str(info.value)
+    assert msg.startswith(f"{pt}: refused: the fused-feature file holds objects other than")
+    assert "system" in msg and "torch.save({'feat': feat.half(), 'mask_full'" in msg
+    pt.write_bytes(good_pt)
+    torch.save((s["coords"], Payload(marker), s["labels"]), s["pth"])
+    with pytest.raises(MapFormatError) as info:
+        read_map(pt, "openscene")
+    pth_msg = str(info.value)
+    assert pth_msg.startswith(f"{s['pth']}: refused") and "points=PATH" in pth_msg
+    assert "torch.save((coords, colors, labels), PATH)" in pth_msg
+    for said in (msg, pth_msg):
+        assert "\x1b[" not in said and "weights_only=False" not in said
+        assert "add_safe_globals" not in said and "trust" not in said
+    assert not marker.exists()
