@@ -324,10 +324,10 @@ def test_camera_files_beside_the_frames_are_skipped_and_said(tmp_path, caplog):
     for i, f in enumerate(frames):
         np.save(folder / f"frame{i}.npy", f)
     save_feat_pt(folder, "frame3", rng.normal(size=(1, 16, 2, 3)).astype(np.float32))
-    np.save(folder / "poses.npy", np.tile(np.eye(4), (4, 1, 1)))  # (4, 4, 4): frame-shaped
+    np.save(folder / "poses.npy", np.tile(np.eye(4), (5, 1, 1)))  # (5, 4, 4): frame-shaped
     np.save(folder / "intrinsics.npy", np.eye(3))
     np.save(folder / "first_pose.npy", np.eye(4))  # plainly no frame by its shape
-    np.save(folder / "cams.npy", np.zeros((4, 4, 4)))  # D 4, not the frames' 16
+    np.save(folder / "cams.npy", np.zeros((5, 4, 4)))  # D 4, not the frames' 16
     assert detect_adapter(folder) == "image-features"
     with caplog.at_level(logging.INFO, logger="quash_plugins"):
         lmap = read_map(folder)
