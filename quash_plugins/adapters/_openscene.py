@@ -282,6 +282,7 @@ class OpenSceneAdapter(MapAdapter):
 
     name = "openscene"
     priority = 45  # above image-features, which takes any .pt
+    file_names = ("*_[0-9]*.pt", "*_openscene_feat_*.npy")
 
     def __init__(
         self,

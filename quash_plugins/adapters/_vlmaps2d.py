@@ -122,6 +122,7 @@ class VLMaps2DAdapter(MapAdapter):
 
     name = "vlmaps-2d"
     priority = 20
+    file_names = ("grid_lseg_*.npy",)
 
     def __init__(
         self,

@@ -478,6 +478,11 @@ class MapAdapter(ABC):
     #: a file that no ``sniff`` accepts but whose name ends so is read with this adapter,
     #: so that its own error says what is wrong with the file.
     suffixes: tuple[str, ...] = ()
+    #: Shell-style patterns of the names of this adapter's map files, for formats whose
+    #: files have no suffix of their own (``("grid_lseg_*.npy",)``): used as ``suffixes``
+    #: are, and such a file beside another format's map folder makes that folder
+    #: ambiguous (both are named; the user chooses).
+    file_names: tuple[str, ...] = ()
     #: Leading bytes of this adapter's files (``(b"\x89HDF\r\n\x1a\n",)``), used the
     #: same way when no suffix matches.
     magic: tuple[bytes, ...] = ()

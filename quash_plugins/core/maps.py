@@ -14,6 +14,7 @@ error, a symbolic-link loop, a decompression error) are reported with the file's
 from __future__ import annotations
 
 import errno
+import fnmatch
 import logging
 from pathlib import Path
 from typing import Any
@@ -60,6 +61,10 @@ def claimed_by(source: Any) -> tuple[str, str] | None:
         for suffix in getattr(cls, "suffixes", ()) or ():
             if name_lower.endswith(str(suffix).lower()):
                 return name, f"its name ends in {suffix}"
+    for name, cls in adapters:
+        pattern = _named(cls, path.name)
+        if pattern and path.is_file():
+            return name, f"its name is that of the format's files ({pattern})"
     try:
         with open(path, "rb") as f:
             head = f.read(16)
@@ -106,8 +111,9 @@ def check_no_other_maps(source: Any, chosen: str, limit: int = 256) -> None:
     """Refuse a folder that ``chosen`` reads when it also holds, directly, a map file of
     another format: a file whose name ends in a suffix another adapter declares
     (``suffixes``: ``.npz``, ``.zarr``...) and which that adapter's ``sniff`` accepts
-    (a results file or an unrelated archive is no map). ``chosen``'s own files (a frame
-    it reads) do not count. The message names the folder, both candidates and how to
+    (a results file or an unrelated archive is no map), or a file named as another
+    adapter's ``file_names`` say and accepted by it (OpenScene's ``<scene>_<n>.pt``, a
+    VLMaps ``grid_lseg_1.npy``). ``chosen``'s own files (a frame it reads) do not count. The message names the folder, both candidates and how to
     choose: ``--adapter NAME`` for the folder, or the file's path. At most ``limit``
     entries of the folder are looked at (a debug line says when more are skipped).
     """
@@ -115,20 +121,17 @@ def check_no_other_maps(source: Any, chosen: str, limit: int = 256) -> None:
         return
     folder = Path(source)
     adapters = _ordered_adapters()
-    by_suffix = [
-        (str(suffix).lower(), name, cls)
-        for name, cls in adapters
-        if name != chosen
-        for suffix in getattr(cls, "suffixes", ()) or ()
-    ]
-    if not by_suffix:
+    candidates = [(name, cls) for name, cls in adapters if name != chosen]
+    if not any(getattr(c, "suffixes", ()) or getattr(c, "file_names", ()) for _, c in candidates):
         return
     chosen_cls = dict(adapters).get(chosen)
     others = []
     for entry in _entries(folder, limit, "other maps"):
         lower = entry.name.lower()
-        for suffix, name, cls in by_suffix:
-            if not lower.endswith(suffix) or not _sniffs(cls, entry):
+        for name, cls in candidates:
+            suffixed = any(lower.endswith(str(x).lower()) for x in getattr(cls, "suffixes", ()))
+            named = entry.is_file() and _named(cls, entry.name)
+            if not (suffixed or named) or not _sniffs(cls, entry):
                 continue
             if chosen_cls is None or not _sniffs(chosen_cls, entry):
                 others.append((entry, name))
@@ -143,6 +146,14 @@ def check_no_other_maps(source: Any, chosen: str, limit: int = 256) -> None:
         f"meant is ambiguous: pass --adapter {chosen} (adapter={chosen!r} in Python) to read "
         f"the folder as {chosen}, or pass the file itself (e.g. {first}) to read it."
     )
+
+
+def _named(cls: Any, file_name: str) -> str | None:
+    """The first of ``cls.file_names`` (shell patterns) that ``file_name`` matches."""
+    for pattern in getattr(cls, "file_names", ()) or ():
+        if fnmatch.fnmatchcase(file_name, pattern):
+            return str(pattern)
+    return None
 
 
 def _entries(folder: Path, limit: int, purpose: str) -> list[Path]:

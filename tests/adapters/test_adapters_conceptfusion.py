@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -192,3 +193,35 @@ def test_an_npz_that_is_no_map_beside_pointclouds_changes_nothing(cf_map):
     np.savez(root / "poses.npz", poses=np.eye(4)[None].repeat(3, axis=0))
     assert detect_adapter(root) == "conceptfusion"
     assert read_map(root).n == len(arrays["pc_points"])
+
+
+def test_a_map_file_of_a_suffixless_format_beside_pointclouds_is_refused(cf_map, tmp_path):
+    """The folder check saw only formats that declare a suffix (.npz, .zarr, .h5df): an
+    OpenScene fused .pt (or a VLMaps grid_lseg_1.npy) in saved-map/ beside pointclouds/
+    was silently ignored and the folder read as ConceptFusion. Adapters without suffixes
+    are asked too (their sniff reads the content), for files; each choice still works."""
+    import shutil
+
+    from quash_plugins.adapters._openscene import OpenSceneAdapter
+
+    root, arrays = cf_map
+    example = OpenSceneAdapter().write_example(tmp_path / "os")
+    fused = Path(shutil.copy(example, root / "scene0000_00_0.pt"))
+    with pytest.raises(MapFormatError) as exc:
+        detect_adapter(root)
+    msg = str(exc.value)
+    assert str(root) in msg and f"{fused} (openscene)" in msg
+    assert "--adapter conceptfusion" in msg and "pass the file itself" in msg
+    assert read_map(root, adapter="conceptfusion").n == len(arrays["pc_points"])
+    fused.unlink()
+    grid = root / "grid_lseg_1.npy"
+    np.save(grid, np.zeros((6, 6, 4), np.float32))
+    with pytest.raises(MapFormatError, match=rf"{grid} \(vlmaps-2d\)"):
+        detect_adapter(root)
+    grid.unlink()
+    np.save(root / "labels.npy", np.zeros(5, np.int64))  # no map: changes nothing
+    # files named as no format's maps count not, whatever a loose sniff would say of them
+    # (image-features takes any .pt, vlmaps-2d any square float array)
+    np.save(root / "features.npy", np.zeros((6, 6, 4), np.float32))
+    shutil.copy(example, root / "notes.pt")
+    assert detect_adapter(root) == "conceptfusion"
