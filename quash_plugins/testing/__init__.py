@@ -68,8 +68,12 @@ def parametrize_with_checks(
 
     checks = plugin_checks(kinds=kinds, names=names, dist=dist)
     if not checks:
+        from ._checks import misplaced_hint
+
+        # installed, but in a group quash-plugins does not read: say so, not "installed?"
+        hint = misplaced_hint(kinds, names, dist)
         raise LookupError(
             f"No registered plugins match kinds={kinds!r}, names={names!r}, dist={dist!r}. "
-            "Is the distribution installed (pip install -e .)?"
+            + (hint or "Is the distribution installed (pip install -e .)?")
         )
     return pytest.mark.parametrize("check", checks, ids=[c.id for c in checks])

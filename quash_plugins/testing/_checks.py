@@ -538,6 +538,27 @@ def plugin_checks(
     return out
 
 
+def misplaced_hint(
+    kinds: str | list[str] | None = None, names: list[str] | None = None, dist: str | None = None
+) -> str:
+    """For a selection that matched no plugin: the entry points it would match that sit
+    in a group quash-plugins does not read (``quash_plugins.encoder``...), each with the
+    group to move it to; else an empty string. A typo in the group is otherwise reported
+    as a plugin that is not installed."""
+    if isinstance(kinds, str):
+        kinds = [kinds]
+    selected = [registry.normalize_kind(k) for k in kinds] if kinds else list(registry.KINDS)
+    groups = {registry.GROUP_PREFIX + k for k in selected}
+    found = [
+        m.message()
+        for m in registry.misplaced_entry_points()
+        if (m.meant is None or m.meant in groups)
+        and (names is None or m.name in names)
+        and (dist is None or registry._same_dist(m.dist, dist))
+    ]
+    return " ".join(found)
+
+
 def check_plugin_loads(plugin: Any, tmp_path: Path) -> None:
     """Stands for every check of a plugin that does not load: :class:`PluginCheck`
     loads the plugin first, so running it raises the load error (what to fix)."""
@@ -557,9 +578,12 @@ def check_plugin(kind: str, name: str, tmp_path: str | Path) -> None:
     dist, _, short = name.rpartition(":")
     checks = plugin_checks(kinds=kind, names=[short], dist=dist or None)
     if not checks:
+        hint = misplaced_hint(kind, [short], dist or None)
+        plugin = f"No {registry.normalize_kind(kind)[:-1]} plugin named {name!r}"
         raise ConfigError(
-            f"No {registry.normalize_kind(kind)[:-1]} plugin named {name!r} is installed; "
-            "`quash plugins` lists them."
+            f"{plugin} is registered. {hint}"
+            if hint
+            else f"{plugin} is installed; `quash plugins` lists them."
         )
     for c in checks:
         c(Path(tmp_path) / c.check.__name__)

@@ -13,7 +13,7 @@ import pytest
 from quash_plugins import Encoder
 from quash_plugins.core import registry
 from quash_plugins.core.errors import ConfigError
-from quash_plugins.testing import check_plugin
+from quash_plugins.testing import check_plugin, parametrize_with_checks
 
 
 class _Good(Encoder):
@@ -82,3 +82,38 @@ def test_a_plugin_the_kit_cannot_build_says_what_to_add(twins, tmp_path):
         check_plugin("encoders", "kit-needs-file", tmp_path)
     finally:
         del _NeedsFile.conformance_params
+
+
+@pytest.fixture
+def misplaced(tmp_path, monkeypatch):
+    """An installed distribution (its metadata) whose encoder sits in a group quash-plugins
+    does not read: ``quash_plugins.encoder``, singular."""
+    info = tmp_path / "lab_encoders-1.0.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: lab-encoders\nVersion: 1.0\n")
+    (info / "entry_points.txt").write_text(
+        "[quash_plugins.encoder]\nlab-encoder = lab_encoders:LabEncoder\n"
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
+    registry.refresh()
+    yield
+    registry.refresh()
+
+
+def test_an_entry_point_in_a_misspelt_group_is_named_with_the_group_to_use(misplaced, tmp_path):
+    # Before, the kit said the plugin was not installed (or asked whether the
+    # distribution was), though it is: its entry point is in the wrong group.
+    with pytest.raises(ConfigError) as err:
+        check_plugin("encoders", "lab-encoder", tmp_path)
+    message = str(err.value)
+    assert "'quash_plugins.encoder'" in message and "'lab-encoders'" in message
+    assert "move it to 'quash_plugins.encoders'" in message
+
+    with pytest.raises(LookupError) as err:
+        parametrize_with_checks(dist="lab-encoders")
+    message = str(err.value)
+    assert "move it to 'quash_plugins.encoders'" in message
+    assert "Is the distribution installed" not in message
+    # a selection that matches no misplaced entry point keeps the plain answer
+    with pytest.raises(LookupError, match="Is the distribution installed"):
+        parametrize_with_checks(dist="no-such-dist")
