@@ -20,7 +20,8 @@ This module returns a mask with the same meaning and shape, decided by QuASH ins
   instances with centroids in metres).
 
 With ``with_init_cat=True`` and ``vlmap.categories`` set, the other categories are added
-to the query's negatives in VLMaps' column order (those listed before the query first),
+to the query's negatives in VLMaps' column order (those listed before the query first;
+a query names a category up to case, ``_``, ``-`` and spacing: "tv monitor" is ``tv_monitor``),
 which mirrors VLMaps' argmax over the category list; a classifier with a
 ``query_column`` parameter (``label-argmax``) is told how many come before the query,
 so ties go to the earlier column as in VLMaps. Unlike VLMaps, a missing category list
@@ -109,6 +110,16 @@ def as_latent_map(vlmap: Any, **options: Any) -> LatentMap:
     return lmap
 
 
+def _category_key(name: str) -> str:
+    """A name as compared with the categories: case, ``_``/``-`` and spacing ignored.
+
+    VLMaps' category lists spell names with underscores (``mp3dcat``: ``chest_of_drawers``,
+    ``tv_monitor``), so the query "tv monitor" is the category ``tv_monitor``; kept as a
+    negative, the category would take the query's own rows.
+    """
+    return " ".join(name.replace("_", " ").replace("-", " ").split()).casefold()
+
+
 def _other_categories(vlmap: Any, text: str) -> tuple[list[str], int]:
     """The categories other than ``text`` in VLMaps' order, and how many precede it.
 
@@ -116,10 +127,10 @@ def _other_categories(vlmap: Any, text: str) -> tuple[list[str], int]:
     one) is a label of its own in column 0.
     """
     cats = [str(c) for c in (getattr(vlmap, "categories", None) or [])]
-    low = " ".join(text.split()).lower()
-    hits = [i for i, c in enumerate(cats) if c.strip().lower() == low]
-    others = [c for c in cats if c.strip().lower() != low]
-    before = len([c for c in cats[: hits[0]] if c.strip().lower() != low]) if hits else 0
+    low = _category_key(text)
+    hits = [i for i, c in enumerate(cats) if _category_key(c) == low]
+    others = [c for c in cats if _category_key(c) != low]
+    before = len([c for c in cats[: hits[0]] if _category_key(c) != low]) if hits else 0
     return others, before
 
 

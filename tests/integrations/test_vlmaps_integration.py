@@ -212,3 +212,32 @@ def test_quash_query_reads_a_live_vlmap_under_a_config_written_for_files(project
     msg = str(err.value)
     assert "adapter='vlmaps-live'" in msg and "live SimpleNamespace object" in msg
     assert "--adapter" not in msg and "array(" not in msg and len(msg) < 300, msg
+
+
+def test_a_query_spelled_with_spaces_is_its_underscored_category():
+    """VLMaps' category lists spell names with underscores (mp3dcat: ``tv_monitor``,
+    ``chest_of_drawers``). The query "tv monitor" was not matched to ``tv_monitor``, so the
+    category stayed a negative and took every one of the query's rows: an empty mask."""
+    rng = np.random.default_rng(0)
+    tv, tv_spaced = np.eye(D)[0], np.eye(D)[0] * 0.95 + np.eye(D)[1] * 0.31
+    table = {"tv_monitor": tv, "tv monitor": tv_spaced, "TV-Monitor": tv_spaced}
+    table |= {"chair": np.eye(D)[2], "other": np.eye(D)[3]}
+    table |= {w: np.eye(D)[4] for w in ("background", "nothing")}
+    kind = rng.integers(0, 2, 60)  # 0: a tv_monitor row, 1: a chair row
+    feat = np.stack([tv, np.eye(D)[2]])[kind] + rng.normal(0, 0.02, (60, D))
+    vlmap = FakeVLMap(n=60)
+    vlmap.grid_feat, vlmap.categories = feat.astype(np.float32), ["chair", "tv_monitor"]
+    cfg = {
+        "encoder": {
+            "name": "table",
+            "table": {k: np.asarray(v).tolist() for k, v in table.items()},
+        },
+        "classifier": "contrast",
+        "cache": False,
+    }
+    exact = index_map(vlmap, "tv_monitor", quash=cfg)
+    np.testing.assert_array_equal(exact, kind == 0)
+    for spelling in ("tv monitor", "TV-Monitor"):
+        np.testing.assert_array_equal(index_map(vlmap, spelling, quash=cfg), exact)
+    # the category is still a negative of another query
+    assert not index_map(vlmap, "chair", quash=cfg)[kind == 0].any()
