@@ -361,6 +361,26 @@ def accepted_params(obj: Any) -> list[str] | None:
     return names
 
 
+def required_params(obj: Any) -> list[str]:
+    """Keyword parameters a plugin cannot be built without (no default); [] when its
+    signature cannot be read."""
+    if inspect.isclass(obj) and obj.__init__ is object.__init__:
+        return []
+    target = obj.__init__ if inspect.isclass(obj) else obj
+    try:
+        sig = inspect.signature(target)
+    except (TypeError, ValueError):
+        return []
+    params = list(sig.parameters.values())
+    if inspect.isclass(obj) and params:
+        params = params[1:]  # self
+    return [
+        p.name
+        for p in params
+        if p.default is p.empty and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)
+    ]
+
+
 def create(kind: str, name: str, /, **params: Any) -> Any:
     """Build the plugin ``name`` of ``kind`` with ``params`` as keyword arguments.
 
@@ -388,6 +408,26 @@ def create(kind: str, name: str, /, **params: Any) -> Any:
                 f"{_TITLE[kind]} {entry.name!r} does not accept parameter {bad!r}. "
                 f"Accepted: {', '.join(accepted) or '(none)'}.{hint}"
             )
+    needed = [p for p in required_params(obj) if p not in params]
+    if needed:
+        # Python's own "__init__() missing 1 required positional argument" names neither
+        # the plugin's distribution nor where the value goes.
+        version = f" {entry.version}" if entry.version else ""
+        given = ", ".join(f"{p}: ..." for p in needed)
+        them = "them" if len(needed) > 1 else "it"
+        cli = (
+            f"; quash make-scene: {' '.join(f'--encoder-option {p}=...' for p in needed)}"
+            if kind == "encoders"
+            else ""
+        )
+        raise ConfigError(
+            f"{_TITLE[kind]} {entry.name!r} from distribution {entry.dist!r}{version} "
+            f"needs parameter{'s' if len(needed) > 1 else ''} "
+            f"{', '.join(repr(p) for p in needed)}, which {'were' if len(needed) > 1 else 'was'} "
+            f"not given: write {them} beside the name in the config ({kind[:-1]}: "
+            f"{{name: {entry.name}, {given}}}{cli}), or give {entry.target} a default "
+            f"for {them}."
+        )
     try:
         instance = obj(**params)
         # scikit-learn estimators validate in fit, not __init__; a classifier's

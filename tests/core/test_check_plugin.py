@@ -74,7 +74,9 @@ def test_a_plugin_the_kit_cannot_build_says_what_to_add(twins, tmp_path):
     with pytest.raises(ConfigError) as err:
         check_plugin("encoders", "kit-needs-file", tmp_path)
     message = str(err.value)
-    assert "missing 1 required positional argument: 'file'" in message
+    # the plugin, its distribution, the parameter, and where to write it
+    assert "'kit-needs-file' from distribution 'kit-good' needs parameter 'file'" in message
+    assert "encoder: {name: kit-needs-file, file: ...}" in message
     assert "conformance_params(tmp_path)" in message and "conformance_skip" in message
     # with conformance_params the kit builds it, and the checks run
     _NeedsFile.conformance_params = classmethod(lambda cls, tmp: {"file": str(tmp / "f")})
@@ -117,3 +119,22 @@ def test_an_entry_point_in_a_misspelt_group_is_named_with_the_group_to_use(mispl
     # a selection that matches no misplaced entry point keeps the plain answer
     with pytest.raises(LookupError, match="Is the distribution installed"):
         parametrize_with_checks(dist="no-such-dist")
+
+
+def test_a_config_that_omits_a_required_parameter_is_told_whose_and_where(twins):
+    # Before: Python's "__init__() missing 1 required positional argument: 'file'",
+    # naming neither the distribution nor where the value goes.
+    from quash_plugins import Quash
+
+    config = {"encoder": "kit-needs-file", "heuristic": "none", "classifier": "contrast"}
+    with pytest.raises(ConfigError) as err:
+        Quash.from_config({**config, "cache": False})
+    message = str(err.value)
+    assert message.startswith("encoder: Encoder 'kit-needs-file' from distribution 'kit-good'")
+    assert "needs parameter 'file', which was not given" in message
+    assert "encoder: {name: kit-needs-file, file: ...}" in message
+    assert "--encoder-option file=..." in message
+    assert "__init__()" not in message
+    # given, it builds
+    built = Quash.from_config({**config, "encoder": {"name": "kit-needs-file", "file": "f"}})
+    assert built.encoder.file == "f"
