@@ -225,6 +225,7 @@ def _validate(info: PluginInfo, obj: Any) -> None:
         raise PluginError(
             f"{_TITLE[info.kind]} plugin {info.name!r} from distribution {info.dist!r} "
             f"points at {info.target}, which is not a class or factory."
+            + _not_callable_hint(info, obj)
         )
     if inspect.isclass(obj):
         _check_interface(info, obj)
@@ -237,6 +238,36 @@ def _validate(info: PluginInfo, obj: Any) -> None:
                 f"({info.target}) breaks the {info.kind[:-1]} interface: it does not "
                 f"implement {', '.join(abstract)} (abstract in its base class)."
             )
+
+
+def _not_callable_hint(info: PluginInfo, obj: Any) -> str:
+    """What an entry point naming a module or an instance should name instead."""
+    module = info.target.partition(":")[0]
+    if inspect.ismodule(obj):
+        what = f"It names the module {obj.__name__!r}"
+        from . import interfaces
+
+        base = getattr(interfaces, "MapAdapter" if info.kind == "adapters" else _TITLE[info.kind])
+        classes = sorted(
+            n
+            for n, v in vars(obj).items()
+            if inspect.isclass(v)
+            and issubclass(v, base)
+            and v is not base
+            and getattr(v, "__module__", "") == obj.__name__
+        )
+        target = f"{obj.__name__}:{classes[0]}" if len(classes) == 1 else f"{module}:ClassName"
+    else:
+        cls = type(obj)
+        what = f"It names an instance of {cls.__qualname__}"
+        target = f"{cls.__module__}:{cls.__qualname__}"
+    if info._loader is None:  # registered in the process: no entry point to edit
+        return f" {what}: register the class or a function that returns an instance."
+    return (
+        f" {what}: the entry point {info.name!r} in group {GROUP_PREFIX + info.kind!r} of "
+        f"{info.dist!r} (its pyproject.toml) must name the class, or a function that "
+        f'returns an instance: {info.name} = "{target}".'
+    )
 
 
 def _check_interface(info: PluginInfo, obj: Any) -> None:

@@ -215,3 +215,41 @@ def test_the_kit_gives_a_plugin_that_does_not_load_one_failing_check(installed, 
     single = next(c for c in checks if c.name == "typo-module")
     with pytest.raises(PluginError, match="does not exist.*Fix or uninstall"):
         single(tmp_path)
+
+
+def test_an_entry_point_naming_an_instance_names_the_class_to_write(installed):
+    # Before: only "points at quash_broken_plugin:AN_INSTANCE, which is not a class or
+    # factory", with neither the entry point to edit nor what to write in it.
+    with pytest.raises(PluginError) as err:
+        registry.load("encoders", "an-instance")
+    msg = str(err.value)
+    assert "It names an instance of LazyLibrary" in msg
+    assert "entry point 'an-instance' in group 'quash_plugins.encoders'" in msg
+    assert "'quash-broken-plugin' (its pyproject.toml)" in msg
+    assert 'an-instance = "quash_broken_plugin:LazyLibrary"' in msg
+
+
+def test_an_entry_point_naming_a_module_names_its_plugin_class(tmp_path):
+    # a module with one Encoder subclass: the fix names it
+    import types
+
+    from quash_plugins import Encoder
+    from quash_plugins.core.registry import PluginInfo
+
+    module = types.ModuleType("lab_vlm")
+
+    class LabEncoder(Encoder):
+        dim = 4
+
+        def encode_text(self, texts):  # pragma: no cover - never called
+            return np.zeros((len(texts), 4), np.float32)
+
+    LabEncoder.__module__ = "lab_vlm"
+    module.LabEncoder = LabEncoder
+    module.Encoder = Encoder  # imported, not defined there: not a candidate
+    info = PluginInfo("encoders", "lab", "lab_vlm", "lab-vlm", "1.0", _loader=lambda: module)
+    with pytest.raises(PluginError) as err:
+        registry._load_info(info)
+    msg = str(err.value)
+    assert "It names the module 'lab_vlm'" in msg
+    assert 'lab = "lab_vlm:LabEncoder"' in msg and "'lab-vlm' (its pyproject.toml)" in msg

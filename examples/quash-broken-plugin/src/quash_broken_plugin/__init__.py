@@ -8,7 +8,8 @@ other plugin keeps working:
 * ``not-a-classifier``: a class with none of the classifier interface;
 * ``half-encoder``: an ``Encoder`` subclass that never implements ``encode_text``;
 * ``needs-a-library``: imports a library that is not installed when it is built;
-* ``lazy-library``: imports it on first use, inside ``encode_text``.
+* ``lazy-library``: imports it on first use, inside ``encode_text``;
+* ``an-instance``: an entry point that names an instance, not its class.
 """
 
 import importlib
@@ -56,6 +57,10 @@ class LazyLibrary(Encoder):
     def encode_text(self, texts):
         importlib.import_module(MISSING)
         raise AssertionError("unreachable")
+
+
+#: An instance where the entry point must name the class (or a factory).
+AN_INSTANCE = LazyLibrary()
 
 
 def __getattr__(name):
