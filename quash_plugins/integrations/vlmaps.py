@@ -46,6 +46,7 @@ import contextlib
 import copy
 import logging
 import types
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -63,13 +64,16 @@ __all__ = ["index_map", "query", "patch_vlmap", "unpatch_vlmap", "QuashIndexMixi
 _CACHE_ATTR = "_quash_latent_map"
 _QUASH_ATTR = "_quash"
 _ORIGINAL_ATTR = "_vlmaps_index_map"
+#: Keys of VLMaps' ``map_config`` (``config/map_config/*.yaml``) that no QuASH config has.
+_VLMAPS_MAP_CONFIG_KEYS = frozenset({"map_type", "pose_info", "grid_size", "cell_size"})
 
 
 def resolve_quash(quash: Any, vlmap: Any = None) -> Any:
     """A :class:`~quash_plugins.engine.pipeline.Quash` from an instance, a config or the VLMap.
 
-    ``quash`` may be a ``Quash``, a :class:`~quash_plugins.core.config.QuashConfig`, a dict, or
-    a path to a YAML config. ``None`` uses the one attached by :func:`patch_vlmap`.
+    ``quash`` may be a ``Quash``, a :class:`~quash_plugins.core.config.QuashConfig`, a mapping
+    (a dict, or an OmegaConf ``DictConfig``: a section of a Hydra config, as VLMaps' own
+    configs are), or a path to a YAML config. ``None`` uses the one attached by :func:`patch_vlmap`.
     """
     from ..core.config import QuashConfig
     from ..engine.pipeline import Quash
@@ -83,11 +87,30 @@ def resolve_quash(quash: Any, vlmap: Any = None) -> Any:
         )
     if isinstance(quash, Quash):
         return quash
+    if isinstance(quash, Mapping):
+        quash = _plain(quash)  # an OmegaConf DictConfig: a section of the project's Hydra config
+        vlmaps_keys = sorted(_VLMAPS_MAP_CONFIG_KEYS & set(quash))
+        if vlmaps_keys:
+            raise QuashError(
+                f"quash= got VLMaps' map config (it has {', '.join(vlmaps_keys)}), not a QuASH "
+                "config. Pass the QuASH config instead (a YAML path such as 'quash.yaml', or "
+                "its section of your config): the map's grid and cell size come from the VLMap."
+            )
     if isinstance(quash, (str, Path, dict, QuashConfig)):
         return Quash.from_config(quash)
     raise QuashError(
-        f"quash must be a Quash, a QuashConfig, a dict or a YAML path; got {type(quash).__name__}."
+        "quash must be a Quash, a QuashConfig, a mapping (a dict, or a section of your Hydra "
+        f"config) or a YAML path; got {type(quash).__name__}."
     )
+
+
+def _plain(value: Any) -> Any:
+    """Mappings and sequences (OmegaConf's DictConfig and ListConfig) as dicts and lists."""
+    if isinstance(value, Mapping):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, Sequence) and not isinstance(value, (str, bytes)):
+        return [_plain(v) for v in value]
+    return value
 
 
 def as_latent_map(vlmap: Any, **options: Any) -> LatentMap:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import re
 import shlex
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +13,12 @@ import yaml
 from _vlmaps_writers import mobile_map, sha256, write_vlmaps_h5df
 
 from quash_plugins.core.config import QuashConfig
-from quash_plugins.integrations.vlmaps import QuashIndexMixin, index_map, unpatch_vlmap
+from quash_plugins.integrations.vlmaps import (
+    QuashIndexMixin,
+    index_map,
+    patch_vlmap,
+    unpatch_vlmap,
+)
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "vlmaps.md"
 D = 8
@@ -241,3 +247,54 @@ def test_a_query_spelled_with_spaces_is_its_underscored_category():
         np.testing.assert_array_equal(index_map(vlmap, spelling, quash=cfg), exact)
     # the category is still a negative of another query
     assert not index_map(vlmap, "chair", quash=cfg)[kind == 0].any()
+
+
+class _DictConfig(Mapping):
+    """OmegaConf's DictConfig as far as the integration can see: a Mapping, not a dict,
+    whose sections are DictConfigs and whose lists are ListConfigs (not lists)."""
+
+    def __init__(self, data):
+        self._data = data
+
+    def __getitem__(self, key):
+        value = self._data[key]
+        if isinstance(value, dict):
+            return _DictConfig(value)
+        return _ListConfig(value) if isinstance(value, list) else value
+
+    def __iter__(self):
+        return iter(self._data)
+
+    def __len__(self):
+        return len(self._data)
+
+
+class _ListConfig(Sequence):
+    def __init__(self, data):
+        self._data = data
+
+    def __getitem__(self, i):
+        return self._data[i]
+
+    def __len__(self):
+        return len(self._data)
+
+
+def test_a_hydra_section_is_a_config_and_vlmaps_map_config_is_named(project):
+    """VLMaps runs on Hydra: a ``quash:`` section of the project's config is an OmegaConf
+    DictConfig, not a dict, and was refused ("quash must be ... a dict"). It is now read
+    as the same config; VLMaps' own map config passed by mistake says what it is."""
+    from quash_plugins.core.errors import QuashError
+
+    cfg = yaml.safe_load(Path("quash.yaml").read_text())
+    cfg["negatives"] = ["other"]  # a ListConfig inside
+    vlmap = FakeVLMap(seed=2)
+    want = index_map(vlmap, "chair", quash=cfg)
+    np.testing.assert_array_equal(index_map(vlmap, "chair", quash=_DictConfig(cfg)), want)
+    patch_vlmap(vlmap, _DictConfig(cfg))
+    np.testing.assert_array_equal(vlmap.index_map("chair"), want)
+    map_config = _DictConfig(
+        {"map_type": "vlmap", "grid_size": 1000, "cell_size": 0.05, "pose_info": {}}
+    )
+    with pytest.raises(QuashError, match=r"VLMaps' map config \(it has cell_size, grid_size"):
+        index_map(vlmap, "chair", quash=map_config)
