@@ -229,6 +229,7 @@ def _validate(info: PluginInfo, obj: Any) -> None:
         )
     if inspect.isclass(obj):
         _check_interface(info, obj)
+        _check_dim(info, obj)
         # A subclass of Encoder & co. inherits the abstract methods, so hasattr passes;
         # it still cannot be built until it implements them.
         abstract = sorted(getattr(obj, "__abstractmethods__", ()) or ())
@@ -268,6 +269,22 @@ def _not_callable_hint(info: PluginInfo, obj: Any) -> str:
         f"{info.dist!r} (its pyproject.toml) must name the class, or a function that "
         f'returns an instance: {info.name} = "{target}".'
     )
+
+
+def _check_dim(info: PluginInfo, cls: type) -> None:
+    """An encoder's ``dim`` is read as a number (``encoder.dim``): one written as a plain
+    method (``def dim(self)`` without ``@property``) would fail later as a bare TypeError
+    about a 'method', naming no plugin."""
+    if info.kind != "encoders":
+        return
+    dim = inspect.getattr_static(cls, "dim", None)
+    if inspect.isfunction(dim) or isinstance(dim, (staticmethod, classmethod)):
+        raise PluginError(
+            f"Encoder plugin {info.name!r} from distribution {info.dist!r} ({info.target}) "
+            f"defines dim as a method of {cls.__qualname__}, so encoder.dim is a method, "
+            "not the embedding dimension: decorate it with @property (or set dim = D as a "
+            "class or instance attribute)."
+        )
 
 
 def _check_interface(info: PluginInfo, obj: Any) -> None:
@@ -490,6 +507,10 @@ def create(kind: str, name: str, /, **params: Any) -> Any:
         ) from exc
     if not inspect.isclass(obj):  # a factory: its class was not checked when it loaded
         _check_interface(entry, instance)
+        try:
+            _check_dim(entry, type(instance))
+        except PluginError as exc:
+            raise PluginError(f"{exc} Fix or uninstall {entry.dist!r}.") from None
     if getattr(instance, "name", None) in (None, "encoder", "heuristic", "adapter"):
         with contextlib.suppress(AttributeError):
             instance.name = entry.name

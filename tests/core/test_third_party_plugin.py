@@ -253,3 +253,45 @@ def test_an_entry_point_naming_a_module_names_its_plugin_class(tmp_path):
     msg = str(err.value)
     assert "It names the module 'lab_vlm'" in msg
     assert 'lab = "lab_vlm:LabEncoder"' in msg and "'lab-vlm' (its pyproject.toml)" in msg
+
+
+def _dim_method_encoder():
+    """An encoder whose author wrote ``def dim(self)`` and forgot ``@property``."""
+    from quash_plugins import Encoder
+
+    class DimMethod(Encoder):
+        name = "dim-method"
+
+        def dim(self):
+            return 4
+
+        def encode_text(self, texts):  # pragma: no cover - never reached
+            return np.zeros((len(texts), 4), np.float32)
+
+    return DimMethod
+
+
+def test_dim_written_as_a_method_is_named_with_the_fix():
+    # Before: the class loaded ('ok' in quash plugins) and a query or make-scene ended in
+    # "unexpected error: TypeError: int() argument must be ... not 'method'".
+    from quash_plugins.core.errors import ConfigError
+
+    cls = _dim_method_encoder()
+    try:
+        with pytest.raises(PluginError) as err:
+            registry.register("encoders", "dim-method", cls, dist="lab-vlm")
+    finally:
+        registry.unregister("encoders", "dim-method", dist="lab-vlm")
+    msg = str(err.value)
+    assert "'dim-method' from distribution 'lab-vlm'" in msg
+    assert "defines dim as a method of" in msg and "@property" in msg
+
+    # a factory's instance is checked when it is built
+    registry.register("encoders", "dim-method-factory", lambda: cls(), dist="lab-vlm")
+    try:
+        with pytest.raises(PluginError, match="defines dim as a method.*@property"):
+            registry.create("encoders", "dim-method-factory")
+        with pytest.raises((PluginError, ConfigError), match="@property"):
+            Quash.from_config({"encoder": "dim-method-factory", "cache": False})
+    finally:
+        registry.unregister("encoders", "dim-method-factory", dist="lab-vlm")
