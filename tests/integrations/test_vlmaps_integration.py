@@ -298,3 +298,21 @@ def test_a_hydra_section_is_a_config_and_vlmaps_map_config_is_named(project):
     )
     with pytest.raises(QuashError, match=r"VLMaps' map config \(it has cell_size, grid_size"):
         index_map(vlmap, "chair", quash=map_config)
+
+
+def test_a_vlmaps_example_config_points_to_a_shipped_config_of_its_own_encoder():
+    """examples/configs/vlmaps-contrast.yaml (an LSeg config) sent readers to
+    demo-vlmaps.yaml for VLMaps' exact rule: a MiniLM config, which refuses an LSeg map."""
+    root = Path(__file__).resolve().parents[2]
+    shipped = root / "quash_plugins" / "data" / "configs"
+    checked = 0
+    for example in sorted((root / "examples" / "configs").glob("vlmaps*.yaml")):
+        text = example.read_text(encoding="utf-8")
+        encoder = yaml.safe_load(text)["encoder"]
+        comments = "\n".join(line for line in text.splitlines() if line.startswith("#"))
+        for name in re.findall(r"[\w-]+\.yaml", comments):
+            if (shipped / name).exists():
+                named = yaml.safe_load((shipped / name).read_text(encoding="utf-8"))
+                assert named["encoder"] == encoder, (example.name, name)
+                checked += 1
+    assert checked
