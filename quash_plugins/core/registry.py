@@ -484,7 +484,17 @@ def create(kind: str, name: str, /, **params: Any) -> Any:
         if callable(check):
             check()
     except (TypeError, ValueError) as exc:
-        raise ConfigError(f"{_TITLE[kind]} {entry.name!r}: {exc}") from exc
+        if _same_dist(entry.dist, BUILTIN_DIST):
+            raise ConfigError(f"{_TITLE[kind]} {entry.name!r}: {exc}") from exc
+        # A third-party plugin's: a value it refuses, or a bug in its __init__; say whose,
+        # with what it was given, as for any other exception it raises when built.
+        given = f" with {', '.join(params)}" if params else ""
+        raise ConfigError(
+            f"{_TITLE[kind]} {entry.name!r} from distribution {entry.dist!r}"
+            f"{f' {entry.version}' if entry.version else ''} failed to build{given}: "
+            f"{type(exc).__name__}: {str(exc).rstrip('.')}. Check its parameters in the "
+            f"config, or fix or uninstall {entry.dist!r}; --debug shows the traceback."
+        ) from exc
     except QuashError:
         raise
     except Exception as exc:

@@ -138,3 +138,31 @@ def test_a_config_that_omits_a_required_parameter_is_told_whose_and_where(twins)
     # given, it builds
     built = Quash.from_config({**config, "encoder": {"name": "kit-needs-file", "file": "f"}})
     assert built.encoder.file == "f"
+
+
+class _RefusesDim(_Good):
+    name = "kit-refuses-dim"
+
+    def __init__(self, dim: int = 4):
+        if dim > 8:
+            raise ValueError("dim must be at most 8 for this model")
+        self.dim_ = dim
+
+
+def test_a_value_the_plugin_refuses_names_its_distribution_and_what_it_was_given():
+    # Before: "Encoder 'kit-refuses-dim': dim must be at most 8 ...", without the
+    # distribution, though any other exception raised when built names it.
+    from quash_plugins import Quash
+
+    registry.register("encoders", "kit-refuses-dim", _RefusesDim, dist="lab-vlm")
+    try:
+        with pytest.raises(ConfigError) as err:
+            Quash.from_config({"encoder": {"name": "kit-refuses-dim", "dim": 16}, "cache": False})
+    finally:
+        registry.unregister("encoders", "kit-refuses-dim", dist="lab-vlm")
+    message = str(err.value)
+    assert (
+        "Encoder 'kit-refuses-dim' from distribution 'lab-vlm' failed to build with dim" in message
+    )
+    assert "ValueError: dim must be at most 8 for this model" in message
+    assert "fix or uninstall 'lab-vlm'" in message
