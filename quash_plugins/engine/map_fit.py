@@ -10,9 +10,9 @@
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import warnings
+import weakref
 from typing import Any
 
 import numpy as np
@@ -166,7 +166,10 @@ def warn_unused_adapter_options(
     a live map's values come from the object, and only ``read_options`` (given to the
     query) override them."""
     params = dict(getattr(spec, "params", None) or {})
-    warned = getattr(obj, "_quash_adapter_warned", set())
+    try:  # remembered beside the object, never on it (the user's VLMap stays as it was)
+        warned = _ADAPTER_WARNED.setdefault(obj, set())
+    except TypeError:  # an object that cannot be weakly referenced: warn each time
+        warned = set()
     for key, value in params.items():
         if key in read_options:
             continue  # passed to the live map's adapter, so it does apply
@@ -189,8 +192,10 @@ def warn_unused_adapter_options(
             has,
             key,
         )
-    with contextlib.suppress(AttributeError):
-        obj._quash_adapter_warned = warned
+
+
+#: Per live map object, the adapter options already warned about.
+_ADAPTER_WARNED: weakref.WeakKeyDictionary[Any, set] = weakref.WeakKeyDictionary()
 
 
 def _same(a: Any, b: Any) -> bool:

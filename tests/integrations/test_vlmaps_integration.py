@@ -172,11 +172,15 @@ def test_adapter_section_of_the_config_is_reported_for_a_live_map(project, caplo
     cfg["adapter"] = {"name": "vlmaps", "cs": 0.1, "check_finite": False}
     Path("q-cs.yaml").write_text(yaml.safe_dump(cfg))
     vlmap = FakeVLMap()
+    before = set(vars(vlmap))
     with caplog.at_level("WARNING", logger="quash_plugins.integrations.vlmaps"):
         index_map(vlmap, "chair", quash="q-cs.yaml")
         index_map(vlmap, "sofa", quash="q-cs.yaml")
     msgs = [r.getMessage() for r in caplog.records if "adapter section" in r.getMessage()]
     assert len(msgs) == 2, msgs  # cs and check_finite, each once
+    # what was warned about is remembered beside the map, not on it: unpatch leaves the
+    # user's object as it was (a _quash_adapter_warned attribute stayed behind)
+    assert set(vars(unpatch_vlmap(vlmap))) == before
     assert any("cs: 0.1" in m and "cs = 0.05" in m for m in msgs)
     assert any("check_finite" in m and "not used" in m for m in msgs)
     caplog.clear()
