@@ -96,6 +96,16 @@ class PluginCheck:
         except AssertionError as exc:
             # run outside pytest's ids (check_plugin), a failure names whose check it is
             raise AssertionError(f"{self.id}: {exc}") from exc
+        except Exception as exc:  # noqa: BLE001 - the plugin's own error: a failure too
+            raise AssertionError(f"{self.id}: {_raised(exc)}") from exc
+
+
+def _raised(exc: BaseException) -> str:
+    """A check's failure when the plugin raised rather than returned something wrong."""
+    return (
+        f"the plugin raised {type(exc).__name__}: {str(exc).rstrip('.')}. The check calls "
+        "it as a query does (see the traceback above for where it raised)."
+    )
 
 
 def build(kind: str, name: str, tmp_path: Path) -> Any:
@@ -165,7 +175,14 @@ def check_encoder_batch_independent(enc: Any, tmp_path: Path) -> None:
 
 
 def check_encoder_empty(enc: Any, tmp_path: Path) -> None:
-    e = np.asarray(enc.encode_text([]))
+    try:
+        e = np.asarray(enc.encode_text([]))
+    except Exception as exc:  # noqa: BLE001 - reported as the failure it is
+        raise AssertionError(
+            f"encode_text([]) raised {type(exc).__name__}: {str(exc).rstrip('.')}; it must "
+            "return an empty (0, dim) float32 array, the contract's (n, dim) for n = 0: return "
+            "np.zeros((0, self.dim), np.float32) for no texts"
+        ) from exc
     assert e.shape == (0, enc.dim), f"encode_text([]) must be (0, dim); got {e.shape}"
 
 
@@ -601,6 +618,8 @@ def _run_all(kind: str, plugin: Any, tmp_path: str | Path | None) -> None:
             c(plugin, d)
         except AssertionError as exc:
             raise AssertionError(f"{kind[:-1]} {who!r}: {c.__name__}: {exc}") from exc
+        except Exception as exc:  # noqa: BLE001 - the plugin's own error: a failure too
+            raise AssertionError(f"{kind[:-1]} {who!r}: {c.__name__}: {_raised(exc)}") from exc
 
 
 def check_encoder(encoder: Any, tmp_path: str | Path | None = None) -> None:

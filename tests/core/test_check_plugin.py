@@ -166,3 +166,49 @@ def test_a_value_the_plugin_refuses_names_its_distribution_and_what_it_was_given
     )
     assert "ValueError: dim must be at most 8 for this model" in message
     assert "fix or uninstall 'lab-vlm'" in message
+
+
+class _NeedsOneText(_Good):
+    name = "kit-needs-one-text"
+
+    def encode_text(self, texts):
+        texts[0]  # a model batch API that needs one text at least
+        return super().encode_text(texts)
+
+
+class _Crashes(_Good):
+    name = "kit-crashes"
+
+    def encode_text(self, texts):
+        raise RuntimeError("CUDA error: device-side assert triggered")
+
+
+def test_a_check_the_plugin_raises_in_names_the_plugin_and_the_check(tmp_path):
+    # Before: the plugin's bare IndexError / RuntimeError, naming neither the plugin nor
+    # the check, though a failure is documented to start with both.
+    from quash_plugins.testing import check_encoder
+
+    registry.register("encoders", "kit-needs-one-text", _NeedsOneText, dist="lab-vlm")
+    registry.register("encoders", "kit-crashes", _Crashes, dist="lab-vlm")
+    try:
+        with pytest.raises(AssertionError) as err:
+            check_plugin("encoders", "kit-needs-one-text", tmp_path / "a")
+        message = str(err.value)
+        assert message.startswith("encoders:kit-needs-one-text-check_encoder_empty: ")
+        assert "encode_text([]) raised IndexError" in message
+        assert "np.zeros((0, self.dim), np.float32)" in message
+        assert isinstance(err.value.__cause__.__cause__, IndexError)  # kept for the traceback
+
+        with pytest.raises(AssertionError) as err:
+            check_plugin("encoders", "kit-crashes", tmp_path / "b")
+        message = str(err.value)
+        assert message.startswith("encoders:kit-crashes-check_encoder_output: ")
+        assert "the plugin raised RuntimeError: CUDA error: device-side assert" in message
+
+        with pytest.raises(AssertionError) as err:
+            check_encoder(_Crashes(), tmp_path / "c")
+        assert str(err.value).startswith("encoder 'kit-crashes': check_encoder_output: ")
+        assert isinstance(err.value.__cause__, RuntimeError)
+    finally:
+        registry.unregister("encoders", "kit-needs-one-text", dist="lab-vlm")
+        registry.unregister("encoders", "kit-crashes", dist="lab-vlm")
