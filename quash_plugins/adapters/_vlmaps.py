@@ -194,6 +194,7 @@ class VLMapsAdapter(MapAdapter):
             raise MapFormatError(
                 f"{source}: not a VLMaps map file. Pass vlmap/vlmaps.h5df (or any .h5df/.h5 "
                 "holding 'grid_feat' and 'grid_pos') or the folder that holds it."
+                f"{_scenes_inside(source)}"
             )
         import_h5py()
         try:
@@ -391,6 +392,24 @@ def _explain_missing_file(source: Any) -> None:
                 f"built (VLMap.create_map); build or copy the map, or pass the .h5df file "
                 "itself."
             )
+
+
+def _scenes_inside(source: Any, limit: int = 256, shown: int = 5) -> str:
+    """For a folder of scene folders (VLMaps' data root, ``data/<scene>/vlmap/``): a
+    sentence naming the scenes whose map file is found, to pass one; else ``""``."""
+    folder = Path(source).expanduser() if isinstance(source, (str, Path)) else None
+    if folder is None or not folder.is_dir():
+        return ""
+    try:
+        subs = sorted(p for p in folder.iterdir() if p.is_dir() and not p.name.startswith("."))
+    except OSError:
+        return ""
+    scenes = [sub for sub in subs[:limit] if resolve_h5(sub) is not None]
+    if not scenes:
+        return ""
+    more = f" and {len(scenes) - shown} more" if len(scenes) > shown else ""
+    listed = ", ".join(str(sub) for sub in scenes[:shown])
+    return f" It holds scene folders with a VLMaps map: {listed}{more}; pass one of them."
 
 
 def _check_cs(cs: Any, where: str) -> None:

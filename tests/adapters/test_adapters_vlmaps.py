@@ -547,3 +547,24 @@ def test_live_vlmap_nan_rows_get_a_fix_the_live_adapter_takes():
     assert "grid_feat[~np.isfinite(vlmap.grid_feat).all(axis=1)] = 0" in str(err.value)
     feat[~np.isfinite(feat).all(axis=1)] = 0  # the fix the message gives
     assert read_map(live, "vlmaps-live").n == 15
+
+
+def test_vlmaps_data_root_names_the_scene_folders_to_pass(tmp_path):
+    """``quash query data chair`` with adapter vlmaps, where ``data/`` is VLMaps' data
+    root (``data/<scene>/vlmap/vlmaps.h5df``), said only "not a VLMaps map file"; it now
+    names the scene folders that hold a map, and each of them reads."""
+    arrays = mobile_map()
+    root = tmp_path / "data"
+    for scene in ("5LpN3gDmAk7_1", "jh4fc5c5qoQ_1"):
+        write_vlmaps_h5df(root / scene / "vlmap" / "vlmaps.h5df", arrays)
+    (root / "logs").mkdir()  # a folder without a map is not named
+    with pytest.raises(MapFormatError) as info:
+        vlmaps().read(root)
+    text = str(info.value)
+    assert "not a VLMaps map file" in text and "pass one of them" in text
+    assert str(root / "5LpN3gDmAk7_1") in text and str(root / "jh4fc5c5qoQ_1") in text
+    assert str(root / "logs") not in text
+    assert vlmaps().read(root / "5LpN3gDmAk7_1").n == vlmaps().read(root / "jh4fc5c5qoQ_1").n
+    with pytest.raises(MapFormatError) as info:
+        vlmaps().read(root / "logs")
+    assert "pass one of them" not in str(info.value)
