@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from ..core.errors import DimensionMismatchError, EmptyMapWarning
+from ..core.errors import DimensionMismatchError, EmptyMapWarning, MapFormatError
 from ..core.interfaces import plugin_name, source_digest
 from ..core.once import first_time
 from ..core.types import LatentMap
@@ -156,6 +156,30 @@ def warn_if_empty(lmap: LatentMap) -> None:
             EmptyMapWarning,
             stacklevel=3,
         )
+
+
+def option_source(
+    exc: MapFormatError, spec: Any, config_source: str | None, given: dict[str, Any] | None
+) -> MapFormatError:
+    """``exc`` (a map read's error) with where an option it names came from, when that
+    was the config's ``adapter:`` section (``spec``) rather than the command (``-o``) or
+    the call (``given``; None: the section was not used): a user who never passed ``cs``
+    is told which file to change."""
+    if given is None:
+        return exc
+    text = str(exc)
+    named = [
+        f"{key}={value!r}"
+        for key, value in (getattr(spec, "params", None) or {}).items()
+        if key not in given and (f"option {key}=" in text or f"option {key!r}" in text)
+    ]
+    if not named:
+        return exc
+    where = f" of {config_source}" if config_source else ""
+    return MapFormatError(
+        f"{text} ({', '.join(named)} comes from the adapter: section{where}: change or "
+        "remove it there.)"
+    )
 
 
 def warn_unused_adapter_options(

@@ -41,7 +41,7 @@ from ..core.config import (
     QuashConfig,
     check_device,
 )
-from ..core.errors import ConfigError, QuashError
+from ..core.errors import ConfigError, MapFormatError, QuashError
 from ..core.interfaces import Encoder, ExpansionContext, Heuristic, plugin_name
 from ..core.text import TextCache, encode_texts, resolve_templates
 from ..core.types import DEFAULT_NEGATIVES, LatentMap, QueryResult, QuerySet, check_query
@@ -49,7 +49,12 @@ from .answer import Pending, answer, classifier_words
 from .build import plugin_argument
 from .classify import classify_local
 from .map_cache import MapCache
-from .map_fit import check_encoder_fits, warn_if_empty, warn_unused_adapter_options
+from .map_fit import (
+    check_encoder_fits,
+    option_source,
+    warn_if_empty,
+    warn_unused_adapter_options,
+)
 from .training import CallCache, training_sets
 
 log = logging.getLogger(__name__)
@@ -289,7 +294,11 @@ class Quash:
         kept, token = self._maps.lookup(source, name, opts)
         if kept is not None:
             return kept
-        lmap = read_map(source, name, **opts)
+        try:
+            lmap = read_map(source, name, **opts)
+        except MapFormatError as exc:
+            given = options if configured else None
+            raise option_source(exc, self.adapter, self.config_source, given) from None
         self._maps.store(token, lmap, self.keep_maps)
         # the query sets of maps that are gone go too (here, not on every expand)
         for k in [k for k, (r, _) in self._querysets.items() if k[1] and r() is None]:

@@ -568,3 +568,28 @@ def test_vlmaps_data_root_names_the_scene_folders_to_pass(tmp_path):
     with pytest.raises(MapFormatError) as info:
         vlmaps().read(root / "logs")
     assert "pass one of them" not in str(info.value)
+
+
+def test_an_option_from_the_configs_adapter_section_is_said_to_come_from_it(tmp_path):
+    """docs/vlmaps.md's quash.yaml sets adapter: {cs: 0.05}; on a camera-base map that
+    stores cs = 0.04 the error said "Drop the cs option" to a user who never passed one.
+    It now names the config file's adapter: section; an option given to the call is the
+    user's own and is told as before."""
+    arrays, cam = camera_arrays()
+    path = write_vlmaps_h5df(tmp_path / "vlmap_cam" / "vlmaps_cam.h5df", arrays, camera=cam)
+    config = tmp_path / "quash.yaml"
+    config.write_text(
+        "encoder: {name: table, table: {chair: [1, 0, 0, 0, 0, 0, 0, 0]}}\n"
+        "heuristic: none\nadapter: {name: vlmaps, cs: 0.05}\ncache: false\n"
+    )
+    q = Quash.from_config(str(config))
+    with pytest.raises(MapFormatError) as info:
+        q.read_map(path)
+    text = str(info.value)
+    assert "option cs=0.05 disagrees" in text
+    assert f"cs=0.05 comes from the adapter: section of {config}" in text
+    with pytest.raises(MapFormatError) as info:
+        q.read_map(path, cs=0.07)  # given by the caller: no config to blame
+    assert "option cs=0.07 disagrees" in str(info.value)
+    assert "adapter: section" not in str(info.value)
+    assert q.read_map(path, cs=0.04).voxel_size == pytest.approx(0.04)
