@@ -294,9 +294,23 @@ def _check_interface(info: PluginInfo, obj: Any) -> None:
         return
     from . import interfaces
 
-    base = getattr(interfaces, "MapAdapter" if info.kind == "adapters" else _TITLE[info.kind])
+    def base_of(kind: str) -> type:
+        return getattr(interfaces, "MapAdapter" if kind == "adapters" else _TITLE[kind])
+
+    base = base_of(info.kind)
     of = obj if inspect.isclass(obj) else type(obj)
     hint = "" if issubclass(of, base) else f" Subclass quash_plugins.{base.__name__}."
+    # Another kind's plugin (an Encoder under quash_plugins.heuristics): the entry point
+    # is in the wrong group, and subclassing this kind's base is not the fix.
+    other = next((k for k in KINDS if k != info.kind and issubclass(of, base_of(k))), None)
+    if other is not None and not issubclass(of, base):
+        hint = f" It is {'an' if other[0] in 'aeiou' else 'a'} {other[:-1]} " + (
+            f"(quash_plugins.{base_of(other).__name__}): move the entry point {info.name!r} "
+            f"from group {GROUP_PREFIX + info.kind!r} to {GROUP_PREFIX + other!r} in the "
+            f"pyproject.toml of {info.dist!r} and reinstall it."
+            if info._loader is not None
+            else f"(quash_plugins.{base_of(other).__name__}): register it as {other!r}."
+        )
     raise PluginError(
         f"{_TITLE[info.kind]} plugin {info.name!r} from distribution {info.dist!r} "
         f"({info.target}) breaks the {info.kind[:-1]} interface: it lacks "

@@ -559,9 +559,10 @@ def misplaced_hint(
     kinds: str | list[str] | None = None, names: list[str] | None = None, dist: str | None = None
 ) -> str:
     """For a selection that matched no plugin: the entry points it would match that sit
-    in a group quash-plugins does not read (``quash_plugins.encoder``...), each with the
-    group to move it to; else an empty string. A typo in the group is otherwise reported
-    as a plugin that is not installed."""
+    in a group quash-plugins does not read (``quash_plugins.encoder``...) or in another
+    kind's group (an encoder under ``quash_plugins.heuristics``), each with the group to
+    move it to; else an empty string. Either mistake is otherwise reported as a plugin
+    that is not installed."""
     if isinstance(kinds, str):
         kinds = [kinds]
     selected = [registry.normalize_kind(k) for k in kinds] if kinds else list(registry.KINDS)
@@ -572,6 +573,19 @@ def misplaced_hint(
         if (m.meant is None or m.meant in groups)
         and (names is None or m.name in names)
         and (dist is None or registry._same_dist(m.dist, dist))
+    ]
+    if names is None and dist is None:
+        return " ".join(found)
+    # registered, but as another kind (an encoder in quash_plugins.heuristics)
+    wanted = " or ".join(k[:-1] for k in selected)
+    found += [
+        f"Distribution {i.dist!r} registers {i.name!r} ({i.target}) as a {i.kind[:-1]}, "
+        f"in group {registry.GROUP_PREFIX + i.kind!r}: if it is meant as {wanted}, move "
+        f"it to {' or '.join(repr(registry.GROUP_PREFIX + k) for k in selected)}."
+        for i in registry.plugins()
+        if i.kind not in selected
+        and (names is None or i.name in names)
+        and (dist is None or registry._same_dist(i.dist, dist))
     ]
     return " ".join(found)
 

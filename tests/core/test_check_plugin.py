@@ -7,6 +7,8 @@ failure names the plugin and the check. A plugin the kit cannot build says what 
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 import pytest
 
@@ -212,3 +214,51 @@ def test_a_check_the_plugin_raises_in_names_the_plugin_and_the_check(tmp_path):
     finally:
         registry.unregister("encoders", "kit-needs-one-text", dist="lab-vlm")
         registry.unregister("encoders", "kit-crashes", dist="lab-vlm")
+
+
+def test_a_plugin_registered_as_another_kind_is_named_with_the_group_to_use(tmp_path, monkeypatch):
+    # An Encoder whose entry point its author put in quash_plugins.heuristics. Before:
+    # quash plugins said "it lacks expand. Subclass quash_plugins.Heuristic" (not the
+    # fix), and the kit that the encoder was not installed.
+    (tmp_path / "lab_vlm.py").write_text(
+        "from quash_plugins.testing import HashingEncoder\n\n\n"
+        "class LabEncoder(HashingEncoder):\n    name = 'lab-vlm'\n"
+    )
+    info = tmp_path / "lab_vlm-1.0.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: lab-vlm\nVersion: 1.0\n")
+    (info / "entry_points.txt").write_text(
+        "[quash_plugins.heuristics]\nlab-vlm = lab_vlm:LabEncoder\n"
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
+    registry.refresh()
+    try:
+        with pytest.raises(registry.PluginError) as err:
+            registry.load("heuristics", "lab-vlm")
+        message = str(err.value)
+        assert "It is an encoder (quash_plugins.Encoder)" in message
+        assert (
+            "move the entry point 'lab-vlm' from group 'quash_plugins.heuristics' to "
+            "'quash_plugins.encoders' in the pyproject.toml of 'lab-vlm'"
+        ) in message
+        assert "Subclass quash_plugins.Heuristic" not in message
+
+        with pytest.raises(ConfigError) as err:
+            check_plugin("encoders", "lab-vlm", tmp_path / "kit")
+        message = str(err.value)
+        assert "registers 'lab-vlm' (lab_vlm:LabEncoder) as a heuristic" in message
+        assert "move it to 'quash_plugins.encoders'" in message
+        with pytest.raises(
+            LookupError, match="as a heuristic, in group 'quash_plugins.heuristics'"
+        ):
+            parametrize_with_checks("encoders", dist="lab-vlm")
+    finally:
+        registry.refresh()
+        sys.modules.pop("lab_vlm", None)
+
+
+def test_registering_a_plugin_as_another_kind_says_which_kind_it_is():
+    from quash_plugins.testing import HashingEncoder
+
+    with pytest.raises(registry.PluginError, match="It is an encoder .*register it as 'encoders'"):
+        registry.register("heuristics", "lab-vlm", HashingEncoder, dist="lab-vlm")
