@@ -38,6 +38,31 @@ class TextCache(Protocol):
     def store(self, fingerprint: str, embeddings: dict[str, np.ndarray]) -> None: ...
 
 
+def encoder_dim(encoder: Encoder) -> int:
+    """``encoder.dim`` as a positive int; a plugin whose ``dim`` raises (a lazy model not
+    loaded yet) or is no positive whole number is an :class:`EncoderError` naming the
+    encoder, its module and distribution, not an anonymous crash."""
+    try:
+        value = encoder.dim
+        dim = int(value)
+        ok = dim > 0 and dim == value
+    except QuashError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - named with the encoder that raised it
+        value, ok, error = None, False, f"{type(exc).__name__}: {str(exc).rstrip('.')}"
+    else:
+        error = f"it is {value!r}, not a positive whole number"
+    if ok:
+        return dim
+    dist = distribution_of(type(encoder).__module__)
+    raise EncoderError(
+        f"Encoder {plugin_name(encoder)!r} ({type(encoder).__module__}"
+        f"{f', distribution {dist}' if dist else ''}) cannot give its embedding dimension "
+        f"'dim' ({error}). dim must be readable before any text is encoded: set it in "
+        "__init__ or compute it without the model (docs/plugins.md)."
+    ) from None
+
+
 def encode_texts(
     encoder: Encoder, texts: Sequence[str], cache: TextCache | None = None
 ) -> np.ndarray:
@@ -47,7 +72,7 @@ def encode_texts(
     from the cache reach the model, each once.
     """
     texts = list(texts)
-    dim = int(encoder.dim)
+    dim = encoder_dim(encoder)
     if not texts:
         return np.zeros((0, dim), dtype=np.float32)
     found: dict[str, np.ndarray] = {}

@@ -20,6 +20,7 @@ import numpy as np
 from ..core.errors import DimensionMismatchError, EmptyMapWarning, MapFormatError
 from ..core.interfaces import plugin_name, source_digest
 from ..core.once import first_time
+from ..core.text import encoder_dim
 from ..core.types import LatentMap
 
 log = logging.getLogger(__name__)
@@ -42,7 +43,7 @@ def check_encoder_fits(encoder: Any, lmap: LatentMap, config_source: Any = None)
 
     ``config_source``: the config file the encoder came from, named in the error.
     """
-    enc_dim = int(encoder.dim)
+    enc_dim = encoder_dim(encoder)
     if enc_dim == lmap.dim:
         warn_built_by(encoder, lmap)
         return

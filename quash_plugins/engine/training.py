@@ -8,7 +8,7 @@ import numpy as np
 
 from ..core.errors import ConfigError
 from ..core.interfaces import Encoder
-from ..core.text import TEMPLATE_MODES, ZERO_TOKEN, TextCache, encode_texts
+from ..core.text import TEMPLATE_MODES, ZERO_TOKEN, TextCache, encode_texts, encoder_dim
 from ..core.types import QuerySet
 
 #: Most distinct strings embedded in one encoder call by :func:`training_sets`; query
@@ -106,7 +106,7 @@ def _assemble(
     labels = np.asarray([1] * len(queryset.positives) + [0] * len(queryset.negatives))
     words = _words(queryset)
     reps = len(templates) if templates and mode == "all" else 1
-    dim = int(encoder.dim)
+    dim = encoder_dim(encoder)
     if not templates:
         W = _stack([table[s] for s in words], dim)
         texts_of = {s: [s] for s in words}

@@ -503,3 +503,47 @@ def test_a_built_in_encoder_hashes_its_own_subpackage_not_the_whole_project(monk
     assert interfaces.digest_package("my_plugin.nets.clip") == "my_plugin"
     assert interfaces.digest_package("quash_plugins.viewer._rerun") == "quash_plugins.viewer"
     assert interfaces.digest_package("quash_plugins.main") is None  # its module file
+
+
+class _Lazy(_Seeded):
+    """A plugin whose dim reads a model it loads on first encode (a common mistake)."""
+
+    name = "lazy"
+    _model = None
+
+    @property
+    def dim(self) -> int:
+        return self._model.dim
+
+
+class _Fractional(_Seeded):
+    name = "fractional"
+
+    @property
+    def dim(self) -> float:
+        return 8.5
+
+
+@pytest.mark.parametrize(("cls", "why"), [(_Lazy, "AttributeError"), (_Fractional, "8.5")])
+def test_an_encoder_whose_dim_fails_is_named_wherever_dim_is_read(cls, why):
+    """quash query and make-scene said "unexpected error: AttributeError: 'NoneType' object
+    has no attribute 'dim'" for a lazy plugin, naming no encoder; each place that reads dim
+    now names the encoder, its module and the fix."""
+    from quash_plugins import LatentMap
+    from quash_plugins.core.errors import EncoderError
+    from quash_plugins.core.text import encode_texts, encoder_dim
+    from quash_plugins.engine.map_fit import check_encoder_fits
+
+    enc = cls()
+    lmap = LatentMap(embeddings=np.eye(3, 8, dtype=np.float32))
+    for read in (
+        encoder_dim,
+        lambda e: encode_texts(e, ["chair"]),
+        lambda e: check_encoder_fits(e, lmap),
+    ):
+        with pytest.raises(EncoderError) as info:
+            read(enc)
+        text = str(info.value)
+        assert f"Encoder '{cls.name}'" in text and __name__ in text and why in text, text
+        assert "set it in __init__" in text
+    assert encoder_dim(_Seeded()) == 8
