@@ -284,6 +284,10 @@ def check_text_embeddings(
     dtype = getattr(emb, "dtype", None)
     if dtype is not None and dtype != np.float32:
         _contract_warning(who, "dtype", f"returns {dtype} embeddings; converted to float32")
+    elif dtype is None and isinstance(emb, (list, tuple)):
+        _contract_warning(
+            who, "container", f"returns a {kind} of rows, not a numpy array; converted to one"
+        )
     try:
         arr = np.asarray(emb, dtype=np.float32)
     except (TypeError, ValueError) as exc:

@@ -249,6 +249,26 @@ def test_a_torch_tensor_is_converted_with_a_warning_and_failed_by_the_kit(caplog
         check_encoder(enc, tmp_path)
 
 
+def test_a_list_of_rows_is_converted_with_a_warning_as_a_tensor_is(caplog):
+    """``return rows.tolist()`` was taken silently, while float64, rows off unit norm and
+    tensors each get a warning (and the kit fails all four)."""
+    from quash_plugins.core import once
+    from quash_plugins.core.text import encode_texts
+
+    class Listed(_PrivateSeed):
+        name = "listed"
+
+        def encode_text(self, texts):
+            return super().encode_text(texts).tolist()
+
+    once.forget("encoder-contract")
+    with caplog.at_level("WARNING", logger="quash_plugins.core.interfaces"):
+        got = encode_texts(Listed(), ["chair", "sofa"], None)
+    np.testing.assert_allclose(got, _PrivateSeed().encode_text(["chair", "sofa"]), atol=1e-6)
+    warned = [r.getMessage() for r in caplog.records]
+    assert any("'listed' returns a builtins.list of rows, not a numpy array" in m for m in warned)
+
+
 def test_rows_that_are_not_an_array_name_the_encoder():
     from quash_plugins.core.errors import EncoderError
     from quash_plugins.core.text import encode_texts
