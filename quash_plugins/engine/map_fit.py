@@ -131,6 +131,15 @@ def warn_built_by(encoder: Any, lmap: LatentMap) -> None:
                 "fingerprint hashes its package's .py files, so any edit since the map was "
                 "built counts"
             )
+        else:
+            from ..core.registry import distribution_of
+
+            release = distribution_of(type(encoder).__module__)
+            if release is not None and not type(encoder).__module__.startswith("quash_plugins"):
+                differs += (
+                    f", or another release of its distribution (now {release}): the "
+                    "fingerprint covers the version, so a map built before an upgrade counts"
+                )
     else:
         differs = f"this config's encoder is {name!r} ({ours})"
     log.warning(

@@ -184,6 +184,20 @@ def test_the_warning_says_an_edit_counts_for_an_encoder_whose_source_is_hashed(c
     with caplog.at_level("WARNING", logger="quash_plugins.engine.map_fit"):
         map_fit.check_encoder_fits(enc, lmap)
     assert len(warned()) == 1 and "editable install" not in warned()[0]
+    assert "another release" not in warned()[0]  # the built-in: the package's own version
+    # A released third-party plugin: upgrading it changes the fingerprint, and says so
+    from quash_plugins.core import registry
+
+    class Plugin(HashingEncoder):
+        pass
+
+    Plugin.__module__ = "acme_encoders.hashing"
+    monkeypatch.setattr(registry, "distribution_of", lambda module: "acme-encoders==0.1.1")
+    caplog.clear()
+    once.forget("built-by")
+    with caplog.at_level("WARNING", logger="quash_plugins.engine.map_fit"):
+        map_fit.check_encoder_fits(Plugin(16), lmap)
+    assert "another release of its distribution (now acme-encoders==0.1.1)" in warned()[0]
 
 
 def test_a_plugin_that_shadows_the_maps_encoder_is_named_as_the_config_names_it(tmp_path, caplog):
