@@ -143,6 +143,12 @@ def plan_queries(
     valid = valid_items(labels, names, exclude)
     if not valid.any():
         where = lmap.source.get("path", "the map")
+        if labels.size == 0:
+            raise QuashError(
+                f"{where}: the map has no items, so there is nothing to score. Give a map "
+                "with items and their 'labels' (quash make-scene writes one); check that "
+                "the map was written after its items were added."
+            )
         why = (
             "every item's label is negative (unlabelled)"
             if not (labels >= 0).any()
@@ -158,6 +164,7 @@ def plan_queries(
         if valid.any()
         else np.zeros(len(names), int)
     )
+    given_queries = queries is not None
     if queries is None:
         queries = [n for i, n in enumerate(names) if counts[i] > 0 and n not in set(exclude)]
     gt_of = match_labels(parse_queries(queries), names, absent=absent, source=query_file)
@@ -181,6 +188,13 @@ def plan_queries(
             ", ".join(unknown_here),
         )
     if not presence and not absence:
+        if given_queries:  # an empty query list or file, not the map's labels
+            where = f"{query_file} holds" if query_file else "the query list holds"
+            raise QuashError(
+                f"No query to evaluate: {where} no present and no absent query. List "
+                "labels or {text: label} items under 'present' and texts under 'absent', "
+                "or leave the queries out to score every label of the map."
+            )
         raise QuashError("No query to evaluate: the map has no label left after --exclude.")
     return labels, valid, gt_of, presence, absence
 

@@ -73,3 +73,18 @@ def test_the_mean_always_holds_every_metric():
     one = {"precision": 1.0, "recall": 0.5, "f1": 2 / 3, "iou": 0.5, "ap": None}
     mean = macro_mean({"chair": one})
     assert set(mean) == {*METRICS, *RANKING} and mean["ap"] is None and mean["inv_rank"] is None
+
+
+def test_a_map_with_no_items_says_so_not_that_its_items_are_unlabelled(tmp_path):
+    """An empty map (0 items) was refused as 'every item's label is negative
+    (unlabelled)' with the advice of fewer --exclude labels; it says the map is empty."""
+    empty = LatentMap(
+        np.zeros((0, 4), np.float32), labels=np.zeros(0, int), label_names=["bed", "sofa"]
+    )
+    path = write_npz_map(empty, tmp_path / "m.npz")
+    q = Quash.from_config({"encoder": {"name": "table", "table": {"bed": [1, 0, 0, 0]}}})
+    with pytest.raises(QuashError) as err:
+        evaluate(str(path), [q], queries=["bed"])
+    msg = str(err.value)
+    assert str(path) in msg and "has no items" in msg
+    assert "negative" not in msg and "--exclude" not in msg

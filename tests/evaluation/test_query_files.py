@@ -335,3 +335,18 @@ def test_malformed_text_label_items_are_refused_and_named(items, message):
 
     with pytest.raises(QuashError, match=message):
         parse_queries(items)
+
+
+def test_a_query_file_with_no_query_names_the_file_not_the_maps_labels(tmp_path, capsys):
+    """A query file whose 'present' and 'absent' are empty was refused as 'the map has no
+    label left after --exclude', blaming the map; the error names the file and the fix."""
+    from quash_plugins.adapters import write_npz_map
+
+    lmap, _ = _robot_map_and_peer()
+    path = write_npz_map(lmap, tmp_path / "m.npz")
+    f = tmp_path / "q.yaml"
+    f.write_text("present: {}\nabsent: []\n")
+    assert main(["eval", str(path), "--queries-file", str(f)]) != 0
+    err = " ".join(capsys.readouterr().err.split())
+    assert f"{f} holds no present and no absent query" in err
+    assert "--exclude" not in err
