@@ -155,6 +155,21 @@ def bench_configs(
     return tables
 
 
+def _check_taxonomy(taxonomy: str) -> None:
+    """Refuse, before any table, a ``--taxonomy`` file that is not ``{label: [sub-class,
+    ...]}`` (a query file given by mistake), naming the file and the fix."""
+    from ..heuristics._taxonomy import load_taxonomy
+
+    try:
+        load_taxonomy(str(taxonomy))
+    except QuashError as exc:
+        raise QuashError(
+            f"--taxonomy {taxonomy} is not a taxonomy: {str(exc).splitlines()[0]} A "
+            "taxonomy is YAML {label: [sub-class, ...]} (quash make-scene writes "
+            "SCENE.taxonomy.yaml beside the map; SCENE.queries.yaml is a query file)."
+        ) from exc
+
+
 def run_bench(
     source: Any,
     taxonomy: str | None,
@@ -174,6 +189,8 @@ def run_bench(
     from ..engine.pipeline import Quash
 
     out = Path(out)
+    if taxonomy:  # not one: every taxonomy row would be skipped with the same note
+        _check_taxonomy(taxonomy)
     all_cfgs = bench_configs(taxonomy, encoder, llm)
     overrides = dict(overrides or {})
     lmap = Quash.from_config(all_cfgs["prompt"][1], **overrides).read_map(source)

@@ -216,6 +216,21 @@ def test_bench_refuses_a_query_list_before_any_table(scene, tmp_path, capsys, ar
     assert not (tmp_path / "o").exists()
 
 
+def test_a_taxonomy_that_is_a_query_file_is_refused_before_any_table(scene, tmp_path, capsys):
+    """make-scene's SCENE.queries.yaml given as --taxonomy: every taxonomy row was
+    'skipped' with the same note and bench exited 0; it is refused, naming the file."""
+    queries = scene / "scene.queries.yaml"
+    code = main(
+        ["bench", str(scene / "scene.npz"), "--out", str(tmp_path / "o")]
+        + ["--taxonomy", str(queries), "--tables", "classifiers"]
+    )
+    assert code != 0
+    err = " ".join(capsys.readouterr().err.split())
+    assert f"--taxonomy {queries} is not a taxonomy" in err
+    assert "{label: [sub-class, ...]}" in err
+    assert not (tmp_path / "o").exists()
+
+
 def test_llm_rows_read_the_cache_of_the_endpoint_given(scene, tmp_path, capsys):
     """The llm sets are cached by endpoint and model: a cache filled from Ollama's port
     (as lseg:quash-llm does) is read with --llm-base-url; with --llm-model alone the
