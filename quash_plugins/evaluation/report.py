@@ -149,15 +149,17 @@ def plan_queries(
                 "with items and their 'labels' (quash make-scene writes one); check that "
                 "the map was written after its items were added."
             )
+        unlabelled = not (labels >= 0).any()
         why = (
             "every item's label is negative (unlabelled)"
-            if not (labels >= 0).any()
+            if unlabelled
             else f"every labelled item has an excluded label ({', '.join(exclude)})"
         )
         raise QuashError(
             f"{where}: no item can be scored: {why}. With no ground truth, a query that "
             "matches nothing would count as a right absence. Give a map whose 'labels' "
-            "name its items (quash make-scene writes one), or fewer --exclude labels."
+            "name its items (quash make-scene writes one)"
+            + ("." if unlabelled else ", or exclude fewer labels (quash eval --exclude).")
         )
     counts = (
         np.bincount(labels[valid], minlength=len(names))
