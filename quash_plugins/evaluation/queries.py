@@ -213,6 +213,15 @@ def read_query_file(
                     f"'absent' (and make-scene's {', '.join(QUERY_FILE_INFO)}).{hint}"
                 )
         present, absent = data.get("present") or [], data.get("absent") or []
+    elif isinstance(data, dict) and data and all(isinstance(v, list) for v in data.values()):
+        # every value a list: {label: [sub-classes]}, a taxonomy given as the query file
+        raise QuashError(
+            f"{path}: this is a taxonomy ({{label: [sub-class, ...]}}, as make-scene's "
+            "SCENE.taxonomy.yaml), not a query file. Give the query file (make-scene's "
+            "SCENE.queries.yaml or SCENE.open-queries.yaml: {present: {text: label} or "
+            "[labels], absent: [texts]}); a taxonomy goes in the config's heuristic: "
+            "{name: taxonomy, file: ...}."
+        )
     elif isinstance(data, (dict, list)):
         present, absent = data, []
     else:

@@ -16,10 +16,24 @@ from ._data import read_mapping
 log = logging.getLogger(__name__)
 
 
+#: The keys of a query file (present, absent and evaluation.queries.QUERY_FILE_INFO, what
+#: make-scene adds): a mapping of only these is a query file given for a taxonomy.
+_QUERY_FILE_KEYS = frozenset(
+    {"present", "absent", "kind", "room_types", "options", "class_table_sha256"}
+    | {"absent_lookalikes"}
+)
+
+
 def load_taxonomy(spec: str | dict | None) -> dict[str, list[str]]:
     """``{label: [sub-class, ...]}`` from a YAML file or a dict; ``null`` means no sub-classes."""
     data = read_mapping(spec, None, "taxonomy")
     where = spec if isinstance(spec, str) else "the taxonomy"
+    if data and set(data) <= _QUERY_FILE_KEYS and ({"present", "absent"} & set(data)):
+        raise ConfigError(
+            f"{where}: this is a query file ({{present: ..., absent: [...]}}, as make-scene's "
+            "SCENE.queries.yaml), not a taxonomy ({label: [sub-class, ...]}, make-scene's "
+            "SCENE.taxonomy.yaml)."
+        )
     out: dict[str, list[str]] = {}
     for label, subs in data.items():
         if subs is None:

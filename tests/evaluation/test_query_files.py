@@ -43,6 +43,11 @@ def test_a_query_given_twice_with_two_labels_is_refused():
             r"q\.yaml: 'absent' is 'a giraffe'.*\[a giraffe\]",
         ),
         ("present: chair\nabsent: [a giraffe]\n", r"q\.yaml: 'present' is 'chair'; write a list"),
+        # make-scene's taxonomy given as the query file: said so, not 'not by an index'
+        (
+            "bed: [bunk bed, cot]\nsofa: [couch, settee]\n",
+            r"q\.yaml: this is a taxonomy .*not a query file.*SCENE\.queries\.yaml",
+        ),
     ],
 )
 def test_query_file_mistakes_name_the_file_and_the_query(tmp_path, text, message):
@@ -350,3 +355,21 @@ def test_a_query_file_with_no_query_names_the_file_not_the_maps_labels(tmp_path,
     err = " ".join(capsys.readouterr().err.split())
     assert f"{f} holds no present and no absent query" in err
     assert "--exclude" not in err
+
+
+def test_a_query_file_given_as_a_taxonomy_is_named_as_such(tmp_path):
+    """A query file holding only present: [...] and absent: [...] loaded as a taxonomy
+    with the labels 'present' and 'absent' (quash bench --taxonomy, heuristic file:)."""
+    from quash_plugins.core.errors import ConfigError
+    from quash_plugins.evaluation.queries import QUERY_FILE_INFO
+    from quash_plugins.heuristics._taxonomy import _QUERY_FILE_KEYS, load_taxonomy
+
+    assert {"present", "absent", *QUERY_FILE_INFO} == _QUERY_FILE_KEYS  # kept in step
+    f = tmp_path / "s.queries.yaml"
+    f.write_text("present: [bed, sofa]\nabsent: [piano]\nkind: closed\n")
+    with pytest.raises(ConfigError, match=r"s\.queries\.yaml: this is a query file"):
+        load_taxonomy(str(f))
+    # a taxonomy that happens to have a label 'present' beside others still loads
+    g = tmp_path / "t.yaml"
+    g.write_text("present: [gift]\nbed: [cot]\n")
+    assert load_taxonomy(str(g)) == {"present": ["gift"], "bed": ["cot"]}
