@@ -158,10 +158,10 @@ def bench_configs(
 def _check_taxonomy(taxonomy: str) -> None:
     """Refuse, before any table, a ``--taxonomy`` file that is not ``{label: [sub-class,
     ...]}`` (a query file given by mistake), naming the file and the fix."""
-    from ..heuristics._taxonomy import load_taxonomy
+    from ..core import registry
 
-    try:
-        load_taxonomy(str(taxonomy))
+    try:  # the taxonomy heuristic reads its file when it is built
+        registry.create("heuristics", "taxonomy", file=str(taxonomy))
     except QuashError as exc:
         raise QuashError(
             f"--taxonomy {taxonomy} is not a taxonomy: {str(exc).splitlines()[0]} A "
