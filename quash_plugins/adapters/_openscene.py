@@ -43,6 +43,7 @@ import numpy as np
 
 from ..core.errors import MapFormatError, QuashError
 from ..core.interfaces import MapAdapter
+from ..core.once import first_time
 from ..core.types import LatentMap, record_inputs
 from ._rows import MaskedRows, colors_to_uint8, scan_finite, should_scan
 from ._torch_errors import first_line, is_weights_only_error, weights_only_refusal
@@ -546,8 +547,6 @@ def read_points(path: Path) -> tuple[np.ndarray, np.ndarray | None, np.ndarray |
 #: Colours this far beyond [-1, 1] are no overshoot of OpenScene's convention but another
 #: convention (0-255: up to 255; the limit is the one ``colors_to_uint8`` uses for 0-1).
 COLOR_LIMIT = 1.5
-#: ``(file, field)`` pairs already warned about in this process.
-_warned_colors: set[tuple[str, str]] = set()
 
 
 def pth_colors(raw: np.ndarray, path: Path) -> np.ndarray:
@@ -583,9 +582,7 @@ def pth_colors(raw: np.ndarray, path: Path) -> np.ndarray:
             ".ply, colours 0-1, or a .npy of coordinates)."
         )
     out = int(np.count_nonzero(np.abs(values) > 1.0 + 1e-6))
-    key = (str(path), "colors")
-    if out and key not in _warned_colors:
-        _warned_colors.add(key)
+    if out and first_time(("openscene-colors", str(path))):
         log.warning(
             "%s: field 'colors' has %d of %d values outside OpenScene's [-1, 1] (from %.4g "
             "to %.4g); they are clipped to the nearest colour",

@@ -113,9 +113,10 @@ def check_no_other_maps(source: Any, chosen: str, limit: int = 256) -> None:
     (``suffixes``: ``.npz``, ``.zarr``...) and which that adapter's ``sniff`` accepts
     (a results file or an unrelated archive is no map), or a file named as another
     adapter's ``file_names`` say and accepted by it (OpenScene's ``<scene>_<n>.pt``, a
-    VLMaps ``grid_lseg_1.npy``). ``chosen``'s own files (a frame it reads) do not count. The message names the folder, both candidates and how to
-    choose: ``--adapter NAME`` for the folder, or the file's path. At most ``limit``
-    entries of the folder are looked at (a debug line says when more are skipped).
+    VLMaps ``grid_lseg_1.npy``). ``chosen``'s own files (a frame it reads) do not count.
+    The message names the folder, both candidates and how to choose: ``--adapter NAME``
+    for the folder, or the file's path. At most ``limit`` entries of the folder are
+    looked at (a debug line says when more are skipped).
     """
     if not isinstance(source, (str, Path)) or not Path(source).is_dir():
         return

@@ -246,9 +246,7 @@ def _not_callable_hint(info: PluginInfo, obj: Any) -> str:
     module = info.target.partition(":")[0]
     if inspect.ismodule(obj):
         what = f"It names the module {obj.__name__!r}"
-        from . import interfaces
-
-        base = getattr(interfaces, "MapAdapter" if info.kind == "adapters" else _TITLE[info.kind])
+        base = _base_of(info.kind)
         classes = sorted(
             n
             for n, v in vars(obj).items()
@@ -269,6 +267,13 @@ def _not_callable_hint(info: PluginInfo, obj: Any) -> str:
         f"{info.dist!r} (its pyproject.toml) must name the class, or a function that "
         f'returns an instance: {info.name} = "{target}".'
     )
+
+
+def _base_of(kind: str) -> type:
+    """The interface class of plugin ``kind`` (``quash_plugins.Encoder`` for encoders)."""
+    from . import interfaces
+
+    return getattr(interfaces, "MapAdapter" if kind == "adapters" else _TITLE[kind])
 
 
 def _check_dim(info: PluginInfo, cls: type) -> None:
@@ -292,24 +297,19 @@ def _check_interface(info: PluginInfo, obj: Any) -> None:
     missing = [a for a in _BASES[info.kind] if not hasattr(obj, a)]
     if not missing:
         return
-    from . import interfaces
-
-    def base_of(kind: str) -> type:
-        return getattr(interfaces, "MapAdapter" if kind == "adapters" else _TITLE[kind])
-
-    base = base_of(info.kind)
+    base = _base_of(info.kind)
     of = obj if inspect.isclass(obj) else type(obj)
     hint = "" if issubclass(of, base) else f" Subclass quash_plugins.{base.__name__}."
     # Another kind's plugin (an Encoder under quash_plugins.heuristics): the entry point
     # is in the wrong group, and subclassing this kind's base is not the fix.
-    other = next((k for k in KINDS if k != info.kind and issubclass(of, base_of(k))), None)
+    other = next((k for k in KINDS if k != info.kind and issubclass(of, _base_of(k))), None)
     if other is not None and not issubclass(of, base):
         hint = f" It is {'an' if other[0] in 'aeiou' else 'a'} {other[:-1]} " + (
-            f"(quash_plugins.{base_of(other).__name__}): move the entry point {info.name!r} "
+            f"(quash_plugins.{_base_of(other).__name__}): move the entry point {info.name!r} "
             f"from group {GROUP_PREFIX + info.kind!r} to {GROUP_PREFIX + other!r} in the "
             f"pyproject.toml of {info.dist!r} and reinstall it."
             if info._loader is not None
-            else f"(quash_plugins.{base_of(other).__name__}): register it as {other!r}."
+            else f"(quash_plugins.{_base_of(other).__name__}): register it as {other!r}."
         )
     raise PluginError(
         f"{_TITLE[info.kind]} plugin {info.name!r} from distribution {info.dist!r} "
@@ -405,42 +405,36 @@ def info(kind: str, name: str) -> PluginInfo:
     return _resolve(kind, name)
 
 
-def accepted_params(obj: Any) -> list[str] | None:
-    """Keyword parameters a plugin accepts, or None when it takes ``**kwargs``."""
+def _init_params(obj: Any) -> list[inspect.Parameter] | None:
+    """The parameters a plugin (a class, or a factory) is built with, ``self`` left out;
+    ``[]`` for a class without a constructor of its own, None when its signature cannot
+    be read."""
     if inspect.isclass(obj) and obj.__init__ is object.__init__:
         return []  # no constructor of its own: it takes no parameters
     target = obj.__init__ if inspect.isclass(obj) else obj
     try:
-        sig = inspect.signature(target)
+        params = list(inspect.signature(target).parameters.values())
     except (TypeError, ValueError):
         return None
-    names = []
-    for p in sig.parameters.values():
-        if p.kind is p.VAR_KEYWORD:
-            return None
-        if p.name != "self" and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY):
-            names.append(p.name)
-    return names
+    return params[1:] if inspect.isclass(obj) and params else params
+
+
+def _by_keyword(p: inspect.Parameter) -> bool:
+    return p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)
+
+
+def accepted_params(obj: Any) -> list[str] | None:
+    """Keyword parameters a plugin accepts, or None when it takes ``**kwargs``."""
+    params = _init_params(obj)
+    if params is None or any(p.kind is p.VAR_KEYWORD for p in params):
+        return None
+    return [p.name for p in params if p.name != "self" and _by_keyword(p)]
 
 
 def required_params(obj: Any) -> list[str]:
     """Keyword parameters a plugin cannot be built without (no default); [] when its
     signature cannot be read."""
-    if inspect.isclass(obj) and obj.__init__ is object.__init__:
-        return []
-    target = obj.__init__ if inspect.isclass(obj) else obj
-    try:
-        sig = inspect.signature(target)
-    except (TypeError, ValueError):
-        return []
-    params = list(sig.parameters.values())
-    if inspect.isclass(obj) and params:
-        params = params[1:]  # self
-    return [
-        p.name
-        for p in params
-        if p.default is p.empty and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)
-    ]
+    return [p.name for p in _init_params(obj) or () if p.default is p.empty and _by_keyword(p)]
 
 
 def create(kind: str, name: str, /, **params: Any) -> Any:

@@ -38,6 +38,13 @@ class TextCache(Protocol):
     def store(self, fingerprint: str, embeddings: dict[str, np.ndarray]) -> None: ...
 
 
+def _origin(encoder: Encoder) -> str:
+    """Where ``encoder``'s class comes from, for messages: its module and, when installed
+    by one, its distribution (``acme.enc, distribution acme-encoders==0.1``)."""
+    dist = distribution_of(type(encoder).__module__)
+    return type(encoder).__module__ + (f", distribution {dist}" if dist else "")
+
+
 def encoder_dim(encoder: Encoder) -> int:
     """``encoder.dim`` as a positive int; a plugin whose ``dim`` raises (a lazy model not
     loaded yet) or is no positive whole number is an :class:`EncoderError` naming the
@@ -54,10 +61,8 @@ def encoder_dim(encoder: Encoder) -> int:
         error = f"it is {value!r}, not a positive whole number"
     if ok:
         return dim
-    dist = distribution_of(type(encoder).__module__)
     raise EncoderError(
-        f"Encoder {plugin_name(encoder)!r} ({type(encoder).__module__}"
-        f"{f', distribution {dist}' if dist else ''}) cannot give its embedding dimension "
+        f"Encoder {plugin_name(encoder)!r} ({_origin(encoder)}) cannot give its embedding dimension "
         f"'dim' ({error}). dim must be readable before any text is encoded: set it in "
         "__init__ or compute it without the model (docs/plugins.md)."
     ) from None
@@ -94,22 +99,19 @@ def encode_texts(
                     f"Encoder {plugin_name(encoder)!r} ({type(encoder).__module__}) failed to encode "
                     f"({type(exc).__name__}: {exc}): it {install_hint(module)}"
                 ) from exc
-            dist = distribution_of(type(encoder).__module__)
             raise EncoderError(
-                f"Encoder {plugin_name(encoder)!r} ({type(encoder).__module__}"
-                f"{f', distribution {dist}' if dist else ''}) failed to encode "
+                f"Encoder {plugin_name(encoder)!r} ({_origin(encoder)}) failed to encode "
                 f"{len(missing)} strings: {type(exc).__name__}: {str(exc).rstrip('.')}. "
                 "Fix the encoder or its parameters (the config's 'encoder:' section); "
                 "--debug shows the traceback."
             ) from exc
-        dist = distribution_of(type(encoder).__module__)
         emb = check_text_embeddings(
             raw,
             missing,
             dim,
             plugin_name(encoder),
             warn_norm=getattr(encoder, "normalize", True) is not False,
-            origin=type(encoder).__module__ + (f", distribution {dist}" if dist else ""),
+            origin=_origin(encoder),
         )
         new = dict(zip(missing, emb))
         found.update(new)

@@ -192,6 +192,10 @@ def option_source(
     )
 
 
+#: Per live map object, the adapter options already warned about.
+_ADAPTER_WARNED: weakref.WeakKeyDictionary[Any, set] = weakref.WeakKeyDictionary()
+
+
 def warn_unused_adapter_options(
     spec: Any, lmap: LatentMap, obj: Any, read_options: dict[str, Any]
 ) -> None:
@@ -226,10 +230,6 @@ def warn_unused_adapter_options(
             has,
             key,
         )
-
-
-#: Per live map object, the adapter options already warned about.
-_ADAPTER_WARNED: weakref.WeakKeyDictionary[Any, set] = weakref.WeakKeyDictionary()
 
 
 def _same(a: Any, b: Any) -> bool:
