@@ -63,12 +63,23 @@ class EvalLogging:
             at yet (0, 1, 2... in order of first appearance when no result was logged);
             the same query string gets the same step for every config.
         """
-        rr, rec = self.rr, self.recording
+        rec = self.recording
         if isinstance(step_or_query, str):
             step = self._step_of(step_or_query)
         else:
             step = int(step_or_query)
         rec.set_time("query", sequence=step)
+        try:
+            self._log_scalars_at_step(str(config_name), metrics, step, step_or_query)
+        finally:  # the caller's recording: what it logs next is at no query step
+            rec.disable_timeline("query")
+        self._layout_changed()
+
+    def _log_scalars_at_step(
+        self, config_name: str, metrics: dict[str, Any], step: int, step_or_query: int | str
+    ) -> None:
+        """:meth:`log_eval_scalars` once the ``query`` time is set."""
+        rr, rec = self.rr, self.recording
         if isinstance(step_or_query, str):
             self._list_query(step, step_or_query, "log_eval_scalars")
         cfg = self._config_slug(str(config_name))
@@ -94,7 +105,6 @@ class EvalLogging:
             rec.log(path, rr.Scalars([v]))
             self._eval_metrics.setdefault(metric, None)
             self._eval_last = max(self._eval_last, step)
-        self._layout_changed()
 
     def _step_of(self, query: str) -> int:
         """The step of a query string: where a result (or an earlier call) named it, else
@@ -132,9 +142,12 @@ class EvalLogging:
         steps = [*queries, *absent]
         for i, q in enumerate(steps):  # a step named for another query is refused first
             self._check_step(i, q, "log_evaluation")
-        for i, q in enumerate(steps):
-            self.recording.set_time("query", sequence=i)
-            self._list_query(i, q, "log_evaluation")
+        try:
+            for i, q in enumerate(steps):
+                self.recording.set_time("query", sequence=i)
+                self._list_query(i, q, "log_evaluation")
+        finally:  # the caller's recording: what it logs next is at no query step
+            self.recording.disable_timeline("query")
         for c in configs:
             per_query = c.get("per_query") or {}
             for i, q in enumerate(queries):

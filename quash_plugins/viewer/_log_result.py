@@ -57,7 +57,7 @@ class ResultLogging:
         raises :class:`QuashError` naming both and a free index, before anything of it is
         logged. The map must be the one this logger logged (:meth:`log_map`).
         """
-        rr, rec = self.rr, self.recording
+        rec = self.recording
         self.log_map(lmap)  # nothing when this map is logged already; another is refused
         if len(result.mask) != lmap.n:
             raise QuashError(
@@ -69,6 +69,17 @@ class ResultLogging:
         c = self._config_slug(name)
         state = self._configs.setdefault(c, _ConfigState(name))
         rec.set_time("query", sequence=index)
+        try:
+            self._log_result_at_step(lmap, result, index, c, state)
+        finally:  # the caller's recording: what it logs next is at no query step
+            rec.disable_timeline("query")
+        self._layout_changed()
+
+    def _log_result_at_step(
+        self, lmap: LatentMap, result: QueryResult, index: int, c: str, state: _ConfigState
+    ) -> None:
+        """:meth:`log_result` once the ``query`` time is set."""
+        rr, rec = self.rr, self.recording
         self._list_query(index, result.query)
         notes = list(self._notes)
         if self._has_world:
@@ -88,7 +99,6 @@ class ResultLogging:
             self._log_pixel_instances(lmap, result, base, frame.frame_id)
         text = queryset_markdown(lmap, result, index, notes)
         rec.log(f"queries/{c}", rr.TextDocument(text, media_type=rr.MediaType.MARKDOWN))
-        self._layout_changed()
 
     def _check_step(self, step: int, query: str, caller: str) -> None:
         """Refuse a second query at ``step``: a step of the ``query`` timeline is one

@@ -462,6 +462,39 @@ def test_never_touches_the_global_recording(tmp_path):
     assert logger.recording.get_application_id() == "mine"
 
 
+def test_what_the_caller_logs_afterwards_is_at_no_query_step(tmp_path):
+    """The recording is the caller's (a robot stack's): the logger's ``query`` time must
+    not stay set on it, or the robot's own data would be placed at the last query's step
+    (and hidden before it on the query timeline). The caller's own timelines stay set."""
+    lmap = voxel_map()
+    results = make_quash().query_many(lmap, ["chair", "sofa"])
+    out = tmp_path / "robot.rrd"
+    rec = rr.RecordingStream("my-robot")
+    rec.save(out)
+    rec.set_time("frame", sequence=7)
+    logger = RerunLogger(rec)
+    calls = {
+        "after_result": lambda: logger.log_result(lmap, results[1], index=1),
+        "after_scalars": lambda: logger.log_eval_scalars("m", {"f1": 0.5}, "chair"),
+        "after_evaluation": lambda: logger.log_evaluation(
+            [{"name": "m", "per_query": {"chair": {"f1": 1.0}}}], ["chair", "sofa"]
+        ),
+    }
+    for name, call in calls.items():
+        call()
+        rec.log(f"robot/{name}", rr.Points3D([[0.0, 0.0, 0.0]]))
+    logger.close()
+    rec.disconnect()
+    _, by_path = read_rrd(out)
+    for name in calls:
+        [chunk] = by_path[f"robot/{name}"]
+        times = chunk.to_record_batch().schema.names
+        assert "query" not in times, name
+        assert chunk.to_record_batch().column("frame").to_pylist() == [7], name
+    # the logger's own entities are still on the query timeline
+    assert [t for t, _ in rows(by_path["world/matches/quash"], "Boxes3D:centers")] == [1]
+
+
 def test_cli_query_rrd(tmp_path, capsys):
     from quash_plugins.adapters import write_npz_map
     from quash_plugins.cli.main import main
