@@ -344,6 +344,8 @@ def _convert(cls, key: str, value: Any, where: _Where, path) -> Any:
                 misspelt = misspelt_template_name(value["templates"])
                 if misspelt:  # a name, not a file: say so here, with the file and line
                     raise ConfigError(f"{where.at((key, 'templates'))}{misspelt}")
+        if key == "map_negatives" and isinstance(value.get("vocabulary"), str):
+            value = {**value, "vocabulary": _resolve_path(value["vocabulary"], path)}
         return dict(value)
     typ = {
         "name": str,
@@ -382,7 +384,8 @@ def _plugin_spec(key: str, value: Any, where: _Where, path) -> PluginSpec:
         )
     params = {str(k): v for k, v in value.items() if k != "name"}
     for k, v in list(params.items()):
-        if isinstance(v, str) and _is_path_key(k):
+        # unlisted: 'vocabulary' (the shipped list), a list or a file of names
+        if isinstance(v, str) and (_is_path_key(k) or (k == "unlisted" and v != "vocabulary")):
             params[k] = _resolve_path(v, path)
         elif isinstance(v, dict) and "name" in v:  # nested spec (combine, templates base)
             inner = _plugin_spec(k, v, where, path)

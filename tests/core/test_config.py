@@ -98,3 +98,34 @@ def test_an_adapters_points_file_is_resolved_against_the_config_folder(tmp_path)
     p.write_text("name: x\nadapter: {name: openscene, points: scene_vh_clean_2.pth}\n")
     cfg = QuashConfig.from_yaml(p)
     assert cfg.adapter.params["points"] == str((folder / "scene_vh_clean_2.pth").resolve())
+
+
+def test_unlisted_and_map_negatives_files_are_resolved_against_the_config_folder(
+    tmp_path, monkeypatch
+):
+    """A file of names given as a label list's ``unlisted`` or as ``map_negatives``'
+    ``vocabulary`` travels with its config, as docs/config.md says of every path (run from
+    another folder, both were looked up in the current folder: 'file not found')."""
+    from quash_plugins.core import registry
+
+    folder = tmp_path / "cfg"
+    folder.mkdir()
+    (folder / "names.txt").write_text("fireplace\npiano\n", encoding="utf-8")
+    p = folder / "c.yaml"
+    p.write_text(
+        "heuristic: {name: combine, synonyms: {name: taxonomy, unlisted: names.txt},\n"
+        "            antonyms: {name: label-list, unlisted: vocabulary}}\n"
+        "map_negatives: {n: 3, vocabulary: names.txt}\n"
+    )
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    cfg = QuashConfig.from_yaml(p)
+    names = str((folder / "names.txt").resolve())
+    assert cfg.map_negatives["vocabulary"] == names
+    assert cfg.heuristic.params["synonyms"]["unlisted"] == names
+    assert cfg.heuristic.params["antonyms"]["unlisted"] == "vocabulary"  # the shipped list
+    taxonomy = registry.create("heuristics", "taxonomy", unlisted=names)
+    assert taxonomy._unlisted == {"fireplace", "piano"}
+    again = QuashConfig.from_dict(cfg.to_dict())
+    assert again.map_negatives == cfg.map_negatives
