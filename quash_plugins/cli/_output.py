@@ -386,7 +386,7 @@ def timings_table(results: list[Any], max_columns: int = 6) -> Any:
 
     from ..core.types import escape_control
 
-    stages = [s for s in (*STAGES, "instances") if any(s in r.timings for r in results)]
+    stages = [s for s in (*STAGES, "presence", "instances") if any(s in r.timings for r in results)]
     label = {s: f"{s}*" if s in SHARED else s for s in stages}
     table = Table(
         title="time per stage (ms)",

@@ -59,6 +59,27 @@ def test_query_progress_never_passes_100_percent(tiny_world, capsys, monkeypatch
     assert re.search(r"done once for all the queries.*classify [\d.]+ ms for 2", out.out, re.S)
 
 
+def test_the_stage_table_shows_every_stage_the_query_timed(tiny_world, capsys):
+    """The presence check's time is in the query's total: its row was missing, so the
+    stages did not add up to the time column (the default config has the check on)."""
+    cfg = tiny_world["dir"] / "presence.yaml"
+    cfg.write_text(
+        tiny_world["config"].read_text().replace("name: vlmaps-contrast", "name: checked")
+        + "presence: {}\n"
+    )
+    from quash_plugins import Quash
+
+    [r] = Quash.from_config(cfg).query_many(tiny_world["map"], ["chair"])
+    stages = [s for s in r.timings if s != "total"]
+    assert "presence" in stages
+    code = main(["query", str(tiny_world["map"]), "chair", "-c", str(cfg)])
+    out = capsys.readouterr()
+    assert code == 0, out.err
+    table = out.out[out.out.index("time per stage (ms)") :]
+    for stage in stages:
+        assert re.search(rf"^\s*{stage}\*?\s+[\d.]+\s*$", table, re.M), (stage, table)
+
+
 WIDE = """# Report
 
 | query | vlmaps | conceptfusion | lerf | quash-taxonomy | quash-taxonomy-svm | quash-adjectives |
