@@ -415,9 +415,10 @@ def open_cache(setting: Any) -> Any:
 
     ``True`` opens the default on-disk :class:`TextEmbeddingCache`; ``False``/``None``
     turn caching off; a cache object is returned as it is. ``QUASH_NO_CACHE=1`` in the
-    environment turns every cache off.
+    environment turns every cache off (``0``, ``false``, ``no``, ``off`` or empty: not).
     """
-    if setting is None or setting is False or os.environ.get("QUASH_NO_CACHE"):
+    no_cache = os.environ.get("QUASH_NO_CACHE", "").strip().lower()
+    if setting is None or setting is False or no_cache not in ("", "0", "false", "no", "off"):
         return None
     if setting is True:
         return TextEmbeddingCache()

@@ -316,3 +316,19 @@ def test_a_query_of_more_than_a_thousand_characters_is_refused():
     assert check_query("x" * MAX_QUERY_CHARS)
     with pytest.raises(QuashError, match="characters long .*a query is a word or phrase"):
         check_query("chair " * 20_000)
+
+
+@pytest.mark.parametrize("value", ["1", "true", "yes", "0", "false", "no", "off", ""])
+def test_quash_no_cache_turns_the_cache_off_only_when_it_says_so(monkeypatch, tmp_path, value):
+    """docs/encoders.md: QUASH_NO_CACHE=1 turns the cache off; QUASH_NO_CACHE=0 (a user
+    turning it back on over an environment that sets it) also turned it off."""
+    from quash_plugins.engine.cache import open_cache
+
+    monkeypatch.setenv("QUASH_CACHE_DIR", str(tmp_path))
+    monkeypatch.setenv("QUASH_NO_CACHE", value)
+    cache = open_cache(True)
+    if value in ("1", "true", "yes"):
+        assert cache is None
+    else:
+        assert isinstance(cache, TextEmbeddingCache)
+        assert cache.directory == tmp_path / "text-embeddings"
