@@ -95,7 +95,7 @@ def run(args: argparse.Namespace) -> int:
     if viewer is not None:
         viewer.close()  # with --serve-web this serves until Ctrl-C or SIGTERM
     written = ["demo.md", "demo.json", "demo.png"] + (
-        ["demo.rrd"] if args.rrd and Path(args.rrd).parent == outdir else []
+        [Path(args.rrd).name] if args.rrd and Path(args.rrd).parent == outdir else []
     )
     out.print(
         f"wrote {', '.join(str(outdir / w) for w in written)} in {time.perf_counter() - t0:.1f} s"

@@ -106,6 +106,19 @@ def test_demo_tiny_end_to_end(demo):
 
 
 @pytest.mark.slow
+def test_demo_says_it_wrote_the_recording_it_wrote(tmp_path, monkeypatch, capsys):
+    """--rrd names the recording, in --out too: the last line named demo.rrd, a file
+    that was not written, instead of the one that was."""
+    monkeypatch.setenv("COLUMNS", "1000")  # one line, no path folded
+    out = tmp_path / "out"
+    assert main(["-q", "demo", "--tiny", "--out", str(out), "--rrd", str(out / "mine.rrd")]) == 0
+    [line] = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("wrote ")]
+    written = line.removeprefix("wrote ").rsplit(" in ", 1)[0].split(", ")
+    assert str(out / "mine.rrd") in written
+    assert written and all(Path(w).is_file() for w in written), line
+
+
+@pytest.mark.slow
 def test_demo_without_vlmaps_says_its_templates_at_info_and_in_the_json(demo):
     """The VLMaps peers' stand-in templates are expected on a machine without VLMaps: said
     at INFO, never as a warning, and demo.json says which list each method used."""
