@@ -148,6 +148,9 @@ def run(args: argparse.Namespace) -> int:
     lmap = quashes[0].read_map(args.map, adapter=args.adapter, **adapter_options(args))
     flags = ("--json", "--markdown", "--plot", "--rrd")
     check_map_inputs(lmap, [(f, getattr(args, f[2:], None)) for f in flags])
+    # Before the evaluation: a busy port is said before any work, and --serve-web's URL
+    # can be opened meanwhile (docs/rerun.md).
+    viewer = open_viewer(args, app_id="quash-eval")
     with (
         each_log_line_once(),
         progress(len(quashes), f"evaluating {len(quashes)} config(s)") as advance,
@@ -175,7 +178,6 @@ def run(args: argparse.Namespace) -> int:
         args.plot = None
     if args.plot:
         plot_precision_recall(report.configs, args.plot, title=f"quash eval: {args.map}")
-    viewer = open_viewer(args, app_id="quash-eval")
     if viewer is not None:
         viewer.log_evaluation(report.configs, report.queries, md, absent=report.absent)
     out = console()

@@ -110,6 +110,11 @@ def run(args: argparse.Namespace) -> int:
             "(quash convert --format openlex3d refuses it too); write --out RESULT.npz "
             "(masks_per_frame cuts its masks per frame).",
         )
+    # Before the queries: a busy port is said before any work, the map shows while they
+    # run, and --serve-web's URL can be opened meanwhile (docs/rerun.md).
+    viewer = open_viewer(args, app_id="quash-query")
+    if viewer is not None:
+        viewer.log_map(lmap)
     passes = f" ({quash.passes} passes)" if quash.passes > 1 else ""
     with progress(lmap.n * quash.passes, f"classifying {lmap.n} items{passes}") as advance:
         results = quash.query_many(lmap, args.queries, progress=advance)
@@ -125,9 +130,7 @@ def run(args: argparse.Namespace) -> int:
         write_results_npz(
             args.out, results, lmap=lmap, encoder=quash.encoder, config_file=cfg.source, up=up
         )
-    viewer = open_viewer(args, app_id="quash-query")
     if viewer is not None:
-        viewer.log_map(lmap)
         for i, r in enumerate(results):
             viewer.log_result(lmap, r, index=i)
     try:

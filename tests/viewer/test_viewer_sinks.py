@@ -295,3 +295,34 @@ def test_serve_web_on_an_address_the_machine_does_not_have_names_bind():
     said = str(refused.value)
     assert "--bind 192.0.2.99 is not an address of this machine" in said, said
     assert "--web-port" not in said and "--grpc-port" not in said
+
+
+@pytest.mark.parametrize("command", ["query", "eval"])
+def test_serve_web_refuses_a_busy_port_before_any_query_runs(
+    command, tmp_path, small_map, monkeypatch, capsys
+):
+    """The viewer opened only once every query had run: a busy --web-port was said after
+    that work (minutes on a real map), and --serve-web's URL, which docs/rerun.md says is
+    printed before the query runs so it can be opened meanwhile, came after it too."""
+    from quash_plugins.cli.main import main
+    from quash_plugins.engine.pipeline import Quash
+
+    map_path, cfg = small_map
+    ran = []
+    query_many = Quash.query_many
+
+    def counted(self, *args, **kwargs):
+        ran.append(args)
+        return query_many(self, *args, **kwargs)
+
+    monkeypatch.setattr(Quash, "query_many", counted)
+    queries = ["chair"] if command == "query" else ["--queries", "chair"]
+    with _listen_on("127.0.0.1") as other:
+        busy = other.getsockname()[1]
+        args = [command, str(map_path), *queries, "-c", str(cfg), "--serve-web"]
+        code = main([*args, "--web-port", str(busy), "--grpc-port", str(free_port())])
+    err = capsys.readouterr().err
+    assert code == 1, err
+    assert f"Port {busy} on 127.0.0.1 is in use" in err and "--web-port PORT" in err
+    assert not ran, "the queries ran before the busy port was said"
+    assert_no_tmp(tmp_path)
