@@ -12,6 +12,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from ._display import slugify
+from ._log_result import _same_query
 
 #: Colours of the configs' series in the evaluation plots (the same config has the same
 #: colour in every plot); a colour-blind-safe qualitative palette (Okabe-Ito).
@@ -110,7 +111,7 @@ class EvalLogging:
         """The step of a query string: where a result (or an earlier call) named it, else
         the first step no query is named at."""
         if query not in self._eval_steps:
-            named = [s for s, q in self._listed.items() if q == query]
+            named = [s for s, q in self._listed.items() if _same_query(q, query)]
             taken = set(self._listed) | set(self._eval_steps.values())
             self._eval_steps[query] = (
                 min(named) if named else next(s for s in range(len(taken) + 1) if s not in taken)

@@ -434,6 +434,28 @@ def test_eval_scalars_by_query_land_on_its_logged_step(tmp_path):
     assert rows(by_path["query_list"], "TextLog:text") == names
 
 
+def test_eval_scalars_by_the_query_as_given_land_on_its_result(tmp_path):
+    """The metrics of a query given as the user typed it (``"chair "``, ``"floor  lamp"``)
+    land where its result is, under the query's text as run: they went to a new step,
+    listed as another query."""
+    lmap = voxel_map()
+    given = ["chair ", " sofa"]
+    results = make_quash().query_many(lmap, given)
+    out = tmp_path / "q.rrd"
+    rec = rr.RecordingStream("quash-test")
+    rec.save(out)
+    with RerunLogger(rec) as logger:
+        for i, r in enumerate(results):
+            logger.log_result(lmap, r, index=i)
+        for q in given:
+            logger.log_eval_scalars("quash", {"f1": 0.5}, q)
+    rec.disconnect()
+    _, by_path = read_rrd(out)
+    assert [t for t, _ in rows(by_path["eval/f1/quash"], "Scalars:scalars")] == [0, 1]
+    listed = rows(by_path["query_list"], "TextLog:text")
+    assert listed == [(i, [r.query]) for i, r in enumerate(results)]
+
+
 def test_evaluation_alone_names_its_steps(tmp_path):
     """`quash eval --rrd` logs no results, only the report: its plots' x axis is the query
     step, so the query list must name the steps, as it does when results are logged."""
