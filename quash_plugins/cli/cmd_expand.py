@@ -37,6 +37,14 @@ def run(args: argparse.Namespace) -> int:
     lmap = quash.read_map(args.map) if args.map else None
     if lmap is not None:
         _warn_if_the_map_does_not_fit(quash, lmap)
+    elif cfg.map_negatives is not None:
+        import logging
+
+        # the set shown would lack the negatives quash query mines from its map
+        logging.getLogger(__name__).warning(
+            "map_negatives: mined from a map, and none was given: the negatives below lack "
+            "them (quash query adds them). Give --map MAP to see them."
+        )
     qs = quash.expand(args.query, lmap)
     if args.json:
         print_json(qs.to_dict())
