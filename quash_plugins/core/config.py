@@ -384,8 +384,13 @@ def _plugin_spec(key: str, value: Any, where: _Where, path) -> PluginSpec:
         )
     params = {str(k): v for k, v in value.items() if k != "name"}
     for k, v in list(params.items()):
-        # unlisted: 'vocabulary' (the shipped list), a list or a file of names
-        if isinstance(v, str) and (_is_path_key(k) or (k == "unlisted" and v != "vocabulary")):
+        # unlisted: 'vocabulary' (the shipped list), a list or a file of names; templates
+        # (the templates heuristic): a list's name, a list or a file
+        if isinstance(v, str) and (
+            _is_path_key(k)
+            or (k == "unlisted" and v != "vocabulary")
+            or (k == "templates" and v not in _template_names())
+        ):
             params[k] = _resolve_path(v, path)
         elif isinstance(v, dict) and "name" in v:  # nested spec (combine, templates base)
             inner = _plugin_spec(k, v, where, path)
@@ -396,6 +401,12 @@ def _plugin_spec(key: str, value: Any, where: _Where, path) -> PluginSpec:
             else:
                 params[k] = {"name": inner.name, **inner.params}
     return PluginSpec(str(value["name"]), params)
+
+
+def _template_names() -> tuple[str, ...]:
+    from .text import TEMPLATE_NAMES
+
+    return tuple(TEMPLATE_NAMES)
 
 
 def _is_path_key(k: str) -> bool:

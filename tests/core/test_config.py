@@ -129,3 +129,33 @@ def test_unlisted_and_map_negatives_files_are_resolved_against_the_config_folder
     assert taxonomy._unlisted == {"fireplace", "piano"}
     again = QuashConfig.from_dict(cfg.to_dict())
     assert again.map_negatives == cfg.map_negatives
+
+
+def test_a_template_file_of_the_templates_heuristic_is_resolved_against_the_config_folder(
+    tmp_path, monkeypatch
+):
+    """``heuristic: {name: templates, templates: mine.txt}`` reads mine.txt beside the
+    config, as the ``prompt_templates`` setting's ``templates`` does (from another folder
+    it was 'Prompt-template file not found: mine.txt ... Fix the path'); a list's name and
+    a list stay as they are."""
+    from quash_plugins.core import registry
+
+    folder = tmp_path / "cfg"
+    folder.mkdir()
+    (folder / "mine.txt").write_text("a photo of a {}.\nthe {} in a room.\n", encoding="utf-8")
+    p = folder / "c.yaml"
+    p.write_text(
+        "heuristic: {name: combine, synonyms: {name: templates, templates: mine.txt},\n"
+        "            antonyms: {name: templates, templates: vlmaps-or-default}}\n"
+    )
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    cfg = QuashConfig.from_yaml(p)
+    mine = cfg.heuristic.params["synonyms"]["templates"]
+    assert mine == str((folder / "mine.txt").resolve())
+    assert cfg.heuristic.params["antonyms"]["templates"] == "vlmaps-or-default"
+    h = registry.create("heuristics", "templates", templates=mine)
+    assert list(h.prompt_templates["templates"]) == ["a photo of a {}.", "the {} in a room."]
+    listed = QuashConfig.from_dict({"heuristic": {"name": "templates", "templates": ["{}"]}})
+    assert listed.heuristic.params["templates"] == ["{}"]
