@@ -21,8 +21,9 @@ DST/vlmap_cam/vlmaps_cam.h5df (the camera-base layout: it stores its cell size a
 origin, and its cells are [row, height, col] with y up, so a z-up map is turned rigidly
 to y-up and reads back so; labels go to grid_semantic and vlmap_cam/obj2cls_dict.txt,
 which VLMaps itself ignores). A taxonomy beside SRC (SRC.taxonomy.yaml, as make-scene
-writes it) is copied to DST.taxonomy.yaml for a .npz or .zarr DST (with --format vlmaps,
-to DST/vlmap_cam/vlmaps_cam.taxonomy.yaml), never over a file, so the converted map
+writes it; for a VLMaps scene folder, the one beside the .h5df read) is copied to
+DST.taxonomy.yaml for a .npz or .zarr DST (with --format vlmaps, to
+DST/vlmap_cam/vlmaps_cam.taxonomy.yaml), never over a file, so the converted map
 answers as SRC does. The input is only read; the
 output appears atomically. Lazy maps (HDF5, per-image features) are streamed block by
 block, so the map is never held whole in memory. DST is never SRC (nor inside it); an
@@ -99,7 +100,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..adapters import convert_map, detect_adapter
+    from ..adapters import convert_map, detect_adapter, read_map
     from ..core import registry
     from ..core.errors import UsageError
     from ._config_opts import adapter_options
@@ -120,16 +121,18 @@ def run(args: argparse.Namespace) -> int:
         if accepted is not None and "allow_pickle" not in accepted:
             raise UsageError(f"--allow-pickle: adapter {name!r} does not read pickles.")
         options["allow_pickle"] = True
+    # read here, so that the taxonomy is looked for beside the file the adapter read (a
+    # VLMaps scene folder's vlmap_cam/vlmaps_cam.h5df), where the taxonomy heuristics find it
+    lmap = read_map(args.source, name, **options)
     written = convert_map(
-        args.source,
+        lmap,
         args.destination,
         name,
         compress=args.compress,
         format=args.format,
         up=args.up,
-        **options,
     )
-    taxonomy = _carry_taxonomy(args.source, written)
+    taxonomy = _carry_taxonomy(lmap.source.get("path") or args.source, written)
     if args.json:
         print_json(
             {

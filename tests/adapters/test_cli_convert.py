@@ -146,3 +146,39 @@ def test_convert_carries_the_taxonomy_beside_the_map(tiny_world, tmp_path, capsy
     tax.unlink()
     assert main(["convert", str(src), str(tmp_path / "bare.npz")]) == 0
     assert not (tmp_path / "bare.taxonomy.yaml").exists()
+
+
+def test_a_vlmaps_folder_carries_the_taxonomy_its_map_file_has(tmp_path, capsys):
+    """`quash convert scene.npz vl --format vlmaps` puts the taxonomy beside
+    vl/vlmap_cam/vlmaps_cam.h5df, where the taxonomy heuristics find it when `vl` is
+    queried; converting `vl` on (to NPZ, or to another VLMaps folder) lost it, as only a
+    taxonomy beside the SRC argument, `vl.taxonomy.yaml`, was looked for."""
+    from quash_plugins.adapters import write_npz_map
+    from quash_plugins.core.types import LatentMap
+    from quash_plugins.heuristics import taxonomy_beside
+
+    rng = np.random.default_rng(0)
+    cells = np.argwhere(np.ones((3, 3, 2)))
+    voxels = LatentMap(
+        rng.normal(size=(len(cells), 4)).astype(np.float32),
+        kind="voxels",
+        positions=(cells + 0.5) * 0.25,
+        grid_index=cells,
+        voxel_size=0.25,
+        labels=rng.integers(0, 2, len(cells)),
+        label_names=["chair", "sofa"],
+    )
+    src = write_npz_map(voxels, tmp_path / "scene.npz")
+    text = "chair: [armchair, stool]\nsofa: [couch]\n"
+    src.with_name("scene.taxonomy.yaml").write_text(text)
+    vl = tmp_path / "vl"
+    assert main(["-q", "convert", str(src), str(vl), "--format", "vlmaps"]) == 0
+    assert taxonomy_beside(read_map(vl))[1] == {"chair": ["armchair", "stool"], "sofa": ["couch"]}
+    before = tree_hash(vl)
+
+    assert main(["-q", "convert", str(vl), str(tmp_path / "back.npz")]) == 0
+    assert (tmp_path / "back.taxonomy.yaml").read_text() == text
+    assert main(["-q", "convert", str(vl), str(tmp_path / "vl2"), "--format", "vlmaps"]) == 0
+    assert (tmp_path / "vl2" / "vlmap_cam" / "vlmaps_cam.taxonomy.yaml").read_text() == text
+    assert tree_hash(vl) == before  # the source folder is only read
+    capsys.readouterr()
