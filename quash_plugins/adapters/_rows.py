@@ -367,8 +367,15 @@ def scan_finite(
 
 def should_scan(check_finite: bool | str | None, nbytes: int, limit_mb: float) -> bool:
     """Resolve the ``check_finite`` option: True, False, or "auto" (scan up to ``limit_mb``)."""
+    try:
+        limit = float(limit_mb)
+    except (TypeError, ValueError):  # a typo in -o finite_check_mb=..., not a damaged file
+        raise MapFormatError(
+            f"finite_check_mb must be a number of MiB (e.g. -o finite_check_mb=512); got "
+            f"{limit_mb!r}."
+        ) from None
     if check_finite in (None, "auto"):
-        return nbytes <= float(limit_mb) * 2**20
+        return nbytes <= limit * 2**20
     if isinstance(check_finite, str):
         raise MapFormatError(f"check_finite must be true, false or 'auto'; got {check_finite!r}.")
     return bool(check_finite)

@@ -387,3 +387,21 @@ def test_an_unknown_read_option_is_refused_naming_the_options(name, tmp_path):
     msg = str(err.value)
     assert f"Adapter {name!r}" in msg and "bogus_option" in msg, msg
     assert msg.endswith(f"Options: {', '.join(takes) or '(none)'}."), msg
+
+
+@pytest.mark.parametrize("name", ["conceptfusion", "openlex3d", "openscene"])
+def test_a_finite_check_mb_that_is_no_number_is_named_not_blamed_on_the_file(tmp_path, name):
+    """`-o finite_check_mb=abc` was reported as the map's own fault ('cannot read it ...
+    ValueError ... The file may be damaged or truncated'), sending the user to copy the
+    map again; it is the option, named with a value that works."""
+    source = registry.create("adapters", name).write_example(tmp_path)
+    msg = _check(
+        source,
+        "finite_check_mb",
+        "'abc'",
+        "-o finite_check_mb=512",
+        adapter=name,
+        finite_check_mb="abc",
+    )
+    assert "damaged" not in msg and "ValueError" not in msg
+    assert read_map(source, name, finite_check_mb="1e3").n > 0  # a number as YAML leaves it
