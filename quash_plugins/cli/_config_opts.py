@@ -122,9 +122,10 @@ def input_files(map_path: str | None, configs: list[QuashConfig]) -> list[str]:
     """The files a run reads besides the map, that no output may replace: the map's
     sidecar taxonomy (``MAP.taxonomy.yaml``, read by the taxonomy heuristics), each
     config's YAML file and every file its plugins name (``encoder.file``,
-    ``heuristic.file``, a vocabulary, a prompt-template file...). A file that does not
+    ``heuristic.file``, a vocabulary, a label list's ``unlisted`` names, a prompt-template
+    file, ``map_negatives``' vocabulary...). A file that does not
     exist is listed too: nothing will then be read from it, and checks skip it."""
-    from ..core.config import PluginSpec, _is_path_key
+    from ..core.config import PluginSpec, names_a_file
     from ..core.text import TEMPLATE_NAMES
     from ..heuristics import taxonomy_path_beside
 
@@ -137,7 +138,7 @@ def input_files(map_path: str | None, configs: list[QuashConfig]) -> list[str]:
     def walk(params: object) -> None:
         if isinstance(params, dict):
             for k, v in params.items():
-                if isinstance(v, str) and _is_path_key(str(k)) and k != "cache_dir":
+                if names_a_file(str(k), v) and k != "cache_dir":
                     found.append(v)
                 else:
                     walk(v)
@@ -154,6 +155,9 @@ def input_files(map_path: str | None, configs: list[QuashConfig]) -> list[str]:
         templates = (cfg.prompt_templates or {}).get("templates")
         if isinstance(templates, str) and templates not in TEMPLATE_NAMES:
             found.append(templates)
+        vocabulary = (cfg.map_negatives or {}).get("vocabulary")
+        if isinstance(vocabulary, str):
+            found.append(vocabulary)
     return [f for f in found if "://" not in f and not f.startswith("hf-hub:")]
 
 

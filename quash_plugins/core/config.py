@@ -384,13 +384,7 @@ def _plugin_spec(key: str, value: Any, where: _Where, path) -> PluginSpec:
         )
     params = {str(k): v for k, v in value.items() if k != "name"}
     for k, v in list(params.items()):
-        # unlisted: 'vocabulary' (the shipped list), a list or a file of names; templates
-        # (the templates heuristic): a list's name, a list or a file
-        if isinstance(v, str) and (
-            _is_path_key(k)
-            or (k == "unlisted" and v != "vocabulary")
-            or (k == "templates" and v not in _template_names())
-        ):
+        if names_a_file(k, v):
             params[k] = _resolve_path(v, path)
         elif isinstance(v, dict) and "name" in v:  # nested spec (combine, templates base)
             inner = _plugin_spec(k, v, where, path)
@@ -407,6 +401,20 @@ def _template_names() -> tuple[str, ...]:
     from .text import TEMPLATE_NAMES
 
     return tuple(TEMPLATE_NAMES)
+
+
+def names_a_file(key: str, value: Any) -> bool:
+    """Whether a plugin parameter ``key: value`` names a file, read from the config
+    file's folder and never replaced by an output: a ``*_file``/``*_path`` key or one of
+    ``_PATH_KEYS``; ``unlisted`` unless it is ``vocabulary`` (the shipped list); the
+    templates heuristic's ``templates`` unless it names a shipped list."""
+    if not isinstance(value, str):
+        return False
+    return (
+        _is_path_key(key)
+        or (key == "unlisted" and value != "vocabulary")
+        or (key == "templates" and value not in _template_names())
+    )
 
 
 def _is_path_key(k: str) -> bool:

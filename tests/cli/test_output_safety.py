@@ -168,3 +168,35 @@ def test_demo_out_that_cannot_be_written_is_an_error_before_any_work(tmp_path, c
     # a writable folder passes the check and keeps no probe file
     assert atomic.make_output_folder(tmp_path / "ok" / "sub", "--out").is_dir()
     assert list((tmp_path / "ok" / "sub").iterdir()) == []
+
+
+def test_files_of_names_and_templates_in_a_config_are_inputs_no_output_may_replace(tmp_path):
+    """A label list's ``unlisted`` file, the templates heuristic's template file and
+    ``map_negatives``' vocabulary are read from the config's folder: each is an input
+    that ``--out``/``--rrd`` must not replace, as ``heuristic.file`` is; the shipped
+    names (``vocabulary``, a template list's name) are no file."""
+    from quash_plugins.cli._config_opts import input_files
+    from quash_plugins.core.config import QuashConfig
+    from quash_plugins.core.text import TEMPLATE_NAMES
+
+    (tmp_path / "names.txt").write_text("fireplace\n", encoding="utf-8")
+    (tmp_path / "mine.txt").write_text("a photo of {}\n", encoding="utf-8")
+    (tmp_path / "vocab.txt").write_text("lamp\n", encoding="utf-8")
+    shipped = sorted(TEMPLATE_NAMES)[0]
+    p = tmp_path / "c.yaml"
+    p.write_text(
+        "heuristic: {name: combine, synonyms: {name: taxonomy, unlisted: names.txt},\n"
+        "            antonyms: {name: label-list, unlisted: vocabulary}}\n"
+        "map_negatives: {n: 3, vocabulary: vocab.txt}\n"
+    )
+    q = tmp_path / "t.yaml"
+    q.write_text("heuristic: {name: templates, templates: mine.txt}\n")
+    r = tmp_path / "s.yaml"
+    r.write_text(f"heuristic: {{name: templates, templates: {shipped}}}\n")
+    found = {
+        os.path.realpath(f)
+        for f in input_files(None, [QuashConfig.from_yaml(x) for x in (p, q, r)])
+    }
+    for name in ("names.txt", "mine.txt", "vocab.txt", "c.yaml", "t.yaml", "s.yaml"):
+        assert os.path.realpath(tmp_path / name) in found, name
+    assert len(found) == 6  # neither 'vocabulary' nor the shipped template list
