@@ -161,6 +161,11 @@ class ConceptFusionAdapter(MapAdapter):
                     f"{label_pts}: field 'positions' must be (N, 3); got shape "
                     f"{points_ds.shape}.{_batch_hint(points_ds.shape, 'points')}"
                 )
+            if points_ds.dtype.kind not in "fiu":
+                raise MapFormatError(
+                    f"{label_pts}: field 'positions' must hold numbers (metres); got "
+                    f"{points_ds.dtype}. Re-save the points as float32."
+                )
             n = int(points_ds.shape[0])
 
             emb = dataset(files["pc_embeddings"], "pc_embeddings")

@@ -386,6 +386,11 @@ def colors_to_uint8(values: Any, label: str, color_range: str = "0-255") -> np.n
     arr = np.asarray(values)
     if arr.dtype == np.uint8:
         return arr
+    if arr.dtype.kind not in "fiu":  # text, bool, complex: no colour, not a damaged file
+        raise MapFormatError(
+            f"{label}: field 'colors' must hold numbers (0-255 or 0-1); got {arr.dtype}. "
+            "Re-save the colours as numbers, or leave them out."
+        )
     if arr.dtype.kind == "f" and not np.isfinite(arr).all():
         raise MapFormatError(f"{label}: field 'colors' contains NaN or Inf.")
     arr = arr.astype(np.float32, copy=False)

@@ -405,3 +405,16 @@ def test_a_finite_check_mb_that_is_no_number_is_named_not_blamed_on_the_file(tmp
     )
     assert "damaged" not in msg and "ValueError" not in msg
     assert read_map(source, name, finite_check_mb="1e3").n > 0  # a number as YAML leaves it
+
+
+@pytest.mark.parametrize("field", ["pc_points", "pc_colors"])
+@pytest.mark.parametrize("dtype", ["S1", "complex64", "bool"])
+def test_cf_points_or_colours_that_are_no_numbers_name_the_file_and_field(tmp_path, field, dtype):
+    """Text points or colours were reported as a damaged file ('cannot read it ...
+    ValueError: could not convert string to float'), naming neither the file nor the
+    field; complex and bool ones were read as if they were coordinates and colours."""
+    arrays = cf_arrays(n=20, d=6)
+    root = _cf(tmp_path, **{field: np.zeros(arrays[field].shape, dtype=dtype)})
+    name = "'positions'" if field == "pc_points" else "'colors'"
+    msg = _check(root, f"{field}.h5", name, "must hold numbers", dtype)
+    assert "damaged" not in msg
