@@ -222,9 +222,9 @@ def atomic_write(path: str | Path, suffix: str = "") -> Iterator[Path]:
     On error, ``KeyboardInterrupt`` or a SIGTERM that the CLI turns into an exception,
     the temporary file is removed and ``path`` is left as it was. A ``path`` that exists
     and is not a regular file (a folder, device, pipe or symbolic link) is refused before
-    anything is written.
+    anything is written. A leading ``~`` is the home folder, as in the checks above.
     """
-    path = Path(path)
+    path = Path(path).expanduser()
     _refuse_non_regular(path)
     _make_parent(path)
     tmp_path = path.parent / f".{path.name}.{secrets.token_hex(4)}{suffix or '.tmp'}"
@@ -275,7 +275,7 @@ def make_output_folder(path: str | Path, what: str) -> Path:
     """Create the output folder ``path`` (given as option ``what``) and check that a file
     can be created in it, before any work; raise a :class:`UsageError` naming the folder
     and the option otherwise (a read-only or missing parent, a file in the way)."""
-    folder = Path(path)
+    folder = Path(path).expanduser()
     try:
         folder.mkdir(parents=True, exist_ok=True)
         probe = folder / f".quash-probe-{secrets.token_hex(6)}"

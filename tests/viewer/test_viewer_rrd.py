@@ -537,6 +537,35 @@ def test_cli_query_rrd(tmp_path, capsys):
     assert reader.blueprints()
 
 
+def test_cli_outputs_given_with_a_tilde_are_written_where_they_were_checked(
+    tmp_path, monkeypatch, capsys
+):
+    """``--rrd=~/q.rrd`` (no shell expands a ``~`` after ``=``): the checks looked at the
+    file in the home folder, the recording was written to ``./~/q.rrd``, a folder named
+    ``~`` in the current one (as was ``--out``); both now go where they were checked."""
+    from quash_plugins.adapters import write_npz_map
+    from quash_plugins.cli.main import main
+
+    home, work = tmp_path / "home", tmp_path / "work"
+    home.mkdir()
+    work.mkdir()
+    monkeypatch.setenv("HOME", str(home))
+    monkeypatch.chdir(work)
+    map_path = write_npz_map(voxel_map(), tmp_path / "map.npz")
+    cfg = write_table_config(tmp_path)
+    args = ["query", str(map_path), "chair", "-c", str(cfg)]
+    assert main([*args, "--rrd=~/q.rrd", "--out=~/r.npz"]) == 0, capsys.readouterr().err
+    assert not (work / "~").exists()
+    assert (home / "q.rrd").is_file() and (home / "r.npz").is_file()
+    reader, _ = read_rrd(home / "q.rrd")
+    assert reader.recordings()[0].application_id == "quash-query"
+    # the check and the write are of one file: a robot's recording there is kept
+    robot = _robot_recording(home / "robot.rrd")
+    before = robot.read_bytes()
+    assert main([*args, "--rrd=~/robot.rrd"]) == 2
+    assert robot.read_bytes() == before
+
+
 def _robot_recording(path: Path) -> Path:
     """A user's own recording, made by another application."""
     rec = rr.RecordingStream("my-robot")
