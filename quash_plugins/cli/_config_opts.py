@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import logging
 from typing import Any
 
 from ..core.config import QuashConfig
 from ..core.errors import ConfigError, UsageError
 from ..core.shipped import LIST_PEERS, resolve_config_path
+
+log = logging.getLogger(__name__)
 
 
 def add_config_option(parser: argparse.ArgumentParser, multiple: bool = False) -> None:
@@ -63,7 +66,8 @@ def add_runtime_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--device",
         default=None,
-        help="Override the config's device (auto, cpu, cuda, cuda:N, mps).",
+        help="Override the config's device, a plugin section's own device: included "
+        "(auto, cpu, cuda, cuda:N, mps).",
     )
 
 
@@ -115,7 +119,33 @@ def apply_runtime_options(cfg: QuashConfig, args: argparse.Namespace) -> QuashCo
             cfg.device = check_device(args.device, "--device")
         except ConfigError as exc:
             raise UsageError(str(exc)) from None
+        _override_plugin_devices(cfg, cfg.device)
     return cfg
+
+
+def _override_plugin_devices(cfg: QuashConfig, device: str) -> None:
+    """``--device`` overrides the config's device, a plugin section's own ``device:``
+    (``encoder: {name: open-clip, device: cuda}``) included: the command line wins over
+    the file, as every other flag does. Each section overridden is said at info level."""
+    from ..core.config import PluginSpec
+
+    def walk(params: dict, where: str) -> None:
+        for k, v in params.items():
+            if k == "device" and isinstance(v, str) and v != device:
+                log.info(
+                    "--device %s overrides %s.device: %s (%s)",
+                    device,
+                    where,
+                    v,
+                    cfg.source or cfg.name,
+                )
+                params[k] = device
+            elif isinstance(v, dict) and "name" in v:  # a nested plugin (combine, base)
+                walk(v.get("params") if isinstance(v.get("params"), dict) else v, f"{where}.{k}")
+
+    for section, value in vars(cfg).items():
+        if isinstance(value, PluginSpec):
+            walk(value.params, section)
 
 
 def input_files(map_path: str | None, configs: list[QuashConfig]) -> list[str]:
