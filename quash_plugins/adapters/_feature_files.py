@@ -81,7 +81,8 @@ def _load_tensor(path: Path) -> np.ndarray:
             ) from None
         raise MapFormatError(
             f"{path}: not a readable tensor file ({msg}). Only bare tensors saved with "
-            "torch.save are read, with weights_only=True (no pickled objects)."
+            "torch.save are read, with weights_only=True (no pickled objects). A damaged "
+            "or truncated file (an interrupted copy): copy or extract that frame again."
         ) from None
     if not isinstance(obj, torch.Tensor):
         raise MapFormatError(
@@ -117,7 +118,10 @@ def load_array(path: Path) -> np.ndarray:
         try:
             return np.load(path, mmap_mode="r", allow_pickle=False)
         except (ValueError, OSError, EOFError) as exc:
-            raise MapFormatError(f"{path}: not a readable .npy array ({exc}).") from None
+            raise MapFormatError(
+                f"{path}: not a readable .npy array ({exc}). The file may be damaged or "
+                "truncated (an interrupted copy): copy or extract that frame again."
+            ) from None
     return _load_tensor(path)
 
 

@@ -418,3 +418,18 @@ def test_cf_points_or_colours_that_are_no_numbers_name_the_file_and_field(tmp_pa
     name = "'positions'" if field == "pc_points" else "'colors'"
     msg = _check(root, f"{field}.h5", name, "must hold numbers", dtype)
     assert "damaged" not in msg
+
+
+@pytest.mark.parametrize("suffix", [".pt", ".npy"])
+def test_feat_truncated_frame_says_to_copy_it_again(tmp_path, suffix):
+    """A frame cut short (an interrupted copy) was named with no fix: a truncated .npy
+    said only 'not a readable .npy array (mmap length is greater than file size)'."""
+    frame = np.ones((8, 8, 16), np.float16)
+    for stem in ("f0", "f1"):
+        if suffix == ".pt":
+            save_feat_pt(tmp_path, stem, frame)
+        else:
+            np.save(tmp_path / f"{stem}.npy", frame)
+    path = tmp_path / f"f1{suffix}"  # the last frame of the copy, cut short
+    path.write_bytes(path.read_bytes()[:200])
+    _check(tmp_path, f"f1{suffix}", "truncated", "copy or extract that frame again")
