@@ -174,6 +174,22 @@ def _refuse_unknown(parser: argparse.ArgumentParser, command: str | None, extra:
     )
 
 
+def _refuse_empty(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """An option or argument given as an empty string (``--rrd "$UNSET"``, ``--out=``):
+    argparse takes it, and the command would run as if it had not been given, writing
+    nothing and saying nothing. Refused with the subcommand's usage, naming it."""
+    target = subcommand_parsers(parser).get(args.command, parser)
+    for action in target._actions:
+        if action.nargs == 0 or getattr(args, action.dest, None) != "":
+            continue
+        name = "/".join(action.option_strings) or action.metavar or action.dest
+        what = action.metavar or action.dest.upper()
+        leave = ", or leave the option out" if action.option_strings else ""
+        target.error(
+            f"argument {name}: an empty value (an unset shell variable?): give {what}{leave}."
+        )
+
+
 @contextlib.contextmanager
 def _dask_clients_closed() -> Iterator[None]:
     """Close the Dask clients a command started (``--backend dask``) when it ends."""
@@ -193,6 +209,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not getattr(args, "command", None):
         parser.print_help()
         return 2
+    _refuse_empty(parser, args)
     setup_logging(args.verbose, args.quiet)
     try:
         with _sigterm_as_exception(), _dask_clients_closed():
