@@ -354,6 +354,8 @@ class SinkRerunLogger(RerunLogger):
         self.bind = check_bind(DEFAULT_BIND if sinks.bind is None else sinks.bind)
         if self.serve_web:
             check_distinct_ports(self.web_port, self.grpc_port, "web_port", "grpc_port")
+            if sinks.spawn:
+                self._check_spawn_beside_serve()
             warn_if_exposed(self.bind, self.web_port, self.grpc_port)
         self.url: str | None = None
         self.streaming: list[str] = []  # streaming sinks, for messages
@@ -395,6 +397,23 @@ class SinkRerunLogger(RerunLogger):
             self._discard()
             raise
         super().__init__(recording, app_id, **options)
+
+    def _check_spawn_beside_serve(self) -> None:
+        """``--spawn`` with ``--serve-web``: the native viewer listens on
+        127.0.0.1:9876, the served recording on ``bind:grpc_port``. When those are one
+        address the server could not start once the viewer had, and the viewer just
+        opened would be left behind: refused first, with the port to give instead.
+        Without a display no viewer starts, so nothing collides."""
+        same_port = self.grpc_port == DEFAULT_GRPC_PORT
+        if not same_port or self.bind not in ("127.0.0.1", *_WILDCARDS):
+            return
+        if not display_available():
+            return
+        raise UsageError(
+            f"--spawn and --serve-web both need port {DEFAULT_GRPC_PORT} on 127.0.0.1 (the "
+            "native viewer listens there, and so would the served recording): serve on "
+            f"another with --grpc-port {DEFAULT_GRPC_PORT + 1}, or drop one of the two."
+        )
 
     # ------------------------------------------------------------------ sinks
     @staticmethod

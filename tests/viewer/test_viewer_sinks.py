@@ -326,3 +326,31 @@ def test_serve_web_refuses_a_busy_port_before_any_query_runs(
     assert f"Port {busy} on 127.0.0.1 is in use" in err and "--web-port PORT" in err
     assert not ran, "the queries ran before the busy port was said"
     assert_no_tmp(tmp_path)
+
+
+def test_spawn_beside_serve_web_on_one_port_is_refused_before_a_viewer_starts(tmp_path, small_map):
+    """``--spawn --serve-web`` with a display: the native viewer listens on
+    127.0.0.1:9876, the default --grpc-port; the server then found the port taken by the
+    viewer quash had just opened ('in use (another program listens on it)'), and that
+    viewer stayed open. Refused first, naming the port to give; another --grpc-port
+    passes this check."""
+    from quash_plugins.viewer._sinks import SinkRerunLogger, ViewerOptions
+
+    map_path, cfg = small_map
+    rrd = tmp_path / "out.rrd"
+    env = headless_env(DISPLAY=":93517")
+    proc = run_cli(
+        ["query", str(map_path), "chair", "-c", str(cfg), "--spawn", "--serve-web"]
+        + ["--rrd", str(rrd)],
+        tmp_path,
+        env,
+        timeout=120,
+    )
+    assert proc.returncode == 2, proc.stderr
+    assert "--grpc-port 9877" in proc.stderr and "--spawn" in proc.stderr
+    assert "chair" not in proc.stdout and not rrd.exists()  # before any query or file
+    assert_no_tmp(tmp_path)
+    opts = ViewerOptions(spawn=True, serve_web=True, grpc_port=free_port())
+    logger = SinkRerunLogger.__new__(SinkRerunLogger)
+    logger.grpc_port, logger.bind = opts.grpc_port, "127.0.0.1"
+    logger._check_spawn_beside_serve()  # another port: nothing to refuse
