@@ -381,8 +381,12 @@ class BlockScorer:
         threads: int = 1,
     ) -> np.ndarray:
         """``(rows, Q + 1)`` float32 for one chunk of rows as stored: each classifier's
-        raw score, then ``observed`` (0/1). What a Dask chunk task computes."""
-        x = np.asarray(block)
+        raw score, then ``observed`` (0/1). What a Dask chunk task computes.
+
+        The rows are scored C-ordered, as :func:`read_blocks` hands them to the local
+        pass: a chunk in Fortran order (per-image features in the (1, D, h, w) layout
+        are transposed views) would round its GEMM differently."""
+        x = np.ascontiguousarray(block)
         q = len(self.classifiers)
         out = np.empty((x.shape[0], q + 1), dtype=np.float32)
         observed = np.empty(x.shape[0], dtype=bool)

@@ -403,3 +403,24 @@ def test_the_conformance_kit_catches_an_expansion_that_disagrees():
 
     with pytest.raises(AssertionError, match="reduce of the cosines must give"):
         check_classifier_expansions(Lying(), None)
+
+
+def test_dask_scores_lseg_layout_frames_bit_for_bit(fitted, tmp_path, monkeypatch):
+    """Per-image features in LSeg's (1, D, h, w) layout are read as transposed views, so
+    a chunk of several frames came to a Dask task in Fortran order, and its GEMM rounded
+    scores differently from the local pass, which reads C-ordered chunks (up to 2e-7
+    apart): Dask and the local pass score the same C-ordered rows."""
+    pytest.importorskip("dask")
+    from quash_plugins.adapters import read_map
+    from quash_plugins.engine import classify_dask, dask_executor
+
+    monkeypatch.setattr(dask_executor, "current_client", lambda client=None: None)
+    rng = np.random.default_rng(10)
+    for i in range(3):  # three frames: a chunk concatenates them
+        np.save(tmp_path / f"f{i}.npy", rng.standard_normal((1, D, 30, 40)).astype(np.float32))
+    lmap = read_map(tmp_path, "image-features", colors=False)
+    local, obs = classify_local(lmap, fitted)
+    remote, robs = classify_dask(lmap, fitted)
+    np.testing.assert_array_equal(obs, robs)
+    for a, b in zip(local, remote):
+        np.testing.assert_array_equal(a, b)
