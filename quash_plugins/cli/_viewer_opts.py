@@ -100,8 +100,8 @@ def add_viewer_arguments(
         help="The map's up axis, which the views look down along and the ceiling is found "
         "on. auto (default): the one the map's format fixes (VLMaps camera-base maps: +y; "
         "mobile-base maps and 2023 grids: +z), else +z. Give it for a map whose format does "
-        "not say, such as a ConceptFusion cloud in a y-up dataset frame; write a negative "
-        "axis as --up=-y. quash query also records it in --out (npz, openlex3d).",
+        "not say, such as a ConceptFusion cloud in a y-up dataset frame. "
+        "quash query also records it in --out (npz, openlex3d).",
     )
 
 

@@ -73,7 +73,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="The source map's up axis, for a map whose format does not say (a ConceptFusion "
         "cloud in a y-up dataset frame): recorded in DST, and what --format vlmaps turns to "
         "VLMaps' y-up. auto (default): the axis the map's format records (VLMaps camera-base "
-        "maps: +y), else +z. Write a negative axis as --up=-y.",
+        "maps: +y), else +z.",
     )
     p.add_argument(
         "--allow-pickle",

@@ -201,8 +201,33 @@ def _dask_clients_closed() -> Iterator[None]:
             started.close_started_clients()
 
 
+#: The negative axes ``--up`` takes, which argparse would read as options of their own.
+_NEGATIVE_AXES = ("-x", "-y", "-z")
+
+
+def _join_negative_axes(argv: Sequence[str]) -> list[str]:
+    """``--up -y`` as ``--up=-y``: argparse reads a value that starts with ``-`` as an
+    option ('expected one argument'), and no quash option is named ``-x``, ``-y`` or
+    ``-z``. Nothing after ``--`` is touched."""
+    out: list[str] = []
+    args = list(argv)
+    i = 0
+    while i < len(args):
+        if args[i] == "--":
+            out += args[i:]
+            break
+        if args[i] == "--up" and i + 1 < len(args) and args[i + 1] in _NEGATIVE_AXES:
+            out.append(f"--up={args[i + 1]}")
+            i += 2
+            continue
+        out.append(args[i])
+        i += 1
+    return out
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
+    argv = _join_negative_axes(sys.argv[1:] if argv is None else argv)
     args, extra = parser.parse_known_args(argv)
     if extra:
         _refuse_unknown(parser, getattr(args, "command", None), extra)

@@ -475,6 +475,10 @@ def test_result_npz_records_the_up_axis(tiny_world, tmp_path, capsys):
     code, _, err = query_chair(tiny_world, "--out", r, "--up=-y", capsys=capsys)
     assert code == 0, err
     assert str(np.load(r)["up"]) == "-y" and is_results_npz(r)
+    # written with a space, as every other option is ('expected one argument' before)
+    code, _, err = query_chair(tiny_world, "--out", r, "--up", "-x", capsys=capsys)
+    assert code == 0, err
+    assert str(np.load(r)["up"]) == "-x"
     y_up = convert_map(tiny_world["map"], tmp_path / "y.npz", up="+y")
     code, _, err = run_cli(
         "query", y_up, "chair", "-c", tiny_world["config"], "--out", r, capsys=capsys
@@ -760,3 +764,12 @@ def test_demo_help_counts_what_the_demo_runs():
     assert f"{words[len(DEMO_ABSENT)]} absence queries" in text
     for kind in ("VLMaps", "ConceptFusion", "LERF", "OpenScene", "vocabulary", "adjectives"):
         assert kind in text
+
+
+def test_negative_up_axes_are_joined_to_up_and_nothing_else_is():
+    from quash_plugins.cli.main import _join_negative_axes
+
+    assert _join_negative_axes(["query", "m", "q", "--up", "-y"]) == ["query", "m", "q", "--up=-y"]
+    assert _join_negative_axes(["--up", "+y", "-v"]) == ["--up", "+y", "-v"]
+    assert _join_negative_axes(["--up", "-v"]) == ["--up", "-v"]  # no axis: argparse says
+    assert _join_negative_axes(["q", "--", "--up", "-z"]) == ["q", "--", "--up", "-z"]
