@@ -118,10 +118,17 @@ def load_array(path: Path) -> np.ndarray:
         try:
             return np.load(path, mmap_mode="r", allow_pickle=False)
         except (ValueError, OSError, EOFError) as exc:
-            raise MapFormatError(
-                f"{path}: not a readable .npy array ({exc}). The file may be damaged or "
-                "truncated (an interrupted copy): copy or extract that frame again."
-            ) from None
+            if "object" in str(exc).lower():  # numpy: "Python objects in dtype", "Object arrays"
+                fix = (
+                    "It holds Python objects, not numbers: re-save the frame as a numeric "
+                    f"array, np.save('{path.name}', np.asarray(features, np.float32))."
+                )
+            else:
+                fix = (
+                    "The file may be damaged or truncated (an interrupted copy): copy or "
+                    "extract that frame again."
+                )
+            raise MapFormatError(f"{path}: not a readable .npy array ({exc}). {fix}") from None
     return _load_tensor(path)
 
 

@@ -433,3 +433,11 @@ def test_feat_truncated_frame_says_to_copy_it_again(tmp_path, suffix):
     path = tmp_path / f"f1{suffix}"  # the last frame of the copy, cut short
     path.write_bytes(path.read_bytes()[:200])
     _check(tmp_path, f"f1{suffix}", "truncated", "copy or extract that frame again")
+
+
+def test_feat_object_npy_frame_is_not_called_truncated(tmp_path):
+    """A .npy of Python objects is no damaged copy: its fix is a numeric re-save."""
+    np.save(tmp_path / "f0.npy", np.ones((8, 8, 16), np.float16))
+    np.save(tmp_path / "f1.npy", np.array([{"feat": 1}], dtype=object), allow_pickle=True)
+    msg = _check(tmp_path, "f1.npy", "Python objects", "np.save('f1.npy'", adapter="image-features")
+    assert "truncated" not in msg
