@@ -82,12 +82,21 @@ def _load_npy(path: Path, field: str) -> np.ndarray:
     try:
         return np.load(path, mmap_mode="r", allow_pickle=False)
     except ValueError as exc:
-        raise MapFormatError(
-            f"{path}: field {field!r} holds pickled objects ({exc}); save a numeric array "
-            f"instead (np.save of a float or int array, not a list of arrays)."
-        ) from None
+        if "object" in str(exc).lower() or "pickle" in str(exc).lower():
+            raise MapFormatError(
+                f"{path}: field {field!r} holds pickled objects ({exc}); save a numeric "
+                f"array instead (np.save of a float or int array, not a list of arrays)."
+            ) from None
+        raise _damaged(path, field, exc) from None  # "mmap length is greater than file size"
     except (OSError, EOFError) as exc:
-        raise MapFormatError(f"{path}: not a readable .npy array ({exc}).") from None
+        raise _damaged(path, field, exc) from None
+
+
+def _damaged(path: Path, field: str, exc: BaseException) -> MapFormatError:
+    return MapFormatError(
+        f"{path}: field {field!r} is not a readable .npy array ({exc}). The file may be "
+        "damaged or truncated (an interrupted copy): copy or export it again."
+    )
 
 
 class OpenLex3DAdapter(MapAdapter):

@@ -441,3 +441,22 @@ def test_feat_object_npy_frame_is_not_called_truncated(tmp_path):
     np.save(tmp_path / "f1.npy", np.array([{"feat": 1}], dtype=object), allow_pickle=True)
     msg = _check(tmp_path, "f1.npy", "Python objects", "np.save('f1.npy'", adapter="image-features")
     assert "truncated" not in msg
+
+
+@pytest.mark.parametrize(
+    "name,field", [("embeddings.npy", "'embeddings'"), ("index.npy", "'index'")]
+)
+def test_ol_truncated_npy_is_called_truncated_not_pickled(tmp_path, name, field):
+    """A cut-short embeddings.npy or index.npy (an interrupted copy of an export) was
+    reported as holding pickled objects, with the advice to save a numeric array."""
+    folder = _ol(tmp_path, table=np.ones((50, 16), np.float32), index=np.arange(10) % 50)
+    path = folder / name
+    path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    msg = _check(folder, name, field, "truncated", "copy or export it again")
+    assert "pickled" not in msg
+
+
+def test_ol_object_npy_is_still_called_pickled(tmp_path):
+    folder = _ol(tmp_path)
+    np.save(folder / "embeddings.npy", np.array([np.ones(4)] * 3, dtype=object), allow_pickle=True)
+    _check(folder, "embeddings.npy", "pickled objects", "numeric array")
