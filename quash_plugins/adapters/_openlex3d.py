@@ -255,6 +255,8 @@ class OpenLex3DAdapter(MapAdapter):
     @staticmethod
     def _read_cloud(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
         o3d = _open3d()
+        if path.suffix.lower() == ".pcd":
+            _check_binary_pcd_size(path)
         pcd = o3d.io.read_point_cloud(str(path))
         points = np.asarray(pcd.points, dtype=np.float32).reshape(-1, 3)
         if not np.isfinite(points).all():
@@ -308,6 +310,44 @@ def write_openlex3d(
 EXPORT_MARKER = "quash_export.json"
 PCD_POINT = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("rgb", "<u4")])
 PCD_POINT_XYZ = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4")])
+
+
+def _check_binary_pcd_size(path: Path) -> None:
+    """Refuse a binary PCD shorter than its header says: open3d reads one cut short (an
+    interrupted copy) as no points, or as as many points of whatever memory held."""
+    with open(path, "rb") as f:
+        head = f.read(4096)
+    fields: dict[str, list[str]] = {}
+    end = 0
+    for line in head.split(b"\n")[:-1]:
+        end += len(line) + 1
+        words = line.decode("ascii", "replace").split()
+        if words and not words[0].startswith("#"):
+            fields[words[0].upper()] = words[1:]
+        if words[:1] == ["DATA"]:
+            break
+    else:
+        if len(head) < 4096 and "FIELDS" in fields:  # the whole file: its header cut short
+            raise MapFormatError(
+                f"{path}: field 'points' is cut short: the file ends ({len(head)} bytes) "
+                "before its header's DATA line. It is damaged or truncated (an interrupted "
+                "copy): copy or export it again."
+            )
+        return  # no DATA line in the first 4 kB: left to open3d
+    try:
+        if fields["DATA"] != ["binary"]:
+            return
+        row = sum(int(a) * int(b) for a, b in zip(fields["SIZE"], fields["COUNT"]))
+        expected = end + int(fields["POINTS"][0]) * row
+    except (KeyError, IndexError, ValueError):
+        return
+    size = path.stat().st_size
+    if size < expected:
+        raise MapFormatError(
+            f"{path}: field 'points' is cut short: its header says {fields['POINTS'][0]} "
+            f"points ({expected} bytes), the file holds {size} bytes. It is damaged or "
+            "truncated (an interrupted copy): copy or export it again."
+        )
 
 
 def pcd_header(n: int, colors: bool) -> bytes:

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from _cf_writers import cf_arrays, save_feat_pt, save_openlex3d, save_pointclouds, tree_hash
 
-from quash_plugins.adapters import read_map
+from quash_plugins.adapters import read_map, write_openlex3d_map
 from quash_plugins.core import registry
 from quash_plugins.core.errors import MapFormatError
 
@@ -460,3 +460,19 @@ def test_ol_object_npy_is_still_called_pickled(tmp_path):
     folder = _ol(tmp_path)
     np.save(folder / "embeddings.npy", np.array([np.ones(4)] * 3, dtype=object), allow_pickle=True)
     _check(folder, "embeddings.npy", "pickled objects", "numeric array")
+
+
+@pytest.mark.parametrize("writer", ["open3d", "quash"])
+def test_ol_truncated_binary_cloud_is_refused(tmp_path, writer):
+    """open3d reads a cut-short binary point_cloud.pcd as points of whatever memory held
+    (open3d's own files) or as 0 points (an export's, then said only as a row-count
+    mismatch): it is refused, naming the file and the fix."""
+    folder = _ol(tmp_path)
+    if writer == "quash":
+        lmap = read_map(folder)
+        folder = write_openlex3d_map(lmap, tmp_path / "export")
+    cloud = folder / "point_cloud.pcd"
+    whole = cloud.read_bytes()
+    for cut in (len(whole) - 7, len(whole) // 2):  # in the points, in the header
+        cloud.write_bytes(whole[:cut])
+        _check(folder, "point_cloud.pcd", "'points'", "cut short", "copy or export it again")
