@@ -9,6 +9,8 @@ uint8, ``labels (N,)`` int, ``label_names (L,)`` str, ``voxel_size`` scalar,
 
 from __future__ import annotations
 
+import contextlib
+import json
 import os
 import warnings
 import zipfile
@@ -106,6 +108,20 @@ def _size(n: int) -> str:
     return f"{n:.1f} TiB"
 
 
+def result_hint(names: Any, made_from: Any = None) -> str:
+    """A sentence for a map read that found no embeddings but a query's result (``masks``
+    and ``scores``: what ``quash query --out`` writes), naming the map it was made from
+    when its record says; "" for anything else."""
+    if not {"masks", "scores"} <= set(names):
+        return ""
+    source = made_from.get("path") if isinstance(made_from, dict) else None
+    return (
+        " It is a query result (quash query --out: masks and scores, no embeddings), not "
+        "a map: query the map it was made from"
+        + (f", {source}." if source else " (its provenance names it).")
+    )
+
+
 class NpzAdapter(MapAdapter):
     """Read quash-plugins' portable NPZ map (see :func:`write_npz_map`)."""
 
@@ -141,8 +157,13 @@ class NpzAdapter(MapAdapter):
             raise MapFormatError(f"{path}: not a readable NPZ file ({exc}).") from None
         with z:
             if "embeddings" not in z.files:
+                made_from = None
+                if "provenance" in z.files:
+                    with contextlib.suppress(ValueError, TypeError, AttributeError):
+                        made_from = json.loads(str(z["provenance"])).get("map")
                 raise MapFormatError(
                     f"{path}: missing array 'embeddings' (N, D). Found: {', '.join(z.files)}."
+                    + result_hint(z.files, made_from)
                 )
             check_declared_sizes(path)
             try:

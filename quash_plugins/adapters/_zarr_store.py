@@ -30,6 +30,7 @@ from ..core.atomic import atomic_dir, refuse_own_input
 from ..core.errors import MapFormatError
 from ..core.optional import require
 from ..core.types import SOURCE_INPUTS, FrameInfo, LatentMap, record_inputs
+from ._npz import result_hint
 
 log = logging.getLogger(__name__)
 
@@ -194,9 +195,10 @@ def read_zarr_map(path: str | Path, *, dask: bool = False, chunk_rows: int | Non
                     f"{meta or 'no files'}): the store is incomplete or damaged. Write it "
                     "again with `quash convert SRC DST.zarr`."
                 )
+            hint = result_hint(node.keys(), dict(node.attrs).get("map_source"))
             raise MapFormatError(
-                f"{path}: missing array 'embeddings' (N, D). Found: {found}. Write maps with "
-                "`quash convert SRC DST.zarr`."
+                f"{path}: missing array 'embeddings' (N, D). Found: {found}."
+                + (hint or " Write maps with `quash convert SRC DST.zarr`.")
             )
         emb = node["embeddings"]
         attrs = dict(node.attrs)

@@ -773,3 +773,21 @@ def test_negative_up_axes_are_joined_to_up_and_nothing_else_is():
     assert _join_negative_axes(["--up", "+y", "-v"]) == ["--up", "+y", "-v"]
     assert _join_negative_axes(["--up", "-v"]) == ["--up", "-v"]  # no axis: argparse says
     assert _join_negative_axes(["q", "--", "--up", "-z"]) == ["q", "--", "--up", "-z"]
+
+
+@pytest.mark.parametrize("suffix", ["npz", "zarr"])
+def test_a_result_given_as_the_map_is_named_a_result_with_its_map(
+    tiny_world, tmp_path, capsys, suffix
+):
+    """``quash query r.npz ...`` on what ``quash query --out`` wrote said only "missing
+    array 'embeddings'": it now says the file is a query result and names the map the
+    result was made from (its provenance)."""
+    if suffix == "zarr":
+        pytest.importorskip("zarr")
+        pytest.importorskip("dask")
+    r = tmp_path / f"r.{suffix}"
+    code, _, err = query_chair(tiny_world, "--out", r, capsys=capsys)
+    assert code == 0, err
+    code, _, err = run_cli("query", r, "chair", "-c", tiny_world["config"], capsys=capsys)
+    assert code == 1
+    assert "is a query result" in err and str(Path(tiny_world["map"]).resolve()) in err
