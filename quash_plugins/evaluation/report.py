@@ -511,9 +511,11 @@ def report_markdown(
             lines.append(f"| {q} | " + (f"{label} | " if show else "") + " | ".join(row) + " |")
     ab_q = list((configs[0].get("absence") or {}).get("per_query", {})) if configs else []
     if per_query and ab_q:
+        tol = int((configs[0].get("absence") or {}).get("empty_tolerance") or 0)
+        correct = f"at most {tol} = correct" if tol else "0 = correct"
         lines += [
             "",
-            "Items matched by absence queries (0 = correct):",
+            f"Items matched by absence queries ({correct}):",
             "",
             "| absence query | " + " | ".join(c["name"] for c in configs) + " |",
             "|---|" + "---:|" * len(configs),

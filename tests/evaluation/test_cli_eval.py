@@ -353,3 +353,21 @@ def test_eval_without_absence_queries_says_so_and_names_the_scenes_query_file(
     _eval_json(alone, tmp_path)
     said = warned()
     assert len(said) == 1 and "--queries-file" not in said[0]
+
+
+def test_eval_markdown_says_what_an_absence_query_may_match_under_empty_tolerance(world, tmp_path):
+    """With --empty-tolerance N the absence table's heading said '0 = correct', while a
+    query matching up to N items was scored as correct (absence 1.000 beside a count of 7)."""
+    out, md = tmp_path / "r.json", tmp_path / "r.md"
+    args = ["eval", str(world / "scene.npz"), "-c", str(world / "base.yaml")]
+    args += ["--queries", "wall", "--absent", "piano,bathtub", "--json", str(out)]
+    assert main([*args, "--markdown", str(md)]) == 0
+    assert "Items matched by absence queries (0 = correct):" in md.read_text()
+    matched = json.loads(out.read_text())["configs"][0]["absence"]["per_query"]
+    tol = max(v["matched"] for v in matched.values()) + 1
+    assert main([*args, "--markdown", str(md), "--empty-tolerance", str(tol)]) == 0
+    text = md.read_text()
+    assert f"Items matched by absence queries (at most {tol} = correct):" in text
+    assert "0 = correct" not in text
+    absence = json.loads(out.read_text())["configs"][0]["absence"]
+    assert absence["score"] == 1.0 and absence["empty_tolerance"] == tol
