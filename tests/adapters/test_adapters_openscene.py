@@ -410,3 +410,26 @@ def test_refusals_give_the_safe_fix_never_torch_advice(tmp_path):
         assert "\x1b[" not in said and "weights_only=False" not in said
         assert "add_safe_globals" not in said and "trust" not in said
     assert not marker.exists()
+
+
+def test_unreadable_numpy_features_or_points_say_how_to_fix_them(tmp_path):
+    """A ``.npy`` of features or points that numpy refuses said only 'not a readable .npy
+    array (...)': a cut-short file is to be copied again, an array of Python objects
+    re-saved as numbers."""
+    s = scannet_scene(tmp_path, n=50, d=8)
+    feats = np.random.default_rng(1).normal(size=(50, 8)).astype(np.float32)
+    path = tmp_path / "openseg" / "scene0011_00_openscene_feat_ensemble.npy"
+    np.save(path, feats)
+    whole = path.read_bytes()
+    path.write_bytes(whole[: len(whole) // 2])  # an interrupted copy
+    with pytest.raises(MapFormatError, match="truncated .*copy or extract that file again"):
+        read_map(path, "openscene")
+    np.save(path, np.array([{"a": 1}] * 50, dtype=object), allow_pickle=True)
+    with pytest.raises(MapFormatError, match=r"Python objects.*np\.asarray\(features"):
+        read_map(path, "openscene")
+    np.save(path, feats)
+    xyz = tmp_path / "xyz.npy"
+    np.save(xyz, s["coords"])
+    xyz.write_bytes(xyz.read_bytes()[:100])
+    with pytest.raises(MapFormatError, match="copy or extract that points file again"):
+        read_map(path, "openscene", points=str(xyz))
