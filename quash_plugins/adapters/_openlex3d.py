@@ -407,7 +407,12 @@ def _exported_record(folder: Path) -> dict[str, str]:
     try:
         meta = json.loads(marker.read_text(encoding="utf-8"))
     except (OSError, ValueError):
-        log.warning("%s: not readable JSON; the map's encoder record is ignored", marker)
+        log.warning(
+            "%s: not readable JSON (cut short?); the map's encoder record and up axis it "
+            "holds are ignored, so +z is taken as up: give --up (or export the map again) "
+            "if it is not z-up",
+            marker,
+        )
         return {}
     meta = meta if isinstance(meta, dict) else {}
     recorded = meta.get("source") if isinstance(meta.get("source"), dict) else {}

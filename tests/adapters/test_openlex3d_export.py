@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import logging
 import re
 import warnings
 from pathlib import Path
@@ -221,3 +222,24 @@ def test_export_records_the_up_axis_and_reads_it_back(tmp_path):
     (out / "quash_export.json").write_text(json.dumps({**meta, "up": "y"}), encoding="utf-8")
     with pytest.raises(MapFormatError, match=r"quash_export\.json.*'up'.*'y'.*\+y"):
         read_map(out)
+
+
+def test_a_cut_short_export_record_says_the_up_axis_is_lost_too(tmp_path, caplog):
+    """A ``quash_export.json`` cut short loses the up axis it records as well as the
+    encoder record; the warning said only the encoder, and the y-up map was read as z-up
+    with nothing said of its axis."""
+    src, _ = cf_map(tmp_path)
+    out = tmp_path / "preds"
+    assert main(["-q", "convert", str(src), str(out), "--format", "openlex3d", "--up", "+y"]) == 0
+    marker = out / "quash_export.json"
+    marker.write_bytes(marker.read_bytes()[: len(marker.read_bytes()) // 2])
+    quash_log = logging.getLogger("quash_plugins")  # main() stops it propagating
+    quash_log.addHandler(caplog.handler)
+    try:
+        with caplog.at_level(logging.WARNING):
+            lmap = read_map(out)
+    finally:
+        quash_log.removeHandler(caplog.handler)
+    assert "up" not in lmap.source
+    said = [r.getMessage() for r in caplog.records if "quash_export.json" in r.getMessage()]
+    assert len(said) == 1 and "up axis" in said[0] and "--up" in said[0], said
