@@ -138,7 +138,9 @@ class ImageFeaturesAdapter(MapAdapter):
         :meth:`read` says when named)."""
         try:
             path = Path(source).expanduser() if isinstance(source, (str, Path)) else None
-            return images_only_hint(path).strip() if path is not None else ""
+            if path is None:
+                return ""
+            return images_only_hint(path).strip() or _unreadable_frames_hint(path)
         except OSError:
             return ""
 
@@ -316,6 +318,28 @@ class _Header:
 def _header(path: Path) -> _Header:
     arr = load_array(path)
     return _Header(arr.shape, arr.dtype)
+
+
+def _unreadable_frames_hint(folder: Path, limit: int = 256) -> str:
+    """For a folder whose frame files numpy cannot read at all (each cut short, or of
+    Python objects), so that no adapter recognises it: name them, and the adapter that
+    says why for each. ``""`` when there are none (or it is no folder)."""
+    if not folder.is_dir():
+        return ""
+    bad = []
+    for q in sorted(folder.iterdir())[:limit]:
+        if q.is_file() and q.suffix == ".npy" and not not_a_frame_name(q.stem):
+            try:
+                np.load(q, mmap_mode="r", allow_pickle=False)
+            except (OSError, ValueError, EOFError):
+                bad.append(q.name)
+    if not bad:
+        return ""
+    shown = ", ".join(bad[:3]) + (f" and {len(bad) - 3} more" if len(bad) > 3 else "")
+    return (
+        f"It holds .npy files that numpy cannot read ({shown}): if they are per-image "
+        "features, pass --adapter image-features, which names what is wrong with them."
+    )
 
 
 def _npy_frame(path: Path) -> bool:

@@ -443,6 +443,24 @@ def test_feat_object_npy_frame_is_not_called_truncated(tmp_path):
     assert "truncated" not in msg
 
 
+def test_feat_folder_of_only_unreadable_frames_names_them_under_auto(tmp_path):
+    """A folder whose every frame numpy cannot read is recognised by no adapter: under
+    ``--adapter auto`` it said only 'No adapter recognises DIR', naming neither the
+    files nor the adapter that says what is wrong with them."""
+    from quash_plugins.core.maps import detect_adapter
+
+    for stem in ("f0", "f1"):
+        np.save(tmp_path / f"{stem}.npy", np.ones((8, 8, 16), np.float16))
+        cut = tmp_path / f"{stem}.npy"
+        cut.write_bytes(cut.read_bytes()[:100])
+    np.save(tmp_path / "poses.npy", np.eye(4))  # a side file is no frame: not named
+    with pytest.raises(MapFormatError) as err:
+        detect_adapter(tmp_path)
+    msg = str(err.value)
+    assert "No adapter recognises" in msg and "f0.npy, f1.npy" in msg
+    assert "--adapter image-features" in msg and "poses.npy" not in msg
+
+
 @pytest.mark.parametrize(
     "name,field", [("embeddings.npy", "'embeddings'"), ("index.npy", "'index'")]
 )
