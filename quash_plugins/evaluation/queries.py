@@ -202,16 +202,19 @@ def read_query_file(
             "or [labels], absent: [texts]} (quash make-scene writes SCENE.queries.yaml)."
         )
     data, _ = load_yaml(path, "query file")
+
+    def unknown_key(key: object, guess: str | None) -> QuashError:
+        hint = f" Did you mean {guess!r}?" if guess else ""
+        return QuashError(
+            f"{path}: unknown key {key!r}; a query file holds 'present' and "
+            f"'absent' (and make-scene's {', '.join(QUERY_FILE_INFO)}).{hint}"
+        )
+
     if isinstance(data, dict) and ("present" in data or "absent" in data):
         known = ("present", "absent", *QUERY_FILE_INFO)
         for key in data:
             if key not in known:
-                guess = closest(str(key), ("present", "absent"))
-                hint = f" Did you mean {guess!r}?" if guess else ""
-                raise QuashError(
-                    f"{path}: unknown key {key!r}; a query file holds 'present' and "
-                    f"'absent' (and make-scene's {', '.join(QUERY_FILE_INFO)}).{hint}"
-                )
+                raise unknown_key(key, closest(str(key), ("present", "absent")))
         present, absent = data.get("present") or [], data.get("absent") or []
     elif isinstance(data, dict) and data and all(isinstance(v, list) for v in data.values()):
         # every value a list: {label: [sub-classes]}, a taxonomy given as the query file
@@ -223,6 +226,13 @@ def read_query_file(
             "{name: taxonomy, file: ...}."
         )
     elif isinstance(data, (dict, list)):
+        if isinstance(data, dict):
+            # a section under a misspelt name ('presnt: {bunk bed: bed}' alone): no label
+            # is a mapping or a list, so say which key is wrong, not that its label is
+            for key, value in data.items():
+                guess = closest(str(key), ("present", "absent"))
+                if isinstance(value, (dict, list)) and guess:
+                    raise unknown_key(key, guess)
         present, absent = data, []
     else:
         raise QuashError(

@@ -37,6 +37,13 @@ def test_a_query_given_twice_with_two_labels_is_refused():
             "presnt:\n  a cobot: robot arm\nabsent: [a giraffe]\n",
             r"q\.yaml: unknown key 'presnt'.*Did you mean 'present'\?",
         ),
+        # the same misspelling with no 'absent' beside it: the key is named, not read as
+        # a query 'presnt' whose label is a mapping
+        (
+            "presnt:\n  a cobot: robot arm\n",
+            r"q\.yaml: unknown key 'presnt'.*Did you mean 'present'\?",
+        ),
+        ("absnt: [a giraffe]\nchair: chair\n", r"q\.yaml: unknown key 'absnt'.*'absent'\?"),
         # a wrong type names the section that has it, not both
         (
             "present: [chair]\nabsent: a giraffe\n",
