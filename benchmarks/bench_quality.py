@@ -97,9 +97,13 @@ def named_generators(spec: str | None, classes: str | None) -> list[str]:
 def with_classes(gens: list[str], path: Path) -> list[str]:
     """The generators ``gens`` on the class-table file ``path``, added to GENERATORS as
     ``STEM-GENERATOR`` (only table A's generators: the file replaces table A)."""
+    from quash_plugins.core.errors import QuashError
     from quash_plugins.demo.class_file import load_class_table
 
-    load_class_table(path)  # a bad file fails here, naming the field
+    try:
+        load_class_table(path)  # a bad file fails here, naming the field
+    except QuashError as exc:  # said as quash make-scene says it, not as a traceback
+        raise SystemExit(f"--classes: {exc}") from None
     out = []
     for g in gens:
         if GENERATORS[g].get("classes", "a") != "a":

@@ -142,8 +142,11 @@ def test_classes_file_runs_table_a_generators_on_it(bq, tmp_path, monkeypatch):
     with pytest.raises(SystemExit, match="b-hard uses another table"):
         bq.with_classes(["b-hard"], path)
     path.write_text("classes: []\n")
-    with pytest.raises(Exception, match="mine.yaml: absent: missing"):
+    # the mistake is the exit message (no traceback), as quash make-scene says it
+    with pytest.raises(SystemExit, match="--classes: .*mine.yaml: absent: missing"):
         bq.with_classes(["project"], path)
+    with pytest.raises(SystemExit, match="--classes: .*nowhere.yaml: no such class-table file"):
+        bq.with_classes(["project"], tmp_path / "nowhere.yaml")
 
 
 def test_a_changed_class_table_file_is_not_reused(bq, tmp_path, monkeypatch):
