@@ -176,9 +176,9 @@ def main() -> None:
     unknown = [g for g in gens if g not in GENERATORS]
     if unknown:
         raise SystemExit(f"unknown generator: {unknown[0]} (of {', '.join(GENERATORS)})")
-    out.mkdir(parents=True, exist_ok=True)  # after the checks: a refused run leaves nothing
     if args.classes:
         gens = with_classes(gens, Path(args.classes))
+    out.mkdir(parents=True, exist_ok=True)  # after the checks: a refused run leaves nothing
     seeds = [int(s) for s in args.seeds.split(",")]
     encoder = registry.create("encoders", "minilm")
     cache = open_cache(True)

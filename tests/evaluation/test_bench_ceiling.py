@@ -95,3 +95,12 @@ def test_a_refused_run_leaves_no_output_folder(bc, tmp_path, monkeypatch):
     with pytest.raises(SystemExit, match="unknown generator: nope"):
         bc.main()
     assert not out.exists()
+
+
+def test_a_refused_class_table_file_leaves_no_output_folder(bc, tmp_path, monkeypatch):
+    out = tmp_path / "ceiling"
+    argv = ["bench_ceiling.py", "--out", str(out), "--classes", str(tmp_path / "nowhere.yaml")]
+    monkeypatch.setattr("sys.argv", argv)
+    with pytest.raises(SystemExit, match="nowhere.yaml: no such class-table file"):
+        bc.main()
+    assert not out.exists()
