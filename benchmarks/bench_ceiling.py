@@ -40,7 +40,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from bench_quality import GENERATORS, named_generators, with_classes
+from bench_quality import GENERATORS, named_generators, parse_seeds, with_classes
 
 from quash_plugins.core import registry
 from quash_plugins.core.text import encode_texts
@@ -178,8 +178,8 @@ def main() -> None:
         raise SystemExit(f"unknown generator: {unknown[0]} (of {', '.join(GENERATORS)})")
     if args.classes:
         gens = with_classes(gens, Path(args.classes))
+    seeds = parse_seeds(args.seeds)
     out.mkdir(parents=True, exist_ok=True)  # after the checks: a refused run leaves nothing
-    seeds = [int(s) for s in args.seeds.split(",")]
     encoder = registry.create("encoders", "minilm")
     cache = open_cache(True)
     recs = []

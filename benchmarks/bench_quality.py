@@ -86,6 +86,16 @@ TARGETS = {
 }
 
 
+def parse_seeds(spec: str) -> list[int]:
+    """The scene seeds of ``--seeds``: comma-separated integers ("0,1,2,3,4")."""
+    try:
+        return [int(s) for s in spec.split(",")]
+    except ValueError:
+        raise SystemExit(
+            f"--seeds {spec!r}: give comma-separated integers, e.g. --seeds 0,1,2,3,4"
+        ) from None
+
+
 def named_generators(spec: str | None, classes: str | None) -> list[str]:
     """The generators that ``--generators`` names (comma-separated), else every one, or
     table A's with ``--classes`` (unchecked: each script names the unknown its own way)."""
@@ -345,7 +355,7 @@ def main() -> None:
     args = ap.parse_args()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    seeds = [int(s) for s in args.seeds.split(",")]
+    seeds = parse_seeds(args.seeds)
     gens = named_generators(args.generators, args.classes)
     scens = [s for s in args.scenarios.split(",") if s]
     bad = [g for g in gens if g not in GENERATORS] + [s for s in scens if s not in SCENARIOS]

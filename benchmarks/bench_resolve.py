@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 import yaml
-from bench_quality import GENERATORS, free_texts, named_generators, run_one
+from bench_quality import GENERATORS, free_texts, named_generators, parse_seeds, run_one
 
 from quash_plugins.core import registry
 from quash_plugins.core.interfaces import ExpansionContext
@@ -171,7 +171,7 @@ def main() -> None:
     ap.add_argument("--lead", help="FLOOR:LEAD, the rule tried and not shipped")
     args = ap.parse_args()
     out = Path(args.out)
-    seeds = [int(s) for s in args.seeds.split(",")]
+    seeds = parse_seeds(args.seeds)
     gens = named_generators(args.generators, None)
     if bad := [g for g in gens if g not in GENERATORS]:
         raise SystemExit(f"unknown generator: {bad[0]} (known: {', '.join(GENERATORS)})")

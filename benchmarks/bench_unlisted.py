@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 import yaml
-from bench_quality import GENERATORS, scene
+from bench_quality import GENERATORS, parse_seeds, scene
 
 from quash_plugins.core import registry
 from quash_plugins.core.interfaces import ExpansionContext
@@ -127,7 +127,7 @@ def main() -> None:
     ap.add_argument("--generators", default=",".join(GENERATORS))
     args = ap.parse_args()
     out = Path(args.out)
-    seeds = [int(s) for s in args.seeds.split(",")]
+    seeds = parse_seeds(args.seeds)
     gens = [g for g in args.generators.split(",") if g]
     if bad := [g for g in gens if g not in GENERATORS]:
         raise SystemExit(f"unknown generator: {bad[0]}")

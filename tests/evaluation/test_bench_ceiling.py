@@ -104,3 +104,11 @@ def test_a_refused_class_table_file_leaves_no_output_folder(bc, tmp_path, monkey
     with pytest.raises(SystemExit, match="nowhere.yaml: no such class-table file"):
         bc.main()
     assert not out.exists()
+
+
+def test_a_refused_seed_list_leaves_no_output_folder(bc, tmp_path, monkeypatch):
+    out = tmp_path / "ceiling"
+    monkeypatch.setattr("sys.argv", ["bench_ceiling.py", "--out", str(out), "--seeds", "0-4"])
+    with pytest.raises(SystemExit, match="--seeds '0-4': give comma-separated integers"):
+        bc.main()
+    assert not out.exists()

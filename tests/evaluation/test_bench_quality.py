@@ -224,3 +224,11 @@ def test_open_queries_split_by_kind_with_their_own_means_and_absence(bq, monkeyp
     assert cells[0][1] == "open-list, sub-class names" and cells[0][5] == "2.00x"
     assert cells[0][-1] == "yes"
     assert cells[1][1] == "open-list, free text" and cells[1][-1] == "NO"  # absence 0
+
+
+@pytest.mark.parametrize("spec", ["0-4", "0,x", "0 1 2"])
+def test_seeds_that_are_not_a_comma_separated_list_are_refused_with_the_form(bq, spec):
+    """--seeds 0-4 ended in a ValueError traceback (invalid literal for int())."""
+    with pytest.raises(SystemExit, match=r"--seeds .*comma-separated integers, e.g. --seeds 0,1"):
+        bq.parse_seeds(spec)
+    assert bq.parse_seeds("0,1,2,3,4") == [0, 1, 2, 3, 4]
