@@ -136,7 +136,8 @@ def run(args: argparse.Namespace) -> int:
             overrides=overrides,
             queries=split(args.queries) or None,
             absent=tuple(split(args.absent)),
-            on_table=lambda t: out.print(f"table {t}: done"),
+            # progress, not a result: --quiet leaves it out
+            on_table=None if args.quiet else lambda t: out.print(f"table {t}: done"),
         )
     print_markdown(out, (Path(args.out) / "bench.md").read_text(encoding="utf-8"), Path(args.out))
     return 0

@@ -101,6 +101,11 @@ def test_quash_bench_cli_writes_the_tables_it_was_asked_for(scene, tmp_path, cap
     md = (out / "bench.md").read_text()
     assert "## Classifiers\n\n_skipped: needs --taxonomy_" in md
     assert "table antonyms: done" in printed and "\nAntonyms (baseline)\n" in printed
+    # --quiet: the tables, without the progress lines between them
+    args = ["bench", str(scene / "scene.npz"), "--encoder", ENCODER, "--tables", "antonyms"]
+    assert main([*args, "--no-cache", "--out", str(out), "-q"]) == 0
+    quiet = capsys.readouterr().out
+    assert "table antonyms: done" not in quiet and "\nAntonyms (baseline)\n" in quiet
     assert "|---" not in printed  # rich tables on the console; the Markdown is in bench.md
     # a plot is named on the console, not linked as Markdown; bench.md keeps the link
     assert "![" not in printed and "](antonyms.png)" not in printed
