@@ -113,11 +113,14 @@ def match_labels(
                 if near:
                     raise QuashError(_typo_message(text, label, near, source))
                 if text != label:
+                    where = f"under 'absent' in {source}" if source else "under --absent"
                     log.warning(
-                        "query %r: its label %r is not a label of the map, so it is scored "
-                        "as an absence query (list it under 'absent' or --absent to say so).",
+                        "%squery %r: its label %r is not a label of the map, so it is scored "
+                        "as an absence query (list it %s to say so).",
+                        f"{source}: " if source else "",
                         text,
                         label,
+                        where,
                     )
         out[text] = label
     return out

@@ -172,6 +172,28 @@ def test_a_misspelt_label_in_a_query_file_names_the_file(tmp_path, capsys):
     assert "Did you mean 'robot arm'?" in err and f"under 'absent' in {q}" in err
 
 
+def test_a_query_file_label_the_map_lacks_is_warned_about_naming_the_file(tmp_path, caplog):
+    """The warning that a query file's label is no label of the map (so its query is
+    scored as an absence query) did not say which file to fix, as the typo error does."""
+    import logging
+
+    from quash_plugins.evaluation import evaluate
+
+    lmap, peer = _robot_map_and_peer()
+    q = tmp_path / "q.yaml"
+    q.write_text("present:\n  quadcopter: drone\n  forklift: forklift\n")
+    with caplog.at_level(logging.WARNING, logger="quash_plugins.evaluation.queries"):
+        present, absent = load_query_file(q)
+        rep = evaluate(lmap, [peer], queries=present, absent=absent, query_file=q)
+    assert rep.queries == ["forklift"] and rep.absent == ["quadcopter"]
+    warned = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    assert any(
+        m.startswith(f"{q}: query 'quadcopter': its label 'drone' is not a label")
+        and f"list it under 'absent' in {q}" in m
+        for m in warned
+    ), warned
+
+
 def test_a_query_whose_label_is_listed_absent_or_carried_by_no_item_is_an_absence_query(caplog):
     import logging
 
