@@ -209,13 +209,19 @@ def test_bench_usage_errors(scene, tmp_path, capsys, args, message):
         (["--absent", "Wall"], "Absence query 'Wall' (--absent): "),
         (["--queries", "bunk bed="], "write an open-vocabulary query as TEXT=LABEL"),
         (["--queries", "a=b=bed"], "holds more than one '='"),
-        (["--queries", ""], "--queries is empty"),  # as quash eval refuses it
-        (["--tables", ""], "--tables is empty"),  # was: {} written over earlier results
+        (["--queries", " , "], "--queries is empty"),  # as quash eval refuses it
+        (["--tables", " "], "--tables is empty"),  # was: {} written over earlier results
+        # an empty string is refused with the usage, as for every option (argparse exits)
+        (["--queries", ""], "argument --queries: an empty value"),
+        (["--tables", ""], "argument --tables: an empty value"),
     ],
 )
 def test_bench_refuses_a_query_list_before_any_table(scene, tmp_path, capsys, args, message):
     # was: every row of every table 'skipped' with the same note, and exit status 0
-    code = main(["bench", str(scene / "scene.npz"), "--out", str(tmp_path / "o"), *args])
+    try:
+        code = main(["bench", str(scene / "scene.npz"), "--out", str(tmp_path / "o"), *args])
+    except SystemExit as exc:
+        code = exc.code
     assert code != 0
     assert message in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
