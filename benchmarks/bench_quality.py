@@ -354,7 +354,6 @@ def main() -> None:
     )
     args = ap.parse_args()
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     seeds = parse_seeds(args.seeds)
     gens = named_generators(args.generators, args.classes)
     scens = [s for s in args.scenarios.split(",") if s]
@@ -366,6 +365,7 @@ def main() -> None:
         )
     if args.classes:
         gens = with_classes(gens, Path(args.classes))
+    out.mkdir(parents=True, exist_ok=True)  # after every check: a refused run leaves none
     encoder = registry.create("encoders", "minilm")
     cache = open_cache(True)
     recs = []

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import hashlib
 import importlib.util
+import sys
 from pathlib import Path
 
 import pytest
@@ -232,3 +233,17 @@ def test_seeds_that_are_not_a_comma_separated_list_are_refused_with_the_form(bq,
     with pytest.raises(SystemExit, match=r"--seeds .*comma-separated integers, e.g. --seeds 0,1"):
         bq.parse_seeds(spec)
     assert bq.parse_seeds("0,1,2,3,4") == [0, 1, 2, 3, 4]
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [["--seeds", "0-4"], ["--generators", "nope"], ["--scenarios", "closd"]],
+)
+def test_a_refused_run_leaves_no_out_folder(bq, tmp_path, monkeypatch, argv):
+    """--out was made before the arguments were checked: a run refused for its seeds, a
+    generator or a scenario left an empty folder behind (bench_ceiling.py does not)."""
+    out = tmp_path / "o"
+    monkeypatch.setattr(sys, "argv", ["bench_quality.py", "--out", str(out), *argv])
+    with pytest.raises(SystemExit):
+        bq.main()
+    assert not out.exists()
