@@ -43,6 +43,11 @@ def read_text_file(path: str | Path, what: str = "file") -> str:
         fd = os.open(p, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
     except FileNotFoundError:
         raise ConfigError(f"{what.capitalize()} not found: {p}") from None
+    except PermissionError as exc:
+        raise ConfigError(
+            f"Cannot read {what} {p}: {exc.strerror}. This user may not read it (ls -l "
+            "shows who may): make it readable, or give a copy this user can read."
+        ) from None
     except OSError as exc:
         raise ConfigError(f"Cannot read {what} {p}: {exc.strerror}.") from None
     try:

@@ -90,3 +90,23 @@ def test_cli_config_that_is_a_fifo_is_refused(tiny_world, tmp_path, capsys):
         assert main(["query", str(tiny_world["map"]), "chair", "-c", str(fifo)]) == 1
     err = capsys.readouterr().err
     assert f"Config file {fifo} is a pipe (FIFO), not a regular file" in err
+
+
+def test_a_file_this_user_may_not_read_says_so_with_the_fix(tmp_path, monkeypatch):
+    """'Permission denied' alone gave no fix (root reads every file, so the denial is
+    made by the stand-in os.open below)."""
+    f = tmp_path / "q.yaml"
+    f.write_text("present: [chair]\n", encoding="utf-8")
+    real_open = os.open
+
+    def denied(path, *args, **kwargs):
+        if Path(path) == f:
+            raise PermissionError(13, "Permission denied", str(path))
+        return real_open(path, *args, **kwargs)
+
+    monkeypatch.setattr(os, "open", denied)
+    with pytest.raises(ConfigError) as err:
+        read_text_file(f, "query file")
+    msg = str(err.value)
+    assert f"Cannot read query file {f}: Permission denied." in msg
+    assert "make it readable, or give a copy this user can read" in msg
