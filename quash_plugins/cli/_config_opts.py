@@ -151,12 +151,10 @@ def _override_plugin_devices(cfg: QuashConfig, device: str) -> None:
 def input_files(map_path: str | None, configs: list[QuashConfig]) -> list[str]:
     """The files a run reads besides the map, that no output may replace: the map's
     sidecar taxonomy (``MAP.taxonomy.yaml``, read by the taxonomy heuristics), each
-    config's YAML file and every file its plugins name (``encoder.file``,
-    ``heuristic.file``, a vocabulary, a label list's ``unlisted`` names, a prompt-template
-    file, ``map_negatives``' vocabulary...). A file that does not
-    exist is listed too: nothing will then be read from it, and checks skip it."""
-    from ..core.config import PluginSpec, names_a_file
-    from ..core.text import TEMPLATE_NAMES
+    config's YAML file and every file it names (:meth:`QuashConfig.named_files`:
+    ``encoder.file``, a label list's ``unlisted`` names, a prompt-template file...). A
+    file that does not exist is listed too: nothing will then be read from it, and checks
+    skip it."""
     from ..heuristics import taxonomy_path_beside
 
     found: list[str] = []
@@ -164,30 +162,10 @@ def input_files(map_path: str | None, configs: list[QuashConfig]) -> list[str]:
         beside = taxonomy_path_beside(map_path)
         if beside is not None:
             found.append(str(beside))
-
-    def walk(params: object) -> None:
-        if isinstance(params, dict):
-            for k, v in params.items():
-                if names_a_file(str(k), v) and k != "cache_dir":
-                    found.append(v)
-                else:
-                    walk(v)
-        elif isinstance(params, (list, tuple)):
-            for v in params:
-                walk(v)
-
     for cfg in configs:
         if cfg.source:
             found.append(str(cfg.source))
-        for value in vars(cfg).values():
-            if isinstance(value, PluginSpec):
-                walk(value.params)
-        templates = (cfg.prompt_templates or {}).get("templates")
-        if isinstance(templates, str) and templates not in TEMPLATE_NAMES:
-            found.append(templates)
-        vocabulary = (cfg.map_negatives or {}).get("vocabulary")
-        if isinstance(vocabulary, str):
-            found.append(vocabulary)
+        found += cfg.named_files()
     return [f for f in found if "://" not in f and not f.startswith("hf-hub:")]
 
 

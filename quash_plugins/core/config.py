@@ -291,6 +291,38 @@ class QuashConfig:
             return cls.from_dict(source)
         return cls.from_yaml(source)
 
+    def named_files(self) -> list[str]:
+        """The files this config's settings name, as read (relative paths resolved
+        against its folder): every plugin parameter that :func:`names_a_file` says is one
+        (``encoder.file``, a label list's ``unlisted``...; not ``cache_dir``, a folder),
+        ``prompt_templates``' template file and ``map_negatives``' vocabulary. The YAML
+        file itself (``source``) is not listed."""
+        from .text import TEMPLATE_NAMES
+
+        found: list[str] = []
+
+        def walk(params: object) -> None:
+            if isinstance(params, dict):
+                for k, v in params.items():
+                    if names_a_file(str(k), v) and k != "cache_dir":
+                        found.append(v)
+                    else:
+                        walk(v)
+            elif isinstance(params, (list, tuple)):
+                for v in params:
+                    walk(v)
+
+        for value in vars(self).values():
+            if isinstance(value, PluginSpec):
+                walk(value.params)
+        templates = (self.prompt_templates or {}).get("templates")
+        if isinstance(templates, str) and templates not in TEMPLATE_NAMES:
+            found.append(templates)
+        vocabulary = (self.map_negatives or {}).get("vocabulary")
+        if isinstance(vocabulary, str):
+            found.append(vocabulary)
+        return found
+
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {}
         for f in dataclasses.fields(self):

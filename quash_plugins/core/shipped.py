@@ -51,18 +51,18 @@ class ShippedConfig:
         return self.needs is None
 
     def portable_text(self) -> str:
-        """The config's text with each path option (``file:``, ``taxonomy:``, ...) that
-        names a file beside it made absolute, so that a copy saved anywhere (``quash
-        configs NAME > mine.yaml``) still finds the shipped taxonomy; everything else,
-        comments included, as shipped."""
-        from .config import _is_path_key
+        """The config's text with each option that names a file (``file:``,
+        ``taxonomy:``, ...: :func:`~.config.names_a_file`) beside it made absolute, so
+        that a copy saved anywhere (``quash configs NAME > mine.yaml``) still finds the
+        shipped taxonomy; everything else, comments included, as shipped."""
+        from .config import names_a_file
 
         folder = self.path.parent
 
         def absolute(m: re.Match) -> str:
             key, name = m.group(1), m.group(2)
             target = folder / name
-            if not _is_path_key(key) or Path(name).is_absolute() or not target.is_file():
+            if not names_a_file(key, name) or Path(name).is_absolute() or not target.is_file():
                 return m.group(0)
             # a JSON string is a YAML string
             return m.group(0)[: m.start(2) - m.start(0)] + json.dumps(str(target))
