@@ -100,6 +100,20 @@ def test_an_adapters_points_file_is_resolved_against_the_config_folder(tmp_path)
     assert cfg.adapter.params["points"] == str((folder / "scene_vh_clean_2.pth").resolve())
 
 
+def _read_from_elsewhere(tmp_path, monkeypatch, files: dict, text: str):
+    """Write ``files`` and the config ``text`` into tmp_path/cfg, and read the config
+    from another folder: ``(config, its folder)``."""
+    folder = tmp_path / "cfg"
+    folder.mkdir()
+    for name, content in files.items():
+        (folder / name).write_text(content, encoding="utf-8")
+    (folder / "c.yaml").write_text(text)
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    return QuashConfig.from_yaml(folder / "c.yaml"), folder
+
+
 def test_unlisted_and_map_negatives_files_are_resolved_against_the_config_folder(
     tmp_path, monkeypatch
 ):
@@ -108,19 +122,14 @@ def test_unlisted_and_map_negatives_files_are_resolved_against_the_config_folder
     another folder, both were looked up in the current folder: 'file not found')."""
     from quash_plugins.core import registry
 
-    folder = tmp_path / "cfg"
-    folder.mkdir()
-    (folder / "names.txt").write_text("fireplace\npiano\n", encoding="utf-8")
-    p = folder / "c.yaml"
-    p.write_text(
+    cfg, folder = _read_from_elsewhere(
+        tmp_path,
+        monkeypatch,
+        {"names.txt": "fireplace\npiano\n"},
         "heuristic: {name: combine, synonyms: {name: taxonomy, unlisted: names.txt},\n"
         "            antonyms: {name: label-list, unlisted: vocabulary}}\n"
-        "map_negatives: {n: 3, vocabulary: names.txt}\n"
+        "map_negatives: {n: 3, vocabulary: names.txt}\n",
     )
-    elsewhere = tmp_path / "elsewhere"
-    elsewhere.mkdir()
-    monkeypatch.chdir(elsewhere)
-    cfg = QuashConfig.from_yaml(p)
     names = str((folder / "names.txt").resolve())
     assert cfg.map_negatives["vocabulary"] == names
     assert cfg.heuristic.params["synonyms"]["unlisted"] == names
@@ -140,18 +149,13 @@ def test_a_template_file_of_the_templates_heuristic_is_resolved_against_the_conf
     a list stay as they are."""
     from quash_plugins.core import registry
 
-    folder = tmp_path / "cfg"
-    folder.mkdir()
-    (folder / "mine.txt").write_text("a photo of a {}.\nthe {} in a room.\n", encoding="utf-8")
-    p = folder / "c.yaml"
-    p.write_text(
+    cfg, folder = _read_from_elsewhere(
+        tmp_path,
+        monkeypatch,
+        {"mine.txt": "a photo of a {}.\nthe {} in a room.\n"},
         "heuristic: {name: combine, synonyms: {name: templates, templates: mine.txt},\n"
-        "            antonyms: {name: templates, templates: vlmaps-or-default}}\n"
+        "            antonyms: {name: templates, templates: vlmaps-or-default}}\n",
     )
-    elsewhere = tmp_path / "elsewhere"
-    elsewhere.mkdir()
-    monkeypatch.chdir(elsewhere)
-    cfg = QuashConfig.from_yaml(p)
     mine = cfg.heuristic.params["synonyms"]["templates"]
     assert mine == str((folder / "mine.txt").resolve())
     assert cfg.heuristic.params["antonyms"]["templates"] == "vlmaps-or-default"
