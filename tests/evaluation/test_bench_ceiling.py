@@ -89,26 +89,18 @@ def test_a_noiseless_scene_has_a_perfect_ceiling_and_a_moved_label_is_counted(bc
     assert top2["margins"]["0.0"]["present_empty"] >= 1  # chair gets nothing
 
 
-def test_a_refused_run_leaves_no_output_folder(bc, tmp_path, monkeypatch):
+@pytest.mark.parametrize(
+    "argv,match",
+    [
+        (["--generators", "nope"], "unknown generator: nope"),
+        (["--classes", "{tmp}/nowhere.yaml"], "nowhere.yaml: no such class-table file"),
+        (["--seeds", "0-4"], "--seeds '0-4': give comma-separated integers"),
+    ],
+)
+def test_a_refused_run_leaves_no_output_folder(bc, tmp_path, monkeypatch, argv, match):
     out = tmp_path / "ceiling"
-    monkeypatch.setattr("sys.argv", ["bench_ceiling.py", "--out", str(out), "--generators", "nope"])
-    with pytest.raises(SystemExit, match="unknown generator: nope"):
-        bc.main()
-    assert not out.exists()
-
-
-def test_a_refused_class_table_file_leaves_no_output_folder(bc, tmp_path, monkeypatch):
-    out = tmp_path / "ceiling"
-    argv = ["bench_ceiling.py", "--out", str(out), "--classes", str(tmp_path / "nowhere.yaml")]
-    monkeypatch.setattr("sys.argv", argv)
-    with pytest.raises(SystemExit, match="nowhere.yaml: no such class-table file"):
-        bc.main()
-    assert not out.exists()
-
-
-def test_a_refused_seed_list_leaves_no_output_folder(bc, tmp_path, monkeypatch):
-    out = tmp_path / "ceiling"
-    monkeypatch.setattr("sys.argv", ["bench_ceiling.py", "--out", str(out), "--seeds", "0-4"])
-    with pytest.raises(SystemExit, match="--seeds '0-4': give comma-separated integers"):
+    argv = [a.format(tmp=tmp_path) for a in argv]
+    monkeypatch.setattr("sys.argv", ["bench_ceiling.py", "--out", str(out), *argv])
+    with pytest.raises(SystemExit, match=match):
         bc.main()
     assert not out.exists()
