@@ -64,16 +64,12 @@ class EvalLogging:
             at yet (0, 1, 2... in order of first appearance when no result was logged);
             the same query string gets the same step for every config.
         """
-        rec = self.recording
         if isinstance(step_or_query, str):
             step = self._step_of(step_or_query)
         else:
             step = int(step_or_query)
-        rec.set_time("query", sequence=step)
-        try:
+        with self._at_query_step(step):
             self._log_scalars_at_step(str(config_name), metrics, step, step_or_query)
-        finally:  # the caller's recording: what it logs next is at no query step
-            rec.disable_timeline("query")
         self._layout_changed()
 
     def _log_scalars_at_step(
@@ -143,12 +139,10 @@ class EvalLogging:
         steps = [*queries, *absent]
         for i, q in enumerate(steps):  # a step named for another query is refused first
             self._check_step(i, q, "log_evaluation")
-        try:
+        with self._at_query_step():
             for i, q in enumerate(steps):
                 self.recording.set_time("query", sequence=i)
                 self._list_query(i, q, "log_evaluation")
-        finally:  # the caller's recording: what it logs next is at no query step
-            self.recording.disable_timeline("query")
         for c in configs:
             per_query = c.get("per_query") or {}
             for i, q in enumerate(queries):

@@ -8,6 +8,9 @@ in ``RerunLogger.__init__``, in ``_rerun.py``).
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
+
 import numpy as np
 
 from ..core.errors import QuashError
@@ -57,7 +60,6 @@ class ResultLogging:
         raises :class:`QuashError` naming both and a free index, before anything of it is
         logged. The map must be the one this logger logged (:meth:`log_map`).
         """
-        rec = self.recording
         self.log_map(lmap)  # nothing when this map is logged already; another is refused
         if len(result.mask) != lmap.n:
             raise QuashError(
@@ -68,12 +70,21 @@ class ResultLogging:
         name = str(result.config_name or "quash")
         c = self._config_slug(name)
         state = self._configs.setdefault(c, _ConfigState(name))
-        rec.set_time("query", sequence=index)
-        try:
+        with self._at_query_step(index):
             self._log_result_at_step(lmap, result, index, c, state)
-        finally:  # the caller's recording: what it logs next is at no query step
-            rec.disable_timeline("query")
         self._layout_changed()
+
+    @contextlib.contextmanager
+    def _at_query_step(self, step: int | None = None) -> Iterator[None]:
+        """Log at ``step`` of the ``query`` timeline (None: the caller sets each step);
+        afterwards, whatever happens, the recording is at no query step, since it may be
+        the caller's: what a robot stack logs next is not stamped with a query."""
+        if step is not None:
+            self.recording.set_time("query", sequence=step)
+        try:
+            yield
+        finally:
+            self.recording.disable_timeline("query")
 
     def _log_result_at_step(
         self, lmap: LatentMap, result: QueryResult, index: int, c: str, state: _ConfigState
