@@ -8,6 +8,8 @@ message (no traceback unless ``--debug``) and exits with status 1; a
 from __future__ import annotations
 
 import difflib
+import importlib.util
+import sys
 from collections.abc import Iterable
 
 
@@ -91,9 +93,20 @@ def unknown_name_message(what: str, name: str, known: Iterable[str], *, guess: b
 
 
 def missing_module(exc: BaseException) -> str | None:
-    """The top-level module an :class:`ImportError` could not find, or None."""
+    """The top-level module an :class:`ImportError` could not find because it is not
+    installed, or None. None too for a module that is installed but lacks what was
+    imported from it (``from numpy import typo``, ``import mypackage.no_such_file``):
+    installing it is not the fix, and the error's own text names what is missing."""
     name = getattr(exc, "name", None)
-    return str(name).split(".")[0] if isinstance(exc, ImportError) and name else None
+    if not isinstance(exc, ModuleNotFoundError) or not name:
+        return None
+    top = str(name).split(".")[0]
+    if sys.modules.get(top) is not None:  # None: an import blocked, as if not installed
+        return None
+    try:
+        return top if importlib.util.find_spec(top) is None else None
+    except (ImportError, ValueError):  # a broken finder, a module without a spec
+        return top
 
 
 def install_hint(module: str, dist: str | None = None) -> str:

@@ -331,11 +331,14 @@ def _import_hint(info: PluginInfo, exc: BaseException) -> str:
         f"check the entry point {info.name!r} in group {GROUP_PREFIX + info.kind!r} of "
         f"{info.dist!r} (its pyproject.toml)"
     )
-    missing = getattr(exc, "name", None) if isinstance(exc, ImportError) else None
+    # Not an ImportError from inside the module (``from pkg import typo``), which names
+    # an installed module: the module named, or a package above it, is not there.
+    missing = getattr(exc, "name", None) if isinstance(exc, ModuleNotFoundError) else None
+    if missing and (module == missing or module.startswith(missing + ".")):
+        return f"The module {module!r} it names does not exist: {where}."
+    missing = missing_module(exc)
     if missing:
-        if module == missing or module.startswith(missing + "."):
-            return f"The module {module!r} it names does not exist: {where}."
-        return f"It {install_hint(str(missing).split('.')[0], info.dist)}"
+        return f"It {install_hint(missing, info.dist)}"
     if isinstance(exc, AttributeError) and attr:
         mod = sys.modules.get(module)
         first = attr.split(".")[0]

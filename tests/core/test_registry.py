@@ -240,3 +240,83 @@ def test_unknown_parameter_suggests_a_typo_fix_not_another_word():
     assert "Did you mean" not in str(info.value)
     with pytest.raises(ConfigError, match="Did you mean 'cache_frames'"):
         registry.create("adapters", "image-features", cache_frame=4)
+
+
+def _import_error(kind: str, name: str, target: str, load):
+    """A plugin entry point named ``target`` whose import runs ``load``."""
+    from quash_plugins.core import _entry_points
+    from quash_plugins.core._entry_points import PluginInfo
+
+    registry.available(kind)  # scanned
+    info = PluginInfo(kind, name, target, "pkg-imports", "0.1", _loader=load)
+    _entry_points._scanned[kind].append(info)
+    return info
+
+
+def _from_numpy_import_a_typo():
+    from numpy import no_such_name_in_numpy  # noqa: F401
+
+
+def _import_a_submodule_numpy_lacks():
+    import importlib
+
+    importlib.import_module("numpy.no_such_submodule")
+
+
+@pytest.mark.parametrize(
+    ("target", "load", "wrong"),
+    [
+        # the plugin's module exists; a name it imports from an installed package does not
+        ("numpy.my_encoder:Thing", _from_numpy_import_a_typo, "it names does not exist"),
+        ("my_plugin.encoder:Thing", _import_a_submodule_numpy_lacks, "not installed"),
+    ],
+)
+def test_an_import_error_of_an_installed_package_is_not_called_not_installed(target, load, wrong):
+    """A plugin module doing ``from numpy import typo`` was reported as an entry point
+    naming a module that does not exist, and ``import mypackage.no_such_file`` (its own
+    package's missing helper module) as 'needs the Python module 'mypackage', which is
+    not installed': neither is the fix. The import error's own text is reported."""
+    info = _import_error("encoders", "imports-badly", target, load)
+    try:
+        with pytest.raises(PluginError) as err:
+            registry.load("encoders", "imports-badly")
+    finally:
+        from quash_plugins.core import _entry_points
+
+        _entry_points._scanned["encoders"].remove(info)
+    msg = str(err.value)
+    assert wrong not in msg
+    assert "no_such_" in msg and "Fix or uninstall 'pkg-imports'" in msg
+
+
+class _ImportsATypoWhenBuilt(_Enc):
+    def __init__(self) -> None:
+        _import_a_submodule_numpy_lacks()
+
+
+class _ImportsATypoWhenEncoding(_Enc):
+    def encode_text(self, texts):
+        _from_numpy_import_a_typo()
+
+
+def test_an_import_error_when_built_or_encoding_is_not_called_not_installed(tmp_path):
+    """The same mistake in ``__init__`` or ``encode_text`` said 'numpy ... is not
+    installed'; a dependency that is really missing still says so."""
+    from quash_plugins.core.errors import EncoderError, missing_module
+    from quash_plugins.core.text import encode_texts
+
+    registry.register("encoders", "typo-built", _ImportsATypoWhenBuilt, dist="pkg-imports")
+    try:
+        with pytest.raises(PluginError) as err:
+            registry.create("encoders", "typo-built")
+    finally:
+        registry.unregister("encoders", "typo-built", dist="pkg-imports")
+    assert "not installed" not in str(err.value)
+    assert "numpy.no_such_submodule" in str(err.value)
+    with pytest.raises(EncoderError) as err:
+        encode_texts(_ImportsATypoWhenEncoding(), ["chair"])
+    assert "not installed" not in str(err.value)
+    assert "no_such_name_in_numpy" in str(err.value)
+    with pytest.raises(ImportError) as err:
+        import a_dependency_that_is_not_installed  # noqa: F401
+    assert missing_module(err.value) == "a_dependency_that_is_not_installed"
