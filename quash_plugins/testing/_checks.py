@@ -161,6 +161,37 @@ def check_encoder_deterministic(enc: Any, tmp_path: Path) -> None:
         "so draw any randomness from a fixed seed or from the text itself, never from the "
         "global random state (and put the model in eval mode: no dropout)."
     )
+    # Another instance with the same fingerprint (another process: the query after the
+    # map was built, the text cache) must give the same rows too.
+    other = _rebuilt(enc)
+    if other is None:
+        return
+    try:
+        c = np.asarray(other.encode_text(["chair", "table"]))
+    except Exception:  # noqa: BLE001 - weights it cannot load twice: not this check's
+        return
+    assert c.shape == a.shape and np.allclose(a, c, atol=1e-5), (
+        "encode_text must be the same function in every instance with the same "
+        f"fingerprint(): a second {type(enc).__name__} built with the same parameters "
+        "embedded the same texts differently"
+        + (f" (by up to {float(np.abs(a - c).max()):.3g})" if c.shape == a.shape else "")
+        + ". Embeddings are cached on disk by fingerprint and a map is queried in another "
+        "process than the one that built it, so seed any random initialisation (a "
+        "projection drawn in __init__) with a parameter that config() returns."
+    )
+
+
+def _rebuilt(enc: Any) -> Any:
+    """A second instance of ``enc``'s class built with the parameters ``enc`` holds,
+    when it has the same fingerprint; else None (parameters that cannot be known)."""
+    found = _numeric_params(enc)
+    if found is None:
+        return None
+    try:
+        other = type(enc)(**found[0])
+        return other if other.fingerprint() == enc.fingerprint() else None
+    except Exception:  # noqa: BLE001 - a value it refuses, or weights it cannot load
+        return None
 
 
 def check_encoder_batch_independent(enc: Any, tmp_path: Path) -> None:

@@ -211,6 +211,37 @@ def test_the_kit_catches_a_parameter_the_fingerprint_misses(tmp_path):
     check_encoder(Fixed(seed=1), tmp_path / "ok")
 
 
+class _UnseededProjection(_PrivateSeed):
+    """Conformant within one instance, but its projection is drawn, unseeded, in
+    ``__init__``: every instance (every process) embeds differently under one
+    fingerprint."""
+
+    name = "unseeded-projection"
+
+    def __init__(self, dim: int = 8) -> None:
+        super().__init__(dim)
+        self._proj = np.random.default_rng().normal(size=(dim, dim))
+
+    def encode_text(self, texts):
+        e = super().encode_text(texts).astype(np.float64) @ self._proj
+        return (e / np.linalg.norm(e, axis=1, keepdims=True)).astype(np.float32)
+
+
+def test_the_kit_catches_an_encoder_that_differs_between_instances(tmp_path):
+    """Before, the kit passed it (it compared one instance with itself), and a map built
+    in one process was queried with other text embeddings in the next, under the same
+    fingerprint (the text cache served one's rows to the other)."""
+    from quash_plugins.testing import HashingEncoder, check_encoder
+
+    with pytest.raises(AssertionError) as err:
+        check_encoder(_UnseededProjection(), tmp_path)
+    msg = " ".join(str(err.value).split())
+    assert msg.startswith("encoder 'unseeded-projection': check_encoder_deterministic: ")
+    assert "a second _UnseededProjection built with the same parameters" in msg
+    assert "seed any random initialisation" in msg
+    check_encoder(HashingEncoder(8), tmp_path / "ok")  # rebuilt, it embeds the same
+
+
 class _TorchOut(_PrivateSeed):
     """Returns the torch tensor its model computed, still carrying gradients (as a GPU
     tensor, it could not be handed to numpy either)."""
