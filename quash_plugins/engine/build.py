@@ -74,8 +74,17 @@ def build_quash(
     cfg = QuashConfig.load(config)
     where = f"{cfg.source}: " if cfg.source else ""
 
+    def located(text: str) -> bool:
+        return bool(cfg.source) and text.startswith(str(cfg.source))
+
     def build(kind: str, spec: PluginSpec, section: str) -> Any:
-        return build_plugin(kind, spec, section, cfg.device, where)
+        try:
+            return build_plugin(kind, spec, section, cfg.device)
+        except QuashError as exc:
+            # The file and the line of the entry it is about: the plugin's name, the
+            # parameter it does not accept, else the section.
+            keys = getattr(exc, "keys", (section,))
+            raise type(exc)(f"{cfg.location(*keys)}{exc}") from exc.__cause__
 
     try:
         try:
@@ -83,9 +92,7 @@ def build_quash(
         except QuashError as exc:
             if not defer_encoder_error or _misspelt_encoder(cfg.encoder.name):
                 raise
-            encoder = UnavailableEncoder(
-                exc if str(exc).startswith(where) else type(exc)(f"{where}{exc}")
-            )
+            encoder = UnavailableEncoder(exc if located(str(exc)) else type(exc)(f"{where}{exc}"))
             log.warning(
                 "%s (going on without the encoder; a step that needs it stops with this error)",
                 encoder.error,
@@ -93,7 +100,7 @@ def build_quash(
         heuristic = build("heuristics", cfg.heuristic, "heuristic")
         classifier = build("classifiers", cfg.classifier, "classifier")
     except QuashError as exc:
-        if where and not str(exc).startswith(where):
+        if where and not located(str(exc)):
             raise type(exc)(f"{where}{exc}") from exc.__cause__
         raise
     kwargs: dict[str, Any] = dict(
@@ -148,7 +155,9 @@ def build_plugin(
 ) -> Any:
     """Build plugin ``spec`` of ``kind`` through the registry, as a config's ``section``
     is built: a plugin that takes ``device`` and is not given one gets ``device``.
-    Errors read ``{where}{section}: ...``.
+    Errors read ``{where}{section}: ...`` and carry ``keys``, the config entry they are
+    about: ``(section, "name")`` for a plugin that cannot be loaded, ``(section, param)``
+    for a parameter it does not accept, else ``(section,)``.
 
     Examples
     --------
@@ -156,15 +165,22 @@ def build_plugin(
     ['chair']
     """
     params = dict(spec.params)
+    keys: tuple[str, ...] = (section, "name")
     try:
         obj = registry.load(kind, spec.name) if spec.name else None
+        keys = (section,)
         accepted = registry.accepted_params(obj) if obj is not None else None
+        if accepted is not None:
+            unknown = [p for p in params if p not in accepted]
+            keys = (section, unknown[0]) if unknown else keys
         if "device" not in params and accepted is not None and "device" in accepted:
             params["device"] = device
         return registry.create(kind, spec.name, **params)
     except QuashError as exc:
         # Keep what caused it (a plugin's own import error) for --debug's traceback.
-        raise type(exc)(f"{where}{section}: {exc}") from exc.__cause__
+        error = type(exc)(f"{where}{section}: {exc}")
+        error.keys = keys  # where a config file says it (QuashConfig.location)
+        raise error from exc.__cause__
 
 
 #: What a plugin argument of :class:`Quash` must have, when it is an object.

@@ -58,6 +58,50 @@ def test_unaccepted_plugin_parameter_names_the_file(tiny_world, tmp_path):
     assert str(p) in msg and "'kernel'" in msg and "Accepted: C, gamma" in msg
 
 
+@pytest.mark.parametrize(
+    ("lines", "line", "error", "words"),
+    [
+        # the parameter's own line, in block and in flow style
+        (
+            ["encoder: {name: table, file: T}", "classifier:", "  name: svm-rbf", "  gammma: 2"],
+            4,
+            ConfigError,
+            "does not accept parameter 'gammma'",
+        ),
+        (
+            [
+                "encoder: {name: table, file: T}",
+                "name: x",
+                "classifier: {name: svm-rbf, gammma: 2}",
+            ],
+            3,
+            ConfigError,
+            "does not accept parameter 'gammma'",
+        ),
+        # the name's line, under its section
+        (
+            ["encoder: {name: table, file: T}", "heuristic:", "  name: taxonomyy"],
+            3,
+            PluginError,
+            "Heuristic 'taxonomyy' is not registered",
+        ),
+        (["name: x", "encoder: minilmm"], 2, PluginError, "Encoder 'minilmm' is not registered"),
+    ],
+)
+def test_a_plugin_error_names_the_line_of_the_entry(
+    tiny_world, tmp_path, lines, line, error, words
+):
+    """An unknown plugin or parameter names the config file's line, as an unknown key
+    does: ``c.yaml:4: classifier: ... 'gammma'``, not only the file and the section."""
+    p = tmp_path / "c.yaml"
+    p.write_text("\n".join(lines).replace("file: T", f"file: {tiny_world['table']}") + "\n")
+    with pytest.raises(error) as err:
+        Quash.from_config(p)
+    msg = str(err.value)
+    assert msg.startswith(f"{p}:{line}: ") and words in msg, msg
+    assert msg.count(str(p)) == 1, msg
+
+
 def test_unknown_plugin_in_config(tiny_world):
     with pytest.raises(PluginError, match="Heuristic 'llmm' is not registered"):
         Quash.from_config(

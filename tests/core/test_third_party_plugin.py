@@ -193,7 +193,7 @@ def test_debug_shows_the_plugins_own_import_traceback(installed, tmp_path):
     cfg.write_text("encoder: broken-encoder\nheuristic: none\nclassifier: contrast\n")
     from quash_plugins.cli.main import main
 
-    with pytest.raises(PluginError, match=r"broken.yaml: .*failed to import") as err:
+    with pytest.raises(PluginError, match=r"broken.yaml:1: encoder: .*failed to import") as err:
         main(["query", str(tmp_path / "m.npz"), "chair", "-c", str(cfg), "--debug"])
     cause = err.value.__cause__
     assert isinstance(cause, ImportError)
