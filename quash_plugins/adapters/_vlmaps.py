@@ -387,6 +387,14 @@ def _explain_missing_file(source: Any) -> None:
     for name in KNOWN_NAMES[:2]:
         sub, file = name.split("/")
         if (folder / sub).is_dir() and not (folder / name).exists():
+            # a fork's file under its own name (vlmaps-lseg-0.05.h5df): name it and the fix
+            held = sorted(p for p in (folder / sub).glob("*.h5*") if p.is_file())
+            if held:
+                raise MapFormatError(
+                    f"{folder / sub}/ has no {file}, but holds "
+                    f"{', '.join(p.name for p in held)}: pass the map file itself "
+                    f"({held[0]})."
+                )
             raise MapFormatError(
                 f"{folder / sub}/ has no {file}. VLMaps writes it there when the map is "
                 f"built (VLMap.create_map); build or copy the map, or pass the .h5df file "

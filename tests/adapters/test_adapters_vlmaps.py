@@ -535,6 +535,20 @@ def test_a_scene_folder_whose_vlmap_folder_has_no_file_says_so(tmp_path, capsys)
         read_map(tmp_path / "cam")
 
 
+def test_a_scene_folder_whose_map_has_a_forks_name_names_that_file(tmp_path, capsys):
+    """A fork saves vlmap/vlmaps-lseg-0.05.h5df; the scene folder was refused with 'has
+    no vlmaps.h5df ... build or copy the map', as if there were none."""
+    from quash_plugins.cli.main import main
+    from quash_plugins.core.errors import MapFormatError
+
+    fork = write_vlmaps_h5df(tmp_path / "scene" / "vlmap" / "vlmaps-lseg-0.05.h5df", mobile_map())
+    with pytest.raises(MapFormatError, match=r"holds vlmaps-lseg-0\.05\.h5df: pass the map file"):
+        read_map(tmp_path / "scene")
+    assert main(["query", str(tmp_path / "scene"), "chair"]) != 0
+    assert str(fork) in " ".join(capsys.readouterr().err.split())
+    assert read_map(fork, "vlmaps").n == 50  # the fix the message gives
+
+
 def test_live_vlmap_nan_rows_get_a_fix_the_live_adapter_takes():
     """The NaN error once advised check_finite=False, an option vlmaps-live refuses."""
     arrays = mobile_map(n=15, d=D)
