@@ -270,6 +270,16 @@ def check_text_embeddings(
     fails such an encoder. ``warn_norm=False``: rows off unit norm are expected (an
     encoder configured with ``normalize: false``) and renormalised without a warning.
     """
+    named = f"Encoder {who!r}" + (f" ({origin})" if origin else "")
+    fix = (
+        " Fix its encode_text: it must return one unit-norm (len(texts), dim) float32 row "
+        "per text; quash_plugins.testing.check_encoder(encoder) checks the contract."
+    )
+    if emb is None:  # read as a 0-d NaN array: "returned shape ()" named no cause
+        raise EncoderError(
+            f"{named} returned None for {len(texts)} texts (does its encode_text end "
+            f"without a 'return'?).{fix}"
+        )
     kind = f"{type(emb).__module__.partition('.')[0]}.{type(emb).__name__}"
     if not isinstance(emb, np.ndarray) and callable(getattr(emb, "detach", None)):
         # A torch tensor: np.asarray refuses one on a GPU or with gradients.
@@ -295,11 +305,6 @@ def check_text_embeddings(
             f"Encoder {who!r} returned a {kind} that is not an array of numbers "
             f"({exc}); return a (len(texts), {dim}) float32 numpy array."
         ) from exc
-    named = f"Encoder {who!r}" + (f" ({origin})" if origin else "")
-    fix = (
-        " Fix its encode_text: it must return one unit-norm (len(texts), dim) float32 row "
-        "per text; quash_plugins.testing.check_encoder(encoder) checks the contract."
-    )
     if arr.shape != (len(texts), dim):
         raise EncoderError(
             f"{named} returned shape {arr.shape} for {len(texts)} texts; "

@@ -140,6 +140,7 @@ def check_encoder_output(enc: Any, tmp_path: Path) -> None:
     )
     texts = ["chair", "a red chair", "kitchen sink"]
     e = enc.encode_text(texts)
+    assert e is not None, "encode_text returned None: return the array it computes"
     assert isinstance(e, np.ndarray), (
         f"encode_text must return a numpy array; got {type(e).__module__}.{type(e).__name__} "
         "(a torch tensor: return .detach().float().cpu().numpy())"

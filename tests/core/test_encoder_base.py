@@ -300,6 +300,31 @@ def test_a_list_of_rows_is_converted_with_a_warning_as_a_tensor_is(caplog):
     assert any("'listed' returns a builtins.list of rows, not a numpy array" in m for m in warned)
 
 
+class _NoReturn(_PrivateSeed):
+    """Computes its rows and forgets to return them."""
+
+    name = "no-return"
+
+    def encode_text(self, texts):
+        super().encode_text(texts)
+
+
+def test_an_encode_text_that_returns_none_says_so(tmp_path):
+    """Before, a query said 'returned shape () for 2 texts' (None read as a 0-d array),
+    and the kit 'got builtins.NoneType (a torch tensor: ...)'."""
+    from quash_plugins.core.errors import EncoderError
+    from quash_plugins.core.text import encode_texts
+    from quash_plugins.testing import check_encoder
+
+    with pytest.raises(EncoderError) as err:
+        encode_texts(_NoReturn(), ["chair", "sofa"], None)
+    msg = str(err.value)
+    assert msg.startswith("Encoder 'no-return' (") and "returned None for 2 texts" in msg
+    assert "without a 'return'" in msg and "shape ()" not in msg
+    with pytest.raises(AssertionError, match="check_encoder_output: encode_text returned None"):
+        check_encoder(_NoReturn(), tmp_path)
+
+
 def test_rows_that_are_not_an_array_name_the_encoder():
     from quash_plugins.core.errors import EncoderError
     from quash_plugins.core.text import encode_texts
