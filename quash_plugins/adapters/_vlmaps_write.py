@@ -99,7 +99,8 @@ def write_vlmaps_map(lmap: LatentMap, folder: str | Path, chunk_rows: int = 6553
     go to ``grid_semantic`` and their names to ``folder/vlmap_cam/obj2cls_dict.txt``
     (:func:`vlmaps_outputs` lists the files). Each file is written beside its target and
     renamed into place; an existing file is replaced (the command line checks
-    ``--force`` first). Needs ``pip install "quash-plugins[hdf5]"`` (h5py).
+    ``--force`` first), and an ``obj2cls_dict.txt`` of a map written there before is
+    removed when this map has no label names, so it cannot name this map's labels. Needs ``pip install "quash-plugins[hdf5]"`` (h5py).
 
     Parameters
     ----------
@@ -212,6 +213,10 @@ def write_vlmaps_map(lmap: LatentMap, folder: str | Path, chunk_rows: int = 6553
         for key in ENCODER_KEYS:
             if isinstance(lmap.source.get(key), str):
                 f.attrs[key] = lmap.source[key]
+    if not (labels is not None and lmap.label_names) and names_path.is_file():
+        # the names of a map written here before would be read as this map's
+        names_path.unlink()
+        log.info("removed %s: it named the labels of the map this one replaces", names_path)
     log.info("wrote VLMaps map %s: %d cells x %d (%s up turned to +y)", h5_path, n, d, up)
     return h5_path
 

@@ -154,7 +154,8 @@ def _carry_taxonomy(source: str, written: Any) -> Any:
     what the taxonomy heuristics read beside a map) to ``DST.taxonomy.yaml`` (beside the
     ``.h5df`` that ``--format vlmaps`` writes into its folder), so that the
     converted map answers as its source does. Never replaces a file: an existing one is
-    kept with a warning when it differs. Returns the path written, or None."""
+    kept with a warning when it differs, or when SRC has none (it would be read as the
+    converted map's). Returns the path written, or None."""
     import logging
 
     from ..core.atomic import atomic_write_text
@@ -162,9 +163,18 @@ def _carry_taxonomy(source: str, written: Any) -> Any:
 
     log = logging.getLogger(__name__)
     src = taxonomy_path_beside(source)
-    if src is None or not src.is_file():
-        return None
     dst = taxonomy_path_beside(written)
+    if src is None or not src.is_file():
+        if dst is not None and dst.exists():
+            log.warning(
+                "%s is beside the converted map, but %s has no taxonomy: the taxonomy "
+                "heuristics read %s as this map's label list; delete it if it came with a "
+                "map written there before.",
+                dst,
+                source,
+                dst,
+            )
+        return None
     if dst is None:  # a folder (openlex3d; vlmaps writes a file into its folder)
         log.info(
             "%s is not carried to %s: give it to a taxonomy config as heuristic file: %s",

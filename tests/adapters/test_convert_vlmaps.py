@@ -162,6 +162,45 @@ def test_vlmaps_format_needs_force_and_never_writes_its_input(tmp_path, capsys):
     assert main(["-q", "convert", str(src), str(tmp_path / "y.npz"), "--format", "vlmaps"]) == 2
 
 
+def test_force_leaves_no_label_files_of_the_map_it_replaced(tmp_path, capsys):
+    """`convert a.npz vl --format vlmaps`, then `convert b.npz vl ... --force` with a map
+    that has labels but neither names nor a taxonomy: vl read back with a's label names
+    (its obj2cls_dict.txt) and a's taxonomy, silently."""
+    from quash_plugins.adapters import write_npz_map
+    from quash_plugins.core.types import LatentMap
+    from quash_plugins.heuristics import taxonomy_beside
+
+    rng = np.random.default_rng(0)
+    cells = np.argwhere(np.ones((3, 3, 2)))
+
+    def labelled(names):
+        return LatentMap(
+            rng.normal(size=(len(cells), 4)).astype(np.float32),
+            kind="voxels",
+            positions=(cells + 0.5) * 0.25,
+            grid_index=cells,
+            voxel_size=0.25,
+            labels=rng.integers(0, 2, len(cells)),
+            label_names=names,
+        )
+
+    a = write_npz_map(labelled(["chair", "sofa"]), tmp_path / "a.npz")
+    a.with_name("a.taxonomy.yaml").write_text("chair: [stool]\nsofa: [couch]\n")
+    b = write_npz_map(labelled(None), tmp_path / "b.npz")
+    vl = tmp_path / "vl"
+    assert main(["-q", "convert", str(a), str(vl), "--format", "vlmaps"]) == 0
+    assert read_map(vl).label_names == ["chair", "sofa"]
+    capsys.readouterr()
+    assert main(["convert", str(b), str(vl), "--format", "vlmaps", "--force"]) == 0
+    back = read_map(vl)
+    assert back.labels is not None and back.label_names is None
+    assert not (vl / "vlmap_cam" / "obj2cls_dict.txt").exists()
+    err = " ".join(capsys.readouterr().err.split())
+    assert "vlmaps_cam.taxonomy.yaml is beside the converted map" in err
+    assert "b.npz has no taxonomy" in err
+    assert taxonomy_beside(back) is not None  # kept: a taxonomy file is never removed
+
+
 def test_vlmaps_format_turns_only_what_is_not_y_up(tmp_path):
     """A map that is y-up already (a camera-base VLMaps map) is written as it is; one
     whose up axis is not an axis is refused, naming the field."""
