@@ -33,6 +33,7 @@ _PATH_KEYS = (
     "cache_dir",
     "labels_file",
     "points",  # the openscene adapter's point cloud
+    "images",  # the image-features adapter's folder of RGB frames
 )
 
 

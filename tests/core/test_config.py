@@ -1,5 +1,7 @@
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from quash_plugins import Quash, QuashConfig
@@ -207,3 +209,14 @@ def test_a_template_file_of_the_templates_heuristic_is_resolved_against_the_conf
     assert list(h.prompt_templates["templates"]) == ["a photo of a {}.", "the {} in a room."]
     listed = QuashConfig.from_dict({"heuristic": {"name": "templates", "templates": ["{}"]}})
     assert listed.heuristic.params["templates"] == ["{}"]
+
+
+def test_an_adapters_images_folder_is_resolved_against_the_config_folder(tmp_path):
+    """The image-features adapter's ``images`` travels with its config, as ``points`` does:
+    ``images: ../rgb`` in ``cfg/c.yaml`` was read from the working folder."""
+    folder = tmp_path / "cfg"
+    folder.mkdir()
+    p = folder / "c.yaml"
+    p.write_text("name: x\nadapter: {name: image-features, images: ../rgb}\n")
+    cfg = QuashConfig.from_yaml(p)
+    assert Path(cfg.adapter.params["images"]).resolve() == (tmp_path / "rgb").resolve()
