@@ -114,16 +114,32 @@ def build(kind: str, name: str, tmp_path: Path) -> Any:
     A plugin without them that cannot be built with no arguments fails with what to
     add: the kit cannot guess a file or a URL.
     """
+    import inspect
+
     cls = registry.load(kind, name)
     params = {}
     factory = getattr(cls, "conformance_params", None)
+    if inspect.isclass(cls) and inspect.isfunction(
+        inspect.getattr_static(cls, "conformance_params", None)
+    ):
+        # a plain method: called on the class, tmp_path would be taken for self
+        raise ConfigError(
+            f"{cls.__qualname__}.conformance_params ({kind[:-1]} {name!r}) is a plain "
+            "method; the conformance kit calls it on the class: decorate it with "
+            "@classmethod (def conformance_params(cls, tmp_path) -> dict)."
+        )
     if callable(factory):
         params = dict(factory(Path(tmp_path)))
     try:
         return registry.create(kind, name, **params)
     except ConfigError as exc:
         if callable(factory):
-            raise
+            given = ", ".join(params) or "no parameters"
+            raise ConfigError(
+                f"{exc} The conformance kit built it with what "
+                f"{getattr(cls, '__qualname__', name)}.conformance_params(tmp_path) returns "
+                f"({given}): fix that."
+            ) from exc
         raise ConfigError(
             f"{exc} The conformance kit builds {kind[:-1]} {name!r} with no arguments: "
             "give its class a classmethod conformance_params(tmp_path) -> dict with the "
