@@ -335,6 +335,12 @@ def _import_hint(info: PluginInfo, exc: BaseException) -> str:
     # an installed module: the module named, or a package above it, is not there.
     missing = getattr(exc, "name", None) if isinstance(exc, ModuleNotFoundError) else None
     if missing and (module == missing or module.startswith(missing + ".")):
+        parent, _, last = module.rpartition(".")
+        if not attr and hasattr(sys.modules.get(parent), last):  # pkg.Class for pkg:Class
+            return (
+                f"The module {module!r} it names does not exist: {where}; a colon separates "
+                f'the module from the object: {info.name} = "{parent}:{last}".'
+            )
         return f"The module {module!r} it names does not exist: {where}."
     missing = missing_module(exc)
     if missing:

@@ -320,3 +320,29 @@ def test_an_import_error_when_built_or_encoding_is_not_called_not_installed(tmp_
     with pytest.raises(ImportError) as err:
         import a_dependency_that_is_not_installed  # noqa: F401
     assert missing_module(err.value) == "a_dependency_that_is_not_installed"
+
+
+def test_an_entry_point_with_a_dot_for_the_colon_is_given_the_line_to_write():
+    """``bow = "my_pkg.BagOfWordsEncoder"`` was told only that the module it names does
+    not exist; the class is there, behind a dot where the colon belongs."""
+    import importlib
+
+    from quash_plugins.core import _entry_points
+
+    info = _import_error(
+        "encoders",
+        "dotted-target",
+        "quash_plugins.Encoder",
+        lambda: importlib.import_module("quash_plugins.Encoder"),
+    )
+    try:
+        with pytest.raises(PluginError) as err:
+            registry.load("encoders", "dotted-target")
+    finally:
+        _entry_points._scanned["encoders"].remove(info)
+    msg = str(err.value)
+    assert "The module 'quash_plugins.Encoder' it names does not exist" in msg
+    assert (
+        'a colon separates the module from the object: dotted-target = "quash_plugins:Encoder"'
+        in msg
+    )
