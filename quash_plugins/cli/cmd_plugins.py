@@ -51,7 +51,9 @@ def shadowed_by(info: Any, infos: list[Any]) -> str | None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import contextlib
     import logging
+    import sys
 
     from ..core import registry
     from ._output import console, print_json, safe_text
@@ -62,7 +64,10 @@ def run(args: argparse.Namespace) -> int:
     level = reg_log.level
     reg_log.setLevel(logging.ERROR)
     try:
-        infos = registry.plugins(args.kind, load=True)
+        # What a plugin module prints when imported (a banner) goes to stderr: stdout
+        # holds the table, or the JSON a script reads.
+        with contextlib.redirect_stdout(sys.stderr):
+            infos = registry.plugins(args.kind, load=True)
     finally:
         reg_log.setLevel(level)
     by = {id(i): shadowed_by(i, infos) for i in infos}  # the built-in hiding each, if any
@@ -121,7 +126,6 @@ def run(args: argparse.Namespace) -> int:
             highlight=False,
         )
         if getattr(args, "debug", False) and i.exception is not None:
-            import sys
             import traceback
 
             # to stderr, unwrapped, as Python prints a traceback

@@ -162,6 +162,36 @@ def test_plugins_json_lists_distribution_and_status(capsys):
     assert row["distribution"] == "quash-plugins" and row["status"] == "ok" and row["version"]
 
 
+def test_plugins_json_stays_json_when_a_plugin_prints_as_it_is_imported(capsys):
+    """A plugin module that prints a banner when imported wrote it into the JSON on
+    stdout, which then did not parse; it goes to stderr."""
+    from quash_plugins import Encoder
+    from quash_plugins.core import _entry_points, registry
+    from quash_plugins.core._entry_points import PluginInfo
+
+    class Chatty(Encoder):
+        dim = 4
+
+        def encode_text(self, texts):  # pragma: no cover - not called
+            raise AssertionError
+
+    def load():
+        print("chatty: loading its weights index")
+        return Chatty
+
+    registry.available("encoders")  # scanned
+    info = PluginInfo("encoders", "chatty", "chatty:Chatty", "pkg-chatty", "0.1", _loader=load)
+    _entry_points._scanned["encoders"].append(info)
+    try:
+        code, out, err = run_cli("plugins", "--kind", "encoders", "--json", capsys=capsys)
+    finally:
+        _entry_points._scanned["encoders"].remove(info)
+    assert code == 0
+    rows = {r["name"]: r for r in json.loads(out)}
+    assert rows["chatty"]["status"] == "ok"
+    assert "chatty: loading its weights index" in err
+
+
 def _digest(path):
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
