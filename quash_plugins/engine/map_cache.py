@@ -6,8 +6,9 @@ the modification time and size of it and of every file the adapter read for the 
 (``source["inputs"]``: VLMaps' ``vlmap/vlmaps.h5df`` inside the folder given, the labels
 beside a map), so a map that a mapping process keeps rewriting is read again, whether
 it was given as its file or as its folder; a live object (a ``VLMap``) by its id, adapter and options, versioned by the
-identity and shape of every array it holds, with a reference to it so that a new object
-at a freed id is not taken for it. Least recently used maps go first.
+identity and shape of every array it holds and the value of every number or string
+(its ``cs``, ``gs``), with a reference to it so that a new object at a freed id is not
+taken for it. Least recently used maps go first.
 """
 
 from __future__ import annotations
@@ -110,7 +111,10 @@ class _Held:
 
 
 def _arrays_of(state: dict[str, Any]) -> tuple[Any, ...]:
-    """The identity and shape of every array-like attribute of a live object."""
+    """The identity and shape of every array-like attribute of a live object, and the
+    value of every number or string one (a cell size set anew: ``vlmap.cs = 0.1``)."""
     return tuple(
-        (k, id(v), tuple(getattr(v, "shape", ()))) for k, v in state.items() if hasattr(v, "shape")
+        (k, id(v), tuple(getattr(v, "shape", ()))) if hasattr(v, "shape") else (k, v)
+        for k, v in state.items()
+        if hasattr(v, "shape") or isinstance(v, (int, float, str))
     )

@@ -66,6 +66,8 @@ _QUASH_ATTR = "_quash"
 _ORIGINAL_ATTR = "_vlmaps_index_map"
 #: Keys of VLMaps' ``map_config`` (``config/map_config/*.yaml``) that no QuASH config has.
 _VLMAPS_MAP_CONFIG_KEYS = frozenset({"map_type", "pose_info", "grid_size", "cell_size"})
+#: What the live adapter reads of a VLMap besides its arrays: a change reads the map anew.
+_LIVE_SETTINGS = ("cs", "gs", "pcd_min", "map_config")
 
 
 def resolve_quash(quash: Any, vlmap: Any = None) -> Any:
@@ -114,7 +116,8 @@ def _plain(value: Any) -> Any:
 
 
 def as_latent_map(vlmap: Any, **options: Any) -> LatentMap:
-    """The live VLMap as a :class:`LatentMap`, cached on the object until its arrays change.
+    """The live VLMap as a :class:`LatentMap`, cached on the object until its arrays or
+    its settings (``cs``, ``gs``, ``pcd_min``, ``map_config``) change.
 
     ``options`` are those of the ``vlmaps-live`` adapter (``gs``, ``cs``, ``pose_type``,
     ``label_names``).
@@ -123,7 +126,8 @@ def as_latent_map(vlmap: Any, **options: Any) -> LatentMap:
 
     feat = getattr(vlmap, "grid_feat", None)
     pos = getattr(vlmap, "grid_pos", None)
-    key = (id(feat), getattr(feat, "shape", None), id(pos), repr(sorted(options.items())))
+    settings = tuple(repr(getattr(vlmap, name, None)) for name in _LIVE_SETTINGS)
+    key = (id(feat), getattr(feat, "shape", None), id(pos), repr(sorted(options.items())), settings)
     cached = getattr(vlmap, _CACHE_ATTR, None)
     if cached is not None and cached[0] == key:
         return cached[1]

@@ -224,6 +224,23 @@ def test_quash_query_reads_a_live_vlmap_under_a_config_written_for_files(project
     assert "--adapter" not in msg and "array(" not in msg and len(msg) < 300, msg
 
 
+def test_a_cell_size_set_anew_on_the_live_map_is_read(project):
+    """The live map was cached until its arrays changed: after ``vlmap.cs = 0.1`` (the
+    map config's cell_size fixed) every query still placed the objects at cs = 0.05,
+    through the drop-in and through ``Quash.query`` alike."""
+    from quash_plugins import Quash
+    from quash_plugins.integrations.vlmaps import as_latent_map, query
+
+    vlmap, q = FakeVLMap(seed=4), Quash.from_config("quash.yaml")
+    assert query(vlmap, "chair", quash=q).map_source["cs"] == 0.05
+    assert q.query(vlmap, "chair").map_source["cs"] == 0.05
+    before = as_latent_map(vlmap).positions
+    vlmap.cs = 0.1
+    assert query(vlmap, "chair", quash=q).map_source["cs"] == 0.1
+    assert q.query(vlmap, "chair").map_source["cs"] == 0.1
+    np.testing.assert_allclose(as_latent_map(vlmap).positions, 2 * before)
+
+
 def test_a_query_spelled_with_spaces_is_its_underscored_category():
     """VLMaps' category lists spell names with underscores (mp3dcat: ``tv_monitor``,
     ``chest_of_drawers``). The query "tv monitor" was not matched to ``tv_monitor``, so the
