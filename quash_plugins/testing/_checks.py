@@ -673,6 +673,14 @@ def _run_all(kind: str, plugin: Any, tmp_path: str | Path | None) -> None:
 
     base = Path(tmp_path) if tmp_path is not None else Path(tempfile.mkdtemp(prefix="quash-kit-"))
     who = getattr(plugin, "name", None) or type(plugin).__name__
+    # what the registry refuses a plugin for, said as it says it (not as an AttributeError
+    # of the first check that calls the missing method)
+    missing = [a for a in registry._BASES[kind] if not hasattr(plugin, a)]
+    if missing:
+        raise AssertionError(
+            f"{kind[:-1]} {who!r} breaks the {kind[:-1]} interface: it lacks "
+            f"{', '.join(missing)}. Subclass quash_plugins.{registry._base_of(kind).__name__}."
+        )
     for c in _CHECKS[kind]:
         d = base / c.__name__
         d.mkdir(parents=True, exist_ok=True)

@@ -140,6 +140,28 @@ def test_the_kit_names_the_encoder_the_check_and_the_fix(encoder, check, hint, t
     assert hint in msg
 
 
+def test_the_kit_says_to_subclass_encoder_for_a_duck_typed_instance(tmp_path):
+    """check_encoder on a class with dim and encode_text but no Encoder base said only
+    'the plugin raised AttributeError: ... no attribute 'fingerprint''; it now says what
+    the registry says."""
+    from quash_plugins.testing import check_encoder
+
+    class Duck:
+        name = "duck"
+        dim = 8
+
+        def encode_text(self, texts):
+            return _PrivateSeed().encode_text(texts)
+
+    with pytest.raises(AssertionError) as err:
+        check_encoder(Duck(), tmp_path)
+    msg = str(err.value)
+    assert msg == (
+        "encoder 'duck' breaks the encoder interface: it lacks fingerprint. "
+        "Subclass quash_plugins.Encoder."
+    )
+
+
 def _counting_encoder():
     from quash_plugins.testing import HashingEncoder
 
