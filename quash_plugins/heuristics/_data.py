@@ -26,7 +26,7 @@ def read_word_list(spec: str | list[str] | None, default: str, what: str) -> lis
         path = Path(str(spec)).expanduser()
         where = str(path)
         if not path.exists():
-            raise ConfigError(f"{what.capitalize()} file not found: {path}")
+            raise _not_found(path, what)
         if path.suffix in (".yaml", ".yml"):
             from ..core.yaml_files import load_yaml
 
@@ -57,11 +57,24 @@ def read_mapping(spec: str | dict[str, Any] | None, default: str | None, what: s
         return load_yaml_text(text, default)
     path = Path(str(spec)).expanduser()
     if not path.exists():
-        raise ConfigError(f"{what.capitalize()} file not found: {path}")
+        raise _not_found(path, what)
     data, _ = load_yaml(path)
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: expected a YAML mapping for the {what}.")
     return data
+
+
+def _not_found(path: Path, what: str) -> ConfigError:
+    """A missing file, naming the folder a relative path was read from: the working
+    directory, since a config given as a mapping (a dict, a section of a Hydra config)
+    has no folder of its own (a YAML config's paths are made absolute from its folder)."""
+    message = f"{what.capitalize()} file not found: {path}"
+    if not path.is_absolute():
+        message += (
+            f" (a relative path is read from the working directory, {Path.cwd()}; a config "
+            "given as a mapping has no folder of its own: give an absolute path)"
+        )
+    return ConfigError(message)
 
 
 def _lines(text: str) -> list[str]:

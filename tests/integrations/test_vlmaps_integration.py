@@ -321,6 +321,21 @@ def test_a_hydra_section_is_a_config_and_vlmaps_map_config_is_named(project):
         index_map(vlmap, "chair", quash=map_config)
 
 
+def test_a_hydra_sections_missing_relative_file_names_the_folder_it_was_read_from(project):
+    """A ``quash:`` section of a Hydra config naming ``file: labels.yaml`` (kept beside
+    the Hydra config) said only 'Taxonomy file not found: labels.yaml': a mapping has no
+    folder of its own, so the path is read from the working directory, which it now names
+    with the fix."""
+    from quash_plugins.core.errors import ConfigError
+
+    cfg = {"encoder": "minilm", "heuristic": {"name": "taxonomy", "file": "labels.yaml"}}
+    with pytest.raises(ConfigError) as err:
+        patch_vlmap(FakeVLMap(), _DictConfig(cfg))
+    msg = " ".join(str(err.value).split())
+    assert "Taxonomy file not found: labels.yaml" in msg
+    assert f"working directory, {Path.cwd()};" in msg and "give an absolute path" in msg
+
+
 def test_a_vlmaps_example_config_points_to_a_shipped_config_of_its_own_encoder():
     """examples/configs/vlmaps-contrast.yaml (an LSeg config) sent readers to
     demo-vlmaps.yaml for VLMaps' exact rule: a MiniLM config, which refuses an LSeg map."""
