@@ -101,12 +101,23 @@ def missing_module(exc: BaseException) -> str | None:
     if not isinstance(exc, ModuleNotFoundError) or not name:
         return None
     top = str(name).split(".")[0]
-    if sys.modules.get(top) is not None:  # None: an import blocked, as if not installed
-        return None
-    try:
-        return top if importlib.util.find_spec(top) is None else None
-    except (ImportError, ValueError):  # a broken finder, a module without a spec
-        return top
+    spec = getattr(sys.modules.get(top), "__spec__", None)
+    if sys.modules.get(top) is None:  # None in sys.modules: an import blocked
+        try:
+            spec = importlib.util.find_spec(top)
+        except (ImportError, ValueError):  # a broken finder, a module without a spec
+            return top
+        if spec is None:
+            return top
+    # A namespace package (google, azure) is shared by distributions: the one missing
+    # is its sub-package's (google.generativeai).
+    if spec is not None and spec.origin in (None, "namespace") and "." in str(name):
+        sub = ".".join(str(name).split(".")[:2])
+        try:
+            return sub if importlib.util.find_spec(sub) is None else None
+        except (ImportError, ValueError):
+            return sub
+    return None
 
 
 def install_hint(module: str, dist: str | None = None) -> str:

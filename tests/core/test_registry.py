@@ -346,3 +346,25 @@ def test_an_entry_point_with_a_dot_for_the_colon_is_given_the_line_to_write():
         'a colon separates the module from the object: dotted-target = "quash_plugins:Encoder"'
         in msg
     )
+
+
+def test_a_missing_part_of_a_namespace_package_is_the_module_to_install(tmp_path, monkeypatch):
+    """``import google.generativeai`` with only another google-* distribution installed:
+    the module to install is google.generativeai, not the namespace 'google' (which is
+    there)."""
+    import importlib
+
+    from quash_plugins.core.errors import missing_module
+
+    (tmp_path / "nsquash_ns" / "present").mkdir(parents=True)
+    (tmp_path / "nsquash_ns" / "present" / "__init__.py").write_text("")
+    monkeypatch.syspath_prepend(str(tmp_path))
+
+    def error(module):
+        with pytest.raises(ImportError) as err:
+            importlib.import_module(module)
+        return err.value
+
+    assert missing_module(error("nsquash_ns.absent")) == "nsquash_ns.absent"
+    assert missing_module(error("nsquash_ns.absent.deeper")) == "nsquash_ns.absent"
+    assert missing_module(error("nsquash_ns.present.no_such_module")) is None
