@@ -152,6 +152,11 @@ class VLMapsLiveAdapter(MapAdapter):
     def read(self, source: Any, **options: Any) -> LatentMap:
         opts = self.options(options)
         opts["positions"] = check_positions_option(opts["positions"], self.name)
+        if isinstance(source, (str, Path)):  # a file: it has no arrays to load first
+            raise MapFormatError(
+                f"{source}: the 'vlmaps-live' adapter reads a VLMap object in Python "
+                "(index_map(vlmap, ...), Quash.query(vlmap, ...)), not a file or folder."
+            )
         where = f"live {type(source).__name__} object"
         for field in ("grid_feat", "grid_pos"):
             if getattr(source, field, None) is None:

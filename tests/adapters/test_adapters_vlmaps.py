@@ -436,6 +436,21 @@ def test_live_vlmap_mobile_and_camera(tmp_path):
         )
 
 
+def test_live_adapter_on_a_path_says_it_reads_objects(tmp_path, capsys):
+    """`quash query vl chair --adapter vlmaps-live` said "live PosixPath object: attribute
+    'grid_feat' is missing or None. Load or build the map first (VLMap.load_map)", advice
+    for an object; a path is now refused as a path, with the adapter that reads it."""
+    from quash_plugins.cli.main import main
+
+    path = write_vlmaps_h5df(tmp_path / "scene" / "vlmap" / "vlmaps.h5df", mobile_map())
+    with pytest.raises(MapFormatError, match=r"reads a VLMap object in Python") as err:
+        read_map(path, "vlmaps-live")
+    assert "PosixPath" not in str(err.value) and "Load or build" not in str(err.value)
+    assert main(["query", str(tmp_path / "scene"), "chair", "--adapter", "vlmaps-live"]) != 0
+    msg = " ".join(capsys.readouterr().err.split())
+    assert "not a file or folder" in msg and "--adapter vlmaps" in msg
+
+
 # ---------------------------------------------------------------------- conformance
 @pytest.mark.parametrize("name", ["vlmaps", "vlmaps-2d", "vlmaps-live"])
 def test_write_example_round_trip(tmp_path, name):
