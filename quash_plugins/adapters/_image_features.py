@@ -57,6 +57,7 @@ from ._feature_files import (
     refuse_unmatched_images,
     split_frames,
 )
+from ._openscene import is_fused_file
 from ._rows import ConcatRows
 
 log = logging.getLogger(__name__)
@@ -122,12 +123,13 @@ class ImageFeaturesAdapter(MapAdapter):
             if not p.is_dir() or (p / "pc_points.h5").exists():
                 return False
             # a .pt, or a .npy shaped as a frame: a folder holding only other arrays
-            # (labels.npy, poses.npy beside a saved-map/) is no feature folder
+            # (labels.npy, poses.npy beside a saved-map/) is no feature folder, nor one
+            # of OpenScene's fused <scene>_<n>.pt (dicts, read one file at a time)
             return any(
                 q.is_file()
                 and q.suffix in FEATURE_SUFFIXES
                 and not not_a_frame_name(q.stem)
-                and (q.suffix != ".npy" or _npy_frame(q))
+                and (_npy_frame(q) if q.suffix == ".npy" else not is_fused_file(q))
                 for q in p.iterdir()
             )
         except (OSError, ValueError):

@@ -155,7 +155,7 @@ LEGACY_MAGIC = 0x1950A86A20F9469CFC6C
 LEGACY_HEAD = 1 << 16
 
 
-def _is_fused_file(path: Path) -> bool:
+def is_fused_file(path: Path) -> bool:
     """A ``torch.save`` file holding a dict whose pickle mentions ``feat`` or
     ``mask_full`` (read as bytes, never unpickled): a zip archive (torch >= 1.6), or a
     legacy file (``_use_new_zipfile_serialization=False``, which OpenScene's scripts
@@ -309,7 +309,7 @@ class OpenSceneAdapter(MapAdapter):
                 return False
             if p.suffix == ".npy":
                 return NUMPY_FEAT.match(p.name) is not None
-            return p.suffix == ".pt" and _is_fused_file(p)
+            return p.suffix == ".pt" and is_fused_file(p)
         except OSError:
             return False
 

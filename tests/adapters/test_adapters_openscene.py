@@ -214,6 +214,25 @@ def test_sniff_tells_fused_files_from_frame_features(tmp_path):
     assert not adapter.sniff(s["pth"]) and not adapter.sniff(tmp_path)
 
 
+def test_a_folder_of_fused_files_is_not_taken_for_per_image_features(tmp_path):
+    """OpenScene's folder of fused <scene>_<n>.pt was sniffed as image-features (it holds
+    a .pt): the image-features error said to use --adapter openscene, which said the folder
+    looked like an image-features map. No adapter takes the folder; the error names the
+    fused file inside it, with its adapter, and openscene's error names no other adapter."""
+    s = scannet_scene(tmp_path, n=20, d=8)
+    folder = s["pts"][0].parent
+    assert not registry.create("adapters", "image-features").sniff(folder)
+    with pytest.raises(MapFormatError) as err:
+        detect_adapter(folder)
+    assert f"{s['pts'][0]} (openscene); pass one of them" in str(err.value)
+    with pytest.raises(MapFormatError) as err:
+        read_map(folder, "openscene")
+    assert "image-features" not in str(err.value)
+    # a folder of frames beside a fused file is still a feature folder
+    torch.save(torch.zeros(4, 5, 8), folder / "frame000000.pt")
+    assert registry.create("adapters", "image-features").sniff(folder)
+
+
 def test_a_fused_file_missing_one_field_is_refused_naming_it(tmp_path, capsys):
     """A <scene>_<n>.pt with only 'feat' (or only 'mask_full') is OpenScene's, not a
     per-image feature map: auto-detection reads it as openscene, and the error names the
