@@ -521,6 +521,13 @@ def create(kind: str, name: str, /, **params: Any) -> Any:
                 f"{_TITLE[kind]} {entry.name!r} from distribution {entry.dist!r} cannot be "
                 f"built: it {install_hint(missing, entry.dist)} ({type(exc).__name__}: {exc})"
             ) from exc
+        if isinstance(exc, ImportError) and _same_dist(entry.dist, BUILTIN_DIST):
+            # installed, but without what was imported from it: another version
+            raise PluginError(
+                f"{_TITLE[kind]} {entry.name!r} cannot be built: {type(exc).__name__}: "
+                f"{str(exc).rstrip('.')}. An installed package lacks what it imports: "
+                "install the versions quash-plugins requires (its pyproject.toml)."
+            ) from exc
         if _same_dist(entry.dist, BUILTIN_DIST):
             raise
         # A third-party plugin's own error (a weights file it cannot open...): say whose.

@@ -368,3 +368,17 @@ def test_a_missing_part_of_a_namespace_package_is_the_module_to_install(tmp_path
     assert missing_module(error("nsquash_ns.absent")) == "nsquash_ns.absent"
     assert missing_module(error("nsquash_ns.absent.deeper")) == "nsquash_ns.absent"
     assert missing_module(error("nsquash_ns.present.no_such_module")) is None
+
+
+def test_a_built_in_whose_library_lacks_what_it_imports_is_a_plugin_error(monkeypatch):
+    """A library of another version (``from numpy import a_name_it_has_not``) when a
+    built-in is built was said to be not installed (before e0a926f); it is a PluginError
+    saying an installed package lacks what it imports, not an 'unexpected error'."""
+    info = next(i for i in registry.plugins("encoders") if i.name == "table")
+    monkeypatch.setattr(info, "_obj", _ImportsATypoWhenBuilt)
+    with pytest.raises(PluginError) as err:
+        registry.create("encoders", "table")
+    msg = str(err.value)
+    assert msg.startswith("Encoder 'table' cannot be built: ModuleNotFoundError: No module")
+    assert "numpy.no_such_submodule" in msg and "not installed" not in msg
+    assert "install the versions quash-plugins requires" in msg
