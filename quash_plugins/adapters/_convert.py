@@ -133,6 +133,7 @@ def write_npz_streaming(lmap: LatentMap, path: str | Path, chunk_rows: int = 655
     'float16'
     """
     from ..core.atomic import atomic_write, refuse_own_input
+    from ..core.progress import progress
 
     lmap, path = map_then_path("write_npz_streaming", lmap, path)
     refuse_own_input(path, lmap.source)
@@ -144,11 +145,15 @@ def write_npz_streaming(lmap: LatentMap, path: str | Path, chunk_rows: int = 655
         atomic_write(path, suffix=".npz") as tmp,
         zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_STORED, allowZip64=True) as zf,
     ):
-        with zf.open("embeddings.npy", "w", force_zip64=True) as fp:
+        with (
+            zf.open("embeddings.npy", "w", force_zip64=True) as fp,
+            progress(n, f"writing {Path(path).name}") as advance,
+        ):
             np.lib.format.write_array_header_2_0(fp, header)
             for start in range(0, n, chunk_rows):
                 block = np.ascontiguousarray(emb[start : min(n, start + chunk_rows)], dtype=dtype)
                 fp.write(block.tobytes())
+                advance(len(block))
         for key, value in metadata_arrays(lmap).items():
             with zf.open(f"{key}.npy", "w", force_zip64=True) as fp:
                 np.lib.format.write_array(fp, np.asarray(value), allow_pickle=False)

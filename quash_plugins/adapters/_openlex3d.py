@@ -467,6 +467,7 @@ def write_openlex3d_map(lmap: LatentMap, folder: str | Path, chunk_rows: int = 6
     import json
 
     from ..core.atomic import atomic_dir
+    from ..core.progress import progress
 
     folder = Path(folder).expanduser()
     check_openlex3d_exportable(lmap)
@@ -484,9 +485,11 @@ def write_openlex3d_map(lmap: LatentMap, folder: str | Path, chunk_rows: int = 6
     with atomic_dir(folder, replaceable=is_openlex3d_export, kind=kind) as tmp:
         tmp.mkdir()
         out = np.lib.format.open_memmap(tmp / "embeddings.npy", "w+", np.float32, (m, d))
-        for start in range(0, stored, chunk_rows):
-            stop = min(stored, start + chunk_rows)
-            out[start:stop] = np.asarray(rows[start:stop], dtype=np.float32)
+        with progress(stored, f"writing {Path(folder).name}/embeddings.npy") as advance:
+            for start in range(0, stored, chunk_rows):
+                stop = min(stored, start + chunk_rows)
+                out[start:stop] = np.asarray(rows[start:stop], dtype=np.float32)
+                advance(stop - start)
         out[stored:] = 0.0
         out.flush()
         del out

@@ -29,6 +29,7 @@ import numpy as np
 from ..core.atomic import atomic_dir, refuse_own_input
 from ..core.errors import MapFormatError
 from ..core.optional import require
+from ..core.progress import progress
 from ..core.types import SOURCE_INPUTS, FrameInfo, LatentMap, record_inputs
 from ._npz import result_hint
 
@@ -81,9 +82,11 @@ def write_zarr_map(
             dtype=dtype,
             config=full,
         )
-        for start in range(0, lmap.n, rows):
-            stop = min(lmap.n, start + rows)
-            z[start:stop] = np.asarray(emb[start:stop], dtype=dtype)
+        with progress(lmap.n, f"writing {path.name}") as advance:
+            for start in range(0, lmap.n, rows):
+                stop = min(lmap.n, start + rows)
+                z[start:stop] = np.asarray(emb[start:stop], dtype=dtype)
+                advance(stop - start)
         for key in ROW_ARRAYS:
             value = getattr(lmap, key)
             if value is not None:
