@@ -669,9 +669,13 @@ def check_plugin(kind: str, name: str, tmp_path: str | Path) -> None:
 
 
 def _run_all(kind: str, plugin: Any, tmp_path: str | Path | None) -> None:
-    import tempfile
+    if tmp_path is None:
+        import tempfile
 
-    base = Path(tmp_path) if tmp_path is not None else Path(tempfile.mkdtemp(prefix="quash-kit-"))
+        # a folder of the kit's own, removed afterwards (one was left behind per call)
+        with tempfile.TemporaryDirectory(prefix="quash-kit-", ignore_cleanup_errors=True) as tmp:
+            return _run_all(kind, plugin, tmp)
+    base = Path(tmp_path)
     who = getattr(plugin, "name", None) or type(plugin).__name__
     # what the registry refuses a plugin for, said as it says it (not as an AttributeError
     # of the first check that calls the missing method)

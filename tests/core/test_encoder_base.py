@@ -645,3 +645,15 @@ def test_an_encoder_whose_dim_fails_is_named_wherever_dim_is_read(cls, why):
         assert f"Encoder '{cls.name}'" in text and __name__ in text and why in text, text
         assert "set it in __init__" in text
     assert encoder_dim(_Seeded()) == 8
+
+
+def test_the_kit_without_a_folder_leaves_none_behind(tmp_path, monkeypatch):
+    """check_encoder(encoder), as docs/plugins.md runs it, left a quash-kit-* folder in
+    the temporary directory on every call."""
+    import tempfile
+
+    from quash_plugins.testing import HashingEncoder, check_encoder
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    check_encoder(HashingEncoder(8))
+    assert list(tmp_path.iterdir()) == []
