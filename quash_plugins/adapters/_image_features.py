@@ -57,7 +57,7 @@ from ._feature_files import (
     refuse_unmatched_images,
     split_frames,
 )
-from ._openscene import is_fused_file
+from ._openscene import is_fused_file, is_scene_file
 from ._rows import ConcatRows
 
 log = logging.getLogger(__name__)
@@ -118,8 +118,8 @@ class ImageFeaturesAdapter(MapAdapter):
             p = Path(source)
             if p.is_file() and p.suffix == ".npy":  # one frame, by its header's shape
                 return _npy_frame(p)
-            if p.is_file():
-                return p.suffix in (".pt", ".pth")
+            if p.is_file():  # not OpenScene's scene points (numpy arrays in a .pth)
+                return p.suffix in (".pt", ".pth") and not is_scene_file(p)
             if not p.is_dir() or (p / "pc_points.h5").exists():
                 return False
             # a .pt, or a .npy shaped as a frame: a folder holding only other arrays

@@ -210,6 +210,36 @@ def _is_legacy_fused(path: Path) -> bool:
     return bool(strings & {"feat", "mask_full"})
 
 
+def is_scene_file(path: Path) -> bool:
+    """A ``.pth`` that ``torch.save`` wrote of numpy arrays, not tensors, as OpenScene's
+    preprocessed scene points ``(coords, colors, labels)`` are: the head of its pickle
+    references numpy's ``_reconstruct`` and no tensor (read as bytes, never unpickled)."""
+    if path.suffix != ".pth":
+        return False
+    try:
+        with zipfile.ZipFile(path) as z:
+            names = [n for n in z.namelist() if n.endswith("/data.pkl")]
+            if len(names) != 1:
+                return False
+            with z.open(names[0]) as f:
+                head = f.read(4096)
+    except (zipfile.BadZipFile, OSError, KeyError):
+        return False
+    return b"_reconstruct" in head and b"_rebuild_tensor" not in head
+
+
+def scene_points_refusal(path: Path) -> str:
+    """What to pass instead of a scene's points file (:func:`is_scene_file`)."""
+    return (
+        f"{path} holds numpy arrays saved with torch.save, as OpenScene's preprocessed "
+        "scene points (<scene>.pth, <scene>_vh_clean_2.pth) do: those are no map by "
+        "themselves. Pass the scene's fused features, <scene>_<n>.pt, which are read with "
+        "these points found beside them (or named with -o points=PATH); see "
+        "docs/adapters.md#openscene. A per-image feature map saved this way: "
+        "--adapter image-features says how to re-save it."
+    )
+
+
 def scene_id(path: Path) -> str:
     """The scene id of a fused-feature file name."""
     for pattern in (FUSED, NUMPY_FEAT):
@@ -313,6 +343,14 @@ class OpenSceneAdapter(MapAdapter):
         except OSError:
             return False
 
+    def unrecognised_hint(self, source: Any) -> str:
+        """For OpenScene's scene points passed as the map: pass the fused features."""
+        try:
+            path = Path(source).expanduser() if isinstance(source, (str, Path)) else None
+            return scene_points_refusal(path) if path and is_scene_file(path) else ""
+        except OSError:
+            return ""
+
     def read(self, source: Any, **options: Any) -> LatentMap:
         opts = self.options(options)
         path = Path(source).expanduser()
@@ -323,6 +361,8 @@ class OpenSceneAdapter(MapAdapter):
             )
         if path.suffix == ".npy":
             feat, mask = self._read_numpy_features(path)
+        elif is_scene_file(path):
+            raise MapFormatError(scene_points_refusal(path))
         else:
             feat, mask = self._read_fused(path)
         points_path = Path(opts["points"]).expanduser() if opts["points"] else find_points(path)

@@ -233,6 +233,23 @@ def test_a_folder_of_fused_files_is_not_taken_for_per_image_features(tmp_path):
     assert registry.create("adapters", "image-features").sniff(folder)
 
 
+def test_the_scene_points_passed_as_the_map_say_to_pass_the_fused_features(tmp_path):
+    """<scene>_vh_clean_2.pth given as the map was read as a per-image feature map, whose
+    error said to re-save 'the frame' as a tensor; --adapter openscene said it looked like
+    an image-features map. Both now say what it is and to pass the fused <scene>_<n>.pt."""
+    s = scannet_scene(tmp_path, n=20, d=8)
+    for adapter in ("auto", "openscene"):
+        with pytest.raises(MapFormatError) as err:
+            read_map(s["pth"], adapter)
+        msg = str(err.value)
+        assert f"{s['pth']} holds numpy arrays" in msg and "<scene>_<n>.pt" in msg
+        assert "Re-save the frame" not in msg and "It looks like" not in msg
+    assert detect_adapter(s["pts"][0]) == "openscene"  # the fused file itself is unchanged
+    frame = tmp_path / "frame000000.pth"  # a frame's bare tensor as .pth is still a frame
+    torch.save(torch.zeros(4, 5, 8), frame)
+    assert detect_adapter(frame) == "image-features"
+
+
 def test_a_fused_file_missing_one_field_is_refused_naming_it(tmp_path, capsys):
     """A <scene>_<n>.pt with only 'feat' (or only 'mask_full') is OpenScene's, not a
     per-image feature map: auto-detection reads it as openscene, and the error names the
