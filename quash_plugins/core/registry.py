@@ -327,6 +327,9 @@ def _import_hint(info: PluginInfo, exc: BaseException) -> str:
             f"Module {module!r} calls sys.exit() while it is imported: raise an exception "
             "instead, or do the check when the plugin is built."
         )
+    if isinstance(exc, SyntaxError) and exc.filename and exc.lineno:
+        # Python names the file by its base name only ('utils.py, line 3'): which one?
+        return f"Fix line {exc.lineno} of {exc.filename}."
     where = (
         f"check the entry point {info.name!r} in group {GROUP_PREFIX + info.kind!r} of "
         f"{info.dist!r} (its pyproject.toml)"

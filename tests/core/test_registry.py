@@ -382,3 +382,30 @@ def test_a_built_in_whose_library_lacks_what_it_imports_is_a_plugin_error(monkey
     assert msg.startswith("Encoder 'table' cannot be built: ModuleNotFoundError: No module")
     assert "numpy.no_such_submodule" in msg and "not installed" not in msg
     assert "install the versions quash-plugins requires" in msg
+
+
+def test_a_syntax_error_in_a_plugin_names_the_whole_path_of_its_file(tmp_path, monkeypatch):
+    """Python's message names the file by its base name ('helpers.py, line 2'), which a
+    plugin of several packages has more than one of."""
+    import importlib
+
+    from quash_plugins.core import _entry_points
+
+    (tmp_path / "synquash_pkg" / "sub").mkdir(parents=True)
+    (tmp_path / "synquash_pkg" / "__init__.py").write_text("from .sub import helpers\n")
+    (tmp_path / "synquash_pkg" / "sub" / "__init__.py").write_text("")
+    (tmp_path / "synquash_pkg" / "sub" / "helpers.py").write_text("x = 1\ndef f(:\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    info = _import_error(
+        "encoders",
+        "syntax-error",
+        "synquash_pkg:Thing",
+        lambda: importlib.import_module("synquash_pkg"),
+    )
+    try:
+        with pytest.raises(PluginError) as err:
+            registry.load("encoders", "syntax-error")
+    finally:
+        _entry_points._scanned["encoders"].remove(info)
+    msg = str(err.value)
+    assert f"Fix line 2 of {tmp_path / 'synquash_pkg' / 'sub' / 'helpers.py'}." in msg
