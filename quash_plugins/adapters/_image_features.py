@@ -65,7 +65,15 @@ log = logging.getLogger(__name__)
 
 def _dim_note(path: Path, hwd: tuple[int, int, int], layout: str, asked: str) -> dict[str, str]:
     """How D was read, for a dimension mismatch to explain (``source["dim_note"]``): a
-    ``(D, h, w)`` frame, LSeg's output without its leading 1, reads as ``(H, W, D)``."""
+    ``(D, h, w)`` frame, LSeg's output without its leading 1, reads as ``(H, W, D)``; a
+    ``(1, H, W, D)`` frame, ConceptFusion's before its ``[0]``, as ``(1, D, h, w)``."""
+    h, w, d = hwd
+    if asked == "auto" and layout == "1dhw" and w > d:  # w > D: (1, H, W, D)?
+        return {
+            "dim_note": f"D is axis 1 of {path.name}, read as (1, D, h, w) = {(1, d, h, w)}; "
+            "if it is (1, H, W, D), save features[0], (H, W, D), as ConceptFusion's "
+            "extractor does"
+        }
     if asked != "auto" or layout != "hwd" or hwd[0] <= hwd[2]:  # H > D: (D, h, w)?
         return {}
     return {

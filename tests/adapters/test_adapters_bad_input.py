@@ -293,6 +293,26 @@ def test_feat_squeezed_lseg_frame_explained_by_the_dimension_error(tmp_path):
     assert "6-dimensional" in str(info.value) and "read as" not in str(info.value)
 
 
+def test_feat_batched_conceptfusion_frame_explained_by_the_dimension_error(tmp_path):
+    """A (1, H, W, D) frame (ConceptFusion's features saved without [0]) reads as
+    (1, D, h, w) with D = H: the dimension error said only '3-dimensional embeddings ...
+    use the text encoder that built the map'; it now says how D was read and the fix."""
+    from quash_plugins import Quash
+    from quash_plugins.core.errors import DimensionMismatchError
+
+    save_feat_pt(tmp_path / "b", "f0", np.ones((1, 3, 4, 8), np.float16))  # (1, H, W, D=8)
+    save_feat_pt(tmp_path / "ok", "f0", np.ones((1, 6, 3, 4), np.float32))  # LSeg: D=6 > w
+    quash = Quash.from_config({"encoder": {"name": "table", "table": {"a": [1.0] * 8}}})
+    with pytest.raises(DimensionMismatchError) as info:
+        quash.query(str(tmp_path / "b"), "a")
+    msg = str(info.value)
+    assert "3-dimensional" in msg and "f0.pt, read as (1, D, h, w) = (1, 3, 4, 8)" in msg
+    assert "save features[0], (H, W, D)" in msg
+    with pytest.raises(DimensionMismatchError) as info:  # D > w: nothing to explain
+        quash.query(str(tmp_path / "ok"), "a")
+    assert "6-dimensional" in str(info.value) and "read as" not in str(info.value)
+
+
 def test_feat_truncated_pt(tmp_path):
     path = save_feat_pt(tmp_path, "f0", np.ones((8, 8, 16), np.float16))
     path.write_bytes(path.read_bytes()[:200])
