@@ -61,19 +61,33 @@ class MapCache:
 
 def _with_inputs(version: Any, ref: Any, lmap: LatentMap) -> Any:
     """A file source's ``version`` with the modification time and size of every file
-    or folder the map was read from (its ``source["inputs"]``); a live source's as is."""
+    or folder the map was read from (its ``source["inputs"]``), and of the files in such
+    a folder (a folder input stands for them: ConceptFusion's ``pointclouds/``, whose
+    ``pc_*.h5`` gradslam rewrites in place, which leaves the folder's own time as it
+    was); a live source's as is."""
     if ref is not None:
         return version
     from ..core.types import source_inputs
 
     stats = []
     for path in source_inputs(lmap.source):
+        p = Path(path)
         try:
-            st = Path(path).stat()
+            st = p.stat()
             stats.append((path, st.st_mtime_ns, st.st_size))
+            if p.is_dir():
+                stats += [_stat(f) for f in sorted(p.iterdir()) if f.is_file()]
         except (OSError, RuntimeError):  # gone (a taxonomy that was never there)
             stats.append((path, None, None))
     return version, tuple(stats)
+
+
+def _stat(path: Path) -> tuple[str, Any, Any]:
+    try:
+        st = path.stat()
+        return str(path), st.st_mtime_ns, st.st_size
+    except OSError:  # removed between the listing and the look
+        return str(path), None, None
 
 
 def _map_key(source: Any, adapter: str, opts: dict[str, Any]) -> tuple[Any, Any, Any]:

@@ -65,6 +65,25 @@ def test_a_rewritten_map_file_is_read_again(tiny_world):
     assert quash.query(tiny_world["map"], "chair").mask.shape == (650,)
 
 
+def test_a_map_folder_whose_files_are_rewritten_in_place_is_read_again(tiny_world, tmp_path):
+    """gradslam's save_to_h5 rewrites pointclouds/pc_*.h5 in place, which leaves the
+    folder's own time as it was: a Quash kept the old map, and its next query failed
+    with 'pc_embeddings.h5 changed on disk since the map was read ... Query it again'."""
+    from _cf_writers import cf_arrays, save_pointclouds
+
+    quash = Quash.from_config(tiny_world["config"])
+    folder = save_pointclouds(tmp_path / "saved-map", **cf_arrays(n=40, d=8, seed=0))
+    first = quash.read_map(tmp_path / "saved-map")
+    assert quash.read_map(tmp_path / "saved-map") is first  # unchanged: reused
+    stamp = folder.stat().st_mtime_ns
+    arrays = cf_arrays(n=40, d=8, seed=1)
+    save_pointclouds(tmp_path / "saved-map", **arrays)  # the same files, rewritten
+    assert folder.stat().st_mtime_ns == stamp
+    again = quash.read_map(tmp_path / "saved-map")
+    assert again is not first
+    np.testing.assert_array_equal(np.asarray(again.embeddings), arrays["pc_embeddings"])
+
+
 def test_a_live_map_whose_arrays_change_is_read_again(tiny_world):
     class VLMap:  # the attributes of VLMaps' class that the adapter reads
         def __init__(self, feat):
