@@ -246,7 +246,7 @@ class QuashConfig:
         for key, value in data.items():
             if key not in known:
                 guess = closest(str(key), known)
-                hint = f" Did you mean {guess!r}?" if guess else ""
+                hint = f" Did you mean {guess!r}?" if guess else _misplaced_param(key, data)
                 raise ConfigError(
                     f"{where.at((key,))}unknown key {key!r}. Known keys: {', '.join(known)}.{hint}"
                 )
@@ -405,15 +405,41 @@ def _convert(cls, key: str, value: Any, where: _Where, path) -> Any:
     return out
 
 
+def _misplaced_param(key: Any, data: dict[str, Any]) -> str:
+    """A hint for an unknown top-level ``key`` that is a parameter of one of the config's
+    plugins (``dim: 64`` beside ``encoder: bag-of-words``): where to write it; "" when
+    it is none of theirs, or the plugins cannot be loaded to say."""
+    from . import registry
+
+    defaults = {f.name: f.default_factory for f in dataclasses.fields(QuashConfig)}
+    for section in ("encoder", "heuristic", "classifier", "adapter"):
+        spec = data.get(section) or defaults[section]().name  # type: ignore[misc]
+        name = spec.get("name") if isinstance(spec, dict) else spec
+        if not isinstance(name, str) or not name:
+            continue
+        try:
+            accepted = registry.accepted_params(registry.load(f"{section}s", name))
+        except Exception:  # an unknown or broken plugin: its own error comes later
+            continue
+        if accepted and key in accepted:
+            return (
+                f" {key!r} is a parameter of the {section}: write it in its section, "
+                f"{section}: {{name: {name}, {key}: ...}}."
+            )
+    return ""
+
+
 def _plugin_spec(key: str, value: Any, where: _Where, path) -> PluginSpec:
     if isinstance(value, PluginSpec):
         return value
     if isinstance(value, str):
         return PluginSpec(value)
     if not isinstance(value, dict) or "name" not in value:
+        typo = [k for k in value if closest(str(k), ["name"])] if isinstance(value, dict) else []
+        hint = f" Did you mean 'name' for {typo[0]!r}?" if typo else ""
         raise ConfigError(
             f"{where.at((key,))}{key!r} must be a plugin name or a mapping with 'name', "
-            f"e.g. {key}: {{name: ..., <param>: <value>}}."
+            f"e.g. {key}: {{name: ..., <param>: <value>}}.{hint}"
         )
     params = {str(k): v for k, v in value.items() if k != "name"}
     for k, v in list(params.items()):

@@ -28,6 +28,40 @@ def test_unknown_key_names_file_line_and_suggestion(tmp_path):
     assert f"{p}:2:" in msg and "'classifer'" in msg and "Did you mean 'classifier'" in msg
 
 
+@pytest.mark.parametrize(
+    ("text", "where"),
+    [
+        ("classifier: svm-rbf\nC: 2\n", "classifier: {name: svm-rbf, C: ...}"),
+        # the default classifier's, when the config names none
+        ("name: x\nk: 3\n", "classifier: {name: nearest-sample, k: ...}"),
+        ("heuristic: {name: taxonomy}\nn_synonyms: 5\n", "heuristic: {name: taxonomy, n_synonyms"),
+    ],
+)
+def test_a_plugin_parameter_written_at_the_top_says_which_section_takes_it(tmp_path, text, where):
+    p = tmp_path / "c.yaml"
+    p.write_text(text)
+    with pytest.raises(ConfigError) as err:
+        QuashConfig.from_yaml(p)
+    msg = " ".join(str(err.value).split())
+    assert msg.startswith(f"{p}:{text.count(chr(10))}: unknown key") and where in msg, msg
+
+
+def test_a_top_level_key_no_plugin_takes_gets_no_section_hint(tmp_path):
+    p = tmp_path / "c.yaml"
+    p.write_text("classifier: svm-rbf\nwibble: 2\n")
+    with pytest.raises(ConfigError) as err:
+        QuashConfig.from_yaml(p)
+    assert "unknown key 'wibble'" in str(err.value) and "section" not in str(err.value)
+
+
+def test_a_misspelt_name_of_a_plugin_section_is_suggested(tmp_path):
+    p = tmp_path / "c.yaml"
+    p.write_text("encoder: {nam: minilm}\n")
+    with pytest.raises(ConfigError) as err:
+        QuashConfig.from_yaml(p)
+    assert "Did you mean 'name' for 'nam'?" in str(err.value), err.value
+
+
 def test_malformed_yaml_names_file_and_line(tmp_path):
     p = tmp_path / "bad.yaml"
     p.write_text("name: x\nencoder: {name: table\nclassifier: svm-rbf\n")
