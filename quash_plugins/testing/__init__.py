@@ -68,10 +68,11 @@ def parametrize_with_checks(
 
     checks = plugin_checks(kinds=kinds, names=names, dist=dist)
     if not checks:
-        from ._checks import misplaced_hint
+        from ._checks import misplaced_hint, near_hint
 
-        # installed, but in a group quash-plugins does not read: say so, not "installed?"
-        hint = misplaced_hint(kinds, names, dist)
+        # installed, but in a group quash-plugins does not read: say so, not "installed?";
+        # else the names nearest to a misspelt one
+        hint = misplaced_hint(kinds, names, dist) or near_hint(kinds, names, dist)
         raise LookupError(
             f"No registered plugins match kinds={kinds!r}, names={names!r}, dist={dist!r}. "
             + (hint or "Is the distribution installed (pip install -e .)?")

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from ..core import registry
-from ..core.errors import ConfigError, QuashError
+from ..core.errors import ConfigError, QuashError, closest
 from ..core.interfaces import Encoder, ExpansionContext
 from ..core.types import LatentMap, QuerySet
 
@@ -638,6 +638,28 @@ def misplaced_hint(
     return " ".join(found)
 
 
+def near_hint(
+    kinds: str | list[str] | None = None, names: list[str] | None = None, dist: str | None = None
+) -> str:
+    """For a selection that matched no plugin: the registered distribution and plugin
+    names nearest to those asked for (``dist="my-quash-plugn"`` -> ``Did you mean
+    'my-quash-plugin'?``); else an empty string."""
+    if isinstance(kinds, str):
+        kinds = [kinds]
+    selected = [registry.normalize_kind(k) for k in kinds] if kinds else list(registry.KINDS)
+    infos = [i for i in registry.plugins() if i.kind in selected]
+    dists = sorted({i.dist for i in infos})
+    guesses = []
+    if dist is not None and not any(registry._same_dist(d, dist) for d in dists):
+        guess = closest(dist, dists)
+        guesses += [f"dist {guess!r}"] if guess else []
+    known = sorted({i.name for i in infos})
+    for name in names or ():
+        guess = closest(name, known) if name not in known else None
+        guesses += [f"{guess!r} for {name!r}"] if guess else []
+    return f"Did you mean {' and '.join(guesses)}?" if guesses else ""
+
+
 def check_plugin_loads(plugin: Any, tmp_path: Path) -> None:
     """Stands for every check of a plugin that does not load: :class:`PluginCheck`
     loads the plugin first, so running it raises the load error (what to fix)."""
@@ -657,7 +679,7 @@ def check_plugin(kind: str, name: str, tmp_path: str | Path) -> None:
     dist, _, short = name.rpartition(":")
     checks = plugin_checks(kinds=kind, names=[short], dist=dist or None)
     if not checks:
-        hint = misplaced_hint(kind, [short], dist or None)
+        hint = misplaced_hint(kind, [short], dist or None) or near_hint(kind, [short], dist or None)
         plugin = f"No {registry.normalize_kind(kind)[:-1]} plugin named {name!r}"
         raise ConfigError(
             f"{plugin} is registered. {hint}"

@@ -151,6 +151,20 @@ def test_an_entry_point_in_a_misspelt_group_is_named_with_the_group_to_use(mispl
         parametrize_with_checks(dist="no-such-dist")
 
 
+def test_a_misspelt_name_or_distribution_is_given_the_registered_one(tmp_path):
+    # Before: "Is the distribution installed (pip install -e .)?" for a distribution
+    # that is installed, and "is installed" for a name one letter off a built-in.
+    with pytest.raises(LookupError) as err:
+        parametrize_with_checks(kinds="encoders", dist="quash-plugns")
+    assert "Did you mean dist 'quash-plugins'?" in str(err.value), err.value
+    with pytest.raises(LookupError) as err:
+        parametrize_with_checks(names=["minilmm"])
+    assert "Did you mean 'minilm' for 'minilmm'?" in str(err.value), err.value
+    with pytest.raises(ConfigError) as err:
+        check_plugin("classifiers", "svm-rbff", tmp_path)
+    assert "Did you mean 'svm-rbf' for 'svm-rbff'?" in str(err.value), err.value
+
+
 def test_a_config_that_omits_a_required_parameter_is_told_whose_and_where(twins):
     # Before: Python's "__init__() missing 1 required positional argument: 'file'",
     # naming neither the distribution nor where the value goes.
