@@ -38,6 +38,7 @@ import numpy as np
 
 from ..core.errors import MapFormatError
 from ..core.interfaces import MapAdapter
+from ..core.progress import progress
 from ..core.types import FrameInfo, LatentMap, record_inputs
 from ._feature_files import (
     FEATURE_SUFFIXES,
@@ -165,7 +166,12 @@ class ImageFeaturesAdapter(MapAdapter):
             folder, files = path, list_feature_files(path)
         else:
             raise MapFormatError(f"Map not found: {path}")
-        found = {f: _header(f) for f in files if not SIDE_FILES.match(f.stem) or f == path}
+        found = {}
+        with progress(len(files), f"reading {len(files)} feature files") as advance:
+            for f in files:
+                if not SIDE_FILES.match(f.stem) or f == path:
+                    found[f] = _header(f)
+                advance(1)
         if path.is_dir():
             files, skipped = split_frames(
                 files, {f: a.shape for f, a in found.items()}, opts["layout"]
@@ -275,12 +281,15 @@ class ImageFeaturesAdapter(MapAdapter):
     def _colors(frames: list[FrameInfo], images: list[Path | None]) -> np.ndarray:
         total = sum(f.size for f in frames)
         out = np.full((total, 3), 128, dtype=np.uint8)
-        for fr, img in zip(frames, images):
-            if img is None:
-                continue
-            rgb = read_rgb(img, fr.height, fr.width)
-            if rgb is not None:
-                out[fr.offset : fr.offset + fr.size] = rgb.reshape(-1, 3)
+        found = sum(1 for i in images if i is not None)
+        with progress(found, f"reading {found} RGB images") as advance:
+            for fr, img in zip(frames, images):
+                if img is None:
+                    continue
+                rgb = read_rgb(img, fr.height, fr.width)
+                if rgb is not None:
+                    out[fr.offset : fr.offset + fr.size] = rgb.reshape(-1, 3)
+                advance(1)
         missing = sum(1 for i in images if i is None)
         if missing:
             log.warning(
