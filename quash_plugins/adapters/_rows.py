@@ -32,6 +32,7 @@ import numpy as np
 
 from ..core.errors import MapFormatError
 from ..core.maps import memmap_ref, open_memmap_ref
+from ..core.progress import progress
 
 log = logging.getLogger(__name__)
 
@@ -347,22 +348,24 @@ def scan_finite(
     own error goes up (``read_map`` names the file).
     """
     n = int(arr.shape[0])
-    for start in range(0, n, chunk_rows):
-        stop = min(n, start + chunk_rows)
-        try:
-            block = np.asarray(arr[start:stop])
-        except (OSError, ValueError, RuntimeError) as exc:
-            if not name_read_errors:
-                raise
-            raise MapFormatError(
-                f"{label}: cannot read field {field!r} rows {start}..{stop} ({exc}). The file "
-                "may be truncated or corrupt."
-            ) from None
-        if block.dtype.kind == "f" and not np.isfinite(block).all():
-            bad = int(np.argwhere(~np.isfinite(block))[0][0]) + start
-            raise MapFormatError(
-                f"{label}: field {field!r} contains NaN or Inf (first at row {bad}). {fix}"
-            )
+    with progress(n, f"checking {field} for NaN/Inf") as advance:
+        for start in range(0, n, chunk_rows):
+            stop = min(n, start + chunk_rows)
+            try:
+                block = np.asarray(arr[start:stop])
+            except (OSError, ValueError, RuntimeError) as exc:
+                if not name_read_errors:
+                    raise
+                raise MapFormatError(
+                    f"{label}: cannot read field {field!r} rows {start}..{stop} ({exc}). The "
+                    "file may be truncated or corrupt."
+                ) from None
+            if block.dtype.kind == "f" and not np.isfinite(block).all():
+                bad = int(np.argwhere(~np.isfinite(block))[0][0]) + start
+                raise MapFormatError(
+                    f"{label}: field {field!r} contains NaN or Inf (first at row {bad}). {fix}"
+                )
+            advance(stop - start)
 
 
 def should_scan(check_finite: bool | str | None, nbytes: int, limit_mb: float) -> bool:

@@ -225,3 +225,14 @@ def test_a_map_file_of_a_suffixless_format_beside_pointclouds_is_refused(cf_map,
     np.save(root / "features.npy", np.zeros((6, 6, 4), np.float32))
     shutil.copy(example, root / "notes.pt")
     assert detect_adapter(root) == "conceptfusion"
+
+
+def test_the_finite_scan_shows_progress(tmp_path, caplog, monkeypatch):
+    """check_finite: true reads every embedding before the map is returned (a 1 GB map:
+    4 s here, a real one several times that) and said nothing; it now reports progress."""
+    monkeypatch.setattr("quash_plugins.core.progress.MIN_INTERVAL", 0.0)  # fast here
+    monkeypatch.setattr("quash_plugins.core.progress.QUIET", False)
+    save_pointclouds(tmp_path / "saved-map", **cf_arrays(n=50, d=8))
+    caplog.set_level(logging.INFO, logger="quash_plugins.progress")
+    read_map(tmp_path / "saved-map", check_finite=True)
+    assert "checking embeddings for NaN/Inf: 50/50 (100%" in caplog.text
