@@ -241,6 +241,16 @@ class ImageFeaturesAdapter(MapAdapter):
         )
         if opts["images"] is not None and opts["colors"] and not any(images):
             refuse_unmatched_images(opts["images"], files)
+        if opts["images"] is None and opts["colors"] and not any(images):
+            log.info(
+                "%s: no RGB image named after a frame (%s.png, .jpg) in %s or its usual "
+                "folders (%s); the map has no colours: name the images' folder with "
+                "-o images=DIR (images: DIR in the config's adapter section)",
+                path,
+                files[0].stem,
+                folder,
+                ", ".join(IMAGE_DIRS),
+            )
         colors = self._colors(frames, images) if any(images) else None
         log.debug(
             "image-features: %d frames, %d pixels x %d (%s)", len(frames), emb.shape[0], dim, dtype

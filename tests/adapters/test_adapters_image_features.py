@@ -431,3 +431,19 @@ def test_reading_the_frames_and_their_images_shows_progress(tmp_path, caplog, mo
     assert read_map(tmp_path / "saved-feat").colors is not None
     assert "reading 3 feature files: 3/3 (100%" in caplog.text
     assert "reading 3 RGB images: 3/3 (100%" in caplog.text
+
+
+def test_a_map_whose_images_are_not_found_says_so(tmp_path, caplog):
+    """Frames whose RGB images lie elsewhere (a dataset's results/ folder) were read with
+    no colours and nothing said; an INFO line now names where images were looked for
+    and the option that names their folder."""
+    import logging
+
+    save_feat_pt(tmp_path / "saved-feat", "frame0", np.ones((2, 3, 4), np.float16))
+    caplog.set_level(logging.INFO, logger="quash_plugins.adapters")
+    assert read_map(tmp_path / "saved-feat").colors is None
+    assert "no RGB image named after a frame (frame0.png, .jpg)" in caplog.text
+    assert "-o images=DIR" in caplog.text
+    caplog.clear()
+    assert read_map(tmp_path / "saved-feat", colors=False).colors is None  # none asked for
+    assert "no RGB image" not in caplog.text
