@@ -34,6 +34,7 @@ _PATH_KEYS = (
     "labels_file",
     "points",  # the openscene adapter's point cloud
     "images",  # the image-features adapter's folder of RGB frames
+    "label_names",  # the openscene and vlmaps adapters' file of names (a list is no path)
 )
 
 

@@ -254,3 +254,16 @@ def test_an_adapters_images_folder_is_resolved_against_the_config_folder(tmp_pat
     p.write_text("name: x\nadapter: {name: image-features, images: ../rgb}\n")
     cfg = QuashConfig.from_yaml(p)
     assert Path(cfg.adapter.params["images"]).resolve() == (tmp_path / "rgb").resolve()
+
+
+def test_an_adapters_label_names_file_is_resolved_against_the_config_folder(tmp_path):
+    """openscene's (and vlmaps') ``label_names: names.txt`` was read from the working
+    folder ('Label-name file not found: names.txt'); a list of names stays a list."""
+    folder = tmp_path / "cfg"
+    folder.mkdir()
+    p = folder / "c.yaml"
+    p.write_text("name: x\nadapter: {name: openscene, label_names: names.txt}\n")
+    cfg = QuashConfig.from_yaml(p)
+    assert cfg.adapter.params["label_names"] == str((folder / "names.txt").resolve())
+    p.write_text("name: x\nadapter: {name: openscene, label_names: [wall, floor]}\n")
+    assert QuashConfig.from_yaml(p).adapter.params["label_names"] == ["wall", "floor"]
