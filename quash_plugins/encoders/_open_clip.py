@@ -283,13 +283,11 @@ class OpenClipEncoder(Encoder):
             kwargs["pretrained"] = str(r.checkpoint) if r.checkpoint is not None else None
             if r.tag_cfg.get("quick_gelu"):
                 kwargs["force_quick_gelu"] = True
-            pre = {
-                k: r.tag_cfg[k]
-                for k in ("mean", "std", "interpolation", "resize_mode")
-                if k in r.tag_cfg
-            }
-            if pre:
-                kwargs["force_preprocess_cfg"] = pre
+            # create_model_and_transforms takes the tag's preprocessing as image_* keywords
+            # (it builds force_preprocess_cfg from them itself)
+            for k in ("mean", "std", "interpolation", "resize_mode"):
+                if k in r.tag_cfg:
+                    kwargs[f"image_{k}"] = r.tag_cfg[k]
             if r.checkpoint is None and not r.random:  # download allowed (offline is a timeout)
                 kwargs["pretrained"] = r.tag
         net: Any = hf_offline() if self._offline else network_timeout(self._timeout())

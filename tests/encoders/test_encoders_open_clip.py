@@ -248,3 +248,31 @@ def test_through_config_and_pipeline(tiny):
 def test_vit_b32_random_weights_real_architecture():
     enc = _enc(preset="lseg", pretrained="random")
     assert enc.encode_text(["chair"]).shape == (1, 512)
+
+
+def test_tag_preprocessing_applies_to_a_checkpoint(tiny, tmp_path, monkeypatch, no_network):
+    """A tag with preprocessing settings (every preset's: OpenAI's mean, std, bicubic,
+    shortest) loads a checkpoint, and its image preprocessing uses them: open_clip's
+    create_model_and_transforms refused them as force_preprocess_cfg ('got multiple
+    values'), so preset: lseg failed to load any weights."""
+    src = _fresh(model=tiny, pretrained="random", seed=7)
+    torch.save(src._load()[0].state_dict(), tmp_path / "tiny.pt")
+    fake = {
+        "url": "https://example.invalid/x/tiny.pt",
+        "hf_hub": "",
+        "mean": (0.25, 0.5, 0.75),
+        "std": (0.1, 0.2, 0.3),
+        "interpolation": "bicubic",
+        "resize_mode": "shortest",
+    }
+    monkeypatch.setattr(
+        open_clip, "get_pretrained_cfg", lambda m, t: fake if t == "faketag" else {}
+    )
+    for kw in (
+        {"pretrained": "faketag", "cache_dir": str(tmp_path)},
+        {"pretrained": "faketag", "checkpoint": str(tmp_path / "tiny.pt")},
+    ):
+        enc = _fresh(model=tiny, **kw)
+        np.testing.assert_array_equal(enc.encode_text(["chair"]), src.encode_text(["chair"]))
+        norm = [t for t in enc._load()[2].transforms if type(t).__name__ == "Normalize"][0]
+        assert tuple(norm.mean) == fake["mean"] and tuple(norm.std) == fake["std"]
