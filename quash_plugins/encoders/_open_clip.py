@@ -168,7 +168,12 @@ class OpenClipEncoder(Encoder):
             schema, ident = self.model.split(":", 1)
             if schema == "local-dir":
                 d = Path(ident).expanduser()
-                if not (d / HF_CONFIG_NAME).is_file():
+                # open_clip loads the first *.safetensors, *.bin or *.pth; with none it
+                # builds random weights with a warning
+                has_weights = d.is_dir() and any(
+                    p.is_file() for s in (".safetensors", ".bin", ".pth") for p in d.glob(f"*{s}")
+                )
+                if not (d / HF_CONFIG_NAME).is_file() or not has_weights:
                     raise EncoderError(
                         f"open-clip local-dir {d} needs {HF_CONFIG_NAME} and a weights file "
                         f"({' or '.join(HF_WEIGHT_NAMES)})."

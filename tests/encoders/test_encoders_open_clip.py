@@ -276,3 +276,14 @@ def test_tag_preprocessing_applies_to_a_checkpoint(tiny, tmp_path, monkeypatch, 
         np.testing.assert_array_equal(enc.encode_text(["chair"]), src.encode_text(["chair"]))
         norm = [t for t in enc._load()[2].transforms if type(t).__name__ == "Normalize"][0]
         assert tuple(norm.mean) == fake["mean"] and tuple(norm.std) == fake["std"]
+
+
+def test_local_dir_without_weights_is_refused(tiny, tmp_path, no_network):
+    """A local-dir folder with open_clip_config.json but no weight file was loaded with
+    random (unseeded) weights and cached as if they were the folder's."""
+    (tmp_path / "open_clip_config.json").write_text(
+        json.dumps({"model_cfg": TINY_CFG, "preprocess_cfg": {}})
+    )
+    with pytest.raises(EncoderError) as err:
+        _fresh(model=f"local-dir:{tmp_path}")
+    assert str(tmp_path) in str(err.value) and "open_clip_model.safetensors" in str(err.value)
