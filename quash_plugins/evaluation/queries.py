@@ -42,7 +42,16 @@ def parse_queries(queries: Any, source: str = "") -> dict[str, str]:
     else:
         items = []
         for q in queries:
-            text, sep, label = str(q).partition("=")
+            if not isinstance(q, str):
+                # '- a seat: stool' in a list, or a label index: str() of it was a query
+                # text that no label has, scored as an absence query with nothing said
+                raise QuashError(
+                    f"{what} item {q!r} ({type(q).__name__}) is not text; in a list, give "
+                    "each query as a label name or TEXT=LABEL ('a seat=stool', not 'a seat: "
+                    "stool'), or make the whole list a {text: label} mapping; name a label "
+                    'by its name, not by an index (quote a name that reads as a number: "8").'
+                )
+            text, sep, label = q.partition("=")
             if "=" in label:
                 raise QuashError(
                     f"{what} item {str(q)!r} holds more than one '=': write TEXT=LABEL, "
@@ -248,8 +257,16 @@ def read_query_file(
             "{text: label} mapping (bunk bed: bed)."
         )
     if not isinstance(absent, list):
-        raise QuashError(f"{path}: 'absent' is {absent!r}; write a list of texts ([{absent}]).")
-    absent = [" ".join(str(a).split()) for a in absent]
+        example = absent if isinstance(absent, str) else "a giraffe, a grand piano"
+        raise QuashError(f"{path}: 'absent' is {absent!r}; write a list of texts ([{example}]).")
+    for a in absent:
+        if not isinstance(a, str):
+            raise QuashError(
+                f"{path}: absence query {a!r} ({type(a).__name__}) under 'absent' is not "
+                "text; write each absence query as text (quote one that reads as a number "
+                'or a mapping: "8", "a seat: stool").'
+            )
+    absent = [" ".join(a.split()) for a in absent]
     return parse_queries(present, source=str(path)), absent, _lookalikes(data)
 
 

@@ -50,6 +50,22 @@ def test_a_query_given_twice_with_two_labels_is_refused():
             r"q\.yaml: 'absent' is 'a giraffe'.*\[a giraffe\]",
         ),
         ("present: chair\nabsent: [a giraffe]\n", r"q\.yaml: 'present' is 'chair'; write a list"),
+        # a {text: label} item inside a list, or a label index: each was read as the query
+        # text "{'a seat': 'stool'}" or "5", no label of the map, so an absence query
+        (
+            "present:\n  - chair\n  - a seat: stool\n",
+            r"q\.yaml: query item \{'a seat': 'stool'\} \(dict\) is not text.*'a seat=stool'",
+        ),
+        ("present: [chair, 5]\n", r"q\.yaml: query item 5 \(int\) is not text.*index"),
+        ("[chair, [bed]]\n", r"q\.yaml: query item \['bed'\] \(list\) is not text"),
+        (
+            "present: [chair]\nabsent:\n  - a giraffe: zoo\n",
+            r"q\.yaml: absence query \{'a giraffe': 'zoo'\} \(dict\) under 'absent' is not text",
+        ),
+        (
+            "present: [chair]\nabsent: {a giraffe: zoo}\n",
+            r"q\.yaml: 'absent' is \{'a giraffe': 'zoo'\}; write a list of texts \(\[a giraffe, a grand",
+        ),
         # make-scene's taxonomy given as the query file: said so, not 'not by an index'
         (
             "bed: [bunk bed, cot]\nsofa: [couch, settee]\n",
