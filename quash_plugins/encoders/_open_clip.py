@@ -36,6 +36,7 @@ from ._open_clip_weights import (
     looks_like_path,
     missing_weights_error,
     network_timeout,
+    open_clip_logs,
     seeded,
 )
 from ._runtime import (
@@ -304,7 +305,8 @@ class OpenClipEncoder(Encoder):
             self.resolved_precision,
         )
         try:
-            with net, seeded(torch, self.seed) if r.random else contextlib.nullcontext():
+            init = seeded(torch, self.seed) if r.random else contextlib.nullcontext()
+            with net, open_clip_logs(log, r.random), init:
                 model, _, preprocess = open_clip.create_model_and_transforms(self.model, **kwargs)
                 tokenizer = open_clip.get_tokenizer(self.model, cache_dir=self.cache_dir)
         except EncoderError:

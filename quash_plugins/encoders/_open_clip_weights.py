@@ -11,6 +11,7 @@ naming the file and where to put it.
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 import socket
 import sys
@@ -169,3 +170,40 @@ def seeded(torch: Any, seed: int):
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)
         yield
+
+
+#: open_clip's warning when it built random weights: the encoder says so itself.
+RANDOM_INIT_WARNING = "No pretrained weights loaded"
+
+
+@contextlib.contextmanager
+def open_clip_logs(log: logging.Logger, random: bool) -> Iterator[None]:
+    """Re-log open_clip's log records on ``log`` for the duration of the block.
+
+    open_clip logs on the root logger (``logging.warning(...)``), whose first call
+    installs Python's own stderr handler: its lines (``WARNING:root:...``) bypassed this
+    package's logging, ``--quiet`` and the redaction, and every later root record printed
+    too. Inside the block the root logger has a handler (so none is installed) and its
+    records from open_clip go to ``log``; its "No pretrained weights loaded" is dropped
+    when the random weights were asked for (``random``), which the encoder logs itself.
+    """
+    root = logging.getLogger()
+
+    def reroute(record: logging.LogRecord) -> bool:
+        if record.name != "root" or f"{os.sep}open_clip{os.sep}" not in record.pathname:
+            return True
+        message = record.getMessage()
+        if not (random and message.startswith(RANDOM_INIT_WARNING)):
+            log.log(record.levelno, "open_clip: %s", message)
+        return False
+
+    guard = None if root.handlers else logging.NullHandler()
+    root.addFilter(reroute)
+    if guard is not None:
+        root.addHandler(guard)
+    try:
+        yield
+    finally:
+        root.removeFilter(reroute)
+        if guard is not None:
+            root.removeHandler(guard)

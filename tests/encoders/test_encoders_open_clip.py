@@ -287,3 +287,42 @@ def test_local_dir_without_weights_is_refused(tiny, tmp_path, no_network):
     with pytest.raises(EncoderError) as err:
         _fresh(model=f"local-dir:{tmp_path}")
     assert str(tmp_path) in str(err.value) and "open_clip_model.safetensors" in str(err.value)
+
+
+def test_open_clip_root_warnings_go_through_the_package_logger(tiny, tmp_path):
+    """open_clip logs on the root logger: with pretrained: random it printed its own
+    unformatted 'WARNING:root:No pretrained weights loaded ...' past --quiet, and left
+    Python's default handler on the root logger for every later record."""
+    import subprocess
+    import sys
+
+    (tmp_path / f"{TINY}.json").write_text(json.dumps(TINY_CFG))
+    code = (
+        "import logging, open_clip\n"
+        f"open_clip.add_model_config({str(tmp_path)!r})\n"
+        "from quash_plugins.encoders._open_clip import OpenClipEncoder\n"
+        f"OpenClipEncoder(model={TINY!r}, pretrained='random', device='cpu')"
+        ".encode_text(['chair'])\n"
+        "print(logging.getLogger().handlers)\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert "WARNING:root" not in done.stderr and "No pretrained" not in done.stderr
+    assert done.stdout.strip() == "[]"
+
+
+def test_open_clip_warnings_are_relogged_unless_random_was_asked_for(tmp_path, caplog):
+    import logging
+
+    from quash_plugins.encoders._open_clip_weights import open_clip_logs
+
+    (tmp_path / "open_clip_config.json").write_text(json.dumps({"model_cfg": TINY_CFG}))
+    log = logging.getLogger("quash_plugins.encoders._open_clip")
+    for random in (False, True):
+        caplog.clear()
+        with caplog.at_level(logging.WARNING), open_clip_logs(log, random):
+            open_clip.create_model(f"local-dir:{tmp_path}")
+        assert not [r for r in caplog.records if r.name == "root"]
+        got = [r.getMessage() for r in caplog.records if r.name == log.name]
+        assert any("no CLIP weights found" in m for m in got)
+        assert any("No pretrained weights" in m for m in got) is not random
