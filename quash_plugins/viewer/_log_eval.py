@@ -15,7 +15,9 @@ from ._display import slugify
 from ._log_result import _same_query
 
 #: Colours of the configs' series in the evaluation plots (the same config has the same
-#: colour in every plot); a colour-blind-safe qualitative palette (Okabe-Ito).
+#: colour in every plot): colour-blind-safe qualitative palettes, Okabe-Ito's eight then
+#: four of Paul Tol's muted ones, so the twelve first configs (the demo's ten) each have a
+#: colour of their own.
 SERIES_COLORS = (
     (0, 114, 178),
     (230, 159, 0),
@@ -25,7 +27,14 @@ SERIES_COLORS = (
     (213, 94, 0),
     (240, 228, 66),
     (0, 0, 0),
+    (51, 34, 136),
+    (153, 153, 51),
+    (136, 34, 85),
+    (153, 153, 153),
 )
+#: Point markers of the series: a config past the palette's last colour shares a colour
+#: with an earlier one but not its marker.
+SERIES_MARKERS = ("circle", "diamond", "square", "cross", "up", "down", "asterisk")
 
 
 #: Per-query metrics :meth:`EvalLogging.log_evaluation` plots, one plot each.
@@ -91,13 +100,15 @@ class EvalLogging:
             path = f"eval/{metric}/{cfg}"
             if path not in self._eval_series:
                 self._eval_series.add(path)
-                color = self._eval_colors.setdefault(
-                    cfg, SERIES_COLORS[len(self._eval_colors) % len(SERIES_COLORS)]
-                )
+                k = self._eval_colors.setdefault(cfg, len(self._eval_colors))
+                color = SERIES_COLORS[k % len(SERIES_COLORS)]
+                marker = SERIES_MARKERS[k // len(SERIES_COLORS) % len(SERIES_MARKERS)]
                 name = str(config_name)
                 rec.log(path, rr.SeriesLines(names=name, colors=color), static=True)
                 rec.log(
-                    path, rr.SeriesPoints(names=name, colors=color, marker_sizes=3.0), static=True
+                    path,
+                    rr.SeriesPoints(names=name, colors=color, markers=marker, marker_sizes=3.0),
+                    static=True,
                 )
             rec.log(path, rr.Scalars([v]))
             self._eval_metrics.setdefault(metric, None)

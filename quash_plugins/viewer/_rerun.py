@@ -144,7 +144,7 @@ class RerunLogger(MapLogging, ResultLogging, EvalLogging):
         self._eval_steps: dict[str, int] = {}
         self._eval_series: set[str] = set()
         self._eval_metrics: dict[str, None] = {}
-        self._eval_colors: dict[str, tuple[int, int, int]] = {}
+        self._eval_colors: dict[str, int] = {}  # config slug -> its series style's index
         self._eval_last = -1
         self._has_summary = False
         self._listed: dict[int, str] = {}  # step -> the query named there

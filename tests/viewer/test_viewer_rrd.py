@@ -362,6 +362,31 @@ def test_eval_scalars(tmp_path):
     assert f1_color == iou_color != other
 
 
+def test_every_config_of_the_demo_has_a_series_colour_of_its_own(tmp_path):
+    """The demo plots ten methods: two that shared a colour (the palette had eight) could
+    not be told apart in a plot or its legend. Past the palette, the marker differs."""
+    rec = rr.RecordingStream("quash-eval-test")
+    out = tmp_path / "e.rrd"
+    rec.save(out)
+    logger = RerunLogger(rec)
+    names = [f"method {k}" for k in range(14)]
+    for name in names:
+        logger.log_eval_scalars(name, {"f1": 0.5}, "chair")
+    logger.close()
+    rec.disconnect()
+    _, by_path = read_rrd(out)
+    styles = []
+    for name in names:
+        chunks = by_path[f"eval/f1/{name.replace(' ', '_')}"]
+        [(_, [color])] = rows(chunks, "SeriesLines:colors")
+        [(_, [point_color])] = rows(chunks, "SeriesPoints:colors")
+        [(_, [marker])] = rows(chunks, "SeriesPoints:markers")
+        assert point_color == color
+        styles.append((color, marker))
+    assert len({color for color, _ in styles[:12]}) == 12
+    assert len(set(styles)) == len(names)
+
+
 def test_eval_legend_sits_beside_the_data(tmp_path):
     """The x axis runs past the last query so the legend (right corner) covers no data."""
     rec = rr.RecordingStream("quash-eval-test")
