@@ -219,8 +219,9 @@ class OpenClipEncoder(Encoder):
         if ckpt is not None:
             path = Path(str(ckpt)).expanduser()
             if not path.is_file():
+                what = "is a folder" if path.is_dir() else "does not exist"
                 raise EncoderError(
-                    f"open-clip checkpoint {path} does not exist. Give the path of a "
+                    f"open-clip checkpoint {path} {what}. Give the path of a "
                     f"{self.model} state-dict file (.pt, .bin or .safetensors)."
                 )
             return Resolved(
@@ -313,9 +314,14 @@ class OpenClipEncoder(Encoder):
             raise
         except Exception as exc:  # noqa: BLE001 - report any loader failure with its source
             where = r.checkpoint or r.tag or self.model
-            raise EncoderError(
-                f"Could not load open_clip {self.model} from {where}: {exc}"
-            ) from None
+            msg = f"Could not load open_clip {self.model} from {where}: {_reason(exc)}"
+            if r.checkpoint is not None and r.schema is None:
+                msg += (
+                    f"{'' if msg.endswith(('.', '!', '?')) else '.'} The file must be a state dict of {self.model} (the architecture "
+                    "'model' or 'preset' names; .pt, .bin or .safetensors, optionally under "
+                    "'state_dict'): set 'model' to the one it was trained as."
+                )
+            raise EncoderError(msg) from None
         model.eval()
         self._loaded = (model, tokenizer, preprocess)
         _LOADED[key] = self._loaded
@@ -435,3 +441,13 @@ class OpenClipEncoder(Encoder):
     def conformance_params(cls, tmp_path: Path) -> dict[str, Any]:
         """Random weights of the smallest built-in text tower, on CPU."""
         return {"model": "ViT-B-32", "pretrained": "random", "device": "cpu"}
+
+
+def _reason(exc: BaseException, limit: int = 400) -> str:
+    """A loader's exception in one line: a state-dict mismatch lists every key (cut
+    short), and an empty file or state dict raises an exception with no message (its
+    type is given instead)."""
+    text = " ".join(str(exc).split())
+    if len(text) > limit:
+        text = text[:limit].rsplit(" ", 1)[0] + " ..."
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__

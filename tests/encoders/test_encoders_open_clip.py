@@ -326,3 +326,26 @@ def test_open_clip_warnings_are_relogged_unless_random_was_asked_for(tmp_path, c
         got = [r.getMessage() for r in caplog.records if r.name == log.name]
         assert any("no CLIP weights found" in m for m in got)
         assert any("No pretrained weights" in m for m in got) is not random
+
+
+def test_checkpoint_of_another_architecture_names_the_file_and_field(tiny, tmp_path):
+    """A checkpoint that is not this architecture's said only 'text pos_embed width
+    changed!' or listed every missing key (kilobytes), an empty state dict said nothing
+    at all (''); now the reason is one short line and the fix names 'model'."""
+    wide = {**TINY_CFG, "text_cfg": {**TINY_CFG["text_cfg"], "width": 64, "heads": 4}}
+    (tmp_path / "quash-tiny-wide-test.json").write_text(json.dumps(wide))
+    open_clip.add_model_config(tmp_path)
+    torch.save(
+        _fresh(model=tiny, pretrained="random")._load()[0].state_dict(), tmp_path / "tiny.pt"
+    )
+    torch.save({"state_dict": {}}, tmp_path / "empty.pt")
+    torch.save({"epoch": 3, "optimizer": {"lr": torch.zeros(1)}}, tmp_path / "other.pt")
+    cases = [("quash-tiny-wide-test", "tiny.pt"), (tiny, "empty.pt"), (tiny, "other.pt")]
+    for model, name in cases:
+        with pytest.raises(EncoderError) as err:
+            _fresh(model=model, checkpoint=str(tmp_path / name)).encode_text(["chair"])
+        msg = str(err.value)
+        assert name in msg and "'model'" in msg and len(msg) < 1000, msg
+        assert not msg.rstrip().endswith(":"), msg  # a reason is given
+    with pytest.raises(EncoderError, match="is a folder"):
+        _enc(model=tiny, checkpoint=str(tmp_path))
