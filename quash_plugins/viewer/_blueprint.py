@@ -87,14 +87,27 @@ def _config_panel(rrb: Any, layout: Layout, c: str | None, name: str) -> Any:
         position, target, up = layout.eye
         eye = rrb.EyeControls3D(kind="Orbital", position=position, look_target=target, eye_up=up)
     hidden = rrb.EntityBehavior(visible=False)
-    if c is None:  # only the map so far
-        return rrb.Spatial3DView(
-            name="map",
-            origin="world",
-            contents=["+ world/map", "+ world/ceiling"],
-            overrides={"world/ceiling": hidden} if layout.has_ceiling else None,
-            eye_controls=eye,
-        )
+    if c is None:  # only the map so far: its 3D view, or a pixel map's images
+        only: list[Any] = []
+        if layout.has_world:
+            only.append(
+                rrb.Spatial3DView(
+                    name="map",
+                    origin="world",
+                    contents=["+ world/map", "+ world/ceiling"],
+                    overrides={"world/ceiling": hidden} if layout.has_ceiling else None,
+                    eye_controls=eye,
+                )
+            )
+        if layout.frames:
+            images = [
+                rrb.Spatial2DView(
+                    name=str(frame), origin=f"images/{frame}", contents="+ $origin/rgb"
+                )
+                for frame in layout.frames
+            ]
+            only.append(rrb.Tabs(*images, name="images"))
+        return only[0] if len(only) == 1 else rrb.Vertical(*only, name=name)
     doc = _with_query_list(
         rrb, layout, rrb.TextDocumentView(name=f"{name}: query set", origin=f"queries/{c}")
     )
@@ -207,7 +220,7 @@ def build_blueprint(layout: Layout) -> Any:
     names = [c for c, _ in layout.configs]
     if layout.metrics or layout.has_summary:
         panels.append(_eval_panel(rrb, layout))
-    if not panels and layout.has_world:
+    if not panels and (layout.has_world or layout.frames):
         panels.append(_config_panel(rrb, layout, None, "map"))
     if not panels:
         panels.append(rrb.TextDocumentView(name="Query set", origin="queries"))

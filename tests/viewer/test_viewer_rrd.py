@@ -329,6 +329,21 @@ def test_pixel_map_images_masks_and_2d_blueprint(tmp_path):
     assert ("TextDocument", "queries/quash") in views
 
 
+def test_a_pixel_map_alone_shows_its_images(tmp_path):
+    """Before the first result (while quash query --serve-web runs the queries) the layout
+    showed one empty 'Query set' document, not the pixel map's images."""
+    rec = rr.RecordingStream("quash-test")
+    out = tmp_path / "px.rrd"
+    rec.save(out)
+    logger = RerunLogger(rec)
+    logger.log_map(pixel_map())
+    logger.close()
+    rec.disconnect()
+    reader, _ = read_rrd(out)
+    assert blueprint_views(reader) == {("2D", "images/frame_000"), ("2D", "images/frame_001")}
+    assert blueprint_contents(reader) == {"+ $origin/rgb"}
+
+
 def test_eval_scalars(tmp_path):
     rec = rr.RecordingStream("quash-eval-test")
     out = tmp_path / "e.rrd"
