@@ -186,6 +186,7 @@ def run_bench(
     import json
 
     from ..core.atomic import atomic_write_text
+    from ..core.progress import progress
     from ..engine.pipeline import Quash
 
     out = Path(out)
@@ -215,13 +216,17 @@ def run_bench(
             notes.append("- taxonomy rows skipped: give the taxonomy file (--taxonomy).")
         if table == "sources" and not llm:
             notes.append("- llm rows skipped: give the model of a filled llm cache (--llm-model).")
-        for cfg in cfgs:
-            try:
-                rep = evaluate(lmap, [cfg], queries=queries, absent=absent, overrides=overrides)
-                rows.extend(rep.configs)
-            except QuashError as exc:
-                notes.append(f"- {cfg['name']}: skipped ({str(exc).splitlines()[0]})")
-                log.warning("bench %s: %s skipped: %s", table, cfg["name"], exc)
+        # one line every ~10 % of a table's configs: a table of ten configs on a large
+        # map runs for minutes, and 'table X: done' comes only at its end
+        with progress(len(cfgs), f"table {table}: {len(cfgs)} config(s)") as advance:
+            for cfg in cfgs:
+                try:
+                    rep = evaluate(lmap, [cfg], queries=queries, absent=absent, overrides=overrides)
+                    rows.extend(rep.configs)
+                except QuashError as exc:
+                    notes.append(f"- {cfg['name']}: skipped ({str(exc).splitlines()[0]})")
+                    log.warning("bench %s: %s skipped: %s", table, cfg["name"], exc)
+                advance(1)
         if table != "fair":  # the fair table keeps the peers first, as the docs list them
             rows.sort(key=lambda c: -(c["mean"]["f1"] or 0.0))
         results[table] = {"configs": rows, "notes": notes}
