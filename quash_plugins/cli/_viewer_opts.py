@@ -110,12 +110,20 @@ def check_rrd(args: argparse.Namespace, inputs: Any = ()) -> None:
     other than a recording quash wrote (unless ``--force``): a recording of another
     application (a robot's own log) is refused naming its application id. With
     ``--serve-web``, one port for both servers is refused; without it, ``--web-port``,
-    ``--grpc-port`` and ``--bind`` are (they would be ignored)."""
+    ``--grpc-port`` and ``--bind`` are (they would be ignored). An ``--rrd`` not named
+    ``*.rrd`` and a ``--connect`` that is no viewer URL are refused here too, before the
+    map is read."""
     from pathlib import Path
 
     from ..core.atomic import check_output
     from ..core.errors import UsageError
-    from ..viewer import is_quash_app_id, is_rrd, rrd_application_ids
+    from ..viewer import (
+        check_connect_url,
+        check_rrd_name,
+        is_quash_app_id,
+        is_rrd,
+        rrd_application_ids,
+    )
 
     if getattr(args, "serve_web", False):
         check_distinct_ports(getattr(args, "web_port", None), getattr(args, "grpc_port", None))
@@ -135,10 +143,13 @@ def check_rrd(args: argparse.Namespace, inputs: Any = ()) -> None:
                 "--serve-web, which was not given. Add --serve-web to serve the recording, or "
                 f"leave {'it' if len(given) == 1 else 'them'} out."
             )
+    if getattr(args, "connect", None):
+        check_connect_url(args.connect)
     if not getattr(args, "rrd", None):
         return
     force = bool(getattr(args, "force", False))
     path = Path(args.rrd).expanduser()
+    check_rrd_name(path)
     # the input and file-kind refusals; whether it may be replaced is decided below
     out = check_output(path, inputs, what="--rrd", overwrite=True)
     if force or not out.exists():

@@ -156,6 +156,19 @@ def check_distinct_ports(
         )
 
 
+def check_rrd_name(path: str | Path) -> None:
+    """Refuse an ``--rrd`` whose name does not end in ``.rrd`` (:class:`UsageError`)."""
+    if Path(path).suffix != ".rrd":
+        raise UsageError(f"--rrd {path}: the file name must end in .rrd.")
+
+
+def check_connect_url(url: str) -> None:
+    """Refuse a ``--connect`` that is not a viewer URL (:class:`UsageError`)."""
+    parts = urlsplit(url)
+    if not parts.hostname or not parts.scheme.startswith("rerun"):
+        raise UsageError(f"--connect {url}: expected a URL like rerun+http://127.0.0.1:9876/proxy.")
+
+
 def check_port(value: Any, what: str = "port") -> int:
     """``value`` as a TCP port number in 1-65535, or a :class:`UsageError` naming ``what``."""
     try:
@@ -366,8 +379,7 @@ class SinkRerunLogger(RerunLogger):
         recording = rr.RecordingStream(app_id)
         outputs: list[Any] = []
         if self.rrd_path is not None:
-            if self.rrd_path.suffix != ".rrd":
-                raise UsageError(f"--rrd {self.rrd_path}: the file name must end in .rrd.")
+            check_rrd_name(self.rrd_path)
             self._tmp = self._file.enter_context(atomic_write(self.rrd_path, ".tmp"))
             self._finalizer = weakref.finalize(self, _remove, str(self._tmp))
             outputs.append(rr.FileSink(str(self._tmp)))
@@ -466,15 +478,12 @@ class SinkRerunLogger(RerunLogger):
     @staticmethod
     def _reachable(url: str) -> bool:
         """True when something listens at the host and port of a viewer URL."""
+        check_connect_url(url)
         parts = urlsplit(url)
         try:
             port = parts.port
         except ValueError:
             port = None
-        if not parts.hostname or not parts.scheme.startswith("rerun"):
-            raise UsageError(
-                f"--connect {url}: expected a URL like rerun+http://127.0.0.1:9876/proxy."
-            )
         port = port or DEFAULT_GRPC_PORT
         if _listening(parts.hostname, port, timeout=2.0):
             return True

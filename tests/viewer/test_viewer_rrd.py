@@ -679,6 +679,29 @@ def test_cli_rejects_bad_rrd_name(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["map.npz", "quash.yaml", "table.npz"]
 
 
+@pytest.mark.parametrize("command", ["query", "eval"])
+@pytest.mark.parametrize(
+    "flag, value, said",
+    [
+        ("--rrd", "out", "--rrd out: the file name must end in .rrd"),
+        ("--connect", "http://127.0.0.1:9876/proxy", "expected a URL like rerun+http"),
+    ],
+)
+def test_cli_refuses_a_bad_rrd_name_or_viewer_url_before_reading_the_map(
+    command, flag, value, said, tmp_path, capsys
+):
+    """Both were refused only once the map was read (a large map: after a long wait); a
+    map that cannot be read shows they are now refused first."""
+    from quash_plugins.cli.main import main
+
+    broken = tmp_path / "map.npz"
+    broken.write_bytes(b"not a map")
+    cfg = write_table_config(tmp_path)
+    args = [command, str(broken), *(["chair"] if command == "query" else ["--all-labels"])]
+    assert main([*args, "-c", str(cfg), flag, value]) == 2
+    assert said in capsys.readouterr().err
+
+
 @pytest.mark.parametrize(
     "opts",
     [
