@@ -103,7 +103,11 @@ def test_parse_queries_and_query_files(tmp_path):
     assert load_query_file(f) == ({"bunk bed": "bed", "sofa": "sofa"}, ["an elephant"])
     f.write_text("present: [chair, bed]\nabsent: [piano]\nroom_types: [kitchen]\n")
     assert load_query_file(f) == ({"chair": "chair", "bed": "bed"}, ["piano"])
+    # a number is refused as a label index, as in a mapping; a quoted one is a name
     f.write_text("- 3\n")
+    with pytest.raises(QuashError, match=r"item 3 \(int\) is not text"):
+        load_query_file(f)
+    f.write_text('- "3"\n')
     assert load_query_file(f) == ({"3": "3"}, [])
     f.write_text("just text\n")
     with pytest.raises(QuashError, match="query file"):
