@@ -136,6 +136,12 @@ def plan_queries(
     ``query_file`` is the file ``queries`` came from and ``absent_in_file`` the absence
     queries that came from it (None: all of ``absent``, when there is a file); an error
     names the file and its section."""
+    for arg, value in (("queries", queries), ("absent", absent), ("exclude", exclude)):
+        if isinstance(value, str):  # iterated, 'piano' was five one-letter queries
+            raise QuashError(
+                f"{arg} is the text {value!r}, not a list: give a list of texts "
+                f"({arg}=[{value!r}]; split a comma-separated list: {value!r}.split(','))."
+            )
     if lmap.labels is None or not lmap.label_names:
         raise QuashError(missing_ground_truth(lmap))
     labels = np.asarray(lmap.labels)

@@ -418,3 +418,27 @@ def test_a_query_file_given_as_a_taxonomy_is_named_as_such(tmp_path):
     g = tmp_path / "t.yaml"
     g.write_text("present: [gift]\nbed: [cot]\n")
     assert load_taxonomy(str(g)) == {"present": ["gift"], "bed": ["cot"]}
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"queries": "bed"}, r"queries is the text 'bed', not a list.*queries=\['bed'\]"),
+        ({"queries": ["bed"], "absent": "piano"}, r"absent is the text 'piano', not a list"),
+        ({"queries": ["bed"], "exclude": "wall"}, r"exclude is the text 'wall', not a list"),
+    ],
+)
+def test_a_query_list_given_as_one_string_is_refused(kwargs, message):
+    """evaluate(map, configs, absent="piano") scored the absence queries 'p', 'i', 'a',
+    'n' and 'o' (a string is iterated letter by letter), and queries="bed" no presence
+    query at all, with nothing said."""
+    import numpy as np
+
+    from quash_plugins.core.types import LatentMap
+    from quash_plugins.evaluation.report import plan_queries
+
+    lmap = LatentMap(
+        np.eye(4, dtype=np.float32), labels=np.array([0, 0, 1, 1]), label_names=["bed", "wall"]
+    )
+    with pytest.raises(QuashError, match=message):
+        plan_queries(lmap, **kwargs)
