@@ -80,6 +80,11 @@ class RerunLogger(MapLogging, ResultLogging, EvalLogging):
         Number of colour steps of the score layers (class ids of one annotation context).
         The threshold (display score 0.5) is always a class boundary: the classes
         labelled ``(match)`` hold only scores at or above it, for odd counts too.
+    blueprint
+        Send the layout described in ``docs/rerun.md`` (made the active one: the viewer
+        then shows these views only, on the ``query`` timeline). False sends none, so a
+        recording that holds a robot's own data keeps its layout (yours, or the viewer's
+        own views of everything logged).
 
     Examples
     --------
@@ -104,6 +109,7 @@ class RerunLogger(MapLogging, ResultLogging, EvalLogging):
         colormap: str = "viridis",
         up: str | None = "auto",
         score_classes: int = 32,
+        blueprint: bool = True,
     ) -> None:
         rr = import_rerun()
         self.rr = rr
@@ -126,6 +132,7 @@ class RerunLogger(MapLogging, ResultLogging, EvalLogging):
         self.colormap = colormap
         self.up = up
         self.score_classes = int(score_classes)
+        self.blueprint = bool(blueprint)
         self._map_key: tuple | None = None  # the fingerprint of the map logged
         self._map_ref: Any = None  # a weak reference to it
         self._map_name = ""  # the map logged, in words
@@ -177,6 +184,8 @@ class RerunLogger(MapLogging, ResultLogging, EvalLogging):
         from ._blueprint import Layout, build_blueprint
 
         self._layout_dirty = False
+        if not self.blueprint:  # the caller's recording keeps its own layout
+            return
         layout = Layout(
             has_world=self._has_world,
             has_ceiling="ceiling" in self._layers,

@@ -513,6 +513,31 @@ def test_evaluation_alone_names_its_steps(tmp_path):
     assert ("TextLog", "query_list") in blueprint_views(reader)
 
 
+def test_blueprint_false_leaves_a_robot_recording_its_own_layout(tmp_path):
+    """A robot stack's recording (its own camera view) lost its layout to quash's, made
+    active: its data was in no view and the time panel on the query timeline. With
+    blueprint=False the logger sends no blueprint; with the default it still does."""
+    import rerun.blueprint as rrb
+
+    lmap = voxel_map()
+    results = make_quash().query_many(lmap, ["chair"])
+    for blueprint, want in ((False, {("2D", "robot/camera")}), (True, None)):
+        out = tmp_path / f"robot-{blueprint}.rrd"
+        rec = rr.RecordingStream("my-robot")
+        rec.save(out)
+        rec.send_blueprint(rrb.Blueprint(rrb.Spatial2DView(origin="robot/camera")))
+        rec.log("robot/camera", rr.Image(np.zeros((4, 6, 3), dtype=np.uint8)), static=True)
+        with RerunLogger(rec, blueprint=blueprint) as logger:
+            logger.log_result(lmap, results[0], index=0)
+        rec.disconnect()
+        reader, by_path = read_rrd(out)
+        assert "world/matches/quash" in by_path and "robot/camera" in by_path
+        if want is not None:
+            assert blueprint_views(reader) == want
+        else:
+            assert ("3D", "world") in blueprint_views(reader)
+
+
 def test_never_touches_the_global_recording(tmp_path):
     assert rr.get_global_data_recording() is None
     lmap = voxel_map()
