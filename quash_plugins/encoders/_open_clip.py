@@ -128,6 +128,16 @@ class OpenClipEncoder(Encoder):
                 "open-clip needs 'model' (an open_clip name such as ViT-B-32) or 'preset' "
                 f"({', '.join(OPEN_CLIP_PRESETS)})."
             )
+        if str(model).startswith(("hf-hub:", "local-dir:")) and (
+            checkpoint is not None or pretrained is not None
+        ):
+            given = "checkpoint" if checkpoint is not None else "pretrained"
+            raise ConfigError(
+                f"open-clip model {model!r} brings its own weights ({HF_CONFIG_NAME} and a "
+                f"weight file), so its '{given}' would be ignored. Remove '{given}', or give "
+                "the architecture as 'model' (an open_clip name such as ViT-B-32) with "
+                "'checkpoint: FILE'."
+            )
         self.preset = preset
         p_model, p_tag = (OPEN_CLIP_PRESETS[preset][:2]) if preset else (None, None)
         self.model = str(model or p_model)
@@ -193,6 +203,7 @@ class OpenClipEncoder(Encoder):
                     ],
                     self.model,
                     fix_timeout=True,
+                    checkpoint=False,
                 )
             ident_w = weights_identity(weights) if weights is not None else self.model
             return Resolved(self.model, schema=schema, identity=ident_w, weights=weights)

@@ -114,13 +114,15 @@ def locate_tag(model: str, tag: str, cache_dir: str | None) -> tuple[Path | None
 
 
 def missing_weights_error(
-    what: str, places: list[str], model: str, fix_timeout: bool
+    what: str, places: list[str], model: str, fix_timeout: bool, checkpoint: bool = True
 ) -> EncoderError:
+    """``checkpoint``: whether a local file given as ``checkpoint:`` would do (not for an
+    ``hf-hub:`` model, which brings its own weights)."""
     lines = "; or ".join(places) if places else "a local checkpoint file"
-    msg = (
-        f"OpenCLIP weights for {what} are not on this machine. Put the checkpoint in {lines}; "
-        f"or pass any local {model} state-dict file as 'checkpoint: /path/to/file'."
-    )
+    msg = f"OpenCLIP weights for {what} are not on this machine. Put the checkpoint in {lines}"
+    if checkpoint:
+        msg += f"; or pass any local {model} state-dict file as 'checkpoint: /path/to/file'"
+    msg += "."
     if fix_timeout:
         msg += " To let OpenCLIP download it, set 'offline: 60' (a network timeout in seconds)."
     return EncoderError(msg)

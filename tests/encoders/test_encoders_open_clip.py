@@ -349,3 +349,17 @@ def test_checkpoint_of_another_architecture_names_the_file_and_field(tiny, tmp_p
         assert not msg.rstrip().endswith(":"), msg  # a reason is given
     with pytest.raises(EncoderError, match="is a folder"):
         _enc(model=tiny, checkpoint=str(tmp_path))
+
+
+def test_hf_hub_and_local_dir_models_refuse_checkpoint_and_pretrained(tmp_path, no_network):
+    """An hf-hub: or local-dir: model loads its own weights: a 'checkpoint' or 'pretrained'
+    beside it was ignored without a word, and the missing-weights error of an hf-hub:
+    model advised exactly that ('pass any local hf-hub:... state-dict file as
+    checkpoint')."""
+    for model in ("hf-hub:org/tiny", f"local-dir:{tmp_path}"):
+        for extra in ({"checkpoint": str(tmp_path / "w.pt")}, {"pretrained": "openai"}):
+            with pytest.raises(ConfigError, match=f"'{next(iter(extra))}'"):
+                _enc(model=model, **extra)
+    with pytest.raises(EncoderError) as err:
+        _enc(model="hf-hub:org/not-here", cache_dir=str(tmp_path))
+    assert "checkpoint:" not in str(err.value)
