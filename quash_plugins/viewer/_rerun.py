@@ -59,8 +59,9 @@ class RerunLogger(MapLogging, ResultLogging, EvalLogging):
     app_id
         Application id of a recording created here.
     max_display_points
-        Most items drawn per layer (map, mask, scores). Bigger maps are thinned for
+        Most items drawn per 3D layer (map, matches, scores). Bigger maps are thinned for
         display only, with a deterministic even stride; queries always use every item.
+        A pixel map's images are drawn whole (``max_frames`` of them).
     max_boxes
         Voxel maps with at most this many drawn voxels are drawn as boxes, bigger ones
         as points with the voxel radius.
