@@ -183,6 +183,16 @@ def plan_queries(
                 f"{g!r} is excluded (--exclude: neither TP nor FP, "
                 "never queried); remove it from the queries or from --exclude."
             )
+    twice = sorted(g for g in {*gt_of.values(), *absent} if names.count(g) > 1)
+    if twice:  # the index below keeps the last: the items of the others would be FP
+        at = [i for i, n in enumerate(names) if n == twice[0]]
+        raise QuashError(
+            f"{lmap.source.get('path', 'the map')}: 'label_names' holds {twice[0]!r} "
+            f"{len(at)} times (labels {', '.join(map(str, at))}), so a query of it would "
+            "score the items of one as its ground truth and the others as false positives. "
+            f"Give each label one name: merge them (labels[labels == {at[1]}] = {at[0]}) "
+            "or rename one."
+        )
     index = {n: i for i, n in enumerate(names)}
     unknown_here = [q for q, g in gt_of.items() if g not in index or counts[index[g]] == 0]
     presence = [q for q in gt_of if q not in unknown_here]
