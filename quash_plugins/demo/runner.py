@@ -114,6 +114,8 @@ def run_demo(
     quashes = [Quash.from_config(p, **overrides) for p in (configs or demo_config_paths())]
     scene_path = demo_scene(quashes[0].encoder, tiny=tiny, seed=seed, cache=quashes[0].cache)
     lmap = quashes[0].read_map(scene_path, adapter="npz")
+    if viewer is not None:  # a served or spawned viewer shows the scene while methods run
+        viewer.log_map(lmap)
     present = set(lmap.label_names[i] for i in set(lmap.labels.tolist()))
     qs = [q for q in queries if q in present] or None
     report = evaluate(lmap, quashes, queries=qs, absent=absent, keep_results=viewer is not None)

@@ -538,6 +538,30 @@ def test_blueprint_false_leaves_a_robot_recording_its_own_layout(tmp_path):
             assert ("3D", "world") in blueprint_views(reader)
 
 
+def test_the_demo_logs_its_scene_before_the_methods_run(tmp_path, monkeypatch):
+    """quash demo --serve-web prints its URL first, but logged the scene only once every
+    method had run (a minute): the viewer opened meanwhile showed nothing."""
+    from quash_plugins.adapters import write_npz_map
+    from quash_plugins.demo import runner
+
+    scene = write_npz_map(voxel_map(), tmp_path / "scene.npz")
+    monkeypatch.setattr(runner, "demo_scene", lambda *a, **k: scene)
+    logged: list[str] = []
+
+    class Viewer:
+        def log_map(self, lmap):
+            logged.append(f"map {lmap.n}")
+
+    def evaluate(*args, **kwargs):
+        logged.append("evaluate")
+        raise KeyboardInterrupt  # the rest of the demo is not this test's
+
+    monkeypatch.setattr(runner, "evaluate", evaluate)
+    with pytest.raises(KeyboardInterrupt):
+        runner.run_demo(viewer=Viewer(), configs=[write_table_config(tmp_path)])
+    assert logged == [f"map {voxel_map().n}", "evaluate"]
+
+
 def test_never_touches_the_global_recording(tmp_path):
     assert rr.get_global_data_recording() is None
     lmap = voxel_map()
