@@ -205,7 +205,12 @@ class OpenClipEncoder(Encoder):
                     fix_timeout=True,
                     checkpoint=False,
                 )
-            ident_w = weights_identity(weights) if weights is not None else self.model
+            ident_w: Any = weights_identity(weights) if weights is not None else self.model
+            if weights is not None and config is not None:
+                # the config is the architecture (QuickGELU too): a revision with another
+                # config and the same weight file is another function
+                config_sha = hashlib.sha256(config.read_bytes()).hexdigest()[:16]
+                ident_w = {**ident_w, "config": config_sha}
             return Resolved(self.model, schema=schema, identity=ident_w, weights=weights)
         if self.model.replace("/", "-") not in open_clip.list_models():
             guess = closest(self.model, open_clip.list_models())
@@ -427,12 +432,16 @@ class OpenClipEncoder(Encoder):
 
     def earlier_fingerprints(self) -> list[str]:
         """The fingerprint as quash-plugins wrote it before weights were named by their
-        content (their path and mtimes, :func:`legacy_weights_identity`): maps built then
-        with these weights are not warned about."""
+        content (their path and mtimes, :func:`legacy_weights_identity`), and for an
+        ``hf-hub:`` model before its config was named too: maps built then with these
+        weights are not warned about."""
         r = self._resolved
         if r.weights is None or not Path(r.weights).exists():
             return []
-        return [self._fingerprint(legacy_weights_identity(r.weights))]
+        earlier = [self._fingerprint(legacy_weights_identity(r.weights))]
+        if r.schema == "hf-hub":  # before its open_clip_config.json was named too
+            earlier.append(self._fingerprint(weights_identity(r.weights)))
+        return earlier
 
     def _fingerprint(self, weights: Any) -> str:
         r = self._resolved

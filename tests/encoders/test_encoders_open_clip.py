@@ -363,3 +363,32 @@ def test_hf_hub_and_local_dir_models_refuse_checkpoint_and_pretrained(tmp_path, 
     with pytest.raises(EncoderError) as err:
         _enc(model="hf-hub:org/not-here", cache_dir=str(tmp_path))
     assert "checkpoint:" not in str(err.value)
+
+
+def test_hf_hub_revision_with_another_config_is_another_fingerprint(tiny, tmp_path, no_network):
+    """A new revision of an hf-hub: repository whose open_clip_config.json changed (here
+    QuickGELU) and whose weight file did not gives other embeddings; its fingerprint was
+    the weight file's alone, so the text cache served the old revision's rows."""
+    from safetensors.torch import save_file
+
+    state = {k: v.contiguous() for k, v in open_clip.create_model(tiny).state_dict().items()}
+    cache = tmp_path / "hub"
+    repo = cache / "models--org--tiny"
+    (repo / "refs").mkdir(parents=True)
+    encoders = []
+    for rev, quick in (("aaa111", False), ("bbb222", True)):
+        snap = repo / "snapshots" / rev
+        snap.mkdir(parents=True)
+        cfg = {"model_cfg": {**TINY_CFG, "quick_gelu": quick}, "preprocess_cfg": {}}
+        (snap / "open_clip_config.json").write_text(json.dumps(cfg))
+        save_file(state, str(snap / "open_clip_model.safetensors"))
+        (repo / "refs" / "main").write_text(rev)
+        enc = _fresh(model="hf-hub:org/tiny", cache_dir=str(cache))
+        encoders.append((enc, enc.encode_text(["chair"])))
+    (old, old_rows), (new, new_rows) = encoders
+    assert not np.array_equal(old_rows, new_rows)
+    assert old.fingerprint() != new.fingerprint()
+    # a map recorded before the config was named is still the same encoder's
+    from quash_plugins.encoders._runtime import weights_identity
+
+    assert new._fingerprint(weights_identity(new._resolved.weights)) in (new.earlier_fingerprints())
