@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+import json
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -119,5 +120,8 @@ class TableEncoder(Encoder):
         return {"file": str(path)}
 
     def config(self) -> dict[str, Any]:
-        digest = hashlib.sha256(self._emb.tobytes()).hexdigest()[:16]
+        # the texts too: a table whose rows were relabelled is another function
+        h = hashlib.sha256(self._emb.tobytes())
+        h.update(json.dumps(self._texts).encode())
+        digest = h.hexdigest()[:16]
         return {"file": str(self.file) if self.file else None, "sha": digest}
