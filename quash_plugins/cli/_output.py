@@ -373,12 +373,13 @@ STAGES = ("read", "expand", "encode", "fit", "classify", "postprocess", "refine"
 SHARED = ("read", "encode", "classify", "reclassify")
 
 
-def timings_table(results: list[Any], max_columns: int = 6) -> Any:
+def timings_table(results: list[Any], max_columns: int = 6, width: int = 80) -> Any:
     """Per-query stage times in ms, with the stages shared by the queries of one call
     marked ``*`` (each query shows its equal share) and their whole cost in a note below.
 
     Up to ``max_columns`` queries are columns (one row per stage, narrow enough for any
-    terminal); more queries are rows, one column per stage (headers fold, never cut).
+    terminal); more queries are rows, one column per stage, fitted to a console of
+    ``width`` columns (headers and queries fold; numbers are never cut).
     """
     from rich import box
     from rich.table import Table
@@ -397,7 +398,10 @@ def timings_table(results: list[Any], max_columns: int = 6) -> Any:
     )
 
     def ms(r: Any, s: str) -> str:
-        return f"{1000 * r.timings[s]:.1f}" if s in r.timings else "-"
+        if s not in r.timings:
+            return "-"
+        value = 1000 * r.timings[s]
+        return f"{value:.0f}" if value >= 100 else f"{value:.1f}"  # 3 significant digits
 
     if len(results) <= max_columns:
         table.add_column("stage", no_wrap=True)
@@ -406,9 +410,16 @@ def timings_table(results: list[Any], max_columns: int = 6) -> Any:
         for s in stages:
             table.add_row(label[s], *[ms(r, s) for r in results])
     else:
-        table.add_column("query", no_wrap=True)
+        # The numbers are never broken (a console of 80 columns, or a pipe, folded "24.9"
+        # over three lines): each stage's column is as wide as its numbers, its header
+        # folds, and a long query folds.
+        table.add_column("query", overflow="fold", min_width=8)
+        numbers = {s: max(len(ms(r, s)) for r in results) for s in stages}
+        whole = sum(max(numbers[s], len(label[s])) + 1 for s in stages) + 12 <= width
         for s in stages:
-            table.add_column(label[s], justify="right", overflow="fold")
+            # a set width, never cut: the header's where they all fit, else the numbers'
+            fit = max(numbers[s], len(label[s]) if whole else 5)
+            table.add_column(label[s], justify="right", overflow="fold", width=fit)
         for r in results:
             table.add_row(Text(escape_control(r.query)), *[ms(r, s) for s in stages])
     shared = []

@@ -299,6 +299,6 @@ def _report(args, cfg, lmap, results) -> None:
                 safe_text(f"{r.query!r} came back empty: {reason}; presence: null in the config ")
                 + "keeps every match"
             )
-    out.print(timings_table(results))
+    out.print(timings_table(results, width=out.width))
     if args.out:
         out.print(f"wrote {safe_text(args.out)}")

@@ -224,3 +224,38 @@ def test_a_markdown_image_prints_as_its_path():
     print_markdown(console, "## Fair\n\n![The fair protocol](fair.png)\n", base="out/bench")
     text = console.export_text()
     assert "![" not in text and "plot: out/bench/fair.png" in text
+
+
+@pytest.mark.parametrize("width", [80, 140])
+def test_the_stage_table_of_many_queries_never_breaks_a_number(width):
+    """More queries than columns: one row per query. On 80 columns (a pipe, CI) every
+    number was folded over lines ("24." above "9"); each now stands whole on its row."""
+    from types import SimpleNamespace
+
+    from quash_plugins.cli._output import STAGES, timings_table
+
+    stages = [*STAGES, "presence", "instances"]
+    queries = [
+        "chair",
+        "a very long query about somewhere to sleep",
+        "tv",
+        "bed",
+        "sofa",
+        "lamp",
+        "sink",
+    ]
+    results = [
+        SimpleNamespace(
+            query=q, timings={s: 0.0249 + 0.01 * i + 0.001 * j for i, s in enumerate(stages)}
+        )
+        for j, q in enumerate(queries)
+    ]
+    console = Console(width=width, record=True, highlight=False)
+    console.print(timings_table(results, width=width))
+    lines = console.export_text().splitlines()
+    assert max(len(ln.rstrip()) for ln in lines) <= width
+    for j, q in enumerate(queries):
+        ms = [1000 * (0.0249 + 0.01 * i + 0.001 * j) for i in range(len(stages))]
+        expect = [f"{v:.0f}" if v >= 100 else f"{v:.1f}" for v in ms]
+        [row] = [ln for ln in lines if ln.split()[:1] == q.split()[:1]]
+        assert row.split()[-len(stages) :] == expect, (q, row)
