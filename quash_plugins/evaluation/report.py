@@ -121,6 +121,31 @@ def missing_ground_truth(lmap: LatentMap) -> str:
     )
 
 
+def _one_label_per_name(labels: np.ndarray, names: list[str], where: Any) -> np.ndarray:
+    """``labels`` with every label whose name an earlier label has (``label_names``
+    ``['bed', 'sofa', 'bed']``) counted as that earlier one, in a new array (the map's
+    own is never written): a query of "bed" has the items of both as its ground truth.
+    Counted by the name, the items of the other "bed" were false positives."""
+    first: dict[str, int] = {}
+    for i, n in enumerate(names):
+        first.setdefault(n, i)
+    same = {i: first[n] for i, n in enumerate(names) if first[n] != i}
+    if not same:
+        return labels
+    merged = labels.copy()
+    for i, j in same.items():
+        merged[labels == i] = j
+    twice = sorted({names[j] for j in same.values()})
+    log.warning(
+        "%s: 'label_names' gives %s to more than one label (%s): each name is scored as "
+        "one label, the items of all of them its ground truth",
+        where,
+        ", ".join(repr(n) for n in twice),
+        "; ".join(f"{names[j]!r}: {j}, {i}" for i, j in same.items()),
+    )
+    return merged
+
+
 def plan_queries(
     lmap: LatentMap,
     queries: Any = None,
@@ -144,8 +169,8 @@ def plan_queries(
             )
     if lmap.labels is None or not lmap.label_names:
         raise QuashError(missing_ground_truth(lmap))
-    labels = np.asarray(lmap.labels)
     names = list(lmap.label_names)
+    labels = _one_label_per_name(np.asarray(lmap.labels), names, lmap.source.get("path", "the map"))
     valid = valid_items(labels, names, exclude)
     if not valid.any():
         where = lmap.source.get("path", "the map")
@@ -183,17 +208,7 @@ def plan_queries(
                 f"{g!r} is excluded (--exclude: neither TP nor FP, "
                 "never queried); remove it from the queries or from --exclude."
             )
-    twice = sorted(g for g in {*gt_of.values(), *absent} if names.count(g) > 1)
-    if twice:  # the index below keeps the last: the items of the others would be FP
-        at = [i for i, n in enumerate(names) if n == twice[0]]
-        raise QuashError(
-            f"{lmap.source.get('path', 'the map')}: 'label_names' holds {twice[0]!r} "
-            f"{len(at)} times (labels {', '.join(map(str, at))}), so a query of it would "
-            "score the items of one as its ground truth and the others as false positives. "
-            f"Give each label one name: merge them (labels[labels == {at[1]}] = {at[0]}) "
-            "or rename one."
-        )
-    index = {n: i for i, n in enumerate(names)}
+    index = {n: i for i, n in reversed(list(enumerate(names)))}  # the first of a name
     unknown_here = [q for q, g in gt_of.items() if g not in index or counts[index[g]] == 0]
     presence = [q for q in gt_of if q not in unknown_here]
     in_file = set(absent if absent_in_file is None else absent_in_file) if query_file else set()
@@ -272,7 +287,7 @@ def evaluate(
     labels, valid, gt_of, presence, absence = plan_queries(
         lmap, queries, exclude, absent, query_file=query_file, absent_in_file=absent_in_file
     )
-    index = {n: i for i, n in enumerate(lmap.label_names)}
+    index = {n: i for i, n in reversed(list(enumerate(lmap.label_names)))}  # the first
     from ..engine.topology import MapTopology
     from .ranking import average_precision, inverse_rank, label_segments
 

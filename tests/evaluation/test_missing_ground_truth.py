@@ -92,24 +92,31 @@ def test_a_map_with_no_items_says_so_not_that_its_items_are_unlabelled(tmp_path)
     assert "negative" not in msg and "--exclude" not in msg
 
 
-def test_a_label_name_given_twice_in_the_map_is_refused_when_queried(tmp_path):
+@pytest.mark.parametrize("names", [["bed", "sofa", "bed"], ["bed", "bed", "sofa"]])
+def test_a_label_name_given_twice_in_the_map_is_one_label_whose_items_are_all_truth(
+    tmp_path, caplog, names
+):
     """label_names ['bed', 'sofa', 'bed']: a query of 'bed' took label 2 as its ground
     truth and scored the items of label 0, beds too, as false positives (F1 0.018 for a
-    rule whose F1 was 0.226 on the same map with one name per label)."""
-    labels = np.array([0, 0, 1, 2])
-    path = write_npz_map(
-        LatentMap(E, labels=labels, label_names=["bed", "sofa", "bed"]), tmp_path / "m.npz"
-    )
-    q = Quash.from_config({"encoder": {"name": "table", "table": {"bed": [1, 0, 0, 0]}}})
-    for kwargs in ({"queries": ["bed"]}, {"queries": ["a cot=bed"]}, {}):
-        with pytest.raises(
-            QuashError, match=r"m\.npz: 'label_names' holds 'bed' 2 times \(labels 0, 2\)"
-        ) as info:
-            evaluate(str(path), [q], **kwargs)
-        assert "labels[labels == 2] = 0" in str(info.value)
-    # a name given twice that no query names is no one's ground truth
-    from quash_plugins.evaluation.report import plan_queries
-
-    lmap = LatentMap(E, labels=labels, label_names=["bed", "sofa", "bed"])
-    _, _, gt_of, presence, absence = plan_queries(lmap, ["sofa"], absent=["piano"])
-    assert gt_of == {"sofa": "sofa"} and presence == ["sofa"] and absence == ["piano"]
+    rule whose F1 was 0.226 on the same map with one name per label). Every label of
+    that name is now the query's ground truth, with a warning; the map is not written."""
+    labels = np.array([0, 0, 1, 2]) if names[2] == "bed" else np.array([0, 1, 2, 0])
+    bed = np.array([n == "bed" for n in names])[labels]  # the items of every 'bed'
+    lmap = LatentMap(E, labels=labels.copy(), label_names=names)
+    path = write_npz_map(lmap, tmp_path / "m.npz")
+    table = {"bed": [1, 0, 0, 0], "sofa": [0, 0, 1, 0], "cot": [1, 0, 0, 0]}
+    table |= {"other": [0, 1, 0, 0], "background": [0, 0, 0, 1], "nothing": [0, 0, 0, 1]}
+    q = Quash.from_config({"encoder": {"name": "table", "table": table}, "heuristic": "none"})
+    for kwargs in ({"queries": ["bed"]}, {"queries": ["cot=bed"]}, {}):
+        caplog.clear()
+        report = evaluate(str(path), [q], keep_results=True, **kwargs)
+        [query] = [k for k in report.queries if k in ("bed", "cot")]
+        m = report.configs[0]["per_query"][query]
+        assert m["label"] == "bed" and m["n_true"] == int(bed.sum()) == 3, m
+        [result] = [r for r in next(iter(report.results.values())) if r.query == query]
+        expect = np.count_nonzero(result.mask & bed)
+        assert m["tp"] == expect and m["fp"] == np.count_nonzero(result.mask & ~bed)
+        assert "'label_names' gives 'bed' to more than one label" in caplog.text
+    # the names the map holds are each queried once, and the map's labels are its own
+    assert sorted(evaluate(lmap, [q]).queries) == ["bed", "sofa"]
+    assert lmap.labels.tolist() == labels.tolist()
