@@ -32,6 +32,8 @@ from ._open_clip_weights import (
     Resolved,
     hf_cached_file,
     is_tag,
+    is_torchscript,
+    load_torchscript_weights,
     locate_tag,
     looks_like_path,
     missing_weights_error,
@@ -313,6 +315,9 @@ class OpenClipEncoder(Encoder):
                     kwargs[f"image_{k}"] = r.tag_cfg[k]
             if r.checkpoint is None and not r.random:  # download allowed (offline is a timeout)
                 kwargs["pretrained"] = r.tag
+        jit = r.checkpoint is not None and is_torchscript(r.checkpoint)
+        if jit:  # OpenAI's own file: its weights are loaded once the model is built
+            kwargs["pretrained"] = None
         net: Any = hf_offline() if self._offline else network_timeout(self._timeout())
         log.info(
             "loading open_clip %s (%s) on %s, %s",
@@ -323,8 +328,10 @@ class OpenClipEncoder(Encoder):
         )
         try:
             init = seeded(torch, self.seed) if r.random else contextlib.nullcontext()
-            with net, open_clip_logs(log, r.random), init:
+            with net, open_clip_logs(log, r.random or jit), init:
                 model, _, preprocess = open_clip.create_model_and_transforms(self.model, **kwargs)
+                if jit:
+                    load_torchscript_weights(model, r.checkpoint)
                 tokenizer = open_clip.get_tokenizer(self.model, cache_dir=self.cache_dir)
         except EncoderError:
             raise

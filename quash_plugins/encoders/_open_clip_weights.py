@@ -187,7 +187,8 @@ def open_clip_logs(log: logging.Logger, random: bool) -> Iterator[None]:
     package's logging, ``--quiet`` and the redaction, and every later root record printed
     too. Inside the block the root logger has a handler (so none is installed) and its
     records from open_clip go to ``log``; its "No pretrained weights loaded" is dropped
-    when the random weights were asked for (``random``), which the encoder logs itself.
+    when ``random``: random weights were asked for (the encoder logs that itself), or the
+    weights are loaded after open_clip built the model.
     """
     root = logging.getLogger()
 
@@ -209,3 +210,31 @@ def open_clip_logs(log: logging.Logger, random: bool) -> Iterator[None]:
         root.removeFilter(reroute)
         if guard is not None:
             root.removeHandler(guard)
+
+
+def is_torchscript(path: Path) -> bool:
+    """Whether ``path`` is a TorchScript archive, as OpenAI's own checkpoints are (the
+    files of OpenCLIP's download URLs, ``~/.cache/clip/ViT-B-32.pt``)."""
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(path) as z:
+            return any(n.endswith("/constants.pkl") or "/code/" in n for n in z.namelist())
+    except (OSError, zipfile.BadZipFile):
+        return False
+
+
+def load_torchscript_weights(model: Any, path: Path) -> None:
+    """Load a TorchScript archive's weights into ``model``, as open_clip's OpenAI loader
+    reads them: open_clip's ``torch.load(weights_only=True)`` refuses such archives."""
+    import warnings
+
+    import torch
+
+    with warnings.catch_warnings():  # torch's deprecation of jit.load is not the user's
+        warnings.simplefilter("ignore", FutureWarning)
+        state = torch.jit.load(str(path), map_location="cpu").state_dict()
+    for key in ("input_resolution", "context_length", "vocab_size"):
+        state.pop(key, None)
+    transient = {k for k, _ in model.named_buffers()} - set(model.state_dict())
+    model.load_state_dict({k: v for k, v in state.items() if k not in transient})

@@ -392,3 +392,30 @@ def test_hf_hub_revision_with_another_config_is_another_fingerprint(tiny, tmp_pa
     from quash_plugins.encoders._runtime import weights_identity
 
     assert new._fingerprint(weights_identity(new._resolved.weights)) in (new.earlier_fingerprints())
+
+
+def test_openai_torchscript_file_loads(tiny, tmp_path, monkeypatch, no_network):
+    """OpenAI's own checkpoints (~/.cache/clip/ViT-B-32.pt, the file of OpenCLIP's
+    download URL, a documented place) are TorchScript archives: open_clip's
+    torch.load(weights_only=True) refused them ('Cannot use weights_only=True with
+    TorchScript archives'), as a tag's file there or as checkpoint:."""
+    import warnings
+
+    src = _fresh(model=tiny, pretrained="random", seed=11)
+    model = src._load()[0]
+    image, text = torch.zeros(1, 3, 32, 32), torch.zeros(1, 16, dtype=torch.long)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        torch.jit.trace(model, (image, text), strict=False, check_trace=False).save(
+            str(tmp_path / "tiny-openai.pt")
+        )
+    fake = {"url": "https://example.invalid/x/tiny-openai.pt", "hf_hub": "", "quick_gelu": False}
+    monkeypatch.setattr(
+        open_clip, "get_pretrained_cfg", lambda m, t: fake if t == "faketag" else {}
+    )
+    ref = src.encode_text(["chair", "sofa"])
+    for kw in (
+        {"pretrained": "faketag", "cache_dir": str(tmp_path)},
+        {"checkpoint": str(tmp_path / "tiny-openai.pt")},
+    ):
+        np.testing.assert_array_equal(_fresh(model=tiny, **kw).encode_text(["chair", "sofa"]), ref)
