@@ -252,6 +252,8 @@ def _query_to_zarr(args, quash) -> int:
 
 
 def _report(args, cfg, lmap, results) -> None:
+    import numpy as np
+
     from ._output import console, print_json, safe_text, timings_table
 
     if args.json:
@@ -298,6 +300,16 @@ def _report(args, cfg, lmap, results) -> None:
             out.print(
                 safe_text(f"{r.query!r} came back empty: {reason}; presence: null in the config ")
                 + "keeps every match"
+            )
+        elif r.n_matched == 0 and np.isfinite(r.scores).any():
+            # no item scored over the threshold: say by how much (the paper's SVM on
+            # text alone matches nothing on a map it was not fitted to)
+            best = float(np.nanmax(np.where(np.isfinite(r.scores), r.scores, np.nan)))
+            out.print(
+                safe_text(
+                    f"{r.query!r} matched nothing: its highest score is {best:.3g}, under the "
+                    f"threshold {r.threshold:g}; 'threshold:' in the config sets it"
+                )
             )
     out.print(timings_table(results, width=out.width))
     if args.out:

@@ -259,3 +259,25 @@ def test_the_stage_table_of_many_queries_never_breaks_a_number(width):
         expect = [f"{v:.0f}" if v >= 100 else f"{v:.1f}" for v in ms]
         [row] = [ln for ln in lines if ln.split()[:1] == q.split()[:1]]
         assert row.split()[-len(stages) :] == expect, (q, row)
+
+
+def test_a_query_that_matches_nothing_without_the_presence_check_says_by_how_much(
+    tiny_world, capsys
+):
+    """The presence check off (the paper's SVM, a hand-set threshold): an empty answer
+    said nothing, as if the query had not run; it now gives the best score and the
+    threshold it missed."""
+    from quash_plugins import Quash
+
+    cfg = tiny_world["dir"] / "high.yaml"
+    cfg.write_text(tiny_world["config"].read_text() + "threshold: 50.0\n")
+    [r] = Quash.from_config(cfg).query_many(tiny_world["map"], ["chair"])
+    assert r.n_matched == 0 and r.presence == "off"
+    code = main(["query", str(tiny_world["map"]), "chair", "-c", str(cfg)])
+    out = " ".join(capsys.readouterr().out.split())
+    assert code == 0
+    best = f"{float(r.scores.max()):.3g}"
+    assert f"'chair' matched nothing: its highest score is {best}, under the threshold 50" in out
+    # a query that matches says nothing of the kind
+    assert main(["query", str(tiny_world["map"]), "chair", "-c", str(tiny_world["config"])]) == 0
+    assert "matched nothing" not in capsys.readouterr().out
