@@ -1,5 +1,7 @@
 from __future__ import annotations
 
+import contextlib
+
 import pytest
 
 from quash_plugins import Encoder
@@ -182,42 +184,58 @@ def test_the_split_keeps_the_public_import_paths_and_one_discovery_cache():
     assert "svm-rbf" in registry.available("classifiers")  # scanned again
 
 
-def _broken(kind: str, name: str):
+@contextlib.contextmanager
+def _entry_point(kind: str, name: str, target: str, load, dist: str = "pkg-imports"):
+    """An entry point ``name`` of ``dist`` naming ``target``, whose import runs ``load``,
+    registered for the block."""
     from quash_plugins.core import _entry_points
     from quash_plugins.core._entry_points import PluginInfo
+
+    registry.available(kind)  # scanned
+    info = PluginInfo(kind, name, target, dist, "0.1", _loader=load)
+    _entry_points._scanned[kind].append(info)
+    try:
+        yield info
+    finally:
+        _entry_points._scanned[kind].remove(info)
+
+
+def _broken(kind: str, name: str):
+    """A plugin of ``broken-dist`` whose import fails for a missing module."""
 
     def load():
         raise ImportError("No module named 'missing_driver'")
 
-    registry.available(kind)  # scanned
-    info = PluginInfo(kind, name, f"broken_{name}:Thing", "broken-dist", "0.1", _loader=load)
-    _entry_points._scanned[kind].append(info)
-    return info
+    return _entry_point(kind, name, f"broken_{name}:Thing", load, dist="broken-dist")
+
+
+def _load_error(name: str, target: str, load) -> str:
+    """The error of loading encoder ``name`` whose entry point names ``target`` and whose
+    import runs ``load``."""
+    with _entry_point("encoders", name, target, load), pytest.raises(PluginError) as err:
+        registry.load("encoders", name)
+    return str(err.value)
 
 
 def test_a_plugin_the_config_names_fails_with_an_error_not_a_skipped_warning(caplog):
     """Before, a configured plugin that failed to import logged 'WARNING ... It is
     skipped.' and then raised the same text as an error: it was not skipped."""
-    from quash_plugins.core import _entry_points, once
+    from quash_plugins.core import once
     from quash_plugins.core.errors import PluginError
 
     once.forget("registry")
-    info = _broken("encoders", "brokenenc")
-    try:
+    with _broken("encoders", "brokenenc"):
         with caplog.at_level("WARNING"), pytest.raises(PluginError, match="failed to import"):
             registry.create("encoders", "brokenenc")
         assert "skipped" not in caplog.text
-    finally:
-        _entry_points._scanned["encoders"].remove(info)
 
 
 def test_a_broken_adapter_that_auto_detection_passes_over_is_warned_about_once(caplog):
-    from quash_plugins.core import _entry_points, once
+    from quash_plugins.core import once
     from quash_plugins.core.maps import _ordered_adapters
 
     once.forget("registry")
-    info = _broken("adapters", "brokenadapter")
-    try:
+    with _broken("adapters", "brokenadapter"):
         with caplog.at_level("WARNING"):
             names = [n for n, _ in _ordered_adapters()]
             _ordered_adapters()
@@ -225,8 +243,6 @@ def test_a_broken_adapter_that_auto_detection_passes_over_is_warned_about_once(c
         warned = [r.getMessage() for r in caplog.records if "brokenadapter" in r.getMessage()]
         assert len(warned) == 1 and warned[0].endswith("It is skipped."), warned
         assert "broken-dist" in warned[0]
-    finally:
-        _entry_points._scanned["adapters"].remove(info)
 
 
 def test_unknown_parameter_suggests_a_typo_fix_not_another_word():
@@ -240,17 +256,6 @@ def test_unknown_parameter_suggests_a_typo_fix_not_another_word():
     assert "Did you mean" not in str(info.value)
     with pytest.raises(ConfigError, match="Did you mean 'cache_frames'"):
         registry.create("adapters", "image-features", cache_frame=4)
-
-
-def _import_error(kind: str, name: str, target: str, load):
-    """A plugin entry point named ``target`` whose import runs ``load``."""
-    from quash_plugins.core import _entry_points
-    from quash_plugins.core._entry_points import PluginInfo
-
-    registry.available(kind)  # scanned
-    info = PluginInfo(kind, name, target, "pkg-imports", "0.1", _loader=load)
-    _entry_points._scanned[kind].append(info)
-    return info
 
 
 def _from_numpy_import_a_typo():
@@ -276,15 +281,7 @@ def test_an_import_error_of_an_installed_package_is_not_called_not_installed(tar
     naming a module that does not exist, and ``import mypackage.no_such_file`` (its own
     package's missing helper module) as 'needs the Python module 'mypackage', which is
     not installed': neither is the fix. The import error's own text is reported."""
-    info = _import_error("encoders", "imports-badly", target, load)
-    try:
-        with pytest.raises(PluginError) as err:
-            registry.load("encoders", "imports-badly")
-    finally:
-        from quash_plugins.core import _entry_points
-
-        _entry_points._scanned["encoders"].remove(info)
-    msg = str(err.value)
+    msg = _load_error("imports-badly", target, load)
     assert wrong not in msg
     assert "no_such_" in msg and "Fix or uninstall 'pkg-imports'" in msg
 
@@ -327,20 +324,11 @@ def test_an_entry_point_with_a_dot_for_the_colon_is_given_the_line_to_write():
     not exist; the class is there, behind a dot where the colon belongs."""
     import importlib
 
-    from quash_plugins.core import _entry_points
-
-    info = _import_error(
-        "encoders",
+    msg = _load_error(
         "dotted-target",
         "quash_plugins.Encoder",
         lambda: importlib.import_module("quash_plugins.Encoder"),
     )
-    try:
-        with pytest.raises(PluginError) as err:
-            registry.load("encoders", "dotted-target")
-    finally:
-        _entry_points._scanned["encoders"].remove(info)
-    msg = str(err.value)
     assert "The module 'quash_plugins.Encoder' it names does not exist" in msg
     assert (
         'a colon separates the module from the object: dotted-target = "quash_plugins:Encoder"'
@@ -389,23 +377,12 @@ def test_a_syntax_error_in_a_plugin_names_the_whole_path_of_its_file(tmp_path, m
     plugin of several packages has more than one of."""
     import importlib
 
-    from quash_plugins.core import _entry_points
-
     (tmp_path / "synquash_pkg" / "sub").mkdir(parents=True)
     (tmp_path / "synquash_pkg" / "__init__.py").write_text("from .sub import helpers\n")
     (tmp_path / "synquash_pkg" / "sub" / "__init__.py").write_text("")
     (tmp_path / "synquash_pkg" / "sub" / "helpers.py").write_text("x = 1\ndef f(:\n")
     monkeypatch.syspath_prepend(str(tmp_path))
-    info = _import_error(
-        "encoders",
-        "syntax-error",
-        "synquash_pkg:Thing",
-        lambda: importlib.import_module("synquash_pkg"),
+    msg = _load_error(
+        "syntax-error", "synquash_pkg:Thing", lambda: importlib.import_module("synquash_pkg")
     )
-    try:
-        with pytest.raises(PluginError) as err:
-            registry.load("encoders", "syntax-error")
-    finally:
-        _entry_points._scanned["encoders"].remove(info)
-    msg = str(err.value)
     assert f"Fix line 2 of {tmp_path / 'synquash_pkg' / 'sub' / 'helpers.py'}." in msg
