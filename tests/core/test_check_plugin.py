@@ -92,26 +92,24 @@ def test_a_mistake_in_conformance_params_is_named_as_one(twins, tmp_path):
     """A typo in what conformance_params returns was reported as the plugin refusing a
     parameter, which the author had written nowhere but there; a conformance_params
     without @classmethod ended in a bare TypeError about a missing 'tmp_path'."""
-    _NeedsFile.conformance_params = classmethod(lambda cls, tmp: {"fil": str(tmp / "f")})
-    try:
-        with pytest.raises(ConfigError) as err:
-            check_plugin("encoders", "kit-needs-file", tmp_path)
-    finally:
-        del _NeedsFile.conformance_params
-    message = str(err.value)
+
+    def kit_error(conformance_params) -> str:
+        _NeedsFile.conformance_params = conformance_params
+        try:
+            with pytest.raises(ConfigError) as err:
+                check_plugin("encoders", "kit-needs-file", tmp_path)
+        finally:
+            del _NeedsFile.conformance_params
+        return str(err.value)
+
+    message = kit_error(classmethod(lambda cls, tmp: {"fil": str(tmp / "f")}))
     assert "does not accept parameter 'fil'" in message and "Did you mean 'file'" in message
     assert "_NeedsFile.conformance_params(tmp_path) returns (fil): fix that" in message
 
     def plain(self, tmp_path):  # the @classmethod forgotten
         return {"file": str(tmp_path / "f")}
 
-    _NeedsFile.conformance_params = plain
-    try:
-        with pytest.raises(ConfigError) as err:
-            check_plugin("encoders", "kit-needs-file", tmp_path)
-    finally:
-        del _NeedsFile.conformance_params
-    message = str(err.value)
+    message = kit_error(plain)
     assert "_NeedsFile.conformance_params (encoder 'kit-needs-file') is a plain method" in message
     assert "decorate it with @classmethod" in message
 
