@@ -170,14 +170,20 @@ def test_unsupported_devices_are_refused_everywhere(tiny_world, tmp_path, capsys
             registry.create(kind, name, **params)
 
 
+def _adapter_options(tmp_path, adapter: str):
+    """The folder of ``cfg/c.yaml`` holding ``adapter: ADAPTER``, and the adapter's
+    options as the config reads them."""
+    folder = tmp_path / "cfg"
+    folder.mkdir(exist_ok=True)
+    p = folder / "c.yaml"
+    p.write_text(f"name: x\nadapter: {adapter}\n")
+    return folder, QuashConfig.from_yaml(p).adapter.params
+
+
 def test_an_adapters_points_file_is_resolved_against_the_config_folder(tmp_path):
     """The openscene adapter's ``points`` travels with its config like every path option."""
-    folder = tmp_path / "cfg"
-    folder.mkdir()
-    p = folder / "c.yaml"
-    p.write_text("name: x\nadapter: {name: openscene, points: scene_vh_clean_2.pth}\n")
-    cfg = QuashConfig.from_yaml(p)
-    assert cfg.adapter.params["points"] == str((folder / "scene_vh_clean_2.pth").resolve())
+    folder, params = _adapter_options(tmp_path, "{name: openscene, points: scene_vh_clean_2.pth}")
+    assert params["points"] == str((folder / "scene_vh_clean_2.pth").resolve())
 
 
 def _read_from_elsewhere(tmp_path, monkeypatch, files: dict, text: str):
@@ -248,22 +254,14 @@ def test_a_template_file_of_the_templates_heuristic_is_resolved_against_the_conf
 def test_an_adapters_images_folder_is_resolved_against_the_config_folder(tmp_path):
     """The image-features adapter's ``images`` travels with its config, as ``points`` does:
     ``images: ../rgb`` in ``cfg/c.yaml`` was read from the working folder."""
-    folder = tmp_path / "cfg"
-    folder.mkdir()
-    p = folder / "c.yaml"
-    p.write_text("name: x\nadapter: {name: image-features, images: ../rgb}\n")
-    cfg = QuashConfig.from_yaml(p)
-    assert Path(cfg.adapter.params["images"]).resolve() == (tmp_path / "rgb").resolve()
+    _, params = _adapter_options(tmp_path, "{name: image-features, images: ../rgb}")
+    assert Path(params["images"]).resolve() == (tmp_path / "rgb").resolve()
 
 
 def test_an_adapters_label_names_file_is_resolved_against_the_config_folder(tmp_path):
     """openscene's (and vlmaps') ``label_names: names.txt`` was read from the working
     folder ('Label-name file not found: names.txt'); a list of names stays a list."""
-    folder = tmp_path / "cfg"
-    folder.mkdir()
-    p = folder / "c.yaml"
-    p.write_text("name: x\nadapter: {name: openscene, label_names: names.txt}\n")
-    cfg = QuashConfig.from_yaml(p)
-    assert cfg.adapter.params["label_names"] == str((folder / "names.txt").resolve())
-    p.write_text("name: x\nadapter: {name: openscene, label_names: [wall, floor]}\n")
-    assert QuashConfig.from_yaml(p).adapter.params["label_names"] == ["wall", "floor"]
+    folder, params = _adapter_options(tmp_path, "{name: openscene, label_names: names.txt}")
+    assert params["label_names"] == str((folder / "names.txt").resolve())
+    _, params = _adapter_options(tmp_path, "{name: openscene, label_names: [wall, floor]}")
+    assert params["label_names"] == ["wall", "floor"]
