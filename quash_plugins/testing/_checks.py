@@ -578,13 +578,18 @@ _CHECKS: dict[str, list[Callable[[Any, Path], None]]] = {
 }
 
 
+def _selected(kinds: str | list[str] | None) -> list[str]:
+    """The plugin kinds a selection names (one, several, or None: every kind)."""
+    if isinstance(kinds, str):
+        kinds = [kinds]
+    return [registry.normalize_kind(k) for k in kinds] if kinds else list(registry.KINDS)
+
+
 def plugin_checks(
     kinds: str | list[str] | None = None, names: list[str] | None = None, dist: str | None = None
 ) -> list[PluginCheck]:
     """Every (plugin, check) pair for the selected kinds, names and distribution."""
-    if isinstance(kinds, str):
-        kinds = [kinds]
-    selected = [registry.normalize_kind(k) for k in kinds] if kinds else list(registry.KINDS)
+    selected = _selected(kinds)
     out = []
     for kind in selected:
         for info in registry.plugins(kind):
@@ -611,9 +616,7 @@ def misplaced_hint(
     kind's group (an encoder under ``quash_plugins.heuristics``), each with the group to
     move it to; else an empty string. Either mistake is otherwise reported as a plugin
     that is not installed."""
-    if isinstance(kinds, str):
-        kinds = [kinds]
-    selected = [registry.normalize_kind(k) for k in kinds] if kinds else list(registry.KINDS)
+    selected = _selected(kinds)
     groups = {registry.GROUP_PREFIX + k for k in selected}
     found = [
         m.message()
@@ -644,9 +647,7 @@ def near_hint(
     """For a selection that matched no plugin: the registered distribution and plugin
     names nearest to those asked for (``dist="my-quash-plugn"`` -> ``Did you mean
     'my-quash-plugin'?``); else an empty string."""
-    if isinstance(kinds, str):
-        kinds = [kinds]
-    selected = [registry.normalize_kind(k) for k in kinds] if kinds else list(registry.KINDS)
+    selected = _selected(kinds)
     infos = [i for i in registry.plugins() if i.kind in selected]
     dists = sorted({i.dist for i in infos})
     guesses = []
