@@ -304,7 +304,7 @@ def _report(args, cfg, lmap, results) -> None:
         elif r.n_matched == 0 and np.isfinite(r.scores).any():
             # no item scored over the threshold: say by how much (the paper's SVM on
             # text alone matches nothing on a map it was not fitted to)
-            best = float(np.nanmax(np.where(np.isfinite(r.scores), r.scores, np.nan)))
+            best = float(r.scores[np.isfinite(r.scores)].max())
             out.print(
                 safe_text(
                     f"{r.query!r} matched nothing: its highest score is {best:.3g}, under the "

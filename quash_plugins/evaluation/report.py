@@ -121,14 +121,21 @@ def missing_ground_truth(lmap: LatentMap) -> str:
     )
 
 
+def _first_label_of(names: Sequence[str]) -> dict[str, int]:
+    """Each label name's first index: the label a query of that name is scored against
+    (the others of the same name are merged into it by :func:`plan_queries`)."""
+    first: dict[str, int] = {}
+    for i, n in enumerate(names):
+        first.setdefault(n, i)
+    return first
+
+
 def _one_label_per_name(labels: np.ndarray, names: list[str], where: Any) -> np.ndarray:
     """``labels`` with every label whose name an earlier label has (``label_names``
     ``['bed', 'sofa', 'bed']``) counted as that earlier one, in a new array (the map's
     own is never written): a query of "bed" has the items of both as its ground truth.
     Counted by the name, the items of the other "bed" were false positives."""
-    first: dict[str, int] = {}
-    for i, n in enumerate(names):
-        first.setdefault(n, i)
+    first = _first_label_of(names)
     same = {i: first[n] for i, n in enumerate(names) if first[n] != i}
     if not same:
         return labels
@@ -208,7 +215,7 @@ def plan_queries(
                 f"{g!r} is excluded (--exclude: neither TP nor FP, "
                 "never queried); remove it from the queries or from --exclude."
             )
-    index = {n: i for i, n in reversed(list(enumerate(names)))}  # the first of a name
+    index = _first_label_of(names)
     unknown_here = [q for q, g in gt_of.items() if g not in index or counts[index[g]] == 0]
     presence = [q for q in gt_of if q not in unknown_here]
     in_file = set(absent if absent_in_file is None else absent_in_file) if query_file else set()
@@ -287,7 +294,7 @@ def evaluate(
     labels, valid, gt_of, presence, absence = plan_queries(
         lmap, queries, exclude, absent, query_file=query_file, absent_in_file=absent_in_file
     )
-    index = {n: i for i, n in reversed(list(enumerate(lmap.label_names)))}  # the first
+    index = _first_label_of(lmap.label_names)
     from ..engine.topology import MapTopology
     from .ranking import average_precision, inverse_rank, label_segments
 
