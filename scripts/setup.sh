@@ -20,9 +20,24 @@ if command -v apt-get >/dev/null 2>&1 && [ "$(id -u)" = 0 ]; then
   command -v chromium >/dev/null 2>&1 || missing+=(chromium)
   if [ ${#missing[@]} -gt 0 ]; then
     echo "[setup] apt-get install ${missing[*]}"
-    apt-get update -qq >/dev/null && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${missing[@]}" >/dev/null
+    # Keep-Downloaded-Packages=false: the .deb files are deleted once installed.
+    apt-get update -qq >/dev/null && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq \
+      -o APT::Keep-Downloaded-Packages=false "${missing[@]}" >/dev/null
   fi
 fi
+
+# Free space where the venv goes, in MB: checked before each large step, because pip that
+# runs out of disk half-way leaves a half-installed venv and an OSError that names no size.
+need_space() {  # need_space MB WHAT
+  local dir="$VENV" free
+  [ -d "$dir" ] || dir="$(dirname "$VENV")"
+  free=$(df -Pm "$dir" | awk 'NR==2 {print $4}')
+  if [ -n "$free" ] && [ "$free" -lt "$1" ]; then
+    echo "[setup] $2 needs about $1 MB free in $(cd "$dir" && pwd); $free MB are." >&2
+    echo "[setup] Free some space there, or set VENV=/a/roomier/folder (QUASH_SKIP_DISK_CHECK=1 skips this check)." >&2
+    [ "${QUASH_SKIP_DISK_CHECK:-0}" = 1 ] || exit 1
+  fi
+}
 
 if [ ! -x "$VENV/bin/python" ]; then
   echo "[setup] creating $VENV"
@@ -35,6 +50,8 @@ quiet_pip() { "${PIP[@]}" "$@" 2> >(grep -v "^WARNING: Location '" >&2); }
 # torch first, pinned: open_clip needs torchvision, and this pair is known to import
 # together (a bare `torch` would pull several GB of other builds).
 if ! "$VENV/bin/python" -c "import torch, torchvision" >/dev/null 2>&1; then
+  # torch 2.14.1 is a CUDA build: with its nvidia-* and triton wheels, about 5.6 GB.
+  need_space 6500 "torch + torchvision (a CUDA build)"
   echo "[setup] installing torch + torchvision"
   quiet_pip "torch==2.14.1" "torchvision==0.29.1"
 fi
@@ -42,6 +59,7 @@ fi
 # open3d-cpu instead of the [open3d] extra's open3d (never both).
 stamp="$VENV/.quash-installed"
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
+  need_space 2500 "quash-plugins' extras (open3d, rerun, transformers, dask, ...)"
   echo "[setup] installing quash-plugins and its extras"
   quiet_pip -e ".[clip,st,rerun,llm,dask,hdf5,plots,dev]" "open3d-cpu>=0.18"
   touch "$stamp"
