@@ -6,6 +6,7 @@ import argparse
 from typing import Any
 
 NAME = "plugins"
+KINDS = ("encoders", "heuristics", "classifiers", "adapters")
 HELP = "List encoders, heuristics, classifiers and adapters, with their distribution."
 ORDER = 90
 
@@ -14,9 +15,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="Print JSON instead of a table.")
     p.add_argument(
         "--kind",
-        choices=("encoders", "heuristics", "classifiers", "adapters"),
-        help="Only this kind.",
+        choices=KINDS,
+        type=_kind,
+        help="Only this kind (the singular, as a config section names it, is accepted too).",
     )
+
+
+def _kind(text: str) -> str:
+    """``encoder`` and ``Encoders`` read as ``encoders``: a config's sections are singular."""
+    plural = text.strip().lower().rstrip("s") + "s"
+    return plural if plural in KINDS else text
 
 
 def config_name(info: Any, infos: list[Any]) -> str:

@@ -821,3 +821,18 @@ def test_a_result_given_as_the_map_is_named_a_result_with_its_map(
     code, _, err = run_cli("query", r, "chair", "-c", tiny_world["config"], capsys=capsys)
     assert code == 1
     assert "is a query result" in err and str(Path(tiny_world["map"]).resolve()) in err
+
+
+@pytest.mark.parametrize("kind", ["encoder", "Encoders", "encoders"])
+def test_plugins_kind_takes_the_singular_a_config_section_uses(kind, capsys):
+    code, out, _ = run_cli("plugins", "--kind", kind, "--json", capsys=capsys)
+    assert code == 0
+    rows = json.loads(out)
+    assert rows and {r["kind"] for r in rows} == {"encoders"}
+
+
+def test_plugins_kind_still_refuses_an_unknown_kind(capsys):
+    with pytest.raises(SystemExit) as stop:
+        run_cli("plugins", "--kind", "mapper", capsys=capsys)
+    assert stop.value.code == 2
+    assert "invalid choice: 'mapper'" in capsys.readouterr().err
