@@ -252,7 +252,6 @@ def _query_to_zarr(args, quash) -> int:
 
 
 def _report(args, cfg, lmap, results) -> None:
-    import numpy as np
 
     from ._output import console, print_json, safe_text, timings_table
 
@@ -295,21 +294,15 @@ def _report(args, cfg, lmap, results) -> None:
     out = console()
     out.print(table)
     for r in results:  # an empty mask says why (docs/evaluation.md#the-presence-check)
-        if r.presence.startswith("absent: ") and r.presence != "absent: nothing matched":
-            reason = r.presence.removeprefix("absent: ")
+        if (reason := r.emptied_by_presence) is not None:
             out.print(
                 safe_text(f"{r.query!r} came back empty: {reason}; presence: null in the config ")
                 + "keeps every match"
             )
-        elif r.n_matched == 0 and np.isfinite(r.scores).any():
-            # no item scored over the threshold: say by how much (the paper's SVM on
-            # text alone matches nothing on a map it was not fitted to)
-            best = float(r.scores[np.isfinite(r.scores)].max())
+        elif (reason := r.under_threshold) is not None:
             out.print(
-                safe_text(
-                    f"{r.query!r} matched nothing: its highest score is {best:.3g}, under the "
-                    f"threshold {r.threshold:g}; 'threshold:' in the config sets it"
-                )
+                safe_text(f"{r.query!r} matched nothing: {reason}; ")
+                + "'threshold:' in the config sets it"
             )
     out.print(timings_table(results, width=out.width))
     if args.out:

@@ -344,6 +344,28 @@ class QueryResult:
         mask is empty), ``not checked: ...`` or ``off`` (the config has no check)."""
         return presence_words(self.queryset.provenance)
 
+    @property
+    def emptied_by_presence(self) -> str | None:
+        """The presence check's reason when it emptied the mask (matches it judged an
+        absent object's look-alikes); None otherwise."""
+        decision = self.presence
+        if decision.startswith("absent: ") and decision != "absent: nothing matched":
+            return decision.removeprefix("absent: ")
+        return None
+
+    @property
+    def under_threshold(self) -> str | None:
+        """When no item scored over the threshold, the highest score against it in words
+        (the paper's SVM fitted on text alone often scores nothing over it); None when
+        something matched or the presence check emptied the mask."""
+        if self.n_matched or self.emptied_by_presence is not None:
+            return None
+        scores = np.asarray(self.scores)
+        finite = scores[np.isfinite(scores)]
+        if not finite.size:
+            return None
+        return f"its highest score is {float(finite.max()):.3g}, under the threshold {self.threshold:g}"
+
     def __repr__(self) -> str:
         """One line: the query, how many of the map's items matched, the instances and
         the presence decision; the arrays and the query set are the fields."""

@@ -79,6 +79,7 @@ def queryset_markdown(
         f"Matched **{result.n_matched:,}** of {lmap.n:,} items ({100 * result.share:.2f} %) · "
         f"{_instances_words(result)} · query {index}",
         "",
+        *_empty_words(result),
         f"Presence check: {_md(result.presence)}{_rejected_words(lmap, result)}",
         "",
         *_presence_detail(lmap, result),
@@ -123,6 +124,15 @@ def queryset_markdown(
         lines += [f"- {n}" for n in notes]
         lines.append("")
     return "\n".join(lines)
+
+
+def _empty_words(result: QueryResult) -> list[str]:
+    """Why an empty answer is empty when the presence line does not say: no item scored
+    over the threshold (the presence check off, or nothing matched for it to judge)."""
+    reason = result.under_threshold
+    if reason is None:
+        return []
+    return [f"Nothing matched: {_md(reason)} (`threshold:` in the config sets it)", ""]
 
 
 def _rejected_words(lmap: LatentMap, result: QueryResult) -> str:

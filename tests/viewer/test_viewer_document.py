@@ -120,3 +120,29 @@ def test_document_says_which_scale_its_threshold_is_on():
     lmap, result = _result()
     text = queryset_markdown(lmap, result, 0)
     assert f"threshold {result.threshold:g} on its raw scores (0.5 in the score colours)" in text
+
+
+def test_document_of_an_answer_nothing_scored_for_says_by_how_much():
+    """The presence check off and a hand-set threshold over every score: the document
+    said "Matched 0" and "Presence check: off", not why; it now gives the best score and
+    the threshold it missed, as `quash query` prints."""
+    lmap, matched = _result(instances=None)
+    assert matched.n_matched and matched.presence == "off"
+    assert "Nothing matched" not in queryset_markdown(lmap, matched, 0)
+    best = float(matched.scores.max())
+    lmap, empty = _result(instances=None, threshold=best + 1.0)
+    assert empty.n_matched == 0
+    text = queryset_markdown(lmap, empty, 0)
+    want = f"Nothing matched: its highest score is {best:.3g}, under the threshold {best + 1:g}"
+    assert want in text
+    assert text.index("Nothing matched") < text.index("Presence check")
+
+
+def test_document_of_an_absent_object_leaves_the_reason_to_the_presence_line():
+    import numpy as np
+
+    lmap = voxel_map()
+    absent = {"checked": True, "present": False, "components": 3, "kept": 0}
+    result = _absent_bed(lmap, np.ones(lmap.n, bool), absent)
+    assert result.emptied_by_presence is not None and result.under_threshold is None
+    assert "Nothing matched" not in queryset_markdown(lmap, result, 0)
