@@ -14,7 +14,7 @@ from collections.abc import Iterator
 import numpy as np
 
 from ..core.errors import QuashError
-from ..core.types import LatentMap, QueryResult
+from ..core.types import Instance, LatentMap, QueryResult
 from ._blueprint import QUERY_LIST
 from ._display import colormap, score_classes, thin
 from ._document import queryset_markdown
@@ -200,7 +200,7 @@ class ResultLogging:
                 centers=(lo + hi) / 2,
                 half_sizes=(hi - lo) / 2 + pad,
                 colors=INSTANCE_COLOR,
-                labels=[f"{result.query} #{i.id} ({i.size}, {i.mean_score:.2f})" for i in insts],
+                labels=[_instance_label(result.query, i) for i in insts],
             ),
         )
         cents = np.array([i.centroid for i in insts], dtype=np.float32).reshape(-1, 3)
@@ -224,6 +224,11 @@ class ResultLogging:
                 mins=lo,
                 sizes=hi - lo + 1.0,
                 colors=INSTANCE_COLOR,
-                labels=[f"{result.query} #{i.id} ({i.size})" for i in insts],
+                labels=[_instance_label(result.query, i) for i in insts],
             ),
         )
+
+
+def _instance_label(query: str, inst: Instance) -> str:
+    """A box's label, the same in 3D and on an image: ``<query> #<id> (<size>, <mean score>)``."""
+    return f"{query} #{inst.id} ({inst.size}, {inst.mean_score:.2f})"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from collections import defaultdict
 from pathlib import Path
 
@@ -822,6 +823,9 @@ def test_cli_query_rrd_per_image_feature_map(tmp_path):
         # Instances come from quash_plugins.engine.instances (connected pixels per frame).
         boxes = rows(by_path[f"images/{name}/table_contrast/instances"], "Boxes2D:labels")
         assert [t for t, _ in boxes] == [0, 1] and all(labels for _, labels in boxes)
+        # labelled as the 3D boxes are: the query, the id, the size and the mean score
+        [chair_box] = boxes[0][1]
+        assert re.fullmatch(r"chair #\d+ \(6, -?\d+\.\d\d\)", chair_box), chair_box
         # The chair block of frame i covers rows 1..2 and columns 1+i..3+i.
         inst = by_path[f"images/{name}/table_contrast/instances"]
         [(_, half), _] = rows(inst, "Boxes2D:half_sizes")
