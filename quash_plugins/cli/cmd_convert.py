@@ -21,9 +21,12 @@ DST/vlmap_cam/vlmaps_cam.h5df (the camera-base layout: it stores its cell size a
 origin, and its cells are [row, height, col] with y up, so a z-up map is turned rigidly
 to y-up and reads back so; labels go to grid_semantic and vlmap_cam/obj2cls_dict.txt,
 which VLMaps itself ignores). A taxonomy beside SRC (SRC.taxonomy.yaml, as make-scene
-writes it; for a VLMaps scene folder, the one beside the .h5df read) is copied to
-DST.taxonomy.yaml for a .npz or .zarr DST (with --format vlmaps, to
-DST/vlmap_cam/vlmaps_cam.taxonomy.yaml), never over a file, so the converted map
+writes it; for a VLMaps scene folder, the one beside the .h5df read; for a folder
+map, FOLDER.taxonomy.yaml beside the folder read, as ConceptFusion's
+saved-map/pointclouds.taxonomy.yaml) is copied to
+DST.taxonomy.yaml for a .npz or .zarr DST (with --format openlex3d, beside the folder
+DST; with --format vlmaps, to DST/vlmap_cam/vlmaps_cam.taxonomy.yaml), never over a
+file, so the converted map
 answers as SRC does. The input is only read; the
 output appears atomically. Lazy maps (HDF5, per-image features) are streamed block by
 block, so the map is never held whole in memory. DST is never SRC (nor inside it); an
@@ -175,7 +178,7 @@ def _carry_taxonomy(source: str, written: Any) -> Any:
                 dst,
             )
         return None
-    if dst is None:  # a folder (openlex3d; vlmaps writes a file into its folder)
+    if dst is None:  # a path with no name (the root folder): nowhere beside it
         log.info(
             "%s is not carried to %s: give it to a taxonomy config as heuristic file: %s",
             src,

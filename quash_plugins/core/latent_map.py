@@ -57,20 +57,28 @@ SOURCE_INPUTS = "inputs"
 
 
 def taxonomy_path_beside(map_path: Any) -> Any:
-    """The ``MAP.taxonomy.yaml`` path beside a map file (a :class:`~pathlib.Path`,
-    whether it exists or not), or None for a path without a suffix.
+    """The ``MAP.taxonomy.yaml`` path beside a map (a :class:`~pathlib.Path`, whether it
+    exists or not): the suffix replaced (``room.npz``, a ``store.zarr`` folder), or, for
+    a name without one (a ConceptFusion ``saved-map/``, a folder of per-image features),
+    ``.taxonomy.yaml`` added: beside the folder, never inside it.
 
     The taxonomy heuristics read it (``quash make-scene OUT.npz`` writes
     ``OUT.taxonomy.yaml``), so it counts as one of the map's inputs, which no output
     may replace.
 
-    >>> str(taxonomy_path_beside("scenes/room.npz")), taxonomy_path_beside("saved-map")
-    ('scenes/room.taxonomy.yaml', None)
+    >>> str(taxonomy_path_beside("scenes/room.npz")), str(taxonomy_path_beside("saved-map"))
+    ('scenes/room.taxonomy.yaml', 'saved-map.taxonomy.yaml')
     """
     from pathlib import Path
 
     p = Path(str(map_path))
-    return p.with_name(p.name[: -len(p.suffix)] + ".taxonomy.yaml") if p.suffix else None
+    if not p.name or p.name in (".", ".."):
+        p = p.resolve()
+        if not p.name:
+            return None
+    if p.suffix:  # room.npz, and a folder with one too (store.zarr -> store.taxonomy.yaml)
+        return p.with_name(p.name[: -len(p.suffix)] + ".taxonomy.yaml")
+    return p.with_name(p.name + ".taxonomy.yaml")
 
 
 def _path_strings(values: Any) -> list[str]:

@@ -185,6 +185,26 @@ def test_a_vlmaps_folder_carries_the_taxonomy_its_map_file_has(tmp_path, capsys)
     capsys.readouterr()
 
 
+def test_folder_maps_carry_their_taxonomy_both_ways(tiny_world, tmp_path, capsys):
+    """A folder map has no suffix to replace: --format openlex3d DST gets
+    DST.taxonomy.yaml beside the folder (it was logged as not carried), and a
+    ConceptFusion saved-map/'s pointclouds.taxonomy.yaml goes to the NPZ's."""
+    from quash_plugins.heuristics import taxonomy_beside
+
+    text = "chair: [armchair, stool]\nsofa: [couch]\ntable: [desk]\n"
+    tiny_world["map"].with_name("map.taxonomy.yaml").write_text(text)
+    of = tmp_path / "of"
+    assert main(["-q", "convert", str(tiny_world["map"]), str(of), "--format", "openlex3d"]) == 0
+    assert (tmp_path / "of.taxonomy.yaml").read_text() == text
+    assert taxonomy_beside(read_map(of))[1]["chair"] == ["armchair", "stool"]
+
+    cf = save_pointclouds(tmp_path / "saved-map", **cf_arrays(n=20, d=4))
+    (cf.parent / "pointclouds.taxonomy.yaml").write_text(text)
+    assert main(["-q", "convert", str(cf.parent), str(tmp_path / "cf.npz")]) == 0
+    assert (tmp_path / "cf.taxonomy.yaml").read_text() == text
+    capsys.readouterr()
+
+
 @pytest.mark.parametrize(
     "dst, fmt", [("room.npz", "auto"), ("room.zarr", "auto"), ("of", "openlex3d")]
 )

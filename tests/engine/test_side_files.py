@@ -14,7 +14,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from _cf_writers import contrast_config, save_feat_pt, save_png, text_table
+from _cf_writers import (
+    cf_arrays,
+    contrast_config,
+    save_feat_pt,
+    save_png,
+    save_pointclouds,
+    text_table,
+)
 from _vlmaps_writers import mobile_map, write_vlmaps_2d, write_vlmaps_h5df
 
 from quash_plugins import Quash
@@ -91,7 +98,17 @@ def image_features_world(root: Path) -> tuple[Path, list[Path]]:
     return pt, [png]
 
 
+def conceptfusion_world(root: Path) -> tuple[Path, list[Path]]:
+    """A ConceptFusion ``saved-map/``, and the taxonomy beside the folder the adapter
+    reads, ``pointclouds/`` (a folder has no suffix to replace: the name gets one)."""
+    folder = save_pointclouds(root / "saved-map", **cf_arrays(n=40, d=D, seed=6))
+    taxonomy = root / "saved-map" / "pointclouds.taxonomy.yaml"
+    taxonomy.write_text(TAXONOMY)
+    return folder, [taxonomy]
+
+
 WORLDS = {
+    "conceptfusion": conceptfusion_world,
     "vlmaps": vlmaps_world,
     "vlmaps-2d": vlmaps_2d_world,
     "openscene": openscene_world,
@@ -187,3 +204,19 @@ def test_a_callers_own_map_keeps_the_taxonomy_beside_its_path(tmp_path):
         write_npz_map(lmap, taxonomy)
     assert taxonomy.read_bytes() == before
     assert read_map(write_npz_map(lmap, tmp_path / "mine.npz")).n == 3
+
+
+def test_the_taxonomy_beside_a_folder_map_is_read(tmp_path):
+    """A folder map (ConceptFusion's saved-map/pointclouds/) has no suffix: its taxonomy
+    is pointclouds.taxonomy.yaml beside that folder, found as a file map's is (it was
+    never looked for), whether the map is named by saved-map/ or by the folder itself;
+    a suffixed folder keeps the suffix rule (store.zarr: store.taxonomy.yaml)."""
+    from quash_plugins.heuristics import taxonomy_beside, taxonomy_path_beside
+
+    folder, [taxonomy] = conceptfusion_world(tmp_path)
+    assert taxonomy_beside(read_map(folder.parent)) is not None
+    found = taxonomy_beside(read_map(folder))
+    assert found is not None
+    assert found[0] == str(taxonomy) and found[1]["chair"] == ["armchair"]
+    assert taxonomy_path_beside(tmp_path / "store.zarr") == tmp_path / "store.taxonomy.yaml"
+    assert taxonomy_path_beside(f"{folder}/") == taxonomy
