@@ -104,6 +104,25 @@ def resolve_h5(source: Any) -> Path | None:
     return None
 
 
+def _note_top_down_map(source: Any, path: Path) -> None:
+    """A scene folder that holds the 2023 release's top-down map (``map/grid_lseg_1.npy``)
+    beside the 3D one read: say which was read and how to read the other, as a scene
+    VLMaps' two releases both ran on has both and auto picks the 3D map silently."""
+    if not isinstance(source, (str, Path)) or not Path(source).expanduser().is_dir():
+        return
+    from ._vlmaps2d import resolve_grid
+
+    grid = resolve_grid(source)
+    if grid is not None:
+        log.info(
+            "%s: read the 3D map %s; the folder also holds the 2023 top-down map %s, "
+            "which --adapter vlmaps-2d reads (adapter='vlmaps-2d' in Python).",
+            source,
+            path,
+            grid,
+        )
+
+
 class VLMapsAdapter(MapAdapter):
     """Read a VLMaps 3D HDF5 map (``vlmaps.h5df``, ``vlmaps_cam.h5df``, any ``*.h5df``/``*.h5``
     holding ``grid_feat`` and ``grid_pos``).
@@ -196,6 +215,7 @@ class VLMapsAdapter(MapAdapter):
                 "holding 'grid_feat' and 'grid_pos') or the folder that holds it."
                 f"{_scenes_inside(source)}"
             )
+        _note_top_down_map(source, path)
         import_h5py()
         try:
             f = open_h5_read(path)

@@ -622,3 +622,27 @@ def test_an_option_from_the_configs_adapter_section_is_said_to_come_from_it(tmp_
     assert "option cs=0.07 disagrees" in str(info.value)
     assert "adapter: section" not in str(info.value)
     assert q.read_map(path, cs=0.04).voxel_size == pytest.approx(0.04)
+
+
+def test_a_scene_with_both_releases_maps_says_which_it_read(tmp_path, caplog):
+    """A scene folder holding VLMaps' 3D vlmap/vlmaps.h5df and the 2023 top-down
+    map/grid_lseg_1.npy: auto reads the 3D map, as before, and now says so and how to
+    read the other; the 2D adapter still reads the same folder when named."""
+    import logging
+
+    from quash_plugins.adapters import read_map
+
+    scene = tmp_path / "scene"
+    h5 = write_vlmaps_h5df(scene / "vlmap" / "vlmaps.h5df", mobile_map(d=8))
+    write_vlmaps_2d(scene, d=8)
+    with caplog.at_level(logging.INFO, logger="quash_plugins.adapters"):
+        lmap = read_map(scene)
+    assert lmap.source["adapter"] == "vlmaps" and lmap.source["path"] == str(h5)
+    said = " ".join(caplog.text.split())
+    assert f"read the 3D map {h5}" in said
+    assert "also holds the 2023 top-down map" in said and "--adapter vlmaps-2d" in said
+    assert read_map(scene, adapter="vlmaps-2d").source["adapter"] == "vlmaps-2d"
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="quash_plugins.adapters"):
+        read_map(h5)  # the file itself: nothing to say
+    assert "top-down" not in caplog.text
