@@ -332,6 +332,14 @@ class VLMapsAdapter(MapAdapter):
             gs, gs_from = mobile_grid_size(occupied, opts["gs"], where, "occupied_ids")
             check_cells_in_grid(grid_pos, gs, where, "grid_pos")
             cs = DEFAULT_CS if opts["cs"] is None else opts["cs"]
+            source["cs_from"] = "default" if opts["cs"] is None else "option"
+            if opts["cs"] is None:  # mobile-base files never store it: positions scale by it
+                log.info(
+                    "%s: mobile-base maps store no cell size; positions use VLMaps' default "
+                    "cs = %g m (pass the map config's cell_size as option cs if it differs)",
+                    where,
+                    DEFAULT_CS,
+                )
             _check_cs(cs, where)
             positions = mobile_base_positions(grid_pos, gs, float(cs), opts["positions"])
             source["gs"] = int(gs)

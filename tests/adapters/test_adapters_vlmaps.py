@@ -646,3 +646,22 @@ def test_a_scene_with_both_releases_maps_says_which_it_read(tmp_path, caplog):
     with caplog.at_level(logging.INFO, logger="quash_plugins.adapters"):
         read_map(h5)  # the file itself: nothing to say
     assert "top-down" not in caplog.text
+
+
+def test_a_mobile_base_maps_default_cell_size_is_said_and_recorded(tmp_path, caplog):
+    """Mobile-base files store no cell size, and every position scales by it: the
+    default 0.05 m was taken silently; it is now said (info) and recorded as such."""
+    import logging
+
+    from quash_plugins.adapters import read_map
+
+    h5 = write_vlmaps_h5df(tmp_path / "vlmap" / "vlmaps.h5df", mobile_map(d=8))
+    with caplog.at_level(logging.INFO, logger="quash_plugins.adapters"):
+        default = read_map(h5)
+    assert default.source["cs"] == 0.05 and default.source["cs_from"] == "default"
+    assert "store no cell size; positions use VLMaps' default cs = 0.05 m" in caplog.text
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="quash_plugins.adapters"):
+        given = read_map(h5, cs=0.1)
+    assert given.source["cs_from"] == "option" and "store no cell size" not in caplog.text
+    assert np.allclose(given.positions, 2 * default.positions, atol=1e-5)
