@@ -201,7 +201,7 @@ def check_encoder_deterministic(enc: Any, tmp_path: Path) -> None:
 def _rebuilt(enc: Any) -> Any:
     """A second instance of ``enc``'s class built with the parameters ``enc`` holds,
     when it has the same fingerprint; else None (parameters that cannot be known)."""
-    found = _numeric_params(enc)
+    found = _varied_params(enc)
     if found is None:
         return None
     try:
@@ -251,9 +251,10 @@ def check_encoder_fingerprint(enc: Any, tmp_path: Path) -> None:
 _OUTPUT_NEUTRAL = ("device", "batch_size")
 
 
-def _numeric_params(enc: Any) -> tuple[dict[str, Any], list[str]] | None:
+def _varied_params(enc: Any) -> tuple[dict[str, Any], list[str]] | None:
     """The constructor's parameters with the values ``enc`` holds (as ``p`` or ``_p``,
-    else the default), and the numeric ones to vary; None when they cannot be known."""
+    else the default), and the numeric and boolean ones to vary; None when they cannot
+    be known."""
     import inspect
 
     try:
@@ -272,27 +273,32 @@ def _numeric_params(enc: Any) -> tuple[dict[str, Any], list[str]] | None:
             if param.default is param.empty:
                 return None
             values[name] = param.default
-    numeric = [
+    # numbers and switches (a `lowercase: True` changes the output as a size does)
+    varied = [
         n
         for n, v in values.items()
         if n not in _OUTPUT_NEUTRAL
-        and isinstance(v, (int, float, np.integer, np.floating))
-        and not isinstance(v, bool)
+        and isinstance(v, (int, float, np.integer, np.floating, np.bool_))
     ]
-    return values, numeric
+    return values, varied
 
 
 def check_encoder_fingerprint_follows_params(enc: Any, tmp_path: Path) -> None:
     """A parameter that changes the output must change the fingerprint, or the text
     cache serves one setting's embeddings to the other (a stale cache)."""
-    found = _numeric_params(enc)
+    found = _varied_params(enc)
     if found is None:
         return
-    values, numeric = found
+    values, varied = found
     texts = ["chair", "kitchen sink"]
-    for name in numeric:
+    for name in varied:
         old = values[name]
-        new = old + 1 if isinstance(old, (int, np.integer)) else old * 1.5 + 0.5
+        if isinstance(old, (bool, np.bool_)):
+            new = not old
+        elif isinstance(old, (int, np.integer)):
+            new = old + 1
+        else:
+            new = old * 1.5 + 0.5
         try:
             a = type(enc)(**values)
             b = type(enc)(**{**values, name: new})

@@ -657,3 +657,45 @@ def test_the_kit_without_a_folder_leaves_none_behind(tmp_path, monkeypatch):
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
     check_encoder(HashingEncoder(8))
     assert list(tmp_path.iterdir()) == []
+
+
+class _PrivateSwitch(Encoder):
+    """Conformant but for one thing: a switch that changes the output (pluralising)
+    kept in ``_plural``, out of config() and so out of the fingerprint."""
+
+    name = "private-switch"
+
+    def __init__(self, dim: int = 8, plural: bool = True) -> None:
+        self._dim = dim
+        self._plural = plural
+
+    @property
+    def dim(self) -> int:
+        return self._dim
+
+    def encode_text(self, texts):
+        from quash_plugins.testing import HashingEncoder
+
+        return HashingEncoder(self._dim).encode_text(
+            [f"{t}s" if self._plural else t for t in texts]
+        )
+
+
+def test_the_kit_catches_a_switch_the_fingerprint_misses(tmp_path):
+    """Only numbers were varied: a boolean parameter that changes the output passed, and
+    the text cache served one setting's embeddings to the other."""
+    from quash_plugins.testing import check_encoder
+
+    on, off = _PrivateSwitch(plural=True), _PrivateSwitch(plural=False)
+    assert on.fingerprint() == off.fingerprint()
+    with pytest.raises(AssertionError) as err:
+        check_encoder(on, tmp_path)
+    msg = str(err.value)
+    assert msg.startswith("encoder 'private-switch': check_encoder_fingerprint_follows_params:")
+    assert "parameter 'plural'" in msg and "plural=True and plural=False" in msg
+
+    class Fixed(_PrivateSwitch):
+        def config(self):
+            return {"dim": self._dim, "plural": self._plural}
+
+    check_encoder(Fixed(), tmp_path / "ok")
