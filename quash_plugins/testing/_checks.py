@@ -211,6 +211,92 @@ def _rebuilt(enc: Any) -> Any:
         return None
 
 
+#: What the other process of :func:`check_encoder_same_in_another_process` runs: build
+#: the class from its module with the same parameters, embed, save the rows.
+_OTHER_PROCESS = """
+import importlib, json, sys
+import numpy as np
+spec = json.loads(sys.argv[1])
+sys.path[:0] = [p for p in spec["path"] if p not in sys.path]
+obj = importlib.import_module(spec["module"])
+for part in spec["qualname"].split("."):
+    obj = getattr(obj, part)
+rows = obj(**spec["params"]).encode_text(spec["texts"])
+np.save(spec["out"], np.asarray(rows, dtype=np.float32))
+"""
+
+
+def check_encoder_same_in_another_process(enc: Any, tmp_path: Path) -> None:
+    """The same class and parameters embed the same in another Python process, as the
+    text cache and a map queried after it was built assume. Python salts ``hash()`` of a
+    string per process (``PYTHONHASHSEED``), so an encoder that seeds from ``hash(text)``
+    or walks a set of strings passes every check within one process and differs in the
+    next. Skipped for a class another process cannot import (defined in a function or in
+    ``__main__``), parameters that are not JSON, or one the other process cannot build."""
+    import json
+    import logging
+    import os
+    import subprocess
+    import sys
+
+    cls = type(enc)
+    module, qualname = getattr(cls, "__module__", ""), getattr(cls, "__qualname__", "")
+    found = _varied_params(enc)
+    if module in ("", "__main__") or "<locals>" in qualname or found is None:
+        return
+    if _rebuilt(enc) is None:  # the same parameters give another fingerprint
+        return
+    texts = ["chair", "table", "kitchen sink"]
+    out = tmp_path / "other-process.npy"
+    try:
+        spec = json.dumps(
+            {
+                "module": module,
+                "qualname": qualname,
+                "params": found[0],
+                "texts": texts,
+                "out": str(out),
+                "path": [p for p in sys.path if isinstance(p, str)],
+            }
+        )
+    except (TypeError, ValueError):
+        return
+    ours = np.asarray(enc.encode_text(texts), dtype=np.float32)
+    seed = "2" if os.environ.get("PYTHONHASHSEED") == "1" else "1"
+    try:
+        done = subprocess.run(
+            [sys.executable, "-c", _OTHER_PROCESS, spec],
+            env={**os.environ, "PYTHONHASHSEED": seed},
+            capture_output=True,
+            text=True,
+            timeout=600,
+        )
+    except subprocess.TimeoutExpired:
+        logging.getLogger(__name__).info(
+            "%s: another process took over 600 s; not compared", qualname
+        )
+        return
+    if done.returncode != 0 or not out.is_file():
+        logging.getLogger(__name__).debug(
+            "%s: not built in another process: %s", qualname, (done.stderr or "").strip()[-500:]
+        )
+        return
+    theirs = np.load(out)
+    assert theirs.shape == ours.shape and np.allclose(ours, theirs, atol=1e-5), (
+        f"encode_text differs in another Python process: a {cls.__name__} built there with "
+        "the same parameters (the same fingerprint) embedded the same texts differently"
+        + (
+            f" (by up to {float(np.abs(ours - theirs).max()):.3g})"
+            if theirs.shape == ours.shape
+            else ""
+        )
+        + f", with PYTHONHASHSEED={seed}. Python salts hash() of a string per process: draw "
+        "a text's values from a stable digest (hashlib.blake2b, zlib.crc32) instead of "
+        "hash(), and never from the order of a set of strings. The text cache and a map "
+        "queried in another process than the one that built it rely on this."
+    )
+
+
 def check_encoder_batch_independent(enc: Any, tmp_path: Path) -> None:
     pair = np.asarray(enc.encode_text(["chair", "table"]))
     single = np.asarray(enc.encode_text(["table"]))
@@ -567,6 +653,7 @@ _CHECKS: dict[str, list[Callable[[Any, Path], None]]] = {
     "encoders": [
         check_encoder_output,
         check_encoder_deterministic,
+        check_encoder_same_in_another_process,
         check_encoder_batch_independent,
         check_encoder_empty,
         check_encoder_fingerprint,

@@ -699,3 +699,65 @@ def test_the_kit_catches_a_switch_the_fingerprint_misses(tmp_path):
             return {"dim": self._dim, "plural": self._plural}
 
     check_encoder(Fixed(), tmp_path / "ok")
+
+
+class _HashSeeded(Encoder):
+    """Deterministic within one process, not across them: each text's vector is drawn
+    from a generator seeded with Python's hash() of the text, which is salted per
+    process. The most common way to write a toy encoder."""
+
+    name = "hash-seeded"
+
+    def __init__(self, dim: int = 8) -> None:
+        self._dim = dim
+
+    @property
+    def dim(self) -> int:
+        return self._dim
+
+    def config(self):
+        return {"dim": self._dim}
+
+    def _seed(self, text: str) -> int:
+        return hash(text) % 2**32
+
+    def encode_text(self, texts):
+        rows = [np.random.default_rng(self._seed(t)).normal(size=self._dim) for t in texts]
+        out = np.asarray(rows, dtype=np.float32).reshape(len(texts), self._dim)
+        return out / np.maximum(np.linalg.norm(out, axis=1, keepdims=True), 1e-12)
+
+
+class _DigestSeeded(_HashSeeded):
+    """The fix the message gives: a stable digest of the text."""
+
+    name = "digest-seeded"
+
+    def _seed(self, text: str) -> int:
+        import zlib
+
+        return zlib.crc32(text.encode("utf-8"))
+
+
+def test_the_kit_catches_an_encoder_seeded_by_the_salted_hash(tmp_path):
+    """Every other check runs in one process, where hash() is stable: such an encoder
+    passed, and embedded differently in the next process (the map's, the cache's)."""
+    from quash_plugins.testing import check_encoder
+    from quash_plugins.testing._checks import check_encoder_same_in_another_process
+
+    enc = _HashSeeded()
+    assert np.allclose(enc.encode_text(["chair"]), _HashSeeded().encode_text(["chair"]))
+    with pytest.raises(AssertionError) as err:
+        check_encoder(enc, tmp_path)
+    msg = str(err.value)
+    assert msg.startswith("encoder 'hash-seeded': check_encoder_same_in_another_process:")
+    assert "differs in another Python process" in msg and "instead of hash()" in msg
+    check_encoder(_DigestSeeded(), tmp_path / "ok")
+
+    # a class another process cannot import is not compared (nothing to build there)
+    def local():
+        class Local(_HashSeeded):
+            pass
+
+        return Local()
+
+    check_encoder_same_in_another_process(local(), tmp_path / "local")

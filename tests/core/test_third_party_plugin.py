@@ -81,6 +81,7 @@ def test_passes_the_conformance_kit(installed, tmp_path):
     assert [c.check.__name__ for c in checks] == [
         "check_encoder_output",
         "check_encoder_deterministic",
+        "check_encoder_same_in_another_process",
         "check_encoder_batch_independent",
         "check_encoder_empty",
         "check_encoder_fingerprint",
