@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import MapFormatError, QuashError
+from ._npy import load_npy
 from ._torch_errors import first_line, is_weights_only_error, weights_only_refusal
 
 log = logging.getLogger(__name__)
@@ -113,28 +114,9 @@ def _not_a_tensor_fix(obj: Any, path: Path) -> str:
     )
 
 
-def npy_fix(path: Path, exc: BaseException, name: str = "features", what: str = "frame") -> str:
-    """The fix for a ``.npy`` that ``np.load`` refused: re-save an array of Python
-    objects as numbers (``name`` is the array in the example), or copy a cut-short file
-    again (``what`` names it: that frame, that file)."""
-    if "object" in str(exc).lower():  # numpy: "Python objects in dtype", "Object arrays"
-        return (
-            f"It holds Python objects, not numbers: re-save the {what} as a numeric "
-            f"array, np.save('{path.name}', np.asarray({name}, np.float32))."
-        )
-    return (
-        "The file may be damaged or truncated (an interrupted copy): copy or extract "
-        f"that {what} again."
-    )
-
-
 def load_array(path: Path) -> np.ndarray:
     if path.suffix == ".npy":
-        try:
-            return np.load(path, mmap_mode="r", allow_pickle=False)
-        except (ValueError, OSError, EOFError) as exc:
-            fix = npy_fix(path, exc)
-            raise MapFormatError(f"{path}: not a readable .npy array ({exc}). {fix}") from None
+        return load_npy(path, what="frame")
     return _load_tensor(path)
 
 

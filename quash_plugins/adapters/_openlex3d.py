@@ -33,6 +33,7 @@ import numpy as np
 from ..core.errors import MapFormatError, QuashError
 from ..core.interfaces import MapAdapter
 from ..core.types import UP_AXES, LatentMap, record_inputs
+from ._npy import load_npy
 from ._npz import encoder_record
 from ._rows import IndexedRows, colors_to_uint8, scan_finite, should_scan
 
@@ -79,24 +80,7 @@ def _load_npy(path: Path, field: str) -> np.ndarray:
             f"{path}: missing file; OpenLex3D predictions need point_cloud.pcd, "
             f"embeddings.npy and index.npy ({field})."
         )
-    try:
-        return np.load(path, mmap_mode="r", allow_pickle=False)
-    except ValueError as exc:
-        if "object" in str(exc).lower() or "pickle" in str(exc).lower():
-            raise MapFormatError(
-                f"{path}: field {field!r} holds pickled objects ({exc}); save a numeric "
-                f"array instead (np.save of a float or int array, not a list of arrays)."
-            ) from None
-        raise _damaged(path, field, exc) from None  # "mmap length is greater than file size"
-    except (OSError, EOFError) as exc:
-        raise _damaged(path, field, exc) from None
-
-
-def _damaged(path: Path, field: str, exc: BaseException) -> MapFormatError:
-    return MapFormatError(
-        f"{path}: field {field!r} is not a readable .npy array ({exc}). The file may be "
-        "damaged or truncated (an interrupted copy): copy or export it again."
-    )
+    return load_npy(path, field, name=field, again="copy or export")
 
 
 class OpenLex3DAdapter(MapAdapter):

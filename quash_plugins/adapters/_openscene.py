@@ -45,7 +45,7 @@ from ..core.errors import MapFormatError, QuashError
 from ..core.interfaces import MapAdapter
 from ..core.once import first_time
 from ..core.types import LatentMap, record_inputs
-from ._feature_files import npy_fix
+from ._npy import load_npy
 from ._rows import MaskedRows, colors_to_uint8, scan_finite, should_scan
 from ._torch_errors import first_line, is_weights_only_error, weights_only_refusal
 from ._vlmaps_common import check_labels, fit_label_names, load_label_names
@@ -441,11 +441,7 @@ class OpenSceneAdapter(MapAdapter):
 
     @staticmethod
     def _read_numpy_features(path: Path) -> tuple[np.ndarray, np.ndarray]:
-        try:
-            feat = np.load(path, mmap_mode="r", allow_pickle=False)
-        except (ValueError, OSError, EOFError) as exc:
-            fix = npy_fix(path, exc, "features", "file")
-            raise MapFormatError(f"{path}: not a readable .npy array ({exc}). {fix}") from None
+        feat = load_npy(path)
         if feat.ndim != 2 or feat.shape[1] == 0 or feat.dtype.kind != "f":
             raise MapFormatError(
                 f"{path}: per-point features must be a float array (N, D); got "
@@ -540,11 +536,7 @@ def read_points(path: Path) -> tuple[np.ndarray, np.ndarray | None, np.ndarray |
         raise MapFormatError(f"{path}: points file not found. Check the 'points' option.")
     suffix = path.suffix.lower()
     if suffix == ".npy":
-        try:
-            arr = np.load(path, allow_pickle=False)
-        except (ValueError, OSError, EOFError) as exc:
-            fix = npy_fix(path, exc, "points", "points file")
-            raise MapFormatError(f"{path}: not a readable .npy array ({exc}). {fix}") from None
+        arr = load_npy(path, name="points", what="points file", mmap=False)
         return _coords(arr, path), None, None
     if suffix == ".ply":
         try:

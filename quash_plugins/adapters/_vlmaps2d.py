@@ -48,6 +48,7 @@ import numpy as np
 from ..core.errors import MapFormatError, QuashError
 from ..core.interfaces import MapAdapter
 from ..core.types import LatentMap, record_inputs
+from ._npy import load_npy
 from ._vlmaps_common import (
     DEFAULT_CS,
     RowSubset,
@@ -148,6 +149,20 @@ class VLMaps2DAdapter(MapAdapter):
         except Exception:  # noqa: BLE001 - sniff never raises
             return False
 
+    def unrecognised_hint(self, source: Any) -> str:
+        """For a ``map/`` folder or scene whose grid numpy cannot read (a copy cut short):
+        the grid is named with the adapter that says why."""
+        try:
+            grid = resolve_grid(source)
+            if grid is None or self.sniff(grid):
+                return ""
+            return (
+                f"{grid} is named as VLMaps' 2023 grid but is not a readable (gs, gs, D) "
+                "array: --adapter vlmaps-2d says why."
+            )
+        except Exception:  # noqa: BLE001 - a hint never raises
+            return ""
+
     def read(self, source: Any, **options: Any) -> LatentMap:
         opts = self.options(options)
         opts["positions"] = check_positions_option(opts["positions"], self.name)
@@ -187,12 +202,12 @@ class VLMaps2DAdapter(MapAdapter):
         colors = labels = None
         color_path = _sibling(grid_path, COLOR)
         if color_path.is_file():
-            rgb = _load_npy(color_path)
+            rgb = _load_npy(color_path, "color")
             _expect(rgb, (gs, gs, 3), color_path, "colour grid")
             colors = rgb_to_uint8(rgb.reshape(gs * gs, 3)[index], str(color_path), "colour grid")
         gt_path = _sibling(grid_path, GT)
         if gt_path.is_file():
-            gt = _load_npy(gt_path)
+            gt = _load_npy(gt_path, "gt")
             _expect(gt, (gs, gs), gt_path, "ground-truth grid")
             labels = check_labels(gt.reshape(gs * gs)[index], len(index), str(gt_path), "gt")
         obstacles_path = grid_path.with_name(OBSTACLES)
@@ -208,7 +223,7 @@ class VLMaps2DAdapter(MapAdapter):
             "encoder_hint": f"lseg CLIP ViT-B/32 {d}" if d == 512 else f"{d}-d features",
         }
         if obstacles_path.is_file():
-            obstacles = _load_npy(obstacles_path)
+            obstacles = _load_npy(obstacles_path, "obstacles")
             _expect(obstacles, (gs, gs), obstacles_path, "obstacle grid")
             source["obstacles"] = str(obstacles_path)
         names_spec = opts["label_names"]
@@ -251,16 +266,8 @@ class VLMaps2DAdapter(MapAdapter):
         return folder
 
 
-def _load_npy(path: Path) -> np.ndarray:
-    try:
-        return np.load(path, mmap_mode="r", allow_pickle=False)
-    except ValueError as exc:
-        raise MapFormatError(
-            f"{path}: not a complete, plain .npy array ({exc}). The file may be truncated; "
-            "pickled arrays are never loaded."
-        ) from None
-    except (OSError, EOFError) as exc:
-        raise MapFormatError(f"{path}: not a readable .npy file ({exc}); truncated?") from None
+def _load_npy(path: Path, name: str = "grid") -> np.ndarray:
+    return load_npy(path, name=name, again="copy or create")
 
 
 def _expect(arr: np.ndarray, shape: tuple[int, ...], path: Path, what: str) -> None:

@@ -351,7 +351,7 @@ def test_ol_missing_cloud_names_the_accepted_names(tmp_path):
 def test_ol_object_embeddings(tmp_path):
     folder = _ol(tmp_path)
     np.save(folder / "embeddings.npy", np.array([np.ones(4), np.ones(3)], dtype=object))
-    _check(folder, "embeddings.npy", "'embeddings'", "pickled", "numeric array")
+    _check(folder, "embeddings.npy", "'embeddings'", "Python objects", "numeric array")
 
 
 def test_ol_wrong_rank(tmp_path):
@@ -490,14 +490,16 @@ def test_ol_truncated_npy_is_called_truncated_not_pickled(tmp_path, name, field)
     folder = _ol(tmp_path, table=np.ones((50, 16), np.float32), index=np.arange(10) % 50)
     path = folder / name
     path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
-    msg = _check(folder, name, field, "truncated", "copy or export it again")
-    assert "pickled" not in msg
+    msg = _check(folder, name, field, "truncated", "copy or export that file again")
+    assert "Python objects" not in msg
 
 
-def test_ol_object_npy_is_still_called_pickled(tmp_path):
+def test_ol_object_npy_is_still_called_objects(tmp_path):
     folder = _ol(tmp_path)
     np.save(folder / "embeddings.npy", np.array([np.ones(4)] * 3, dtype=object), allow_pickle=True)
-    _check(folder, "embeddings.npy", "pickled objects", "numeric array")
+    msg = _check(folder, "embeddings.npy", "Python objects", "numeric array")
+    assert "np.save('embeddings.npy', np.asarray(embeddings, np.float32))" in msg
+    assert "truncated" not in msg
 
 
 @pytest.mark.parametrize("writer", ["open3d", "quash"])
@@ -514,3 +516,31 @@ def test_ol_truncated_binary_cloud_is_refused(tmp_path, writer):
     for cut in (len(whole) - 7, len(whole) // 2):  # in the points, in the header
         cloud.write_bytes(whole[:cut])
         _check(folder, "point_cloud.pcd", "'points'", "cut short", "copy or export it again")
+
+
+def test_vlmaps_2d_npy_files_name_the_fix_as_the_other_adapters_do(tmp_path):
+    """The 2023 grid's .npy files had a loader of their own that said only 'truncated?'
+    or 'pickled arrays are never loaded'; they now get the fix the other adapters give:
+    a new copy of a file cut short, a numeric re-save of an array of Python objects."""
+    from _vlmaps_writers import write_vlmaps_2d
+
+    folder, _ = write_vlmaps_2d(tmp_path / "scene", d=8)
+    grid = folder / "grid_lseg_1.npy"
+    whole = grid.read_bytes()
+    grid.write_bytes(whole[: len(whole) // 2])
+    msg = _check(folder, "truncated", "copy or create that file again", adapter="vlmaps-2d")
+    assert str(grid) in msg and "Python objects" not in msg
+    # under auto no adapter takes it: the grid is named with the adapter that says why
+    for source in (folder, folder.parent):
+        _check(
+            source,
+            "No adapter recognises",
+            f"{grid} is named as VLMaps' 2023 grid",
+            "--adapter vlmaps-2d says why",
+        )
+    grid.write_bytes(whole)
+    gt = folder / "grid_1_gt.npy"
+    np.save(gt, np.array([{"label": 1}], dtype=object), allow_pickle=True)
+    msg = _check(folder, "grid_1_gt.npy", "Python objects", "np.asarray(gt, np.float32)")
+    assert "np.save('grid_1_gt.npy'" in msg
+    assert "truncated" not in msg
