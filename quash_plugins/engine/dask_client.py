@@ -67,6 +67,31 @@ def local_cluster_security() -> Any:
         return None
 
 
+#: The prefix of every task key the pipeline submits (``quash-scores-<token>``...).
+TASK_PREFIX = "quash-"
+
+
+class _OwnComputeFailures(logging.Filter):
+    """Drops a worker's "Compute Failed" record of a quash task: the client re-raises
+    its exception as one line naming the file and the fix, so the worker's copy (a
+    repr of the task and the traceback, at ERROR, which --quiet cannot hide) only
+    repeats it as noise. Other tasks' failures and every other record pass."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if not str(record.msg).startswith("Compute Failed"):
+            return True
+        args = record.args if isinstance(record.args, tuple) else ()
+        return not (args and TASK_PREFIX in repr(args[0]))
+
+
+def quiet_compute_failures() -> None:
+    """Install :class:`_OwnComputeFailures` on ``distributed.worker`` in this process
+    (run on each worker of a LocalCluster quash started; idempotent)."""
+    logger = logging.getLogger("distributed.worker")
+    if not any(isinstance(f, _OwnComputeFailures) for f in logger.filters):
+        logger.addFilter(_OwnComputeFailures())
+
+
 def local_cluster_client(
     n_workers: int | None = None, threads_per_worker: int = 1, memory_limit: Any = "auto"
 ) -> Any:
@@ -96,6 +121,12 @@ def local_cluster_client(
         security=security,
     )
     client = distributed.Client(cluster, security=security)
+    if not logging.getLogger("quash_plugins").isEnabledFor(logging.DEBUG):
+        # our own cluster only (a scheduler the user runs keeps its logging as it is);
+        # a plugin, so that a worker the nanny restarts gets the filter too
+        from ._dask_worker_plugin import QuietComputeFailures
+
+        client.register_plugin(QuietComputeFailures())
     log.info(
         "started a LocalCluster: %d worker processes x %d threads (%s)",
         n,
