@@ -257,7 +257,8 @@ def check_encoder_same_in_another_process(enc: Any, tmp_path: Path) -> None:
                 "texts": texts,
                 "out": str(out),
                 "path": [p for p in sys.path if isinstance(p, str)],
-            }
+            },
+            default=_as_json,
         )
     except (TypeError, ValueError):
         return
@@ -295,6 +296,18 @@ def check_encoder_same_in_another_process(enc: Any, tmp_path: Path) -> None:
         "hash(), and never from the order of a set of strings. The text cache and a map "
         "queried in another process than the one that built it rely on this."
     )
+
+
+def _as_json(value: Any) -> Any:
+    """A path as its string and a numpy scalar as its number, for the other process; any
+    other value JSON lacks is refused (the check is then skipped)."""
+    import os
+
+    if isinstance(value, os.PathLike):
+        return os.fspath(value)
+    if isinstance(value, np.generic):
+        return value.item()
+    raise TypeError(f"not JSON: {type(value).__name__}")
 
 
 def check_encoder_batch_independent(enc: Any, tmp_path: Path) -> None:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -761,3 +763,25 @@ def test_the_kit_catches_an_encoder_seeded_by_the_salted_hash(tmp_path):
         return Local()
 
     check_encoder_same_in_another_process(local(), tmp_path / "local")
+
+
+class _HashSeededFromFiles(_HashSeeded):
+    """The same fault, built from a folder (a Path) and a numpy size, as conformance
+    params written under tmp_path are: still built in the other process and compared."""
+
+    name = "hash-seeded-files"
+
+    def __init__(self, folder: Path = Path("."), dim: int = 8) -> None:
+        self._folder = Path(folder)
+        super().__init__(dim)
+
+    def config(self):
+        return {"folder": str(self._folder), "dim": int(self._dim)}
+
+
+def test_the_other_process_is_given_paths_and_numpy_numbers(tmp_path):
+    from quash_plugins.testing._checks import check_encoder_same_in_another_process
+
+    enc = _HashSeededFromFiles(tmp_path, np.int64(8))
+    with pytest.raises(AssertionError, match="differs in another Python process"):
+        check_encoder_same_in_another_process(enc, tmp_path)
