@@ -135,10 +135,14 @@ def misplaced_entry_points() -> list[MisplacedEntryPoint]:
         for ep in dist.entry_points:
             group = ep.group
             norm = group.lower().replace("-", "_").replace(" ", "")
-            if group in known or not norm.startswith(("quash_plugins", "quashplugins")):
+            if group in known or not norm.startswith("quash"):
                 continue
-            rest = norm.removeprefix("quash_plugins").removeprefix("quashplugins").strip("._:")
+            rest = norm.removeprefix("quash").lstrip("._:")
+            ours = rest.startswith("plugin")  # quash_plugins, quash.plugins, quashplugin...
+            rest = rest.removeprefix("plugins").removeprefix("plugin").strip("._:")
             meant = next((GROUP_PREFIX + k for k in KINDS if rest and rest in (k, k[:-1])), None)
+            if not ours and meant is None:
+                continue  # another project's 'quash...' group; 'quash.encoders' is ours
             key = (group, ep.name, dist.metadata["Name"])
             if key not in seen:
                 seen.add(key)

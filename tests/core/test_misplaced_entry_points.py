@@ -20,6 +20,12 @@ lab-encoder = lab_encoders:LabEncoder
 [quash_plugins]
 lab-heuristic = lab_encoders:LabHeuristic
 
+[quash.encoders]
+lab-short = lab_encoders:LabEncoder
+
+[quash.commands]
+lab-command = lab_encoders:main
+
 [console_scripts]
 lab = lab_encoders:main
 """
@@ -65,6 +71,19 @@ def test_quash_plugins_lists_it_below_the_table(misplaced, capsys, monkeypatch):
     assert "not read: lab-encoder " not in capsys.readouterr().out  # meant for encoders
     names = {m.name for m in registry.misplaced_entry_points()}
     assert {"lab-encoder", "lab-heuristic"} <= names and "lab" not in names
+
+
+def test_the_group_named_after_the_command_is_named_too(misplaced, capsys, monkeypatch):
+    # 'quash' is the command, so '[project.entry-points."quash.encoders"]' is an easy slip;
+    # it was not named: the plugin was missing from `quash plugins` with no word why.
+    msg = str(pytest.raises(PluginError, registry.create, "encoders", "lab-short").value)
+    assert "'lab-encoders' registers 'lab-short'" in msg
+    assert "group 'quash.encoders'" in msg and "to 'quash_plugins.encoders'" in msg
+    monkeypatch.setenv("COLUMNS", "200")
+    assert main(["plugins", "--kind", "encoders"]) == 0
+    assert "not read: lab-short (lab-encoders)" in capsys.readouterr().out
+    # a 'quash...' group that names no kind is another project's, not a slip of ours
+    assert "lab-command" not in {m.name for m in registry.misplaced_entry_points()}
 
 
 def test_a_name_registered_as_another_kind_says_so():
