@@ -54,7 +54,12 @@ def check_encoder_fits(encoder: Any, lmap: LatentMap, config_source: Any = None)
     section = f" (the 'encoder:' section of {config_source})" if config_source else ""
     built = lmap.source.get("encoder")
     fixes = []
-    if isinstance(built, str) and built and built not in (name, getattr(encoder, "name", None)):
+    if (
+        isinstance(built, str)
+        and built
+        and built not in (name, getattr(encoder, "name", None))
+        and not _same_plugin(built, name)
+    ):
         # The map names the encoder that built it: that is the fix, not another dim of
         # this one (which would only give rows of the right length in another space).
         fix = f"the map records that encoder {built!r} built it"
@@ -91,6 +96,19 @@ def _registered_encoder(name: str) -> bool:
     return any(name in (i.name, i.qualified) for i in plugins("encoders"))
 
 
+def _same_plugin(built: str, name: str) -> bool:
+    """Whether the map's record ``built`` and the config's ``name`` are two spellings of
+    one registered encoder ('dist:name' and the bare name). Looked up without resolving,
+    as :func:`_registered_encoder`; a bare name two distributions claim is no match."""
+    from ..core.registry import plugins
+
+    def claims(spelled: str) -> set[str]:
+        return {i.qualified for i in plugins("encoders") if spelled in (i.name, i.qualified)}
+
+    ours = claims(name)
+    return len(ours) == 1 and claims(built) == ours
+
+
 def same_embedding_function(encoder: Any, fingerprint: str) -> bool:
     """Whether ``fingerprint`` names ``encoder``'s embedding function: its fingerprint
     now, or one an earlier version gave the same function (``earlier_fingerprints``,
@@ -118,7 +136,11 @@ def warn_built_by(encoder: Any, lmap: LatentMap) -> None:
     # 'dist:name' is another distribution's plugin than the bare name: a map that
     # records the bare name was not built with it
     qualified = ":" in name
-    if built_name == name or (not qualified and built_name == getattr(encoder, "name", None)):
+    if (
+        built_name == name
+        or (not qualified and built_name == getattr(encoder, "name", None))
+        or (isinstance(built_name, str) and _same_plugin(built_name, name))
+    ):
         differs = (
             f"this config's {name!r} is another embedding function ({ours}): other weights, "
             "another model or other settings (normalize, dim, templates) under the same "

@@ -235,3 +235,36 @@ def test_a_plugin_that_shadows_the_maps_encoder_is_named_as_the_config_names_it(
     finally:
         registry.unregister("encoders", "hashing-test", dist="quash-plugins")
         registry.unregister("encoders", "hashing-test", dist="pkg-shadow")
+
+
+def test_a_map_built_by_the_qualified_name_is_the_same_encoder_as_the_bare_name(tmp_path, caplog):
+    """`quash make-scene --encoder my-dist:name` records 'my-dist:name'; a config that
+    writes the bare name builds the same plugin. Its dimension error told the user to
+    write 'encoder: my-dist:name' "with the parameters the map was built with" (which no
+    file records) instead of the dim to set, and a fingerprint warning called it another
+    encoder rather than the same one with other settings."""
+    import pytest
+
+    from quash_plugins.core import registry
+    from quash_plugins.core.errors import DimensionMismatchError
+    from quash_plugins.engine import map_fit
+
+    registry.register("encoders", "dim-hashing", _DimHashing, dist="pkg-dim")
+    try:
+        built = registry.create("encoders", "pkg-dim:dim-hashing", dim=32)
+        paths = write_scene(make_scene(built, SceneOptions(**OPTS)), tmp_path / "s.npz")
+        lmap = read_map(paths["map"])
+        assert lmap.source["encoder"] == "pkg-dim:dim-hashing"
+        bare = registry.create("encoders", "dim-hashing")  # dim 24
+        with pytest.raises(DimensionMismatchError) as err:
+            map_fit.check_encoder_fits(bare, lmap)
+        assert "'encoder: {name: dim-hashing, dim: 32}'" in str(err.value)
+        assert "records that encoder" not in str(err.value)
+        lmap.source["encoder_fingerprint"] = "dim-hashing-0"  # built with other settings
+        once.forget("built-by")
+        with caplog.at_level("WARNING", logger="quash_plugins.engine.map_fit"):
+            map_fit.check_encoder_fits(registry.create("encoders", "dim-hashing", dim=32), lmap)
+    finally:
+        registry.unregister("encoders", "dim-hashing", dist="pkg-dim")
+    warned = [r.getMessage() for r in caplog.records if "was built with encoder" in r.getMessage()]
+    assert len(warned) == 1 and "under the same encoder name" in warned[0], warned
