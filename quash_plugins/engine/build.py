@@ -54,7 +54,9 @@ def build_quash(
 ) -> Any:
     """Build a pipeline from a :class:`QuashConfig`, a dict or a YAML file.
 
-    ``overrides`` replace constructor arguments (e.g. ``cache=None``, ``backend="dask"``).
+    ``overrides`` replace constructor arguments (e.g. ``cache=None``, ``backend="dask"``);
+    an ``encoder``, ``heuristic`` or ``classifier`` override (a name, ``{"name": ...,
+    **params}`` or an object) replaces that section, which is then not built.
     Errors name the config file and the section (``encoder``, ``heuristic``...).
     ``defer_encoder_error``: an encoder that cannot be built (weights not on the machine;
     not a misspelt encoder name, which is an error as ever)
@@ -73,6 +75,9 @@ def build_quash(
         from .pipeline import Quash as cls
     cfg = QuashConfig.load(config)
     where = f"{cfg.source}: " if cfg.source else ""
+    # A plugin given as an override replaces the config's section, which is then not
+    # built (the constructor builds a name or a {"name": ...} mapping, as Quash(...) does).
+    given = {k: overrides[k] for k in ("encoder", "heuristic", "classifier") if k in overrides}
 
     def located(text: str) -> bool:
         return bool(cfg.source) and text.startswith(str(cfg.source))
@@ -88,7 +93,10 @@ def build_quash(
 
     try:
         try:
-            encoder = build("encoders", cfg.encoder, "encoder")
+            if "encoder" in given:
+                encoder = given["encoder"]
+            else:
+                encoder = build("encoders", cfg.encoder, "encoder")
         except QuashError as exc:
             if not defer_encoder_error or _misspelt_encoder(cfg.encoder.name):
                 raise
@@ -97,8 +105,14 @@ def build_quash(
                 "%s (going on without the encoder; a step that needs it stops with this error)",
                 encoder.error,
             )
-        heuristic = build("heuristics", cfg.heuristic, "heuristic")
-        classifier = build("classifiers", cfg.classifier, "classifier")
+        if "heuristic" in given:
+            heuristic = given["heuristic"]
+        else:
+            heuristic = build("heuristics", cfg.heuristic, "heuristic")
+        if "classifier" in given:
+            classifier = given["classifier"]
+        else:
+            classifier = build("classifiers", cfg.classifier, "classifier")
     except QuashError as exc:
         if where and not located(str(exc)):
             raise type(exc)(f"{where}{exc}") from exc.__cause__
@@ -117,7 +131,7 @@ def build_quash(
         name=cfg.name,
         device=cfg.device,
     )
-    kwargs.update(overrides)
+    kwargs.update({k: v for k, v in overrides.items() if k not in given})
     kwargs["cache"] = open_cache(kwargs.get("cache", cfg.cache))
     try:
         quash = cls(encoder, heuristic, classifier, **kwargs)

@@ -26,7 +26,7 @@ from __future__ import annotations
 import logging
 import time
 import weakref
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -99,6 +99,10 @@ class Quash:
         Options of the presence check (``quash_plugins.engine.presence.PresenceOptions``):
         keep the matched components whose grown region the query set classifies as the
         query; none kept means the object is absent (an empty mask). None turns it off.
+    adapter
+        The map adapter of :meth:`read_map`: a registered name (default ``"auto"``),
+        ``{"name": ..., **options}`` as a config's ``adapter:`` section (its options
+        apply when that adapter reads a map) or a ``PluginSpec``.
     instances
         Options for instance grouping (True for defaults), or None/False to skip it.
     cache
@@ -130,7 +134,7 @@ class Quash:
         map_negatives: dict[str, Any] | None = None,
         refine: dict[str, Any] | None = None,
         presence: dict[str, Any] | None = None,
-        adapter: str | PluginSpec = "auto",
+        adapter: str | Mapping[str, Any] | PluginSpec = "auto",
         instances: dict[str, Any] | bool | None = True,
         seed: int = 0,
         cache: TextCache | None = None,
@@ -191,6 +195,9 @@ class Quash:
 
             self.presence = PresenceOptions.parse(dict(presence))
             self._topology = TopologyCache()
+        if isinstance(adapter, Mapping) and isinstance(adapter.get("name"), str):
+            # the config's form, {name: vlmaps, cs: 0.05}: its options apply to read_map
+            adapter = PluginSpec(adapter["name"], {k: v for k, v in adapter.items() if k != "name"})
         self.adapter = adapter if isinstance(adapter, PluginSpec) else PluginSpec(str(adapter))
         if instances is True:
             instances = {}

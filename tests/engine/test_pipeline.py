@@ -439,3 +439,45 @@ def test_a_pipeline_prints_as_one_line_naming_its_plugins_and_stages():
     for part in ("name='full'", "heuristic='taxonomy'", "classifier='contrast'",
                  "refine='svm-rbf'", "presence='on'"):  # fmt: skip
         assert part in text, (part, text)
+
+
+def test_from_config_overrides_a_plugin_section_as_the_config_would_set_it(tiny_world):
+    """``Quash.from_config(cfg, heuristic=...)`` (a shipped config pointed at one's own
+    label list) raised "Quash.__init__() got multiple values for argument 'heuristic'",
+    and ``adapter={"name": "vlmaps", "cs": 0.05}`` was "Adapter \"{'name': ...}\" is not
+    registered". Each override now answers as the same section written in the file."""
+    from quash_plugins.core.errors import ConfigError
+
+    d = tiny_world["dir"]
+    table = TableEncoder(file=str(tiny_world["table"]))
+    written = d / "written.yaml"
+    written.write_text(
+        tiny_world["config"]
+        .read_text()
+        .replace("classifier: contrast", "classifier: {name: svm-rbf, C: 2.0}")
+        + "adapter: {name: npz}\n"
+    )
+    expected = Quash.from_config(written, cache=None).query(tiny_world["map"], "chair")
+    overridden = Quash.from_config(
+        tiny_world["config"],
+        cache=None,
+        encoder=table,
+        classifier={"name": "svm-rbf", "C": 2.0},
+        adapter={"name": "npz"},
+    )
+    assert overridden.encoder is table
+    assert overridden.classifier.get_params()["C"] == 2.0
+    got = overridden.query(tiny_world["map"], "chair")
+    np.testing.assert_array_equal(got.mask, expected.mask)
+    np.testing.assert_allclose(got.scores, expected.scores, rtol=1e-6)
+    # an adapter mapping's options are the adapter's, as in a config's adapter: section
+    bad = Quash.from_config(tiny_world["config"], adapter={"name": "npz", "bogus": 1})
+    with pytest.raises(ConfigError, match="'npz' does not accept parameter 'bogus'"):
+        bad.read_map(tiny_world["map"])
+    # the config's own section is not built when overridden: an encoder file that is gone
+    broken = d / "broken.yaml"
+    broken.write_text(tiny_world["config"].read_text().replace("text.npz", "gone.npz"))
+    with pytest.raises(QuashError, match="gone.npz"):
+        Quash.from_config(broken)
+    fixed = Quash.from_config(broken, encoder=table, heuristic="taxonomy")
+    assert fixed.encoder is table and type(fixed.heuristic).__name__ == "TaxonomyHeuristic"
