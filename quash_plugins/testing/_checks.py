@@ -159,14 +159,30 @@ def check_encoder_output(enc: Any, tmp_path: Path) -> None:
     assert e is not None, "encode_text returned None: return the array it computes"
     assert isinstance(e, np.ndarray), (
         f"encode_text must return a numpy array; got {type(e).__module__}.{type(e).__name__} "
-        "(a torch tensor: return .detach().float().cpu().numpy())"
+        + (
+            "(a torch tensor: return .detach().float().cpu().numpy())"
+            if callable(getattr(e, "detach", None))
+            else "(return np.asarray(rows, dtype=np.float32))"
+        )
     )
     assert e.shape == (3, dim), f"encode_text shape {e.shape}, expected (3, {dim})"
+    _one_row(enc)
     assert e.dtype == np.float32, f"encode_text dtype {e.dtype}, expected float32"
     assert np.isfinite(e).all(), "encode_text returned NaN/Inf"
     np.testing.assert_allclose(
         np.linalg.norm(e, axis=1), 1.0, atol=1e-3, err_msg="rows must be L2-normalised"
     )
+
+
+def _one_row(enc: Any) -> np.ndarray:
+    """``enc``'s rows for one text, which must be ``(1, dim)`` like any other batch."""
+    e = np.asarray(enc.encode_text(["table"]))
+    assert e.shape == (1, enc.dim), (
+        f"encode_text(['table']) shape {e.shape}, expected (1, {enc.dim}): return one row "
+        "per text for one text too (no squeeze(), no [0]): a query whose other texts are "
+        "cached asks for one"
+    )
+    return e
 
 
 def check_encoder_deterministic(enc: Any, tmp_path: Path) -> None:
@@ -312,7 +328,7 @@ def _as_json(value: Any) -> Any:
 
 def check_encoder_batch_independent(enc: Any, tmp_path: Path) -> None:
     pair = np.asarray(enc.encode_text(["chair", "table"]))
-    single = np.asarray(enc.encode_text(["table"]))
+    single = _one_row(enc)  # a (dim,) row compared as a batch named the wrong fault
     assert np.allclose(pair[1], single[0], atol=1e-3), (
         "an embedding must not depend on its batch: 'table' embedded beside 'chair' differs "
         f"from 'table' alone by up to {float(np.abs(pair[1] - single[0]).max()):.3g}. Each "

@@ -125,11 +125,33 @@ class _Noisy(_Seeded):
         return (e / np.linalg.norm(e, axis=1, keepdims=True)).astype(np.float32)
 
 
+class _ListRows(_Seeded):
+    """Returns a list of rows (``.tolist()``): the fix is np.asarray, not torch's."""
+
+    name = "list-rows"
+
+    def encode_text(self, texts):
+        return super().encode_text(texts).tolist()
+
+
+class _SqueezedOne(_Seeded):
+    """Batch-independent, but squeezes the batch of one text to a (dim,) row."""
+
+    name = "squeezed-one"
+
+    def encode_text(self, texts):
+        from quash_plugins.testing import HashingEncoder
+
+        return HashingEncoder(8).encode_text(texts).squeeze()
+
+
 @pytest.mark.parametrize(
     ("encoder", "check", "hint"),
     [
         (_BatchNormed(), "check_encoder_batch_independent", "normalise per text"),
         (_Noisy(), "check_encoder_deterministic", "from a fixed seed or from the text"),
+        (_ListRows(), "check_encoder_output", "got builtins.list (return np.asarray(rows"),
+        (_SqueezedOne(), "check_encoder_output", "shape (8,), expected (1, 8)"),
     ],
 )
 def test_the_kit_names_the_encoder_the_check_and_the_fix(encoder, check, hint, tmp_path):
@@ -139,7 +161,18 @@ def test_the_kit_names_the_encoder_the_check_and_the_fix(encoder, check, hint, t
         check_encoder(encoder, tmp_path)
     msg = " ".join(str(err.value).split())
     assert msg.startswith(f"encoder {encoder.name!r}: {check}: "), msg
-    assert hint in msg
+    assert hint in msg and "torch" not in msg
+
+
+def test_the_batch_check_names_a_squeezed_row_not_the_batch(tmp_path):
+    """A (dim,) row for one text was compared with a batch's row as if it were one: the
+    check said 'an embedding must not depend on its batch', which is not the fault."""
+    from quash_plugins.testing._checks import check_encoder_batch_independent
+
+    with pytest.raises(AssertionError) as err:
+        check_encoder_batch_independent(_SqueezedOne(), tmp_path)
+    assert "shape (8,), expected (1, 8)" in str(err.value)
+    assert "depend on its batch" not in str(err.value)
 
 
 def test_the_kit_says_to_subclass_encoder_for_a_duck_typed_instance(tmp_path):
