@@ -246,6 +246,7 @@ class QuashConfig:
         kwargs: dict[str, Any] = {}
         for key, value in data.items():
             if key not in known:
+                _refuse_vlmaps_map_config(data, where.at((key,)))
                 guess = closest(str(key), known)
                 hint = f" Did you mean {guess!r}?" if guess else _misplaced_param(key, data)
                 raise ConfigError(
@@ -404,6 +405,25 @@ def _convert(cls, key: str, value: Any, where: _Where, path) -> Any:
     if key == "device":
         out = check_device(value, f"{where.at((key,))}'device'")
     return out
+
+
+#: Top-level keys of VLMaps' map config (``config/map_config/vlmaps.yaml``) that no
+#: QuASH config has.
+VLMAPS_MAP_CONFIG_KEYS = frozenset({"map_type", "pose_info", "grid_size", "cell_size"})
+
+
+def _refuse_vlmaps_map_config(data: dict[str, Any], where: str) -> None:
+    """VLMaps' own map config given as the QuASH config (``-c config/map_config/vlmaps.yaml``)
+    says what it is; its first unknown key alone read "Did you mean 'adapter'?"."""
+    found = sorted(VLMAPS_MAP_CONFIG_KEYS & {str(k) for k in data})
+    if found:
+        raise ConfigError(
+            f"{where}this is VLMaps' map config (it has {', '.join(found)}), not a QuASH "
+            "config. Give a QuASH config (encoder, heuristic, classifier...; docs/vlmaps.md, "
+            "section 1). The map's grid size is read from the map, and a mobile-base map's "
+            "cell_size is the option cs (quash query MAP QUERY -o cs=0.05, or adapter: "
+            "{name: vlmaps, cs: 0.05} in the QuASH config)."
+        )
 
 
 def _misplaced_param(key: Any, data: dict[str, Any]) -> str:

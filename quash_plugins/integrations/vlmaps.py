@@ -53,6 +53,7 @@ from typing import Any
 import numpy as np
 from sklearn.base import clone
 
+from ..core.config import VLMAPS_MAP_CONFIG_KEYS
 from ..core.errors import QuashError
 from ..core.types import LatentMap, QueryResult
 from ..engine.map_fit import warn_unused_adapter_options
@@ -64,8 +65,6 @@ __all__ = ["index_map", "query", "patch_vlmap", "unpatch_vlmap", "QuashIndexMixi
 _CACHE_ATTR = "_quash_latent_map"
 _QUASH_ATTR = "_quash"
 _ORIGINAL_ATTR = "_vlmaps_index_map"
-#: Keys of VLMaps' ``map_config`` (``config/map_config/*.yaml``) that no QuASH config has.
-_VLMAPS_MAP_CONFIG_KEYS = frozenset({"map_type", "pose_info", "grid_size", "cell_size"})
 #: What the live adapter reads of a VLMap besides its arrays: a change reads the map anew.
 _LIVE_SETTINGS = ("cs", "gs", "pcd_min", "map_config")
 
@@ -91,7 +90,7 @@ def resolve_quash(quash: Any, vlmap: Any = None) -> Any:
         return quash
     if isinstance(quash, Mapping):
         quash = _plain(quash)  # an OmegaConf DictConfig: a section of the project's Hydra config
-        vlmaps_keys = sorted(_VLMAPS_MAP_CONFIG_KEYS & set(quash))
+        vlmaps_keys = sorted(VLMAPS_MAP_CONFIG_KEYS & set(quash))
         if vlmaps_keys:
             raise QuashError(
                 f"quash= got VLMaps' map config (it has {', '.join(vlmaps_keys)}), not a QuASH "

@@ -28,6 +28,32 @@ def test_unknown_key_names_file_line_and_suggestion(tmp_path):
     assert f"{p}:2:" in msg and "'classifer'" in msg and "Did you mean 'classifier'" in msg
 
 
+def test_vlmaps_own_map_config_given_as_the_config_says_what_it_is(tmp_path, capsys):
+    """``quash query MAP chair -c config/map_config/vlmaps.yaml`` (VLMaps' map config, the
+    one config a VLMaps user has) read "unknown key 'map_type' ... Did you mean
+    'adapter'?"; it now says what the file is and where its cell size goes."""
+    from quash_plugins.cli.main import main
+
+    p = tmp_path / "vlmaps.yaml"  # the layout of VLMaps' config/map_config/vlmaps.yaml
+    p.write_text(
+        "map_type: vlmap\npose_info:\n  pose_type: mobile_base\n  camera_height: 1.5\n"
+        "cam_calib_mat: [540, 0, 540, 0, 540, 360, 0, 0, 1]\n"
+        "grid_size: 1000\ncell_size: 0.05\ndepth_sample_rate: 100\n"
+    )
+    with pytest.raises(ConfigError) as err:
+        QuashConfig.from_yaml(p)
+    msg = " ".join(str(err.value).split())
+    assert msg.startswith(f"{p}:1: this is VLMaps' map config"), msg
+    assert "(it has cell_size, grid_size, map_type, pose_info)" in msg
+    assert "-o cs=0.05" in msg and "Did you mean" not in msg
+    assert main(["expand", "chair", "-c", str(p)]) == 1
+    assert "this is VLMaps' map config" in " ".join(capsys.readouterr().err.split())
+    # a QuASH config with one misspelt key is not taken for one
+    p.write_text("encoder: minilm\ncel_size: 0.05\n")
+    with pytest.raises(ConfigError, match="unknown key 'cel_size'"):
+        QuashConfig.from_yaml(p)
+
+
 @pytest.mark.parametrize(
     ("text", "where"),
     [
