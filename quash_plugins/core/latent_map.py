@@ -326,7 +326,12 @@ class LatentMap:
         return None
 
     def describe(self) -> str:
-        where = self.source.get("path", "<memory>")
+        """One line: the kind, where the map was read from, its size and dtype (a live
+        object, such as a VLMaps ``VLMap``, is named by its type and adapter)."""
+        where = self.source.get("path")
+        if where is None:
+            live = self.source.get("live")
+            where = f"live {live} object ({self.source.get('adapter')})" if live else "<memory>"
         return f"{self.kind} map {where}: {self.n} items x {self.dim} ({self.dtype})"
 
 

@@ -146,3 +146,28 @@ def test_document_of_an_absent_object_leaves_the_reason_to_the_presence_line():
     result = _absent_bed(lmap, np.ones(lmap.n, bool), absent)
     assert result.emptied_by_presence is not None and result.under_threshold is None
     assert "Nothing matched" not in queryset_markdown(lmap, result, 0)
+
+
+def test_document_of_a_live_vlmap_names_it():
+    """A query on a live VLMaps ``VLMap`` (``patch_vlmap``, ``Quash.query(vlmap, ...)``)
+    logged to Rerun said only "voxels map <memory>" under Map; it names the live object
+    and the adapter that read it, as the log line does."""
+    import numpy as np
+
+    class VLMap:  # what VLMaps' VLMap holds after load_map (mobile base)
+        def __init__(self, lmap):
+            self.grid_feat = np.asarray(lmap.embeddings)
+            self.grid_pos = lmap.grid_index.astype(np.int32) + [500, 500, 0]
+            self.map_config = {"pose_info": {"pose_type": "mobile_base"}}
+
+    quash = Quash(
+        TableEncoder(table=TABLE),
+        classifier=registry.create("classifiers", "contrast"),
+        cache=False,
+    )
+    vlmap = VLMap(voxel_map())
+    result = quash.query(vlmap, "chair")
+    lmap = quash.read_map(vlmap)
+    assert lmap.n == len(vlmap.grid_feat) and result.n_matched
+    text = queryset_markdown(lmap, result, 0)
+    assert "live VLMap object (vlmaps-live)" in text and "memory" not in text
