@@ -95,9 +95,13 @@ def encode_texts(
         except Exception as exc:  # noqa: BLE001 - named with the encoder that raised it
             module = missing_module(exc)
             if module is not None:  # a plugin importing its model library on first use
+                # a third party's distribution must list it (a built-in's: an extra)
+                dist = distribution_of(type(encoder).__module__)
+                ours = type(encoder).__module__.startswith("quash_plugins.")
                 raise EncoderError(
-                    f"Encoder {plugin_name(encoder)!r} ({type(encoder).__module__}) failed to encode "
-                    f"({type(exc).__name__}: {exc}): it {install_hint(module)}"
+                    f"Encoder {plugin_name(encoder)!r} ({_origin(encoder)}) failed to encode "
+                    f"({type(exc).__name__}: {exc}): it "
+                    + install_hint(module, None if ours or not dist else dist.partition("==")[0])
                 ) from exc
             raise EncoderError(
                 f"Encoder {plugin_name(encoder)!r} ({_origin(encoder)}) failed to encode "

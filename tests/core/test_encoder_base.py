@@ -444,6 +444,30 @@ def test_an_error_inside_encode_text_names_the_encoder():
     assert isinstance(err.value.__cause__, RuntimeError)
 
 
+def test_a_dependency_missing_inside_encode_text_names_the_distribution(monkeypatch):
+    """A plugin importing its model library in encode_text: the error named the module
+    only, and did not say to list the library in the plugin's dependencies, as the same
+    import at module level or in __init__ does."""
+    from quash_plugins.core import text
+    from quash_plugins.core.errors import EncoderError
+
+    class LazyImport(_PrivateSeed):
+        name = "lazy-import"
+
+        def encode_text(self, texts):
+            import quash_test_no_such_model_lib  # noqa: F401
+
+    monkeypatch.setattr(text, "distribution_of", lambda module: "acme-encoders==0.1.1")
+    with pytest.raises(EncoderError) as err:
+        text.encode_texts(LazyImport(), ["chair"], None)
+    msg = str(err.value)
+    assert msg.startswith(
+        f"Encoder 'lazy-import' ({__name__}, distribution acme-encoders==0.1.1) failed"
+    ), msg
+    assert "'quash_test_no_such_model_lib', which is not installed" in msg
+    assert msg.endswith("and list it in the dependencies of 'acme-encoders'.")
+
+
 _PLUGIN_SOURCE = """
 import numpy as np
 from quash_plugins import Encoder
