@@ -124,6 +124,13 @@ def test_python_blocks_run(project, capsys):
     np.testing.assert_array_equal(vlmap.get_pos("chair"), vlmap.grid_pos[expected])
     # block 3: sofa through index_map/query
     np.testing.assert_array_equal(index_map(vlmap, "sofa", quash="quash.yaml"), vlmap.kind == 1)
+    # "see the queries in Rerun": each step holds what the patched index_map matched
+    matched = _rrd_matches(Path("queries.rrd"))
+    assert (
+        matched["up"] == "+z" and matched["map"] == "voxels map live FakeVLMap object (vlmaps-live)"
+    )
+    for step, name in enumerate(["chair", "sofa"]):
+        assert matched[step] == int(vlmap.index_map(name).sum()) > 0
     # block 4: the saved file
     result = ns["result"]
     np.testing.assert_array_equal(result.mask, project["kind"] == 0)
@@ -139,6 +146,27 @@ def test_python_blocks_run(project, capsys):
     unpatch_vlmap(vlmap)
     with pytest.raises(AssertionError, match="must not run"):
         vlmap.index_map("chair")
+
+
+def _rrd_matches(path: Path) -> dict:
+    """Per query step, the matched items drawn in ``path``; its up axis and map line."""
+    from rerun.chunk import RrdReader
+
+    out: dict = {}
+    for chunk in RrdReader(path).stream().to_chunks():
+        rb = chunk.to_record_batch()
+        names = rb.schema.names
+        if chunk.entity_path.startswith("/world/matches/"):
+            column = next(n for n in names if n.endswith(":centers") or n.endswith(":positions"))
+            for step, items in zip(rb.column("query").to_pylist(), rb.column(column).to_pylist()):
+                out[step] = len(items)
+        elif chunk.entity_path == "/world" and "ViewCoordinates:xyz" in names:
+            up = rb.column("ViewCoordinates:xyz").to_pylist()[0][0]
+            out["up"] = "+" + "xyz"[list(up).index(1)]  # Rerun's ViewDir 1 is Up
+        elif chunk.entity_path.startswith("/queries/"):
+            text = rb.column("TextDocument:text").to_pylist()[0][0]
+            out["map"] = text.split("## Map\n\n")[1].split(":")[0].replace("\\", "")
+    return out
 
 
 def test_bash_block_runs(project):
