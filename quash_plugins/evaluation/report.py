@@ -19,7 +19,7 @@ Examples
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Collection, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -286,7 +286,17 @@ def evaluate(
         The absence queries that came from ``query_file`` (None: all of ``absent``), so
         that an error names the file or ``--absent``, wherever the query came from.
     """
+    from ..core.config import QuashConfig
+    from ..engine.pipeline import Quash
+
     overrides = dict(overrides or {})
+    if isinstance(configs, (str, Path, Mapping, QuashConfig, Quash)):
+        # iterated, "demo:quash-labels" was read as the config files 'd', 'e', 'm'...
+        one = repr(str(configs)) if isinstance(configs, (str, Path)) else "config"
+        raise QuashError(
+            f"configs is one {type(configs).__name__}, not a list: give a list of configs "
+            f"(configs=[{one}])."
+        )
     if not configs:
         raise QuashError("evaluate needs at least one config.")
     quashes = [_as_quash(c, overrides) for c in configs]

@@ -442,3 +442,26 @@ def test_a_query_list_given_as_one_string_is_refused(kwargs, message):
     )
     with pytest.raises(QuashError, match=message):
         plan_queries(lmap, **kwargs)
+
+
+def test_one_config_given_in_place_of_the_list_is_refused(tmp_path):
+    """evaluate(map, "demo:quash-labels") iterated the name and read "Config file not
+    found: d."; a dict config looked for a file named after its first key."""
+    import numpy as np
+
+    from quash_plugins.core.types import LatentMap
+    from quash_plugins.evaluation import evaluate
+
+    lmap = LatentMap(
+        np.eye(4, dtype=np.float32), labels=np.array([0, 0, 1, 1]), label_names=["bed", "wall"]
+    )
+    with pytest.raises(
+        QuashError, match=r"configs is one str, not a list.*\['demo:quash-labels'\]"
+    ):
+        evaluate(lmap, "demo:quash-labels")
+    with pytest.raises(QuashError, match=r"configs is one dict, not a list.*configs=\[config\]"):
+        evaluate(lmap, {"classifier": "contrast"})
+    lmap2, peer = _robot_map_and_peer()
+    with pytest.raises(QuashError, match=r"configs is one Quash, not a list"):
+        evaluate(lmap2, peer)
+    assert evaluate(lmap2, [peer], queries=["forklift"]).queries == ["forklift"]
