@@ -233,6 +233,15 @@ class LatentMap:
                 )
             self.labels = self.labels.astype(np.int64, copy=False)
         if self.label_names is not None:
+            if isinstance(self.label_names, (str, bytes)) or np.ndim(self.label_names) != 1:
+                # a string was iterated: label_names="chair" named the labels c, h, a, i, r
+                one = self.label_names
+                one = one.item() if isinstance(one, np.ndarray) and one.ndim == 0 else one
+                hint = f" For one label: label_names=[{one!r}]." if isinstance(one, str) else ""
+                raise MapFormatError(
+                    f"Field 'label_names'{where} must be a list of names, one per label "
+                    f"(label 0 first); got {self.label_names!r}.{hint}"
+                )
             self.label_names = [str(x) for x in self.label_names]
             if self.labels is not None and self.labels.size:
                 top = int(self.labels.max())

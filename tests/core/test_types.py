@@ -110,3 +110,22 @@ def test_every_field_of_a_result_is_documented(cls):
     missing = names - documented
     assert not missing, f"{cls} does not document {sorted(missing)}"
     assert not documented - names, sorted(documented - names)
+
+
+@pytest.mark.parametrize("names", ["chair", np.array("chair"), np.array([["chair", "sofa"]])])
+def test_label_names_that_are_not_one_list_of_names_are_refused(names):
+    """LatentMap(..., label_names="chair") iterated the string: the map's labels were
+    'c', 'h', 'a', 'i', 'r', with nothing said, and evaluation scored label 'c'."""
+    from quash_plugins.core.errors import MapFormatError
+    from quash_plugins.core.types import LatentMap
+
+    emb = np.eye(3, dtype=np.float32)
+    with pytest.raises(MapFormatError, match=r"Field 'label_names' must be a list of names") as e:
+        LatentMap(emb, labels=np.zeros(3, dtype=int), label_names=names)
+    if np.ndim(names) == 0:
+        assert "label_names=['chair']" in str(e.value)
+    # a list, a tuple or a 1-D array of names is a label list
+    for ok in (["chair"], ("chair",), np.array(["chair"])):
+        assert LatentMap(emb, labels=np.zeros(3, dtype=int), label_names=ok).label_names == [
+            "chair"
+        ]
