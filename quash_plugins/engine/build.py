@@ -8,6 +8,7 @@ constructor (``Quash(enc, heuristic="none")``) is built here by :func:`plugin_ar
 
 from __future__ import annotations
 
+import inspect
 import logging
 from collections.abc import Mapping
 from pathlib import Path
@@ -15,7 +16,7 @@ from typing import Any
 
 from ..core import registry
 from ..core.config import PluginSpec, QuashConfig
-from ..core.errors import ConfigError, QuashError
+from ..core.errors import ConfigError, QuashError, check_options
 from .cache import open_cache
 
 log = logging.getLogger(__name__)
@@ -73,6 +74,7 @@ def build_quash(
     """
     if cls is None:
         from .pipeline import Quash as cls
+    _check_overrides(cls, overrides)
     cfg = QuashConfig.load(config)
     where = f"{cfg.source}: " if cfg.source else ""
     # A plugin given as an override replaces the config's section, which is then not
@@ -139,6 +141,17 @@ def build_quash(
         raise _located(exc, cfg, overrides) from exc.__cause__
     quash.config_source = cfg.source
     return quash
+
+
+def _check_overrides(cls: Any, overrides: dict[str, Any]) -> None:
+    """Refuse an override that is no argument of ``cls`` (``treshold=0.2``), naming the
+    ones it takes and the closest; it raised TypeError "Quash.__init__() got an
+    unexpected keyword argument", after the config's plugins were built."""
+    params = inspect.signature(cls.__init__).parameters
+    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
+        return
+    known = [n for n, p in params.items() if n != "self" and p.kind is not p.VAR_POSITIONAL]
+    check_options(f"{cls.__name__}.from_config", overrides, known)
 
 
 def _misspelt_encoder(name: str) -> bool:

@@ -481,3 +481,18 @@ def test_from_config_overrides_a_plugin_section_as_the_config_would_set_it(tiny_
         Quash.from_config(broken)
     fixed = Quash.from_config(broken, encoder=table, heuristic="taxonomy")
     assert fixed.encoder is table and type(fixed.heuristic).__name__ == "TaxonomyHeuristic"
+
+
+def test_from_config_refuses_a_misspelt_override_naming_the_ones_it_takes(tiny_world):
+    """``Quash.from_config(cfg, treshold=0.2)`` built the config's plugins, then raised
+    TypeError "Quash.__init__() got an unexpected keyword argument 'treshold'", naming
+    neither what it takes nor the near name; ``evaluate(overrides=...)`` the same."""
+    from quash_plugins.core.errors import ConfigError
+    from quash_plugins.evaluation import evaluate
+
+    with pytest.raises(ConfigError, match=r"from_config: unknown option 'treshold'") as e:
+        Quash.from_config(tiny_world["config"], treshold=0.2)
+    assert "Did you mean 'threshold'?" in str(e.value) and "instances" in str(e.value)
+    with pytest.raises(ConfigError, match=r"unknown option 'instance'.*'instances'\?"):
+        evaluate(tiny_world["map"], [tiny_world["config"]], overrides={"instance": False})
+    assert Quash.from_config(tiny_world["config"], threshold=0.2, cache=None).threshold == 0.2
