@@ -98,6 +98,16 @@ def detect_adapter(source: Any, *, claimed: bool = False) -> str:
             log.debug("no adapter recognises %s, but %s: trying %s", source, claim[1], claim[0])
             return claim[0]
     path = isinstance(source, (str, Path))
+    if not path and hasattr(source, "shape") and hasattr(source, "dtype"):
+        # no adapter reads a bare array: "Pass adapter=NAME" sent one round them all
+        shape = tuple(int(n) for n in source.shape)
+        tensor = " (a torch tensor: tensor.cpu().numpy())" if hasattr(source, "cpu") else ""
+        raise MapFormatError(
+            f"The {type(source).__name__} of shape {shape} is not a map: no adapter reads a "
+            "bare array. Wrap the (N, D) embeddings in a LatentMap and query that: "
+            "LatentMap(embeddings, kind='points', positions=xyz) (from quash_plugins import "
+            f"LatentMap; kind='voxels' with grid_index and voxel_size){tensor}."
+        )
     what = str(source) if path else type(source).__name__
     choose = "--adapter NAME" if path else "adapter=NAME"
     raise MapFormatError(

@@ -496,3 +496,18 @@ def test_from_config_refuses_a_misspelt_override_naming_the_ones_it_takes(tiny_w
     with pytest.raises(ConfigError, match=r"unknown option 'instance'.*'instances'\?"):
         evaluate(tiny_world["map"], [tiny_world["config"]], overrides={"instance": False})
     assert Quash.from_config(tiny_world["config"], threshold=0.2, cache=None).threshold == 0.2
+
+
+def test_a_bare_array_given_as_the_map_is_told_to_be_wrapped_in_a_latent_map(tiny_world):
+    """``quash.query(embeddings, "chair")`` read "No adapter recognises ndarray. ...
+    Pass adapter=NAME to choose one.", though no adapter reads an array."""
+    quash = Quash.from_config(tiny_world["config"], cache=None)
+    emb = np.asarray(quash.read_map(tiny_world["map"]).embeddings)
+    with pytest.raises(MapFormatError) as e:
+        quash.query(emb, "chair")
+    msg = str(e.value)
+    assert f"ndarray of shape {emb.shape} is not a map" in msg
+    assert "LatentMap(embeddings, kind='points'" in msg and "adapter=NAME" not in msg
+    # what it says to do answers as the map itself does
+    wrapped = quash.query(LatentMap(emb, kind="points"), "chair")
+    np.testing.assert_array_equal(wrapped.scores, quash.query(tiny_world["map"], "chair").scores)
