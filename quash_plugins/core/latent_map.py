@@ -207,7 +207,15 @@ class LatentMap:
             raise MapFormatError(
                 f"Field 'embeddings'{where} has no feature dimension (shape {tuple(shape)})."
             )
-        dtype = np.dtype(self.embeddings.dtype)
+        try:
+            dtype = np.dtype(self.embeddings.dtype)
+        except TypeError:  # a torch tensor: "Cannot interpret 'torch.float32' as a data type"
+            raise MapFormatError(
+                f"Field 'embeddings'{where} is a {type(self.embeddings).__name__} of "
+                f"{self.embeddings.dtype}, not an array numpy reads: give a numpy array, "
+                "memmap, h5py dataset or dask array (a torch tensor: "
+                "embeddings.detach().cpu().numpy())."
+            ) from None
         if dtype.kind in "iu":
             raise MapFormatError(
                 f"Field 'embeddings'{where} holds integers ({dtype}); embeddings must be "

@@ -129,3 +129,21 @@ def test_label_names_that_are_not_one_list_of_names_are_refused(names):
         assert LatentMap(emb, labels=np.zeros(3, dtype=int), label_names=ok).label_names == [
             "chair"
         ]
+
+
+def test_embeddings_numpy_cannot_read_are_refused_naming_the_field_and_the_fix():
+    """LatentMap(torch_features) raised a bare TypeError "Cannot interpret
+    'torch.float32' as a data type", naming neither the field nor what to give."""
+    from quash_plugins.core.errors import MapFormatError
+    from quash_plugins.core.types import LatentMap
+
+    class Tensor:  # what a torch tensor shows LatentMap: a shape and a foreign dtype
+        shape = (5, 8)
+        dtype = "torch.float32"
+
+    with pytest.raises(MapFormatError, match=r"Field 'embeddings' is a Tensor of torch\.float32"):
+        LatentMap(Tensor())
+    torch = pytest.importorskip("torch")
+    with pytest.raises(MapFormatError, match=r"\.detach\(\)\.cpu\(\)\.numpy\(\)"):
+        LatentMap(torch.zeros(5, 8))
+    assert LatentMap(torch.zeros(5, 8).detach().cpu().numpy()).dim == 8
