@@ -304,6 +304,11 @@ class QueryResult:
         ``n_matched / N``.
     presence
         The presence check's decision in words.
+    emptied_by_presence
+        Why the presence check emptied the mask, in words; None when it did not.
+    under_threshold
+        For an answer no item scored over the threshold for, the highest score against
+        the threshold, in words; else None.
     """
 
     queryset: QuerySet
