@@ -342,6 +342,28 @@ class LatentMap:
                 return i
         return None
 
+    def __repr__(self) -> str:
+        """One line, as :meth:`describe` gives it, with what else the map carries (numpy's
+        summary of every array ran to some thirty lines for a scene); the arrays are the
+        fields."""
+        extra = [
+            name
+            for name in ("positions", "colors", "grid_index", "labels")
+            if getattr(self, name) is not None
+        ]
+        if self.label_names is not None:
+            extra.append(f"{len(self.label_names)} label names")
+        if self.frames:
+            extra.append(f"{len(self.frames)} frames")
+        if self.voxel_size is not None:
+            try:
+                extra.append(f"voxel_size={float(self.voxel_size):g}")
+            except (TypeError, ValueError):  # repr never raises
+                extra.append(f"voxel_size={self.voxel_size!r}")
+        if self.normalize:
+            extra.append("normalize")
+        return f"LatentMap({self.describe()}; {', '.join(extra) or 'embeddings only'})"
+
     def describe(self) -> str:
         """One line: the kind, where the map was read from, its size and dtype (a live
         object, such as a VLMaps ``VLMap``, is named by its type and adapter)."""

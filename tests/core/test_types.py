@@ -147,3 +147,31 @@ def test_embeddings_numpy_cannot_read_are_refused_naming_the_field_and_the_fix()
     with pytest.raises(MapFormatError, match=r"\.detach\(\)\.cpu\(\)\.numpy\(\)"):
         LatentMap(torch.zeros(5, 8))
     assert LatentMap(torch.zeros(5, 8).detach().cpu().numpy()).dim == 8
+
+
+def test_a_maps_repr_is_one_line_naming_what_it_carries():
+    """print(lmap) in a notebook gave numpy's summary of every array (some thirty lines
+    for a scene); it is now one line: describe(), then what else the map carries."""
+    import numpy as np
+
+    from quash_plugins.core.types import LatentMap
+
+    rng = np.random.default_rng(0)
+    lmap = LatentMap(
+        rng.normal(size=(40, 6)).astype(np.float32),
+        kind="voxels",
+        positions=rng.uniform(size=(40, 3)).astype(np.float32),
+        labels=rng.integers(0, 2, 40),
+        label_names=["chair", "sofa"],
+        voxel_size=0.05,
+        source={"path": "room.npz", "adapter": "npz"},
+    )
+    text = repr(lmap)
+    assert "\n" not in text
+    assert text == (
+        f"LatentMap({lmap.describe()}; positions, labels, 2 label names, voxel_size=0.05)"
+    )
+    bare = LatentMap(np.eye(3, dtype=np.float32))
+    assert repr(bare) == f"LatentMap({bare.describe()}; embeddings only)"
+    bare.voxel_size = "fine"  # repr never raises, whatever a field holds
+    assert "voxel_size='fine'" in repr(bare)
