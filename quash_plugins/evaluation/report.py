@@ -58,6 +58,28 @@ class EvalReport:
     results: dict[str, list[Any]] = field(default_factory=dict, repr=False)
     provenance: dict[str, Any] = field(default_factory=dict)
 
+    def __repr__(self) -> str:
+        """One line: what was scored on which map, and each config's mean F1 and absence
+        (the per-query scores are the fields; ``to_markdown()`` tables them)."""
+        where = (self.provenance.get("map") or {}).get("path") if self.provenance else None
+        rows = []
+        for c in self.configs:
+            f1 = (c.get("mean") or {}).get("f1")
+            absence = (c.get("absence") or {}).get("score")
+            cells = [f"F1 {f1:.3f}" if isinstance(f1, (int, float)) else "F1 -"]
+            if self.absent:
+                cells.append(
+                    f"absence {absence:.2f}" if isinstance(absence, (int, float)) else "absence -"
+                )
+            rows.append(f"{c.get('name', '?')} {' '.join(cells)}")
+        on = f" on {where}" if where else ""
+        absent = f" + {len(self.absent)} absent" if self.absent else ""
+        n, q = len(self.configs), len(self.queries)
+        return (
+            f"EvalReport({n} config{'s' * (n != 1)} x {q} quer{'ies' if q != 1 else 'y'}"
+            f"{absent}{on}: {'; '.join(rows)})"
+        )
+
     def to_json(self) -> dict[str, Any]:
         """``{"configs": [...], "provenance": {...}}`` (``provenance`` when known)."""
         out: dict[str, Any] = {"configs": self.configs}

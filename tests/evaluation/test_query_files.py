@@ -465,3 +465,31 @@ def test_one_config_given_in_place_of_the_list_is_refused(tmp_path):
     with pytest.raises(QuashError, match=r"configs is one Quash, not a list"):
         evaluate(lmap2, peer)
     assert evaluate(lmap2, [peer], queries=["forklift"]).queries == ["forklift"]
+
+
+def test_a_reports_repr_is_one_line_of_each_configs_f1_and_absence():
+    """print(report) printed every config's per-query dict; it is now one line: what was
+    scored on which map, and each config's mean F1 and absence."""
+    from quash_plugins.evaluation.report import EvalReport
+
+    def config(name, f1, absence):
+        per_query = {"chair": {"f1": f1, "recall": 0.5}, "sofa": {"f1": f1, "recall": 0.5}}
+        return {
+            "name": name,
+            "mean": {"f1": f1, "recall": 0.5},
+            "per_query": per_query,
+            "absence": {"score": absence, "per_query": {"piano": {"empty": absence == 1}}},
+        }
+
+    report = EvalReport(
+        [config("quash-labels", 0.8234, 1.0), config("vlmaps-labels", 0.4811, 0.0)],
+        ["chair", "sofa"],
+        ["piano"],
+        provenance={"map": {"path": "scene.npz"}},
+    )
+    assert repr(report) == (
+        "EvalReport(2 configs x 2 queries + 1 absent on scene.npz: "
+        "quash-labels F1 0.823 absence 1.00; vlmaps-labels F1 0.481 absence 0.00)"
+    )
+    bare = EvalReport([{"name": "c", "mean": {"f1": None}}], ["chair"], [])
+    assert repr(bare) == "EvalReport(1 config x 1 query: c F1 -)"
