@@ -91,7 +91,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=int,
         default=0,
         metavar="N",
-        help="An absence query counts as empty with at most N matches (default 0).",
+        help="An absence query counts as empty with at most N matches, and so does a present "
+        "query in the present -> empty column (default 0).",
     )
     p.add_argument("--adapter", default=None, help="Adapter name (default: the first config's).")
     add_adapter_options(p)

@@ -229,7 +229,11 @@ def read_query_file(
                 raise unknown_key(key, closest(str(key), ("present", "absent")))
         present, absent = data.get("present") or [], data.get("absent") or []
     elif isinstance(data, dict) and data and all(isinstance(v, list) for v in data.values()):
-        # every value a list: {label: [sub-classes]}, a taxonomy given as the query file
+        # every value a list: {label: [sub-classes]}, a taxonomy given as the query file,
+        # unless every key is a misspelt section ('presnt: [chair]' alone): name the key
+        near = [closest(str(key), ("present", "absent"), cutoff=0.8) for key in data]
+        if all(near):
+            raise unknown_key(next(iter(data)), near[0])
         raise QuashError(
             f"{path}: this is a taxonomy ({{label: [sub-class, ...]}}, as make-scene's "
             "SCENE.taxonomy.yaml), not a query file. Give the query file (make-scene's "

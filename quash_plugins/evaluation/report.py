@@ -354,7 +354,8 @@ def evaluate(
             )
         masks = {q: r.mask for q, r in zip(texts, results)}
         ab = absence_score({q: masks[q] for q in absence}, valid, empty_tolerance)
-        ab["present_empty"] = sum(1 for m in per_query.values() if m["n_pred"] == 0)
+        # empty as an absence query's mask is: at most empty_tolerance counted items
+        ab["present_empty"] = sum(1 for m in per_query.values() if m["n_pred"] <= empty_tolerance)
         out.append(
             {
                 "name": name,

@@ -66,6 +66,13 @@ def test_a_query_given_twice_with_two_labels_is_refused():
             "present: [chair]\nabsent: {a giraffe: zoo}\n",
             r"q\.yaml: 'absent' is \{'a giraffe': 'zoo'\}; write a list of texts \(\[a giraffe, a grand",
         ),
+        # a misspelt section of labels alone (every value a list, as in a taxonomy): the
+        # key is named, not the file called a taxonomy
+        ("presnt: [chair, sofa]\n", r"q\.yaml: unknown key 'presnt'.*Did you mean 'present'\?"),
+        (
+            "presnt: [chair]\nabsnt: [a giraffe]\n",
+            r"q\.yaml: unknown key 'presnt'.*Did you mean 'present'\?",
+        ),
         # make-scene's taxonomy given as the query file: said so, not 'not by an index'
         (
             "bed: [bunk bed, cot]\nsofa: [couch, settee]\n",
@@ -307,6 +314,36 @@ def test_with_only_absence_queries_the_means_are_na_and_the_absence_table_is_sho
     assert set(rep.configs[0]["mean"].values()) == {None}
     assert json.loads(json.dumps(rep.to_json()))["configs"][0]["mean"]["f1"] is None
     assert rep.best()["name"] == "peer"
+
+
+def test_present_to_empty_counts_a_present_query_empty_as_an_absence_query_would_be():
+    """With --empty-tolerance N an absence query matching at most N items is empty; a
+    present query that matched at most N items came back empty by the same rule, so the
+    present -> empty column counts it (it counted only masks of 0 items)."""
+    import numpy as np
+
+    from quash_plugins.evaluation import evaluate
+
+    lmap, peer = _robot_map_and_peer()
+    queries = ["robot arm", "forklift"]
+    for tolerance in (0, 3, 8):
+        rep = evaluate(
+            lmap,
+            [peer],
+            queries=queries,
+            absent=["drone"],
+            empty_tolerance=tolerance,
+            keep_results=True,
+        )
+        matched = [int(np.count_nonzero(r.mask)) for r in rep.results["peer"]]
+        present = matched[: len(queries)]
+        assert min(present) > 0  # each block is found: only a tolerance makes it "empty"
+        ab = rep.configs[0]["absence"]
+        assert ab["per_query"]["drone"]["empty"] == (matched[-1] <= tolerance)
+        assert ab["present_empty"] == sum(n <= tolerance for n in present)
+        row = next(ln for ln in rep.to_markdown().splitlines() if ln.startswith("| peer |"))
+        assert row.rstrip(" |").endswith(f"{ab['present_empty']}/{len(queries)}")
+    assert ab["present_empty"] == len(queries)  # 8 items each, at most 8: both empty
 
 
 def test_the_plot_of_a_report_with_only_absence_queries_is_not_written(tmp_path, capsys):
