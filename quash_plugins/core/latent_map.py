@@ -233,6 +233,27 @@ class LatentMap:
             raise MapFormatError(f"Field 'positions'{where} contains NaN or Inf.")
         self.colors = self._check_colors(self.colors, n, where)
         self.grid_index = self._check_rows("grid_index", self.grid_index, n, (3,), None, where)
+        if self.grid_index is not None and self.grid_index.dtype.kind not in "iu":
+            gi = self.grid_index
+            whole = gi.dtype.kind == "f" and np.isfinite(gi).all() and (gi == np.rint(gi)).all()
+            if not whole:  # a float index would be read as cells it does not name
+                raise MapFormatError(
+                    f"Field 'grid_index'{where} must hold whole cell indices; got "
+                    f"{gi.dtype}{' with fractions or NaN' if gi.dtype.kind == 'f' else ''}. "
+                    "For cells of positions: np.floor(positions / voxel_size).astype(int)."
+                )
+            self.grid_index = gi.astype(np.int64)
+        if self.voxel_size is not None:
+            size = self.voxel_size
+            ok = isinstance(size, (int, float, np.integer, np.floating)) and not isinstance(
+                size, (bool, np.bool_)
+            )
+            if not ok or not np.isfinite(size) or size <= 0:
+                raise MapFormatError(
+                    f"Field 'voxel_size'{where} must be a positive number of metres (or None); "
+                    f"got {size!r}."
+                )
+            self.voxel_size = float(size)
         if self.labels is not None:
             self.labels = self._check_rows("labels", self.labels, n, (), None, where)
             if self.labels.dtype.kind not in "iu":

@@ -175,3 +175,34 @@ def test_a_maps_repr_is_one_line_naming_what_it_carries():
     assert repr(bare) == f"LatentMap({bare.describe()}; embeddings only)"
     bare.voxel_size = "fine"  # repr never raises, whatever a field holds
     assert "voxel_size='fine'" in repr(bare)
+
+
+@pytest.mark.parametrize("size", ["0.1", -1.0, 0, float("nan"), True])
+def test_a_voxel_size_that_is_no_positive_number_is_refused(size):
+    """voxel_size="0.1" or -1 was kept as given (the viewer and instance radii read it)."""
+    import numpy as np
+
+    from quash_plugins.core.errors import MapFormatError
+    from quash_plugins.core.types import LatentMap
+
+    with pytest.raises(MapFormatError) as err:
+        LatentMap(np.eye(3, dtype=np.float32), voxel_size=size)
+    assert "Field 'voxel_size'" in str(err.value) and "positive number of metres" in str(err.value)
+    assert LatentMap(np.eye(3, dtype=np.float32), voxel_size=np.float32(0.05)).voxel_size == (
+        float(np.float32(0.05))
+    )
+
+
+def test_a_grid_index_of_whole_floats_is_read_as_cells_and_fractions_are_refused():
+    import numpy as np
+
+    from quash_plugins.core.errors import MapFormatError
+    from quash_plugins.core.types import LatentMap
+
+    cells = np.array([[0, 0, 0], [1, 0, 0], [5, 2, 1]])
+    lmap = LatentMap(np.eye(3, dtype=np.float32), grid_index=cells.astype(np.float64))
+    assert lmap.grid_index.dtype == np.int64 and np.array_equal(lmap.grid_index, cells)
+    with pytest.raises(MapFormatError, match="whole cell indices; got float64 with fractions"):
+        LatentMap(np.eye(3, dtype=np.float32), grid_index=cells + 0.5)
+    with pytest.raises(MapFormatError, match="np.floor"):
+        LatentMap(np.eye(3, dtype=np.float32), grid_index=np.full((3, 3), "a"))
