@@ -24,7 +24,7 @@ examples:
   quash make-scene scene.npz --seed 1
   quash bench scene.npz --taxonomy scene.taxonomy.yaml --out bench/
   quash bench scene.npz --taxonomy scene.taxonomy.yaml --tables antonyms,classifiers
-  quash bench scene.npz --taxonomy scene.taxonomy.yaml --tables sources \
+  quash bench scene.npz --taxonomy scene.taxonomy.yaml --tables sources \\
       --llm-model llama3.1:8b --llm-base-url http://127.0.0.1:11434/v1"""
 
 

@@ -836,3 +836,14 @@ def test_plugins_kind_still_refuses_an_unknown_kind(capsys):
         run_cli("plugins", "--kind", "mapper", capsys=capsys)
     assert stop.value.code == 2
     assert "invalid choice: 'mapper'" in capsys.readouterr().err
+
+
+def test_no_help_example_runs_a_continued_line_into_one():
+    """A '\\' at the end of an EPILOG line in a plain string joined the next line onto it
+    (quash bench --help showed '--tables sources       --llm-model ...' as one line):
+    every example that continues a command ends its line with the backslash it shows."""
+    from quash_plugins.cli.main import _commands
+
+    for mod in _commands():
+        for line in (getattr(mod, "EPILOG", "") or "").splitlines():
+            assert not re.search(r"\S {3,}--?\w", line), (mod.NAME, line)
