@@ -8,12 +8,16 @@ vocabulary stands in for the list.
 
 from __future__ import annotations
 
+import logging
 from typing import Any
 
 from ..core.interfaces import ExpansionContext, Heuristic
+from ..core.once import first_time
 from ..core.types import QuerySet
-from ._taxonomy import TaxonomyHeuristic, taxonomy_beside, unlisted_param
+from ._taxonomy import TaxonomyHeuristic, taxonomy_beside, taxonomy_missing, unlisted_param
 from ._vocabulary import VocabularyHeuristic
+
+log = logging.getLogger(__name__)
 
 
 class AutoHeuristic(Heuristic):
@@ -76,6 +80,14 @@ class AutoHeuristic(Heuristic):
         if self.uses_label_list(ctx):
             qs, how = self._labels.expand(query, ctx), "label list"
         else:
+            missing, misplaced = taxonomy_missing(ctx.map)
+            if missing and first_time(("auto-vocabulary", missing)):
+                log.log(
+                    logging.WARNING if misplaced else logging.INFO,
+                    "the map has no label names and no taxonomy beside it (%s): the shipped "
+                    "vocabulary stands in for its label list",
+                    missing,
+                )
             qs, how = self._vocabulary().expand(query, ctx), "vocabulary"
         prov = dict(qs.provenance)
         prov["auto"] = how

@@ -78,6 +78,27 @@ def taxonomy_beside(lmap: Any) -> tuple[str, dict[str, list[str]]] | None:
     return str(cand), _BESIDE[key]
 
 
+def taxonomy_missing(lmap: Any) -> tuple[str, bool]:
+    """Where the map's ``MAP.taxonomy.yaml`` was looked for, when none was found, and
+    whether a taxonomy lies where it is not read: ``("", False)`` for a map without a
+    path. A folder map's taxonomy sits beside the folder its adapter read
+    (ConceptFusion's ``saved-map/pointclouds.taxonomy.yaml``), so one beside the folder
+    above it (``saved-map.taxonomy.yaml``, beside the folder a user passes) is named."""
+    from pathlib import Path
+
+    path = (getattr(lmap, "source", None) or {}).get("path") if lmap is not None else None
+    cand = taxonomy_path_beside(path) if path else None
+    if cand is None:
+        return "", False
+    above = taxonomy_path_beside(Path(str(path)).parent) if Path(str(path)).is_dir() else None
+    if above is not None and above.is_file():
+        return (
+            f"looked for {cand}, not found; {above}, beside the folder above the map, "
+            f"is not read: move it to {cand}"
+        ), True
+    return f"looked for {cand}, not found", False
+
+
 class TaxonomyHeuristic(Heuristic):
     """Synonyms from the query label's sub-classes, antonyms from the other labels'.
 
@@ -166,10 +187,12 @@ class TaxonomyHeuristic(Heuristic):
                 if key and key.lower() not in {k.lower() for k in out}:
                     out[key] = []
             return out
+        missing = taxonomy_missing(context.map)[0]
         raise HeuristicError(
             f"Heuristic {self.name!r} has no taxonomy (no label list): give 'file' "
             "({label: [sub-class, ...]}) or query a map that has label_names (or a "
             "MAP.taxonomy.yaml beside its file); quash expand reads that map with --map MAP."
+            + (f" This map has no label names; {missing}." if missing else "")
         )
 
     def _labels_source(self, context: ExpansionContext | None) -> str:
