@@ -212,6 +212,7 @@ def run_bench(
             md += [f"## {titles[table]}", "", "_skipped: needs --taxonomy_", ""]
             continue
         rows, notes = [], []
+        provenance: dict[str, Any] = {}
         if table in ("prompt", "sources") and not taxonomy:
             notes.append("- taxonomy rows skipped: give the taxonomy file (--taxonomy).")
         if table == "sources" and not llm:
@@ -223,13 +224,20 @@ def run_bench(
                 try:
                     rep = evaluate(lmap, [cfg], queries=queries, absent=absent, overrides=overrides)
                     rows.extend(rep.configs)
+                    # what the table scored, as quash eval --json records it: the map,
+                    # the queries, the absent ones and each row's config
+                    seen = provenance.setdefault("configs", [])
+                    provenance.update({k: v for k, v in rep.provenance.items() if k != "configs"})
+                    seen.extend(rep.provenance.get("configs", []))
                 except QuashError as exc:
                     notes.append(f"- {cfg['name']}: skipped ({str(exc).splitlines()[0]})")
                     log.warning("bench %s: %s skipped: %s", table, cfg["name"], exc)
                 advance(1)
         if table != "fair":  # the fair table keeps the peers first, as the docs list them
             rows.sort(key=lambda c: -(c["mean"]["f1"] or 0.0))
-        results[table] = {"configs": rows, "notes": notes}
+        if provenance:
+            provenance["taxonomy"] = str(taxonomy) if taxonomy else None
+        results[table] = {"configs": rows, "notes": notes, "provenance": provenance}
         md += [f"## {titles[table]}", "", report_markdown(rows, per_query=False)]
         md += [*notes, ""] if notes else []
         if rows:

@@ -159,6 +159,13 @@ def test_run_bench_with_a_taxonomy_queries_and_absence(scene, tmp_path):
         assert set(r["absence"]["per_query"]) == {"piano"}
     on_disk = json.loads((tmp_path / "b" / "bench.json").read_text())
     assert on_disk == json.loads(json.dumps(results))
+    # what the table scored is recorded as quash eval --json records it (bench.json had
+    # the scores only): the map, the queries, the absent ones, the taxonomy, every row
+    prov = on_disk["classifiers"]["provenance"]
+    assert prov["map"]["path"] == str(scene / "scene.npz")
+    assert sorted(prov["queries"]) == ["chair", "floor", "wall"] and prov["absent"] == ["piano"]
+    assert prov["taxonomy"] == str(scene / "scene.taxonomy.yaml")
+    assert sorted(c["name"] for c in prov["configs"]) == sorted(_names(rows))
 
 
 def test_fair_table_gives_the_label_list_to_the_peers_and_says_so(scene, tmp_path):
