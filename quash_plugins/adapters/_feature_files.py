@@ -136,15 +136,32 @@ def frame_layout(shape: tuple[int, ...], layout: str, path: Path) -> tuple[int, 
             )
     if layout == "1dhw":
         if len(shape) != 4 or shape[0] != 1:
-            raise MapFormatError(f"{path}: expected (1, D, h, w); got shape {tuple(shape)}.")
+            raise MapFormatError(_layout_refusal(path, shape, layout))
         _, d, h, w = shape
     else:
         if len(shape) != 3:
-            raise MapFormatError(f"{path}: expected (H, W, D); got shape {tuple(shape)}.")
+            raise MapFormatError(_layout_refusal(path, shape, layout))
         h, w, d = shape
     if min(h, w, d) <= 0:
         raise MapFormatError(f"{path}: field 'embeddings' is empty (shape {tuple(shape)}).")
     return int(h), int(w), int(d), layout
+
+
+def _layout_refusal(path: Path, shape: tuple[int, ...], layout: str) -> str:
+    """The option ``layout`` names a shape the frame does not have: the field, the
+    option and the fix (the layout the frame has, or ``auto``)."""
+    wanted = "(1, D, h, w)" if layout == "1dhw" else "(H, W, D)"
+    fits = "hwd" if len(shape) == 3 else "1dhw" if len(shape) == 4 and shape[0] == 1 else None
+    fix = (
+        f"this frame is read with layout={fits} (or layout=auto, the default, which "
+        "reads each frame by its rank)"
+        if fits
+        else "save each frame as (H, W, D) or (1, D, h, w)"
+    )
+    return (
+        f"{path}: field 'embeddings' has shape {tuple(shape)}, not the {wanted} of the "
+        f"option layout={layout}; {fix}."
+    )
 
 
 def as_rows(arr: np.ndarray, layout: str) -> np.ndarray:
