@@ -369,9 +369,16 @@ class OpenSceneAdapter(MapAdapter):
         coords, colors, labels = read_points(points_path)
         n = len(coords)
         if len(mask) != n:
+            # a .npy of per-point features has no mask_full: its rows are the points
+            field = (
+                f"field 'feat' has {len(mask)} rows (one per point)"
+                if path.suffix == ".npy"
+                else f"field 'mask_full' has {len(mask)} entries"
+            )
             raise MapFormatError(
-                f"{path}: field 'mask_full' has {len(mask)} entries but {points_path.name} has "
-                f"{n} points; the features belong to another scene or preprocessing."
+                f"{path}: {field} but {points_path} has {n} points; the features belong to "
+                "another scene or preprocessing: pass that scene's points with the option "
+                "points=PATH."
             )
         m, d = int(feat.shape[0]), int(feat.shape[1])
         if should_scan(opts["check_finite"], m * d * feat.dtype.itemsize, opts["finite_check_mb"]):
