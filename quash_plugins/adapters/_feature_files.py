@@ -312,8 +312,14 @@ def find_image(stem: str, dirs: list[Path]) -> Path | None:
     return None
 
 
-def read_rgb(path: Path, height: int, width: int) -> np.ndarray | None:
-    """``(H, W, 3)`` uint8, resized (bilinear) to the feature resolution when it differs."""
+def read_rgb(
+    path: Path, height: int, width: int, turned: list[str] | None = None
+) -> np.ndarray | None:
+    """``(H, W, 3)`` uint8, resized (bilinear) to the feature resolution when it differs.
+
+    An image whose orientation is not the feature map's (landscape for a portrait frame,
+    or the reverse) is resized all the same, and described in ``turned``: its frame was
+    likely saved ``(W, H, D)``, and its colours and masks would not line up."""
     try:
         from PIL import Image
     except ImportError:  # pragma: no cover - pillow ships with matplotlib
@@ -322,6 +328,9 @@ def read_rgb(path: Path, height: int, width: int) -> np.ndarray | None:
     try:
         with Image.open(path) as im:
             im = im.convert("RGB")
+            w, h = im.size
+            if turned is not None and (w - h) * (width - height) < 0:
+                turned.append(f"{path.name} {w} x {h} for features {width} x {height}")
             if im.size != (width, height):
                 im = im.resize((width, height), Image.Resampling.BILINEAR)
             return np.asarray(im, dtype=np.uint8)

@@ -292,14 +292,29 @@ class ImageFeaturesAdapter(MapAdapter):
         total = sum(f.size for f in frames)
         out = np.full((total, 3), 128, dtype=np.uint8)
         found = sum(1 for i in images if i is not None)
+        turned: list[str] = []
         with progress(found, f"reading {found} RGB images") as advance:
             for fr, img in zip(frames, images):
                 if img is None:
                     continue
-                rgb = read_rgb(img, fr.height, fr.width)
+                rgb = read_rgb(img, fr.height, fr.width, turned)
                 if rgb is not None:
                     out[fr.offset : fr.offset + fr.size] = rgb.reshape(-1, 3)
                 advance(1)
+        if turned:
+            log.warning(
+                "%d of %d RGB images are turned against their feature maps (width x "
+                "height: %s%s), and each is resized to its map's size. That is right when "
+                "the extractor resized them so (ConceptFusion's desired_height x "
+                "desired_width ignores orientation); otherwise the frames were saved with "
+                "height and width swapped, (W, H, D) or (1, D, w, h), and their colours "
+                "and per-image masks do not line up with the images: save each frame as "
+                "(H, W, D) (from (D, H, W): features.permute(1, 2, 0)) or (1, D, h, w)",
+                len(turned),
+                found,
+                "; ".join(turned[:3]),
+                ", ..." if len(turned) > 3 else "",
+            )
         missing = sum(1 for i in images if i is None)
         if missing:
             log.warning(
