@@ -91,22 +91,31 @@ def _registered_encoder(name: str) -> bool:
     """Whether a config can write ``encoder: name`` (a registered encoder has that name,
     or that ``dist:name``). Looked up without resolving it, so a name that a plugin
     shadows is not warned about here: this config does not use it."""
-    from ..core.registry import plugins
+    return bool(_claims(name))
 
-    return any(name in (i.name, i.qualified) for i in plugins("encoders"))
+
+def _claims(spelled: str) -> set[str]:
+    """The registered encoders ``spelled`` names: a bare name, or ``dist:name`` with the
+    distribution written as pip writes it or as its import name (``my_pkg:x`` is
+    ``my-pkg:x``, as the registry resolves it)."""
+    from ..core.registry import _same_dist, plugins
+
+    dist, sep, short = spelled.partition(":")
+    if not sep:
+        dist, short = "", spelled
+    return {
+        i.qualified
+        for i in plugins("encoders")
+        if i.name == short and (not dist or _same_dist(i.dist, dist))
+    }
 
 
 def _same_plugin(built: str, name: str) -> bool:
     """Whether the map's record ``built`` and the config's ``name`` are two spellings of
     one registered encoder ('dist:name' and the bare name). Looked up without resolving,
     as :func:`_registered_encoder`; a bare name two distributions claim is no match."""
-    from ..core.registry import plugins
-
-    def claims(spelled: str) -> set[str]:
-        return {i.qualified for i in plugins("encoders") if spelled in (i.name, i.qualified)}
-
-    ours = claims(name)
-    return len(ours) == 1 and claims(built) == ours
+    ours = _claims(name)
+    return len(ours) == 1 and _claims(built) == ours
 
 
 def same_embedding_function(encoder: Any, fingerprint: str) -> bool:

@@ -260,6 +260,13 @@ def test_a_map_built_by_the_qualified_name_is_the_same_encoder_as_the_bare_name(
             map_fit.check_encoder_fits(bare, lmap)
         assert "'encoder: {name: dim-hashing, dim: 32}'" in str(err.value)
         assert "records that encoder" not in str(err.value)
+        # the distribution as its import name spells it is the same plugin, as the
+        # registry resolves it (pkg_dim:dim-hashing builds pkg-dim's encoder)
+        lmap.source["encoder"] = "pkg_dim:dim-hashing"
+        with pytest.raises(DimensionMismatchError) as err:
+            map_fit.check_encoder_fits(bare, lmap)
+        assert "'encoder: {name: dim-hashing, dim: 32}'" in str(err.value)
+        lmap.source["encoder"] = "pkg-dim:dim-hashing"
         lmap.source["encoder_fingerprint"] = "dim-hashing-0"  # built with other settings
         once.forget("built-by")
         with caplog.at_level("WARNING", logger="quash_plugins.engine.map_fit"):
