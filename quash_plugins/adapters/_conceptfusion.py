@@ -185,8 +185,7 @@ class ConceptFusionAdapter(MapAdapter):
                 )
             if emb.shape[0] != n:
                 raise MapFormatError(
-                    f"{label_emb}: {emb.shape[0]} rows, but {files['pc_points'].name} has {n} points; "
-                    "row counts must match."
+                    _row_mismatch(label_emb, "embeddings", emb.shape[0], n, files["pc_points"])
                 )
 
             positions = np.asarray(points_ds[()], dtype=np.float32)
@@ -200,6 +199,10 @@ class ConceptFusionAdapter(MapAdapter):
             if files["pc_colors"].is_file():
                 cds = dataset(files["pc_colors"], "pc_colors")
                 label = f"{files['pc_colors']} (dataset 'pc_colors')"
+                if cds.ndim == 2 and cds.shape[1] == 3 and cds.shape[0] != n:
+                    raise MapFormatError(
+                        _row_mismatch(label, "colors", cds.shape[0], n, files["pc_points"])
+                    )
                 if cds.shape != (n, 3):
                     raise MapFormatError(
                         f"{label}: field 'colors' must be (N, 3) with N = {n}; got shape {cds.shape}."
@@ -212,8 +215,13 @@ class ConceptFusionAdapter(MapAdapter):
                     ds = dataset(files[key], key)
                     if ds.ndim == 0 or ds.shape[0] != n:
                         raise MapFormatError(
-                            f"{files[key]} (dataset {key!r}): {ds.shape[0] if ds.ndim else 0} rows, "
-                            f"but the map has {n} points; row counts must match."
+                            _row_mismatch(
+                                f"{files[key]} (dataset {key!r})",
+                                key,
+                                ds.shape[0] if ds.ndim else 0,
+                                n,
+                                files["pc_points"],
+                            )
                         )
                     extra[f"{key}_file"] = str(files[key])
 
@@ -271,6 +279,16 @@ def write_pointclouds(root: str | Path, arrays: dict[str, np.ndarray]) -> Path:
         with h5py.File(folder / f"{key}.h5", "w") as f:
             f.create_dataset(key, data=np.asarray(value))
     return folder
+
+
+def _row_mismatch(label: str, field: str, rows: int, n: int, points_file: Path) -> str:
+    """The error for a per-point file whose row count is not ``pc_points``'s, with the fix."""
+    return (
+        f"{label}: field {field!r} has {rows} rows, but {points_file} has {n} points; every "
+        "per-point file needs one row per point. The file may be from another map (copy the "
+        "whole pointclouds/ folder of one map again), or the map was saved part-way: re-save "
+        "it (gradslam's Pointclouds.save_to_h5) so that all its files are written together."
+    )
 
 
 def _batch_hint(shape: tuple[int, ...], name: str) -> str:

@@ -66,6 +66,32 @@ def test_cf_mismatched_colors(tmp_path):
     _check(_cf(tmp_path, pc_colors=np.ones((5, 3), np.float32)), "pc_colors.h5", "'colors'")
 
 
+@pytest.mark.parametrize(
+    ("key", "field", "shape"),
+    [
+        ("pc_colors", "'colors'", (25, 3)),
+        ("pc_embeddings", "'embeddings'", (19, 6)),
+        ("pc_features", "'pc_features'", (21, 3)),
+        ("pc_confidences", "'pc_confidences'", (7, 1)),
+    ],
+)
+def test_cf_per_point_rows_not_the_points_name_both_counts_and_the_fix(tmp_path, key, field, shape):
+    """A per-point file with another row count than pc_points.h5 (from another map, or a
+    save cut short) said 'row counts must match' (or for colours 'must be (N, 3)') with
+    no fix."""
+    root = _cf(tmp_path, **{key: np.ones(shape, np.float32)})
+    points = root / "pointclouds" / "pc_points.h5"
+    _check(
+        root,
+        f"{key}.h5",
+        field,
+        f"{shape[0]} rows",
+        f"{points} has 20 points",
+        "from another map",
+        "re-save it",
+    )
+
+
 @pytest.mark.parametrize("shape", [(20,), (20, 6, 1)])
 def test_cf_wrong_rank_embeddings(tmp_path, shape):
     _check(
