@@ -140,6 +140,7 @@ def build_quash(
     except ConfigError as exc:  # refine:, presence: ... checked by the engine
         raise _located(exc, cfg, overrides) from exc.__cause__
     quash.config_source = cfg.source
+    quash.config_overrides = frozenset(overrides)
     return quash
 
 

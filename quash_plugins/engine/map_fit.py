@@ -200,12 +200,17 @@ def warn_if_empty(lmap: LatentMap) -> None:
 
 
 def option_source(
-    exc: MapFormatError, spec: Any, config_source: str | None, given: dict[str, Any] | None
+    exc: MapFormatError,
+    spec: Any,
+    config_source: str | None,
+    given: dict[str, Any] | None,
+    origin: str | None = None,
 ) -> MapFormatError:
     """``exc`` (a map read's error) with where an option it names came from, when that
     was the config's ``adapter:`` section (``spec``) rather than the command (``-o``) or
     the call (``given``; None: the section was not used): a user who never passed ``cs``
-    is told which file to change."""
+    is told which file to change. ``origin`` names where ``spec`` came from instead of
+    the section (``Quash.from_config(adapter=...)``)."""
     if given is None:
         return exc
     text = str(exc)
@@ -217,9 +222,9 @@ def option_source(
     if not named:
         return exc
     where = f" of {config_source}" if config_source else ""
+    origin = origin or f"the adapter: section{where}"
     return MapFormatError(
-        f"{text} ({', '.join(named)} comes from the adapter: section{where}: change or "
-        "remove it there.)"
+        f"{text} ({', '.join(named)} comes from {origin}: change or remove it there.)"
     )
 
 

@@ -216,6 +216,9 @@ class Quash:
         self.name = name
         #: The config file this pipeline was built from (set by :meth:`from_config`).
         self.config_source: str | None = None
+        #: The arguments :meth:`from_config` was given over the file's (``adapter=``...):
+        #: an error about one of them names the argument, not the file.
+        self.config_overrides: frozenset[str] = frozenset()
         if backend not in BACKENDS:
             raise ConfigError(
                 f"Unknown backend {backend!r}. Known: {', '.join(b for b in BACKENDS if b)}."
@@ -305,7 +308,12 @@ class Quash:
             lmap = read_map(source, name, **opts)
         except MapFormatError as exc:
             given = options if configured else None
-            raise option_source(exc, self.adapter, self.config_source, given) from None
+            origin = (
+                "the adapter= argument of Quash.from_config"
+                if "adapter" in self.config_overrides
+                else None
+            )
+            raise option_source(exc, self.adapter, self.config_source, given, origin) from None
         self._maps.store(token, lmap, self.keep_maps)
         # the query sets of maps that are gone go too (here, not on every expand)
         for k in [k for k, (r, _) in self._querysets.items() if k[1] and r() is None]:
@@ -321,8 +329,15 @@ class Quash:
         try:
             registry.create("adapters", name, **self.adapter.params)
         except ConfigError as exc:
+            if "adapter" in self.config_overrides:
+                raise ConfigError(f"Quash.from_config(adapter=...): {exc}") from None
             where = f"{self.config_source}: " if self.config_source else ""
             raise ConfigError(f"{where}adapter: {exc}") from None
+
+    def _source_of(self, section: str) -> str | None:
+        """The config file a section came from; None when :meth:`from_config` was given it
+        as an argument (the file's section was not used) or there is no file."""
+        return None if section in self.config_overrides else self.config_source
 
     def forget_maps(self) -> None:
         """Drop the maps kept by :meth:`read_map` and the query sets built for them."""
@@ -333,7 +348,7 @@ class Quash:
         """Fail up front when the encoder's dimension differs from the map's; warn (once
         per map and encoder) when the map records that another encoder built it
         (:func:`~quash_plugins.engine.map_fit.check_encoder_fits`)."""
-        check_encoder_fits(self.encoder, lmap, self.config_source)
+        check_encoder_fits(self.encoder, lmap, self._source_of("encoder"))
 
     # ------------------------------------------------------------------ steps
     def context(self, lmap: LatentMap | None = None, cache: Any = None) -> ExpansionContext:

@@ -511,3 +511,46 @@ def test_a_bare_array_given_as_the_map_is_told_to_be_wrapped_in_a_latent_map(tin
     # what it says to do answers as the map itself does
     wrapped = quash.query(LatentMap(emb, kind="points"), "chair")
     np.testing.assert_array_equal(wrapped.scores, quash.query(tiny_world["map"], "chair").scores)
+
+
+def test_an_override_that_fails_is_named_as_the_argument_not_the_config_file(tiny_world):
+    """An override of Quash.from_config that failed was blamed on the config file
+    (``c.yaml: adapter: ... does not accept parameter 'bogus'``; a wrong-size encoder
+    "(the 'encoder:' section of c.yaml)"), which the user had not changed."""
+    from quash_plugins.core.errors import ConfigError
+    from quash_plugins.testing import HashingEncoder
+
+    cfg = tiny_world["config"]
+    bad = Quash.from_config(cfg, cache=None, adapter={"name": "npz", "bogus": 1})
+    with pytest.raises(ConfigError) as err:
+        bad.read_map(tiny_world["map"])
+    said = str(err.value)
+    assert said.startswith("Quash.from_config(adapter=...): ") and str(cfg) not in said
+    lmap = Quash.from_config(cfg, cache=None).read_map(tiny_world["map"])
+    wrong = HashingEncoder(lmap.dim + 3)
+    with pytest.raises(DimensionMismatchError) as err:
+        Quash.from_config(cfg, cache=None, encoder=wrong).query(lmap, "chair")
+    assert "'encoder:' section" not in str(err.value) and str(cfg) not in str(err.value)
+    # the file's own sections are still named as the file's
+    own = tiny_world["dir"] / "own.yaml"
+    own.write_text(cfg.read_text() + "adapter: {name: npz, bogus: 1}\n")
+    with pytest.raises(ConfigError, match=f"^{own}: adapter: "):
+        Quash.from_config(own, cache=None).read_map(tiny_world["map"])
+
+
+def test_an_adapter_option_given_as_an_override_is_said_to_come_from_it(tmp_path):
+    from _vlmaps_writers import mobile_map, write_vlmaps_h5df
+
+    cam = {"pcd_min": [-2.5, -0.3, 1.25], "pcd_max": [4.0, 2.0, 6.0], "cs": 0.04}
+    path = write_vlmaps_h5df(tmp_path / "vlmap_cam" / "vlmaps_cam.h5df", mobile_map(), camera=cam)
+    config = tmp_path / "quash.yaml"
+    config.write_text(
+        "encoder: {name: table, table: {chair: [1, 0, 0, 0, 0, 0, 0, 0]}}\n"
+        "heuristic: none\ncache: false\n"
+    )
+    q = Quash.from_config(str(config), adapter={"name": "vlmaps", "cs": 0.05})
+    with pytest.raises(MapFormatError) as info:
+        q.read_map(path)
+    text = str(info.value)
+    assert "cs=0.05 comes from the adapter= argument of Quash.from_config" in text
+    assert str(config) not in text
