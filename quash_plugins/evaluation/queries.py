@@ -59,6 +59,8 @@ def parse_queries(queries: Any, source: str = "") -> dict[str, str]:
                 )
             items.append((text, label if sep else text))
     out: dict[str, str] = {}
+    kept: dict[str, str] = {}  # a query text without case: the spelling scored
+    twice: dict[str, list[str]] = {}
     for text, label in items:
         text, label = " ".join(text.split()), " ".join(label.split())
         if not text or not label:
@@ -68,13 +70,48 @@ def parse_queries(queries: Any, source: str = "") -> dict[str, str]:
                 "write an open-vocabulary query as TEXT=LABEL (e.g. 'bunk bed=bed'), with "
                 "neither side empty."
             )
-        if out.get(text, label) != label:
+        first = kept.setdefault(text.casefold(), text)
+        if _fold(out.get(first, label)) != _fold(label):
+            also = f" (as {text!r})" if text != first else ""
             raise QuashError(
-                f"{what} {text!r} is given twice, with the labels {out[text]!r} and "
+                f"{what} {first!r} is given twice{also}, with the labels {out[first]!r} and "
                 f"{label!r}: give each query text one ground-truth label."
             )
-        out[text] = label
+        out.setdefault(first, label)
+        if text != first and text not in twice.setdefault(first, []):
+            twice[first].append(text)
+    say_twice("queries", twice, source)
     return out
+
+
+def one_per_spelling(texts: Sequence[str]) -> tuple[list[str], dict[str, list[str]]]:
+    """``texts`` with each text once whatever its case and spacing (the first spelling
+    kept), and ``{kept: [the other spellings dropped]}``.
+
+    >>> one_per_spelling(["piano", "Piano", " piano ", "piano"])
+    (['piano'], {'piano': ['Piano', ' piano ']})
+    """
+    kept: dict[str, str] = {}
+    twice: dict[str, list[str]] = {}
+    for t in texts:
+        first = kept.setdefault(" ".join(str(t).split()).casefold(), t)
+        if t != first and t not in twice.setdefault(first, []):
+            twice[first].append(t)
+    return list(kept.values()), {k: v for k, v in twice.items() if v}
+
+
+def say_twice(what: str, twice: dict[str, list[str]], source: str | Path | None = None) -> None:
+    """One warning naming the ``what`` ("queries", "absence queries") given more than once
+    in another case or spacing (:func:`one_per_spelling`), each scored once."""
+    twice = {k: v for k, v in twice.items() if v}
+    if twice:
+        log.warning(
+            "%s%s given more than once in another case or spacing are scored once, as first "
+            "written: %s",
+            f"{source}: " if source else "",
+            what,
+            "; ".join(f"{k!r} (also {', '.join(repr(x) for x in v)})" for k, v in twice.items()),
+        )
 
 
 def _fold(name: str) -> str:

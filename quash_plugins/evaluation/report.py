@@ -29,7 +29,13 @@ import numpy as np
 from ..core.errors import QuashError
 from ..core.types import LatentMap
 from .metrics import METRICS, RANKING, absence_score, macro_mean, query_metrics, valid_items
-from .queries import load_query_file, match_labels, parse_queries
+from .queries import (
+    load_query_file,
+    match_labels,
+    one_per_spelling,
+    parse_queries,
+    say_twice,
+)
 
 log = logging.getLogger(__name__)
 
@@ -243,7 +249,8 @@ def plan_queries(
     in_file = set(absent if absent_in_file is None else absent_in_file) if query_file else set()
     counts_of = {n: int(counts[i]) for i, n in enumerate(names)}
     _check_absent(absent, presence, counts_of, query_file=query_file, in_file=in_file)
-    absence = list(dict.fromkeys([*unknown_here, *absent]))
+    absence, twice = one_per_spelling([*unknown_here, *absent])
+    say_twice("absence queries", twice)
     if unknown_here:
         log.info(
             "queries of labels no item of the map carries, scored as absence queries: %s",

@@ -530,3 +530,37 @@ def test_a_reports_repr_is_one_line_of_each_configs_f1_and_absence():
     )
     bare = EvalReport([{"name": "c", "mean": {"f1": None}}], ["chair"], [])
     assert repr(bare) == "EvalReport(1 config x 1 query: c F1 -)"
+
+
+def test_queries_given_twice_in_another_case_or_spacing_are_scored_once(caplog):
+    """--absent piano,Piano scored the absence query twice and counted it twice in the
+    absence score; --queries chair,Chair did the same in the macro mean. Each is one query
+    (its first spelling), with one warning naming the others."""
+    import logging
+
+    from quash_plugins.evaluation import evaluate
+
+    lmap, peer = _robot_map_and_peer()
+    once = evaluate(lmap, [peer], queries=["forklift", "a cobot=robot arm"], absent=["drone"])
+    with caplog.at_level(logging.WARNING, logger="quash_plugins.evaluation"):
+        rep = evaluate(
+            lmap,
+            [peer],
+            queries=["forklift", "Forklift", "a cobot=robot arm", "A  Cobot=Robot Arm"],
+            absent=["drone", "Drone", " drone ", "drone"],
+        )
+    assert rep.queries == once.queries == ["forklift", "a cobot"]
+    assert rep.absent == once.absent == ["drone"]
+    assert rep.configs[0]["absence"] == once.configs[0]["absence"]
+    assert rep.configs[0]["mean"] == once.configs[0]["mean"]
+    warned = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    absence = [m for m in warned if m.startswith("absence queries given more than once")]
+    assert len(absence) == 1 and "'drone' (also 'Drone', ' drone ')" in absence[0]
+    present = [m for m in warned if m.startswith("queries given more than once")]
+    assert len(present) == 1
+    assert (
+        "'forklift' (also 'Forklift')" in present[0] and "'a cobot' (also 'A Cobot')" in present[0]
+    )
+    # the same text in another case with another label is refused, as the same text is
+    with pytest.raises(QuashError, match=r"'a cobot' is given twice \(as 'A Cobot'\), with"):
+        parse_queries(["a cobot=robot arm", "A Cobot=locker"])
