@@ -642,8 +642,29 @@ def _coords(arr: Any, path: Path) -> np.ndarray:
     if arr.ndim != 2 or arr.shape[1] != 3 or arr.dtype.kind not in "fiu":
         raise MapFormatError(
             f"{path}: field 'coords' must be (N, 3) numbers; got {arr.shape} {arr.dtype}."
+            f"{_coords_hint(arr, path)}"
         )
     if arr.dtype.kind == "f" and not np.isfinite(arr).all():
         bad = int(np.argwhere(~np.isfinite(arr))[0][0])
         raise MapFormatError(f"{path}: field 'coords' contains NaN or Inf (first at point {bad}).")
     return arr.astype(np.float32)
+
+
+def _coords_hint(arr: np.ndarray, path: Path) -> str:
+    """The fix for numeric coordinates of the wrong shape: extra columns or transposed."""
+    if arr.ndim != 2 or arr.dtype.kind not in "fiu":
+        return ""
+    if arr.shape[0] == 3:  # before the columns: 3 points with extra columns are rarer
+        fix = "arr.T"
+        hint = f" It looks transposed, (3, N): save its (N, 3) rows, {fix}"
+    elif arr.shape[1] > 3:
+        fix = "arr[:, :3]"
+        hint = (
+            f" It has {arr.shape[1]} columns (xyz + rgb, normals, ...?): if the first 3 are "
+            f"x, y, z, save only those, {fix}"
+        )
+    else:
+        return ""
+    if path.suffix.lower() == ".npy":
+        hint += f" (np.save('{path}', {fix}))"
+    return hint + "."

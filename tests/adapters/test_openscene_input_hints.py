@@ -1,0 +1,56 @@
+"""OpenScene inputs of a near-miss layout: each error names what was found and the fix.
+
+Points saved as xyz + rgb ``(N, 6)`` or transposed ``(3, N)``, and so on: the refusal
+named the file, the field and the shape, but not how to save the points right.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from _openscene_writers import preprocess_scannet, save_fused_feature
+
+from quash_plugins.adapters import read_map
+from quash_plugins.core.errors import MapFormatError
+
+
+def _scene(root: Path, n: int = 40, d: int = 8):
+    rng = np.random.default_rng(7)
+    coords = rng.uniform(-2, 2, size=(n, 3))
+    pth = preprocess_scannet(
+        root / "scannet_3d" / "val" / "scene0011_00_vh_clean_2.pth",
+        coords,
+        rng.integers(0, 256, size=(n, 3)),
+        rng.integers(0, 3, size=n).astype(np.float64),
+    )
+    [pt] = save_fused_feature(
+        rng.normal(size=(n, d)), np.arange(n), n, root / "openseg", "scene0011_00"
+    )
+    return pth, pt, coords
+
+
+@pytest.mark.parametrize(
+    ("layout", "shape", "fix"),
+    [("xyzrgb", (40, 6), "arr[:, :3]"), ("transposed", (3, 40), "arr.T")],
+)
+def test_points_npy_with_rgb_columns_or_transposed_say_how_to_save_them(
+    tmp_path, layout, shape, fix
+):
+    _, pt, coords = _scene(tmp_path)
+    if layout == "xyzrgb":
+        arr = np.hstack([coords, np.full((40, 3), 128.0)])
+    else:
+        arr = coords.T
+    xyz = tmp_path / "xyz.npy"
+    np.save(xyz, arr.astype(np.float32))
+    with pytest.raises(MapFormatError) as refused:
+        read_map(pt, "openscene", points=str(xyz))
+    msg = str(refused.value)
+    assert str(xyz) in msg and "'coords'" in msg and str(shape) in msg, msg
+    assert f"np.save('{xyz}', {fix})" in msg, msg
+    # the fix the message gives reads the map
+    np.save(xyz, arr[:, :3] if layout == "xyzrgb" else arr.T)
+    lmap = read_map(pt, "openscene", points=str(xyz))
+    np.testing.assert_allclose(lmap.positions, coords.astype(np.float32))
