@@ -30,6 +30,7 @@ from ..core.errors import QuashError
 from ..core.types import LatentMap
 from .metrics import METRICS, RANKING, absence_score, macro_mean, query_metrics, valid_items
 from .queries import (
+    _fold,
     load_query_file,
     match_labels,
     one_per_spelling,
@@ -251,10 +252,24 @@ def plan_queries(
     _check_absent(absent, presence, counts_of, query_file=query_file, in_file=in_file)
     absence, twice = one_per_spelling([*unknown_here, *absent])
     say_twice("absence queries", twice)
-    if unknown_here:
+    no_items = [q for q in unknown_here if gt_of[q] in index]
+    if no_items:
         log.info(
             "queries of labels no item of the map carries, scored as absence queries: %s",
-            ", ".join(unknown_here),
+            ", ".join(no_items),
+        )
+    # a label that is no label of the map: match_labels warned about a TEXT=LABEL query
+    # whose label is not listed absent; say the others (a label alone, or listed absent)
+    listed = {_fold(a) for a in absent}
+    no_label = [
+        q
+        for q in unknown_here
+        if gt_of[q] not in index and (q == gt_of[q] or _fold(gt_of[q]) in listed)
+    ]
+    if no_label:
+        log.info(
+            "queries whose label is not a label of the map, scored as absence queries: %s",
+            ", ".join(no_label),
         )
     if not presence and not absence:
         if given_queries:  # an empty query list or file, not the map's labels

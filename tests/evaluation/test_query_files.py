@@ -564,3 +564,54 @@ def test_queries_given_twice_in_another_case_or_spacing_are_scored_once(caplog):
     # the same text in another case with another label is refused, as the same text is
     with pytest.raises(QuashError, match=r"'a cobot' is given twice \(as 'A Cobot'\), with"):
         parse_queries(["a cobot=robot arm", "A Cobot=locker"])
+
+
+def test_the_log_says_a_querys_label_is_not_a_label_of_the_map_not_that_no_item_carries_it(
+    caplog,
+):
+    """--queries "grand piano=piano" on a map with no label 'piano' warned rightly, then
+    said at INFO that piano is a label "no item of the map carries": it is no label."""
+    import logging
+
+    import numpy as np
+
+    from quash_plugins import LatentMap
+    from quash_plugins.evaluation import evaluate
+
+    lmap, peer = _robot_map_and_peer()
+    assert "drone" not in lmap.label_names
+    with caplog.at_level(logging.INFO, logger="quash_plugins.evaluation"):
+        rep = evaluate(lmap, [peer], queries=["forklift", "quadcopter=drone", "drone"])
+    assert rep.absent == ["quadcopter", "drone"]
+    said = [r.getMessage() for r in caplog.records]
+    assert not any("no item of the map carries" in m for m in said), said
+    # the TEXT=LABEL query is warned about; the label alone is said at INFO, accurately
+    assert any("'quadcopter': its label 'drone' is not a label of the map" in m for m in said)
+    assert any(m.endswith("not a label of the map, scored as absence queries: drone") for m in said)
+    # listed absent, the TEXT=LABEL query is not warned about: the INFO line names it
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="quash_plugins.evaluation"):
+        evaluate(lmap, [peer], queries=["forklift", "quadcopter=drone"], absent=["drone"])
+    said = [r.getMessage() for r in caplog.records]
+    assert any(
+        m.endswith("not a label of the map, scored as absence queries: quadcopter") for m in said
+    )
+    assert not any("no item of the map carries" in m for m in said), said
+    # a label of the map that no item carries is still said to be one
+    three = LatentMap(
+        lmap.embeddings,
+        kind="voxels",
+        grid_index=lmap.grid_index,
+        voxel_size=0.1,
+        labels=np.asarray(lmap.labels),
+        label_names=[*lmap.label_names, "drone"],
+    )
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="quash_plugins.evaluation"):
+        evaluate(three, [peer], queries=["forklift", "quadcopter=drone"])
+    said = [r.getMessage() for r in caplog.records]
+    assert any(
+        m.endswith("no item of the map carries, scored as absence queries: quadcopter")
+        for m in said
+    )
+    assert not any("not a label of the map" in m for m in said), said
