@@ -529,9 +529,24 @@ def _check_mask(mask: np.ndarray, path: Path) -> np.ndarray:
         raise MapFormatError(f"{path}: field 'mask_full' must be 1-D (N,); got {mask.shape}.")
     if mask.dtype != bool:
         if mask.dtype.kind not in "iu" or (mask.size and not np.isin(mask, (0, 1)).all()):
-            raise MapFormatError(f"{path}: field 'mask_full' must be bool; got {mask.dtype}.")
+            raise MapFormatError(
+                f"{path}: field 'mask_full' must be bool; got {mask.dtype}.{_indices_hint(mask)}"
+            )
         mask = mask.astype(bool)
     return mask
+
+
+def _indices_hint(mask: np.ndarray) -> str:
+    """The fix for a ``mask_full`` of point indices: OpenScene's is a bool mask."""
+    if mask.dtype.kind not in "iu" or not mask.size or int(mask.min()) < 0:
+        return ""
+    return (
+        f" Its {mask.size} values (0 to {int(mask.max())}) look like the indices of the "
+        "featured points; OpenScene saves a bool mask over all the scene's points, True "
+        "where 'feat' has a row, row j being the j-th True point. Build it and save the .pt "
+        "again: m = np.zeros(n_points, bool); m[idx] = True (n_points: the scene's point "
+        "count), with 'feat' as feat[np.argsort(idx)] if idx is not sorted."
+    )
 
 
 def read_points(path: Path) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:

@@ -16,7 +16,7 @@ from quash_plugins.adapters import read_map
 from quash_plugins.core.errors import MapFormatError
 
 
-def _scene(root: Path, n: int = 40, d: int = 8):
+def _scene(root: Path, n: int = 40, d: int = 8, visible=None):
     rng = np.random.default_rng(7)
     coords = rng.uniform(-2, 2, size=(n, 3))
     pth = preprocess_scannet(
@@ -26,7 +26,11 @@ def _scene(root: Path, n: int = 40, d: int = 8):
         rng.integers(0, 3, size=n).astype(np.float64),
     )
     [pt] = save_fused_feature(
-        rng.normal(size=(n, d)), np.arange(n), n, root / "openseg", "scene0011_00"
+        rng.normal(size=(n, d)),
+        np.arange(n) if visible is None else visible,
+        n,
+        root / "openseg",
+        "scene0011_00",
     )
     return pth, pt, coords
 
@@ -54,3 +58,27 @@ def test_points_npy_with_rgb_columns_or_transposed_say_how_to_save_them(
     np.save(xyz, arr[:, :3] if layout == "xyzrgb" else arr.T)
     lmap = read_map(pt, "openscene", points=str(xyz))
     np.testing.assert_allclose(lmap.positions, coords.astype(np.float32))
+
+
+def test_mask_full_of_point_indices_says_how_to_build_the_bool_mask(tmp_path):
+    """OpenScene's save_fused_feature writes mask_full as a bool mask over all points;
+    a .pt holding the indices of the featured points instead was refused with only
+    "field 'mask_full' must be bool; got int64"."""
+    import torch
+
+    pth, pt, _ = _scene(tmp_path, visible=np.arange(3, 40, 2))
+    saved = torch.load(pt, weights_only=True)
+    idx = torch.nonzero(saved["mask_full"])[:, 0]
+    torch.save({"feat": saved["feat"], "mask_full": idx}, pt)
+    with pytest.raises(MapFormatError) as refused:
+        read_map(pt, "openscene", points=str(pth))
+    msg = str(refused.value)
+    assert str(pt) in msg and "'mask_full' must be bool" in msg and "int64" in msg, msg
+    assert "indices" in msg and "m = np.zeros(n_points, bool); m[idx] = True" in msg, msg
+    assert "feat[np.argsort(idx)]" in msg, msg
+    # the fix the message gives reads the map
+    m = np.zeros(40, bool)
+    m[idx.numpy()] = True
+    torch.save({"feat": saved["feat"], "mask_full": torch.from_numpy(m)}, pt)
+    lmap = read_map(pt, "openscene", points=str(pth), all_points=False)
+    assert lmap.n == 19 and lmap.source["featured_points"] == 19
