@@ -393,7 +393,7 @@ class OpenSceneAdapter(MapAdapter):
             keep = mask
         names = load_label_names(opts["label_names"])
         kept_labels = labels[keep] if labels is not None else None
-        names = fit_label_names(names, kept_labels)
+        names = fit_label_names(names, kept_labels, opts["label_names"], points_path)
         hint = {768: "openseg ViT-L/14@336 768", 512: "lseg CLIP ViT-B/32 512"}.get(
             d, f"{d}-d features"
         )

@@ -295,16 +295,36 @@ def check_labels(labels: Any, n: int, where: str, field: str) -> np.ndarray:
     return arr.astype(np.int64)
 
 
-def fit_label_names(names: list[str] | None, labels: np.ndarray | None) -> list[str] | None:
-    """Pad ``names`` with ``label_<id>`` so every label id in ``labels`` has a name."""
+def fit_label_names(
+    names: list[str] | None,
+    labels: np.ndarray | None,
+    names_from: Any = None,
+    labels_from: Any = None,
+) -> list[str] | None:
+    """Pad ``names`` with ``label_<id>`` so every label id in ``labels`` has a name.
+
+    ``names_from`` (the ``label_names`` spec: a file is named in the warning) and
+    ``labels_from`` (the file the labels were read from) only word the warning.
+    """
     if names is None or labels is None or labels.size == 0:
         return names
     top = int(labels.max())
     if top >= len(names):
+        given = (
+            f"in {Path(names_from).expanduser()}; add the missing names to that file "
+            "(index = label id)"
+            if isinstance(names_from, (str, Path))
+            else "in the label_names option; give one name per label id"
+        )
         log.warning(
-            "label ids reach %d but only %d label names were given; padding with label_<id>",
+            "label ids%s reach %d but only %d label names were given %s; padding with "
+            "label_<id> for ids %d to %d",
+            f" in {labels_from}" if labels_from else "",
             top,
             len(names),
+            given,
+            len(names),
+            top,
         )
         names = [*names, *(f"label_{i}" for i in range(len(names), top + 1))]
     return names

@@ -82,3 +82,18 @@ def test_mask_full_of_point_indices_says_how_to_build_the_bool_mask(tmp_path):
     torch.save({"feat": saved["feat"], "mask_full": torch.from_numpy(m)}, pt)
     lmap = read_map(pt, "openscene", points=str(pth), all_points=False)
     assert lmap.n == 19 and lmap.source["featured_points"] == 19
+
+
+def test_too_few_label_names_warning_names_the_label_name_file(tmp_path, caplog):
+    """The warning 'label ids reach X but only Y label names were given' did not say
+    which file of names was short, nor where the label ids came from."""
+    pth, pt, _ = _scene(tmp_path)  # ScanNet labels 0, 1, 2
+    names = tmp_path / "names.txt"
+    names.write_text("wall\nfloor\n")
+    with caplog.at_level("WARNING"):
+        lmap = read_map(pt, "openscene", points=str(pth), label_names=str(names))
+    assert lmap.label_names == ["wall", "floor", "label_2"]
+    [record] = [r for r in caplog.records if "label names were given" in r.getMessage()]
+    msg = record.getMessage()
+    assert f"in {names}; add the missing names to that file" in msg, msg
+    assert f"label ids in {pth} reach 2" in msg and "ids 2 to 2" in msg, msg
