@@ -251,7 +251,7 @@ class ImageFeaturesAdapter(MapAdapter):
                 folder,
                 ", ".join(IMAGE_DIRS),
             )
-        colors = self._colors(frames, images) if any(images) else None
+        colors = self._colors(frames, images, image_dirs) if any(images) else None
         log.debug(
             "image-features: %d frames, %d pixels x %d (%s)", len(frames), emb.shape[0], dim, dtype
         )
@@ -288,7 +288,9 @@ class ImageFeaturesAdapter(MapAdapter):
         return [d for d in dirs if d.is_dir()]
 
     @staticmethod
-    def _colors(frames: list[FrameInfo], images: list[Path | None]) -> np.ndarray:
+    def _colors(
+        frames: list[FrameInfo], images: list[Path | None], image_dirs: list[Path]
+    ) -> np.ndarray:
         total = sum(f.size for f in frames)
         out = np.full((total, 3), 128, dtype=np.uint8)
         found = sum(1 for i in images if i is not None)
@@ -315,10 +317,18 @@ class ImageFeaturesAdapter(MapAdapter):
                 "; ".join(turned[:3]),
                 ", ..." if len(turned) > 3 else "",
             )
-        missing = sum(1 for i in images if i is None)
+        missing = [fr.frame_id for fr, i in zip(frames, images) if i is None]
         if missing:
             log.warning(
-                "%d of %d frames have no RGB image; they are shown grey", missing, len(frames)
+                "%d of %d frames have no RGB image (%s%s): none named after the frame "
+                "(%s.png, .jpg, .jpeg) in %s; they are shown grey. Put their images there "
+                "under the frames' names, or name the images' folder with -o images=DIR",
+                len(missing),
+                len(frames),
+                ", ".join(missing[:3]),
+                ", ..." if len(missing) > 3 else "",
+                missing[0],
+                ", ".join(str(d) for d in image_dirs),
             )
         return out
 
