@@ -35,8 +35,9 @@ examples:
 A query file is {present: {text: label} or [labels], absent: [texts]}.
 The JSON holds {"configs": [{"name", "given", "mean": {precision, recall, f1, iou, ap,
 inv_rank} (null with no present query), "per_query": {query: {label, ...}}, "absence":
-{score, empty_tolerance, present_empty, per_query}}], "provenance": {quash_plugins (the
-version), map: {path, adapter, ...}, query_file, queries: {text: label}, absent,
+{score, empty_tolerance, present_empty, per_query: {query: {label (from the queries),
+matched, empty}}}}], "provenance": {quash_plugins (the version), map: {path, adapter,
+...}, query_file, queries: {text: label}, absent, absent_labels: {text: label},
 configs: [{name, file, shipped, encoder}], exclude, empty_tolerance}}.
 Outputs never replace an input; an existing file is replaced only when it is a previous
 quash report, plot or quash recording, or with --force."""

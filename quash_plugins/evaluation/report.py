@@ -376,6 +376,9 @@ def evaluate(
             )
         masks = {q: r.mask for q, r in zip(texts, results)}
         ab = absence_score({q: masks[q] for q in absence}, valid, empty_tolerance)
+        for q in absence:  # an absence query of the queries: its label ('bunk bed=bed')
+            if q in gt_of:
+                ab["per_query"][q] = {"label": gt_of[q], **ab["per_query"][q]}
         # empty as an absence query's mask is: at most empty_tolerance counted items
         ab["present_empty"] = sum(1 for m in per_query.values() if m["n_pred"] <= empty_tolerance)
         out.append(
@@ -399,6 +402,7 @@ def evaluate(
         query_file=query_file,
         exclude=exclude,
         empty_tolerance=empty_tolerance,
+        absent_labels={q: gt_of[q] for q in absence if q in gt_of},
     )
     return EvalReport(out, presence, absence, all_results, prov)
 
@@ -411,13 +415,16 @@ def eval_provenance(
     query_file: str | Path | None = None,
     exclude: Sequence[str] = DEFAULT_EXCLUDE,
     empty_tolerance: int = 0,
+    absent_labels: dict[str, str] | None = None,
 ) -> dict[str, Any]:
     """What an evaluation scored, as JSON-ready data (the ``provenance`` of its JSON).
 
     ``quash_plugins``: the package version; ``map``: the map's source (its ``path`` and
     ``adapter``, and what the file records of the encoder that built it); ``query_file``
     (None without one); ``queries``: ``{text: label}`` of the presence queries;
-    ``absent``: the absence queries; ``configs``: per table row its ``name``, the
+    ``absent``: the absence queries (the texts queried); ``absent_labels``: ``{text:
+    label}`` of those that came from the queries (``bunk bed=bed`` whose label no item
+    carries); ``configs``: per table row its ``name``, the
     config ``file`` it was read from (None for the default config, a dict or an object),
     the ``shipped`` name of a shipped config (else None), its ``encoder`` and
     ``templates``: where its prompt templates came from (None without templates; "our
@@ -434,6 +441,7 @@ def eval_provenance(
         "query_file": str(query_file) if query_file else None,
         "queries": dict(queries),
         "absent": list(absent),
+        "absent_labels": dict(absent_labels or {}),
         "configs": [_config_provenance(name, quash) for name, quash in configs],
         "exclude": list(exclude),
         "empty_tolerance": empty_tolerance,
@@ -606,16 +614,22 @@ def report_markdown(
     if per_query and ab_q:
         tol = int((configs[0].get("absence") or {}).get("empty_tolerance") or 0)
         correct = f"at most {tol} = correct" if tol else "0 = correct"
+        ab_label = {q: configs[0]["absence"]["per_query"][q].get("label", "") for q in ab_q}
+        show = any(label and label != q for q, label in ab_label.items())
         lines += [
             "",
             f"Items matched by absence queries ({correct}):",
             "",
-            "| absence query | " + " | ".join(c["name"] for c in configs) + " |",
-            "|---|" + "---:|" * len(configs),
+            "| absence query | "
+            + ("label | " if show else "")
+            + " | ".join(c["name"] for c in configs)
+            + " |",
+            "|---|" + ("---|" if show else "") + "---:|" * len(configs),
         ]
         for q in ab_q:
             row = [str(c["absence"]["per_query"][q]["matched"]) for c in configs]
-            lines.append(f"| {q} | " + " | ".join(row) + " |")
+            label = f"{ab_label[q]} | " if show else ""
+            lines.append(f"| {q} | {label}" + " | ".join(row) + " |")
     return "\n".join(lines) + "\n"
 
 

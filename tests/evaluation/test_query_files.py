@@ -615,3 +615,35 @@ def test_the_log_says_a_querys_label_is_not_a_label_of_the_map_not_that_no_item_
         for m in said
     )
     assert not any("not a label of the map" in m for m in said), said
+
+
+def test_an_open_vocabulary_absence_query_keeps_its_label_in_the_report():
+    """'quadcopter=drone' on a map without drones is an absence query; the absence table,
+    the JSON and provenance.absent said 'quadcopter' alone, as if it were free text."""
+    import json
+
+    from quash_plugins.evaluation import evaluate
+
+    lmap, peer = _robot_map_and_peer()
+    queries = ["forklift", "quadcopter=drone"]
+    labelled = dict(q.split("=") for q in queries if "=" in q)
+    rep = evaluate(lmap, [peer], queries=queries, absent=["a giraffe"])
+    # scored as before: the text is the query, as if it were given under --absent
+    plain = evaluate(lmap, [peer], queries=["forklift"], absent=[*labelled, "a giraffe"])
+    assert rep.absent == plain.absent == [*labelled, "a giraffe"]
+    ab, ab0 = rep.configs[0]["absence"], plain.configs[0]["absence"]
+    assert ab["score"] == ab0["score"]
+    for q, row in ab["per_query"].items():
+        assert {k: v for k, v in row.items() if k != "label"} == ab0["per_query"][q]
+        assert row.get("label") == labelled.get(q)
+    data = json.loads(json.dumps(rep.to_json()))
+    assert data["provenance"]["absent"] == rep.absent
+    assert data["provenance"]["absent_labels"] == labelled
+    assert plain.provenance["absent_labels"] == {}
+    md = rep.to_markdown()
+    assert "| absence query | label | peer |" in md
+    for q, label in labelled.items():
+        assert f"| {q} | {label} | " in md
+    assert "| a giraffe |  | " in md
+    # free text alone: no label column (the demo's tables are unchanged)
+    assert "| absence query | peer |" in plain.to_markdown()
