@@ -366,7 +366,7 @@ class VLMapsAdapter(MapAdapter):
         if names_spec is None and labels is not None:
             names_spec = find_obj2cls(path, levels=2)
         names = load_label_names(names_spec)
-        names = fit_label_names(names, labels)
+        names = fit_label_names(names, labels, names_spec, f"{where} ({sem})")
         if "mapped_iter_list" in f:
             source["frames_fused"] = int(np.asarray(f["mapped_iter_list"]).size)
         source.update(encoder_record(dict(f.attrs)))

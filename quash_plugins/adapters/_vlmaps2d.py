@@ -229,7 +229,7 @@ class VLMaps2DAdapter(MapAdapter):
         names_spec = opts["label_names"]
         if names_spec is None and labels is not None:
             names_spec = find_obj2cls(grid_path.parent, levels=1)
-        names = fit_label_names(load_label_names(names_spec), labels)
+        names = fit_label_names(load_label_names(names_spec), labels, names_spec, gt_path)
         read = [p for p in (color_path, gt_path, obstacles_path) if p.is_file()]
         record_inputs(source, *read, names_spec)  # the companions read beside the grid
         return LatentMap(

@@ -254,7 +254,12 @@ class VLMapsLiveAdapter(MapAdapter):
         sem = getattr(source, "grid_semantic", None)
         if sem is not None:
             labels = check_labels(as_array(sem), n, where, "grid_semantic")
-        names = fit_label_names(load_label_names(opts["label_names"]), labels)
+        names = fit_label_names(
+            load_label_names(opts["label_names"]),
+            labels,
+            opts["label_names"],
+            f"{where} (grid_semantic)",
+        )
         return LatentMap(
             embeddings=feat,  # read as it is: the pipeline never writes into it
             kind="voxels",

@@ -665,3 +665,24 @@ def test_a_mobile_base_maps_default_cell_size_is_said_and_recorded(tmp_path, cap
         given = read_map(h5, cs=0.1)
     assert given.source["cs_from"] == "option" and "store no cell size" not in caplog.text
     assert np.allclose(given.positions, 2 * default.positions, atol=1e-5)
+
+
+def test_too_few_label_names_names_the_file_found_beside_the_map(tmp_path, caplog):
+    """VLMaps' obj2cls_dict.txt, found beside the scene, with fewer names than the map's
+    grid_semantic ids: the padding warning named neither that file nor the map."""
+    import logging
+
+    from quash_plugins.adapters import read_map
+
+    h5 = write_vlmaps_h5df(
+        tmp_path / "scene" / "vlmap" / "vlmaps.h5df", mobile_map(d=8), semantic=np.arange(50) % 4
+    )
+    names = tmp_path / "scene" / "obj2cls_dict.txt"
+    names.write_text("0: 0, chair\n1: 1, sofa\n")
+    with caplog.at_level(logging.WARNING, logger="quash_plugins.adapters"):
+        lmap = read_map(h5)
+    assert lmap.label_names == ["chair", "sofa", "label_2", "label_3"]
+    said = " ".join(caplog.text.split())
+    assert f"label ids in {h5} (grid_semantic) reach 3" in said
+    assert f"only 2 label names were given in {names}" in said
+    assert "add the missing names to that file" in said
