@@ -141,7 +141,13 @@ def find_shipped(name: str) -> ShippedConfig:
     configs = {c.name: c for c in shipped_configs()}
     if name in configs:
         return configs[name]
-    guess = closest(name, configs)
+    group, sep, rest = name.partition(":")
+    same = {c.partition(":")[2]: c for c in configs if sep and c.startswith(f"{group}:")}
+    if same:  # within the group: 'demo:' alone made 'demo:nope' look like 'demo:lerf'
+        near = closest(rest, same)
+        guess = same[near] if near else None
+    else:
+        guess = closest(name, configs)
     hint = f" Did you mean {guess}?" if guess else ""
     raise ConfigError(
         f"No shipped config is named {name!r}.{hint} Shipped: {', '.join(configs)} "

@@ -56,6 +56,13 @@ def test_names_resolve_and_mistakes_say_what_exists(tmp_path, monkeypatch):
     assert resolve_config_path("demo:quash-taxonomy").name == "demo-quash-taxonomy.yaml"
     with pytest.raises(ConfigError, match="Did you mean demo:quash-taxonomy"):
         find_shipped("demo:quash-taxnomy")
+    # a name like none in its group gets no guess: 'demo:' alone made 'demo:nope' look
+    # like 'demo:lerf'; a misspelt group is still guessed whole
+    with pytest.raises(ConfigError) as err:
+        find_shipped("demo:nope")
+    assert "Did you mean" not in str(err.value) and "demo:lerf," in str(err.value)
+    with pytest.raises(ConfigError, match="Did you mean demo:vlmaps"):
+        find_shipped("dmeo:vlmaps")
     with pytest.raises(ConfigError, match=r"Config file not found: quash\.yaml.*demo:vlmaps"):
         resolve_config_path("quash.yaml")
     # A file of that name wins over the shipped one.
