@@ -232,7 +232,7 @@ def _rebuilt(enc: Any) -> Any:
 _OTHER_PROCESS = """
 import importlib, json, sys
 import numpy as np
-spec = json.loads(sys.argv[1])
+spec = json.loads(sys.stdin.read())
 sys.path[:0] = [p for p in spec["path"] if p not in sys.path]
 obj = importlib.import_module(spec["module"])
 for part in spec["qualname"].split("."):
@@ -282,7 +282,10 @@ def check_encoder_same_in_another_process(enc: Any, tmp_path: Path) -> None:
     seed = "2" if os.environ.get("PYTHONHASHSEED") == "1" else "1"
     try:
         done = subprocess.run(
-            [sys.executable, "-c", _OTHER_PROCESS, spec],
+            # the parameters on stdin, not the command line, which other users of the
+            # machine can read (an encoder's API key is a parameter)
+            [sys.executable, "-c", _OTHER_PROCESS],
+            input=spec,
             env={**os.environ, "PYTHONHASHSEED": seed},
             capture_output=True,
             text=True,

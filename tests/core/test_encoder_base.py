@@ -842,3 +842,35 @@ def test_the_other_process_is_given_paths_and_numpy_numbers(tmp_path):
     enc = _HashSeededFromFiles(tmp_path, np.int64(8))
     with pytest.raises(AssertionError, match="differs in another Python process"):
         check_encoder_same_in_another_process(enc, tmp_path)
+
+
+class _HashSeededWithKey(_HashSeeded):
+    """An encoder with a credential among its parameters (a hosted model's API key)."""
+
+    name = "hash-seeded-key"
+
+    def __init__(self, api_key: str = "", dim: int = 8) -> None:
+        self._api_key = api_key
+        super().__init__(dim)
+
+
+def test_the_other_process_gets_the_parameters_on_stdin_not_the_command_line(tmp_path, monkeypatch):
+    """A process's command line is readable by every user of the machine: an encoder's
+    API key must not be put on it (it was, inside the JSON spec)."""
+    import subprocess
+
+    from quash_plugins.testing._checks import check_encoder_same_in_another_process
+
+    calls = []
+    real = subprocess.run
+
+    def spy(args, *a, **kw):
+        calls.append((list(args), kw.get("input")))
+        return real(args, *a, **kw)
+
+    monkeypatch.setattr(subprocess, "run", spy)
+    with pytest.raises(AssertionError, match="differs in another Python process"):
+        check_encoder_same_in_another_process(_HashSeededWithKey("sk-not-on-argv"), tmp_path)
+    [(argv, given)] = calls
+    assert not any("sk-not-on-argv" in a for a in argv)
+    assert "sk-not-on-argv" in given  # the other process still builds it with the key
