@@ -22,9 +22,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _kind(text: str) -> str:
-    """``encoder`` and ``Encoders`` read as ``encoders``: a config's sections are singular."""
-    plural = text.strip().lower().rstrip("s") + "s"
-    return plural if plural in KINDS else text
+    """``encoder`` and ``Encoders`` read as ``encoders``, as the registry reads a kind (a
+    config's sections are singular); anything else is left for argparse to refuse as typed."""
+    from ..core.errors import PluginError
+    from ..core.registry import normalize_kind
+
+    try:
+        return normalize_kind(text)
+    except PluginError:
+        return text
 
 
 def config_name(info: Any, infos: list[Any]) -> str:

@@ -831,6 +831,14 @@ def test_plugins_kind_takes_the_singular_a_config_section_uses(kind, capsys):
     assert rows and {r["kind"] for r in rows} == {"encoders"}
 
 
+def test_plugins_kind_choices_are_the_registrys_kinds():
+    """The choices are written out so that building the parser imports no registry."""
+    from quash_plugins.cli import cmd_plugins
+    from quash_plugins.core import registry
+
+    assert cmd_plugins.KINDS == registry.KINDS
+
+
 def test_plugins_kind_still_refuses_an_unknown_kind(capsys):
     with pytest.raises(SystemExit) as stop:
         run_cli("plugins", "--kind", "mapper", capsys=capsys)
