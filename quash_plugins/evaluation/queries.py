@@ -60,7 +60,7 @@ def parse_queries(queries: Any, source: str = "") -> dict[str, str]:
             items.append((text, label if sep else text))
     out: dict[str, str] = {}
     kept: dict[str, str] = {}  # a query text without case: the spelling scored
-    twice: dict[str, list[str]] = {}
+    texts: list[str] = []
     for text, label in items:
         text, label = " ".join(text.split()), " ".join(label.split())
         if not text or not label:
@@ -78,9 +78,8 @@ def parse_queries(queries: Any, source: str = "") -> dict[str, str]:
                 f"{label!r}: give each query text one ground-truth label."
             )
         out.setdefault(first, label)
-        if text != first and text not in twice.setdefault(first, []):
-            twice[first].append(text)
-    say_twice("queries", twice, source)
+        texts.append(text)
+    say_twice("queries", one_per_spelling(texts)[1], source)
     return out
 
 
