@@ -86,3 +86,21 @@ def save_fused_feature(
         torch.save({"feat": feat_bank[mask_full].half().cpu(), "mask_full": mask_full}, path)
         paths.append(path)
     return paths
+
+
+def small_scannet_scene(root, n=40, d=8, seed=0, visible=None):
+    """One small ScanNet scene, ``root/scannet_3d/val/scene0011_00_vh_clean_2.pth`` (labels
+    0-2) and ``root/openseg/scene0011_00_0.pt`` (the points in ``visible``, default all);
+    returns ``(pth, pt, coords, feat_bank)``."""
+    rng = np.random.default_rng(seed)
+    coords = rng.uniform(-2, 2, size=(n, 3))
+    pth = preprocess_scannet(
+        Path(root) / "scannet_3d" / "val" / "scene0011_00_vh_clean_2.pth",
+        coords,
+        rng.integers(0, 256, size=(n, 3)),
+        rng.integers(0, 3, size=n).astype(np.float64),
+    )
+    feat_bank = rng.normal(size=(n, d))
+    ids = np.arange(n) if visible is None else visible
+    [pt] = save_fused_feature(feat_bank, ids, n, Path(root) / "openseg", "scene0011_00")
+    return pth, pt, coords, feat_bank

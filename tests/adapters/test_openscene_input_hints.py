@@ -10,29 +10,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from _openscene_writers import preprocess_scannet, save_fused_feature
+from _openscene_writers import small_scannet_scene
 
 from quash_plugins.adapters import read_map
 from quash_plugins.core.errors import MapFormatError
 
 
-def _scene(root: Path, n: int = 40, d: int = 8, visible=None):
-    rng = np.random.default_rng(7)
-    coords = rng.uniform(-2, 2, size=(n, 3))
-    pth = preprocess_scannet(
-        root / "scannet_3d" / "val" / "scene0011_00_vh_clean_2.pth",
-        coords,
-        rng.integers(0, 256, size=(n, 3)),
-        rng.integers(0, 3, size=n).astype(np.float64),
-    )
-    [pt] = save_fused_feature(
-        rng.normal(size=(n, d)),
-        np.arange(n) if visible is None else visible,
-        n,
-        root / "openseg",
-        "scene0011_00",
-    )
-    return pth, pt, coords
+def _scene(root: Path, visible=None):
+    return small_scannet_scene(root, seed=7, visible=visible)[:3]
 
 
 @pytest.mark.parametrize(

@@ -12,23 +12,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from _openscene_writers import preprocess_scannet, save_fused_feature
+from _openscene_writers import preprocess_scannet, small_scannet_scene
 
 from quash_plugins.adapters import read_map
 from quash_plugins.core.errors import MapFormatError
 
 
-def _scene(root: Path, n: int = 40, d: int = 8):
-    rng = np.random.default_rng(4)
-    coords = rng.uniform(-2, 2, size=(n, 3))
-    pth = preprocess_scannet(
-        root / "scannet_3d" / "val" / "scene0011_00_vh_clean_2.pth",
-        coords,
-        rng.integers(0, 256, size=(n, 3)),
-        rng.integers(0, 3, size=n).astype(np.float64),
-    )
-    feat_bank = rng.normal(size=(n, d))
-    [pt] = save_fused_feature(feat_bank, np.arange(n), n, root / "openseg", "scene0011_00")
+def _scene(root: Path):
+    pth, pt, _, feat_bank = small_scannet_scene(root, seed=4)
     return pth, pt, feat_bank
 
 
