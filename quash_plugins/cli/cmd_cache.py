@@ -55,8 +55,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
             default=None,
             metavar="DIR",
             help="Text-embedding cache directory (default: $QUASH_CACHE_DIR/text-embeddings, "
-            "else the user cache directory); with --llm, the LLM query-set folder (default: "
-            "$QUASH_CACHE_DIR/llm; a config's heuristic cache_dir).",
+            "else the user cache directory); given, only this folder is shown or cleared "
+            "(no LLM query sets). With --llm, the LLM query-set folder (default: "
+            "$QUASH_CACHE_DIR/llm, else the user cache directory; or a config's heuristic "
+            "cache_dir).",
         )
 
 
@@ -81,7 +83,9 @@ def run(args: argparse.Namespace) -> int:
     if args.llm:
         return _run_llm(args, action, out)
     cache = TextEmbeddingCache(args.dir)
-    llm = llm_cache_info()
+    # --dir names one text-embedding folder: only what it holds is shown, not the
+    # default LLM folder's query sets (those belong to no --dir)
+    llm = None if args.dir else llm_cache_info()
     if action == "clear":
         if args.fingerprint is not None and not cache._dir(args.fingerprint).is_dir():
             from ..core.errors import UsageError
@@ -94,7 +98,7 @@ def run(args: argparse.Namespace) -> int:
         freed = cache.clear(args.fingerprint)
         what = f"fingerprint {args.fingerprint}" if args.fingerprint else "all text embeddings"
         out.print(safe_text(f"cleared {what} from {cache.directory} ({_size(freed)} freed)"))
-        if llm["sets"]:
+        if llm and llm["sets"]:
             out.print(
                 safe_text(
                     f"kept {_sets(llm['sets'])} in {llm['directory']} (quash cache clear --llm "
@@ -104,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
         return 0
     info = cache.info()
     if args.json:
-        print_json({**info, "llm": llm})
+        print_json(info if llm is None else {**info, "llm": llm})
         return 0
     out.print(f"directory: {safe_text(info['directory'])}")
     out.print(
@@ -129,7 +133,8 @@ def run(args: argparse.Namespace) -> int:
             when = datetime.datetime.fromtimestamp(e["last_used"]).strftime("%Y-%m-%d %H:%M")
             table.add_row(safe_text(e["fingerprint"]), str(e["entries"]), _size(e["bytes"]), when)
         out.print(table)
-    _print_llm(llm, out)
+    if llm is not None:
+        _print_llm(llm, out)
     return 0
 
 
