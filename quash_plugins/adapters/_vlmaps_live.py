@@ -84,6 +84,25 @@ def pose_type_of(vlmap: Any) -> str | None:
     return str(value) if value is not None else None
 
 
+def _loaded_from(vlmap: Any, option: Any, where: str) -> str | None:
+    """The file a live map was loaded from: the ``path`` option, or with ``"auto"``
+    ``vlmap.map_save_path`` (``VLMap.load_map`` sets it) when that file exists."""
+    if option is None:
+        return None
+    if isinstance(option, str) and option == "auto":
+        saved = getattr(vlmap, "map_save_path", None)
+        if isinstance(saved, (str, Path)) and str(saved) and Path(saved).is_file():
+            return str(saved)
+        return None
+    if not isinstance(option, (str, Path)) or not Path(option).is_file():
+        raise MapFormatError(
+            f"{where}: path={option!r} is not a file. Give the file the map was loaded "
+            "from (VLMaps: DATA_DIR/vlmap_cam/vlmaps_cam.h5df or DATA_DIR/vlmap/vlmaps.h5df), "
+            "'auto' (vlmap.map_save_path) or None."
+        )
+    return str(option)
+
+
 class VLMapsLiveAdapter(MapAdapter):
     """Read a live VLMaps ``VLMap`` (or any object with ``grid_feat`` and ``grid_pos``).
 
@@ -102,6 +121,12 @@ class VLMapsLiveAdapter(MapAdapter):
         has ``pcd_min``), ``"mobile_base"`` or ``"camera_base"``.
     label_names
         Names for an optional ``grid_semantic`` attribute (see the ``vlmaps`` adapter).
+    path
+        The file the live map was loaded from, recorded as ``source["path"]`` so that
+        the taxonomy beside it (``MAP.taxonomy.yaml``, which ``quash convert --format
+        vlmaps`` writes) is found as it is for the file. ``"auto"`` (the default) takes
+        ``vlmap.map_save_path`` (set by ``VLMap.load_map``) when that file exists; a
+        path names it (it must exist); None records no file.
 
     Examples
     --------
@@ -127,12 +152,14 @@ class VLMapsLiveAdapter(MapAdapter):
         pose_type: str = "auto",
         label_names: Any = None,
         positions: str = "centre",
+        path: str | Path | None = "auto",
     ) -> None:
         self.gs = gs
         self.cs = cs
         self.pose_type = pose_type
         self.label_names = label_names
         self.positions = positions
+        self.path = path
 
     def sniff(self, source: Any) -> bool:
         try:
@@ -241,6 +268,9 @@ class VLMapsLiveAdapter(MapAdapter):
         else:
             raise MapFormatError(f"{where}: unknown map_config.pose_info.pose_type {pose_type!r}.")
         source_meta["up"] = UP_AXIS[pose_type]
+        loaded_from = _loaded_from(source, opts["path"], where)
+        if loaded_from is not None:
+            source_meta["path"] = loaded_from
         colors = None
         rgb = getattr(source, "grid_rgb", None)
         if rgb is not None:

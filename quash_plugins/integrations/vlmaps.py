@@ -66,7 +66,7 @@ _CACHE_ATTR = "_quash_latent_map"
 _QUASH_ATTR = "_quash"
 _ORIGINAL_ATTR = "_vlmaps_index_map"
 #: What the live adapter reads of a VLMap besides its arrays: a change reads the map anew.
-_LIVE_SETTINGS = ("cs", "gs", "pcd_min", "map_config")
+_LIVE_SETTINGS = ("cs", "gs", "pcd_min", "map_config", "map_save_path")
 
 
 def resolve_quash(quash: Any, vlmap: Any = None) -> Any:
@@ -116,7 +116,7 @@ def _plain(value: Any) -> Any:
 
 def as_latent_map(vlmap: Any, **options: Any) -> LatentMap:
     """The live VLMap as a :class:`LatentMap`, cached on the object until its arrays or
-    its settings (``cs``, ``gs``, ``pcd_min``, ``map_config``) change.
+    its settings (``cs``, ``gs``, ``pcd_min``, ``map_config``, ``map_save_path``) change.
 
     ``options`` are those of the ``vlmaps-live`` adapter (``gs``, ``cs``, ``pose_type``,
     ``label_names``).
