@@ -70,8 +70,8 @@ def parse_queries(queries: Any, source: str = "") -> dict[str, str]:
                 "write an open-vocabulary query as TEXT=LABEL (e.g. 'bunk bed=bed'), with "
                 "neither side empty."
             )
-        first = kept.setdefault(text.casefold(), text)
-        if _fold(out.get(first, label)) != _fold(label):
+        first = kept.setdefault(spelling(text), text)
+        if label_key(out.get(first, label)) != label_key(label):
             also = f" (as {text!r})" if text != first else ""
             raise QuashError(
                 f"{what} {first!r} is given twice{also}, with the labels {out[first]!r} and "
@@ -93,7 +93,7 @@ def one_per_spelling(texts: Sequence[str]) -> tuple[list[str], dict[str, list[st
     kept: dict[str, str] = {}
     twice: dict[str, list[str]] = {}
     for t in texts:
-        first = kept.setdefault(" ".join(str(t).split()).casefold(), t)
+        first = kept.setdefault(spelling(t), t)
         if t != first and t not in twice.setdefault(first, []):
             twice[first].append(t)
     return list(kept.values()), {k: v for k, v in twice.items() if v}
@@ -113,7 +113,24 @@ def say_twice(what: str, twice: dict[str, list[str]], source: str | Path | None 
         )
 
 
-def _fold(name: str) -> str:
+def spelling(text: str) -> str:
+    """A query text as two queries are compared: the same query whatever its case and
+    spacing (:func:`one_per_spelling`; a present and an absence query are compared so
+    too).
+
+    >>> spelling("  Bar  Stool ")
+    'bar stool'
+    """
+    return " ".join(str(text).split()).casefold()
+
+
+def label_key(name: str) -> str:
+    """A label name as a query's label is matched to the map's names: case, spacing and
+    underscores ignored (:func:`match_labels`).
+
+    >>> label_key("TV_Monitor")
+    'tv monitor'
+    """
     return " ".join(str(name).replace("_", " ").split()).casefold()
 
 
@@ -144,16 +161,16 @@ def match_labels(
     exact = set(names)
     folded: dict[str, list[str]] = {}
     for n in names:
-        folded.setdefault(_fold(n), []).append(n)
-    listed_absent = {_fold(a) for a in absent}
+        folded.setdefault(label_key(n), []).append(n)
+    listed_absent = {label_key(a) for a in absent}
     out: dict[str, str] = {}
     for text, label in gt_of.items():
         if label not in exact:
-            same = folded.get(_fold(label), [])
+            same = folded.get(label_key(label), [])
             if len(same) == 1:
                 log.info("query %r: label %r is the map's label %r", text, label, same[0])
                 label = same[0]
-            elif _fold(label) not in listed_absent:
+            elif label_key(label) not in listed_absent:
                 near = _near_names(label, names)
                 if near:
                     raise QuashError(_typo_message(text, label, near, source))
@@ -180,8 +197,8 @@ def _near_names(label: str, names: Sequence[str]) -> list[str]:
     """The map's label names that ``label`` is a near miss of (closest first)."""
     from ..core.errors import close_names
 
-    by_fold = {_fold(n): n for n in names}
-    return [by_fold[f] for f in close_names(_fold(label), by_fold, cutoff=TYPO_CUTOFF)]
+    by_fold = {label_key(n): n for n in names}
+    return [by_fold[f] for f in close_names(label_key(label), by_fold, cutoff=TYPO_CUTOFF)]
 
 
 def _typo_message(text: str, label: str, near: list[str], source: str | Path | None) -> str:
@@ -311,9 +328,13 @@ def read_query_file(
 
 
 __all__ = [
+    "label_key",
     "load_query_file",
     "match_labels",
+    "one_per_spelling",
     "parse_queries",
     "query_file_lookalikes",
     "read_query_file",
+    "say_twice",
+    "spelling",
 ]

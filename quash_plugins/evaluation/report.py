@@ -30,12 +30,13 @@ from ..core.errors import QuashError
 from ..core.types import LatentMap
 from .metrics import METRICS, RANKING, absence_score, macro_mean, query_metrics, valid_items
 from .queries import (
-    _fold,
+    label_key,
     load_query_file,
     match_labels,
     one_per_spelling,
     parse_queries,
     say_twice,
+    spelling,
 )
 
 log = logging.getLogger(__name__)
@@ -260,11 +261,11 @@ def plan_queries(
         )
     # a label that is no label of the map: match_labels warned about a TEXT=LABEL query
     # whose label is not listed absent; say the others (a label alone, or listed absent)
-    listed = {_fold(a) for a in absent}
+    listed = {label_key(a) for a in absent}
     no_label = [
         q
         for q in unknown_here
-        if gt_of[q] not in index and (q == gt_of[q] or _fold(gt_of[q]) in listed)
+        if gt_of[q] not in index and (q == gt_of[q] or label_key(gt_of[q]) in listed)
     ]
     if no_label:
         log.info(
@@ -479,17 +480,24 @@ def _check_absent(
     """Refuse an absence query that is a present query, or a label the map's items carry:
     its score would count a method that finds the object as wrong. An absence query in
     ``in_file`` came from ``query_file``'s ``absent`` (the present queries, when there is
-    a file, from the file too): the message names the file and the section."""
-    have = {" ".join(n.replace("_", " ").split()).casefold(): n for n, c in counts.items() if c}
+    a file, from the file too): the message names the file and the section. A present
+    and an absence query are the same query whatever their case and spacing
+    (:func:`~quash_plugins.evaluation.queries.spelling`): both spellings are named."""
+    have = {label_key(n): n for n, c in counts.items() if c}
+    present_as = {spelling(p): p for p in presence}
     for a in absent:
         here = f"under 'absent' in {query_file}" if a in in_file else "--absent"
-        if a in presence:
+        p = present_as.get(spelling(a))
+        if p is not None:
             there = f"in {query_file}" if query_file else "the queries"
-            raise QuashError(
-                f"{a!r} is both a present query ({there}) and an absence query ({here}): "
-                "remove it from one of them."
+            both = (
+                f"{a!r} is both a present query ({there}) and"
+                if p == a
+                else f"{p!r} is a present query ({there}) and {a!r}, the same query in "
+                "another case or spacing,"
             )
-        name = have.get(" ".join(a.replace("_", " ").split()).casefold())
+            raise QuashError(f"{both} an absence query ({here}): remove it from one of them.")
+        name = have.get(label_key(a))
         if name is not None:
             what = f"{query_file}: absence query {a!r} (under 'absent')"
             what = what if a in in_file else f"Absence query {a!r} (--absent)"

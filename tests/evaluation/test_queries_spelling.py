@@ -1,0 +1,106 @@
+"""A query is the same query whatever its case and spacing: one listed as present and
+again, in another case, as absent is refused naming both spellings; and the evaluation
+modules share that rule through public names, not each other's private helpers."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+from test_query_files import _robot_map_and_peer
+
+from quash_plugins.cli.main import main
+from quash_plugins.core.errors import QuashError
+from quash_plugins.evaluation import queries as queries_module
+
+
+@pytest.mark.parametrize(
+    ("present", "absent", "message"),
+    [
+        # an open-vocabulary text, absent in another case: it was scored both ways
+        (
+            ["a cobot=robot arm"],
+            ["A  Cobot"],
+            "'a cobot' is a present query (the queries) and 'A  Cobot', the same query in "
+            "another case or spacing, an absence query (--absent): remove it from one of them.",
+        ),
+        # a label of the map: the present spelling is named beside the absent one
+        (
+            ["Forklift"],
+            ["forklift"],
+            "'Forklift' is a present query (the queries) and 'forklift', the same query in "
+            "another case or spacing, an absence query (--absent)",
+        ),
+        # the same spelling keeps its message
+        (
+            ["a cobot=robot arm"],
+            ["a cobot"],
+            "'a cobot' is both a present query (the queries) and an absence query (--absent)",
+        ),
+    ],
+)
+def test_a_present_query_listed_absent_in_another_case_is_refused(present, absent, message):
+    from quash_plugins.evaluation import evaluate
+
+    lmap, peer = _robot_map_and_peer()
+    with pytest.raises(QuashError) as err:
+        evaluate(lmap, [peer], queries=present, absent=absent)
+    assert message in str(err.value)
+
+
+def test_a_query_file_listing_a_query_present_and_absent_in_another_case_names_both(
+    tmp_path, capsys
+):
+    from quash_plugins.adapters._npz import write_npz_map
+
+    lmap, _ = _robot_map_and_peer()
+    write_npz_map(lmap, tmp_path / "map.npz")
+    q = tmp_path / "q.yaml"
+    q.write_text("present:\n  A Cobot: robot arm\nabsent: [a giraffe, a cobot]\n")
+    assert main(["eval", str(tmp_path / "map.npz"), "--queries-file", str(q)]) == 1
+    err = " ".join(capsys.readouterr().err.split())
+    assert (
+        f"'A Cobot' is a present query (in {q}) and 'a cobot', the same query in another "
+        f"case or spacing, an absence query (under 'absent' in {q})"
+    ) in err
+
+
+def test_an_absent_text_whose_present_twin_is_itself_absent_is_still_one_query(caplog):
+    """A present TEXT=LABEL whose label the map lacks is an absence query itself: the same
+    text under --absent in another case is that query again, scored once, not refused."""
+    import logging
+
+    from quash_plugins.evaluation import evaluate
+
+    lmap, peer = _robot_map_and_peer()
+    with caplog.at_level(logging.WARNING, logger="quash_plugins.evaluation"):
+        rep = evaluate(
+            lmap, [peer], queries=["robot arm", "a giraffe=giraffe"], absent=["A Giraffe"]
+        )
+    assert rep.queries == ["robot arm"]
+    assert rep.absent == ["a giraffe"]
+
+
+def test_spelling_and_label_key_are_the_rules_the_query_lists_use():
+    assert queries_module.spelling(" A  Cobot ") == queries_module.spelling("a cobot")
+    assert queries_module.spelling("robot_arm") != queries_module.spelling("robot arm")
+    assert queries_module.label_key("Robot_Arm") == queries_module.label_key("robot  arm")
+    kept, twice = queries_module.one_per_spelling(["a cobot", "A  Cobot"])
+    assert kept == ["a cobot"] and twice == {"a cobot": ["A  Cobot"]}
+
+
+def test_no_evaluation_module_imports_another_modules_private_name():
+    """report.py imported queries._fold: a private helper used across modules is a
+    public name of the module that owns it."""
+    folder = Path(queries_module.__file__).parent
+    private = []
+    for path in sorted(folder.glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.ImportFrom) and node.module and node.level:
+                private += [
+                    f"{path.name}: from {'.' * node.level}{node.module} import {a.name}"
+                    for a in node.names
+                    if a.name.startswith("_")
+                ]
+    assert private == []
