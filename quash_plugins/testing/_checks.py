@@ -165,13 +165,38 @@ def check_encoder_output(enc: Any, tmp_path: Path) -> None:
             else "(return np.asarray(rows, dtype=np.float32))"
         )
     )
-    assert e.shape == (3, dim), f"encode_text shape {e.shape}, expected (3, {dim})"
-    _one_row(enc)
-    assert e.dtype == np.float32, f"encode_text dtype {e.dtype}, expected float32"
-    assert np.isfinite(e).all(), "encode_text returned NaN/Inf"
-    np.testing.assert_allclose(
-        np.linalg.norm(e, axis=1), 1.0, atol=1e-3, err_msg="rows must be L2-normalised"
+    assert e.shape == (3, dim), (
+        f"encode_text shape {e.shape}, expected (3, {dim}): one row of dim = {dim} numbers "
+        "per text (dim is the property the map's dimension is checked against: make it say "
+        "what encode_text returns)"
     )
+    _one_row(enc)
+    assert e.dtype == np.float32, (
+        f"encode_text dtype {e.dtype}, expected float32: return rows.astype(np.float32)"
+    )
+    _unit_rows(e, texts)
+
+
+def _unit_rows(e: np.ndarray, texts: list[str]) -> None:
+    """``e``'s rows, one per text of ``texts``, are finite and of unit L2 norm; else a
+    failure naming the first text that is not, and the fix."""
+    finite = np.isfinite(e).all(axis=1)
+    if not finite.all():
+        bad = texts[int(np.argmin(finite))]
+        raise AssertionError(
+            f"encode_text returned NaN/Inf for {bad!r}: a row of zeros divided by its norm "
+            "is NaN, so give every text at least one nonzero component (as the example "
+            "does with `text.split() or ['']`) before normalising"
+        )
+    norms = np.linalg.norm(e.astype(np.float64), axis=1)
+    off = np.abs(norms - 1.0) > 1e-3
+    if off.any():
+        i = int(np.argmax(np.abs(norms - 1.0)))
+        raise AssertionError(
+            f"rows must be L2-normalised: {int(off.sum())} of {len(norms)} rows are not "
+            f"(the row of {texts[i]!r} has norm {norms[i]:.4g}); divide each row by its "
+            "own norm: rows / np.linalg.norm(rows, axis=1, keepdims=True)"
+        )
 
 
 def _one_row(enc: Any) -> np.ndarray:
