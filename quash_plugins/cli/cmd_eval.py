@@ -185,7 +185,8 @@ def run(args: argparse.Namespace) -> int:
     out = console()
     out.print(
         safe_text(lmap.describe())
-        + f": {len(report.queries)} queries, {len(report.absent)} absence queries"
+        + f": {_count(len(report.queries), 'query')}, "
+        + _count(len(report.absent), "absence query")
     )
     print_markdown(out, md)
     for f in (args.json, args.markdown, args.plot):
@@ -194,6 +195,11 @@ def run(args: argparse.Namespace) -> int:
     if viewer is not None:
         viewer.close()  # with --serve-web this serves until Ctrl-C or SIGTERM
     return 0
+
+
+def _count(n: int, noun: str) -> str:
+    """``1 query``, ``2 absence queries``."""
+    return f"{n} {noun if n == 1 else noun[:-1] + 'ies'}"
 
 
 def _warn_no_absence(map_path: str) -> None:

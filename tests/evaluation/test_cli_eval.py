@@ -371,3 +371,16 @@ def test_eval_markdown_says_what_an_absence_query_may_match_under_empty_toleranc
     assert "0 = correct" not in text
     absence = json.loads(out.read_text())["configs"][0]["absence"]
     assert absence["score"] == 1.0 and absence["empty_tolerance"] == tol
+
+
+def test_eval_counts_its_queries_in_words_that_agree(world, capsys):
+    """The line above the table read '1 queries, 1 absence queries'."""
+    base = ["eval", str(world / "scene.npz"), "-c", str(world / "base.yaml")]
+    labels, names = _scene_labels(world)
+    have = [names[i] for i in np.unique(labels[labels >= 0])]
+    assert main([*base, "--queries", have[0], "--absent", "an elephant"]) == 0
+    out = " ".join(capsys.readouterr().out.split())
+    assert ": 1 query, 1 absence query" in out
+    assert main([*base, "--queries", ",".join(have[:2])]) == 0
+    out = " ".join(capsys.readouterr().out.split())
+    assert ": 2 queries, 0 absence queries" in out
