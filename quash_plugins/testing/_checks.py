@@ -377,6 +377,54 @@ def check_encoder_empty(enc: Any, tmp_path: Path) -> None:
     assert e.shape == (0, enc.dim), f"encode_text([]) must be (0, dim); got {e.shape}"
 
 
+def check_encoder_empty_string(enc: Any, tmp_path: Path) -> None:
+    """The empty string ``""`` is embedded, as any other text is (one finite unit-norm
+    row, the same alone and in a batch), or refused with an ``EncoderError`` (or a
+    ``ValueError``) that says so. A query never sends it, but a label name or a line of
+    a file read from Python can be ``""``; what fails is a NaN or zero row (a bag of no
+    words divided by its norm), a dropped row, or an error that names nothing."""
+    from ..core.errors import EncoderError
+
+    try:
+        alone = np.asarray(enc.encode_text([""]))
+    except (EncoderError, ValueError) as exc:
+        assert str(exc).strip(), (
+            f"encode_text(['']) raised {type(exc).__name__} with no message: say that the "
+            "empty string is refused"
+        )
+        return  # refused, with a message: the documented alternative to embedding it
+    except Exception as exc:  # noqa: BLE001 - reported as the failure it is
+        raise AssertionError(
+            f"encode_text(['']) raised {type(exc).__name__}: {str(exc).rstrip('.')}; embed "
+            "the empty string as any other text, or refuse it with "
+            "quash_plugins.core.errors.EncoderError('... cannot embed the empty string') "
+            "before the model sees it"
+        ) from exc
+    assert alone.shape == (1, enc.dim), (
+        f"encode_text(['']) shape {alone.shape}, expected (1, {enc.dim}): one row per text, "
+        "the empty one too (a dropped row shifts every row after it onto the wrong text); "
+        "or refuse it with quash_plugins.core.errors.EncoderError"
+    )
+    try:
+        _unit_rows(alone, [""])
+    except AssertionError as exc:
+        raise AssertionError(
+            f"{exc}. The empty string has no words or tokens of its own: give it a row "
+            "(a boundary token, as `text.split() or ['']` does), or refuse it with "
+            "quash_plugins.core.errors.EncoderError"
+        ) from None
+    batch = np.asarray(enc.encode_text(["chair", ""]))
+    assert batch.shape == (2, enc.dim) and np.allclose(batch[1], alone[0], atol=1e-3), (
+        "encode_text(['chair', '']) must give the empty string the row it gets alone"
+        + (
+            f" (it differs by up to {float(np.abs(batch[1] - alone[0]).max()):.3g})"
+            if batch.shape == (2, enc.dim)
+            else f"; got shape {batch.shape}, expected (2, {enc.dim})"
+        )
+        + ": each text is embedded and cached on its own"
+    )
+
+
 def check_encoder_fingerprint(enc: Any, tmp_path: Path) -> None:
     fp = enc.fingerprint()
     assert isinstance(fp, str) and fp, "fingerprint() must be a non-empty string"
@@ -713,6 +761,7 @@ _CHECKS: dict[str, list[Callable[[Any, Path], None]]] = {
         check_encoder_same_in_another_process,
         check_encoder_batch_independent,
         check_encoder_empty,
+        check_encoder_empty_string,
         check_encoder_fingerprint,
         check_encoder_fingerprint_follows_params,
     ],

@@ -65,3 +65,79 @@ def test_nan_rows_name_the_text(tmp_path):
 
 def test_a_conformant_encoder_passes(tmp_path):
     check_encoder(_Faulty("none"), tmp_path)
+
+
+class _Words(Encoder):
+    """A bag of words; ``empty`` says what it does with a text of no words."""
+
+    name = "words"
+
+    def __init__(self, empty: str = "boundary") -> None:
+        self._empty = empty
+
+    @property
+    def dim(self) -> int:
+        return 8
+
+    def encode_text(self, texts):
+        from quash_plugins.core.errors import EncoderError
+
+        if self._empty == "drop":
+            texts = [t for t in texts if t]
+        if self._empty == "refuse" and "" in texts:
+            raise EncoderError("Encoder 'words' cannot embed the empty string")
+        rows = np.zeros((len(texts), 8))
+        for i, text in enumerate(texts):
+            words = text.split() or ([""] if self._empty == "boundary" else [])
+            if self._empty == "crash" and not words:
+                words = [text.split()[0]]  # IndexError, as a tokenizer's [0] would raise
+            for word in words:
+                rows[i] += HashingEncoder(8)._word(word)
+        norms = np.linalg.norm(rows, axis=1, keepdims=True)
+        if self._empty == "zero":
+            norms = np.maximum(norms, 1e-12)  # guarded division: a zero row, not NaN
+        with np.errstate(invalid="ignore"):
+            return (rows / norms).astype(np.float32)
+
+    def config(self):
+        return {"empty": self._empty}
+
+
+@pytest.mark.parametrize(
+    ("empty", "says"),
+    [
+        ("nan", "encode_text returned NaN/Inf for ''"),
+        ("zero", "the row of '' has norm 0"),
+        ("drop", "encode_text(['']) shape (0, 8), expected (1, 8)"),
+        ("crash", "encode_text(['']) raised IndexError"),
+    ],
+)
+def test_the_empty_string_must_be_embedded_or_refused(tmp_path, empty, says):
+    """Before, the kit never gave an encoder "", and each of these passed it."""
+    from quash_plugins.testing._checks import check_encoder_empty_string
+
+    enc = _Words(empty)
+    # the fault shows on "" only: every other text is embedded as it should be
+    assert np.allclose(np.linalg.norm(enc.encode_text(["a red chair"]), axis=1), 1.0)
+    msg = _failure(enc, tmp_path)
+    assert msg.startswith("encoder 'words': check_encoder_empty_string: "), msg
+    assert says in msg
+    assert "EncoderError" in msg  # the other way out: refuse it
+    with pytest.raises(AssertionError):
+        check_encoder_empty_string(enc, tmp_path)
+
+
+@pytest.mark.parametrize("empty", ["boundary", "refuse"])
+def test_an_encoder_that_embeds_or_refuses_the_empty_string_passes(tmp_path, empty):
+    check_encoder(_Words(empty), tmp_path)
+
+
+def test_a_refusal_must_say_something(tmp_path):
+    class Mute(_Words):
+        def encode_text(self, texts):
+            if "" in texts:
+                raise ValueError()
+            return super().encode_text(texts)
+
+    msg = _failure(Mute(), tmp_path)
+    assert "check_encoder_empty_string: encode_text(['']) raised ValueError with no message" in msg

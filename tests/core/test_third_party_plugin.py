@@ -84,6 +84,7 @@ def test_passes_the_conformance_kit(installed, tmp_path):
         "check_encoder_same_in_another_process",
         "check_encoder_batch_independent",
         "check_encoder_empty",
+        "check_encoder_empty_string",
         "check_encoder_fingerprint",
         "check_encoder_fingerprint_follows_params",
     ]
