@@ -67,7 +67,8 @@ def add_runtime_options(parser: argparse.ArgumentParser) -> None:
         "--device",
         default=None,
         help="Override the config's device, a plugin section's own device: included "
-        "(auto, cpu, cuda, cuda:N, mps).",
+        "(auto, cpu, cuda, cuda:N, mps). One that is not on this machine is refused "
+        "before the map is read.",
     )
 
 
@@ -120,7 +121,66 @@ def apply_runtime_options(cfg: QuashConfig, args: argparse.Namespace) -> QuashCo
         except ConfigError as exc:
             raise UsageError(str(exc)) from None
         _override_plugin_devices(cfg, cfg.device)
+    check_devices_present(cfg, flag=bool(getattr(args, "device", None)))
     return cfg
+
+
+def check_devices_present(cfg: QuashConfig, flag: bool = False) -> None:
+    """Refuse, before any map is read, a device that is not on this machine: ``cuda``
+    without a CUDA GPU, ``cuda:N`` beyond the GPUs torch sees, ``mps`` without Apple's
+    MPS where the encoder would run on it (the classification pass runs on the CPU for
+    ``mps``). ``flag``: the devices came from ``--device``, which the error names;
+    else the error names the config file, the line and the field (``device:`` or a
+    section's own, ``encoder.device:``). ``auto`` and ``cpu`` import nothing."""
+    from ..core.config import PluginSpec
+    from ..engine.device import device_unavailable
+
+    asked: list[tuple[str, tuple[str, ...]]] = []
+    if not _is_mps(cfg.device) or _encoder_takes_device(cfg):
+        asked.append((cfg.device, ("device",)))
+    for section, value in vars(cfg).items():
+        if isinstance(value, PluginSpec):
+            device = value.params.get("device")
+            if isinstance(device, str) and (section == "encoder" or not _is_mps(device)):
+                asked.append((device, (section, "device")))
+    for device, keys in asked:
+        try:
+            why = device_unavailable(device)
+        except ConfigError:
+            continue  # not a device at all: the plugin or the config says so, as before
+        if why is None:
+            continue
+        if flag:
+            raise UsageError(
+                f"--device {device}: {why}; use --device auto (a GPU when there is one, "
+                "else the CPU) or --device cpu."
+            )
+        field = ".".join(keys)
+        where = cfg.location(*keys)
+        raise ConfigError(
+            f"{where}{field}: {device!r}: {why}; set {field}: auto (a GPU when there is one, "
+            "else the CPU) or cpu"
+            + (f" in {cfg.source}" if cfg.source else "")
+            + ", or pass --device cpu."
+        )
+
+
+def _is_mps(device: str) -> bool:
+    return str(device).strip().lower() == "mps"
+
+
+def _encoder_takes_device(cfg: QuashConfig) -> bool:
+    """Whether the config's encoder takes a ``device`` (the built-in torch encoders do);
+    False when it cannot be loaded (building it says why)."""
+    from ..core import registry
+    from ..core.errors import QuashError
+
+    try:
+        obj = registry.load("encoders", cfg.encoder.name)
+    except QuashError:
+        return False
+    accepted = registry.accepted_params(obj)
+    return accepted is None or "device" in accepted
 
 
 def _override_plugin_devices(cfg: QuashConfig, device: str) -> None:

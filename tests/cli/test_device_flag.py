@@ -6,6 +6,8 @@ from __future__ import annotations
 import argparse
 import logging
 
+import pytest
+
 from quash_plugins.cli._config_opts import apply_runtime_options
 from quash_plugins.core.config import QuashConfig
 from quash_plugins.engine.pipeline import Quash
@@ -38,7 +40,12 @@ def test_device_flag_overrides_a_plugin_sections_own_device(caplog):
     assert quash.encoder.device == "cpu"  # the section said cuda; the flag said cpu
 
 
-def test_without_the_flag_a_sections_device_is_kept():
+def test_without_the_flag_a_sections_device_is_kept(monkeypatch):
+    # on a machine with two GPUs: the sections' cuda and cuda:1 are there
+    # (tests/cli/test_cli_device.py: refused where they are not)
+    torch = pytest.importorskip("torch")
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    monkeypatch.setattr(torch.cuda, "device_count", lambda: 2)
     cfg = apply_runtime_options(_config(), argparse.Namespace(device=None))
     assert cfg.device == "cuda" and cfg.encoder.params["device"] == "cuda"
     assert cfg.classifier.params["device"] == "cuda:1"

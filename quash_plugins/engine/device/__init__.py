@@ -14,6 +14,8 @@ which is how the tests check it without a GPU.
 - :func:`classify_on_device`: the pass (:func:`~quash_plugins.engine.classify_local`'s
   contract): every stacked SVM in one fused Triton launch per piece, every cosine rule
   from one GEMM, anything else on the host.
+- :func:`device_unavailable`: why a device asked for is not on this machine (the CLI
+  checks ``--device`` and a config's ``device:`` with it before reading a map).
 - :func:`device_map`: the cache of device maps the pipeline uses.
 """
 
@@ -23,6 +25,7 @@ from ...core.optional import lazy_exports
 
 _EXPORTS = {
     "pass_device": "._select",
+    "device_unavailable": "._select",
     "device_map": "._select",
     "release_device_maps": "._select",
     "DeviceMap": "._device_map",

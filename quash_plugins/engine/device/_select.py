@@ -53,6 +53,40 @@ def pass_device(device: str | None) -> str | None:
     return text if kind == "cuda" else "cuda"
 
 
+def device_unavailable(device: str | None) -> str | None:
+    """Why ``device`` cannot be used on this machine, in words, or None when it can.
+
+    ``auto`` and ``cpu`` always can, and torch is not imported for them. ``cuda`` needs
+    torch to see a CUDA GPU, ``cuda:N`` at least N + 1 of them, and ``mps`` torch's Apple
+    MPS backend. A value that is no device at all is refused by
+    :func:`~quash_plugins.core.config.check_device` (ConfigError), as everywhere.
+
+    Examples
+    --------
+    >>> device_unavailable("cpu") is None
+    True
+    """
+    text = check_device(device, "device")
+    kind, _, index = text.partition(":")
+    if kind in ("auto", "cpu"):
+        return None
+    try:
+        import torch
+    except ImportError:
+        return 'it needs PyTorch, which is not installed (pip install "quash-plugins[clip]")'
+    if kind == "mps":
+        mps = getattr(torch.backends, "mps", None)
+        if mps is not None and mps.is_available():
+            return None
+        return "torch sees no Apple MPS device on this machine"
+    if not torch.cuda.is_available():
+        return "torch sees no CUDA GPU on this machine"
+    count = torch.cuda.device_count()
+    if index and int(index) >= count:
+        return f"torch sees {count} CUDA GPU(s) on this machine, numbered from 0"
+    return None
+
+
 _MAPS: dict[tuple[int, str], tuple[Any, Any]] = {}
 
 
