@@ -85,7 +85,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--exclude",
         metavar="NAMES",
         default=",".join(DEFAULT_EXCLUDE),
-        help="Labels ignored in TP/FP and never queried (default: %(default)s).",
+        help="Labels ignored in TP/FP and never queried, in any case or spacing (default: "
+        "%(default)s).",
     )
     p.add_argument(
         "--empty-tolerance",

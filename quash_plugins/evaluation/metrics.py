@@ -17,6 +17,8 @@ Rules
 Examples
 --------
 >>> import numpy as np
+
+from .queries import label_key
 >>> m = query_metrics(np.array([1, 1, 0, 0], bool), np.array([1, 0, 1, 0], bool))
 >>> (m["tp"], m["fp"], m["fn"], round(m["f1"], 2))
 (1, 1, 1, 0.5)
@@ -28,6 +30,8 @@ from collections.abc import Iterable, Sequence
 from typing import Any
 
 import numpy as np
+
+from .queries import label_key
 
 METRICS = ("precision", "recall", "f1", "iou")
 #: Threshold-free metrics from the scores (:mod:`quash_plugins.evaluation.ranking`).
@@ -95,11 +99,14 @@ def macro_mean(per_query: dict[str, dict[str, Any]]) -> dict[str, float | None]:
 def valid_items(
     labels: np.ndarray, label_names: Sequence[str] | None, exclude: Iterable[str] = ()
 ) -> np.ndarray:
-    """``(N,) bool``: items with a label >= 0 whose name is not in ``exclude``."""
+    """``(N,) bool``: items with a label >= 0 whose name is not in ``exclude`` (ignoring
+    case, spacing and underscores, as a query's label is matched: ``void`` drops ``Void``).
+    """
     labels = np.asarray(labels)
     valid = labels >= 0
     names = list(label_names or [])
-    drop = [i for i, n in enumerate(names) if n in set(exclude)]
+    dropped = {label_key(e) for e in exclude}
+    drop = [i for i, n in enumerate(names) if label_key(n) in dropped]
     if drop:
         valid &= ~np.isin(labels, drop)
     return valid

@@ -235,11 +235,12 @@ def plan_queries(
         else np.zeros(len(names), int)
     )
     given_queries = queries is not None
+    excluded = {label_key(e) for e in exclude}  # as valid_items drops them
     if queries is None:
-        queries = [n for i, n in enumerate(names) if counts[i] > 0 and n not in set(exclude)]
+        queries = [n for i, n in enumerate(names) if counts[i] > 0 and label_key(n) not in excluded]
     gt_of = match_labels(parse_queries(queries), names, absent=absent, source=query_file)
     for q, g in gt_of.items():
-        if g in set(exclude):
+        if label_key(g) in excluded:
             raise QuashError(
                 f"{f'{query_file}: query' if query_file else 'Query'} {q!r}: its label "
                 f"{g!r} is excluded (--exclude: neither TP nor FP, "

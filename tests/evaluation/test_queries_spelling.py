@@ -104,3 +104,31 @@ def test_no_evaluation_module_imports_another_modules_private_name():
                     if a.name.startswith("_")
                 ]
     assert private == []
+
+
+def test_an_excluded_label_is_excluded_in_any_case_as_a_querys_label_is_matched():
+    """--exclude other dropped the items of 'other' but not of 'Other', and refused the
+    query 'stuff=other' but scored 'stuff=Other' as an absence query."""
+    import dataclasses
+
+    import numpy as np
+
+    from quash_plugins.evaluation import evaluate, valid_items
+
+    labels = np.array([0, 1, 1, 2, -1])
+    assert valid_items(labels, ["chair", "Void", "Robot_Arm"], ["void", "robot arm"]).tolist() == [
+        True,
+        False,
+        False,
+        False,
+        False,
+    ]
+    lmap, peer = _robot_map_and_peer()
+    with pytest.raises(QuashError, match=r"Query 'stuff': its label 'Other' is excluded"):
+        evaluate(lmap, [peer], queries=["robot arm", "stuff=Other"])
+    # a map whose label is spelt 'Other': its items are ignored and it is not queried
+    other = dataclasses.replace(lmap, label_names=["robot arm", "Other"])
+    rep = evaluate(other, [peer])
+    assert rep.queries == ["robot arm"] and rep.absent == []
+    pq = rep.configs[0]["per_query"]["robot arm"]
+    assert pq["n_true"] == 8 and pq["fp"] == 0  # the 8 'Other' voxels count for nothing
