@@ -253,7 +253,7 @@ def plan_queries(
     counts_of = {n: int(counts[i]) for i, n in enumerate(names)}
     _check_absent(absent, presence, counts_of, query_file=query_file, in_file=in_file)
     absence, twice = one_per_spelling([*unknown_here, *absent])
-    say_twice("absence queries", twice)
+    say_twice("absence queries", twice, _twice_from(twice, query_file, in_file, unknown_here))
     no_items = [q for q in unknown_here if gt_of[q] in index]
     if no_items:
         log.info(
@@ -469,6 +469,26 @@ def _config_provenance(name: str, quash: Any) -> dict[str, Any]:
         "encoder": getattr(encoder, "name", None) if encoder is not None else None,
         "templates": getattr(quash, "templates_source", None),
     }
+
+
+def _twice_from(
+    twice: dict[str, list[str]],
+    query_file: str | Path | None,
+    in_file: Collection[str],
+    from_queries: Collection[str],
+) -> str | None:
+    """Where the absence queries given twice came from, for the warning: the query file
+    (its 'present' queries that are absence queries, and its 'absent' list), and
+    ``--absent`` beside it; None without a query file (the queries and ``--absent``)."""
+    if not query_file:
+        return None
+    texts = [t for k, v in twice.items() for t in (k, *v)]
+    where = []
+    if any(t in in_file or t in from_queries for t in texts):
+        where.append(str(query_file))
+    if any(t not in in_file and t not in from_queries for t in texts):
+        where.append("--absent")
+    return " and ".join(where) or None
 
 
 def _check_absent(

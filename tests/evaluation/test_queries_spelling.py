@@ -132,3 +132,33 @@ def test_an_excluded_label_is_excluded_in_any_case_as_a_querys_label_is_matched(
     assert rep.queries == ["robot arm"] and rep.absent == []
     pq = rep.configs[0]["per_query"]["robot arm"]
     assert pq["n_true"] == 8 and pq["fp"] == 0  # the 8 'Other' voxels count for nothing
+
+
+def test_absence_queries_given_twice_name_the_query_file_and_absent_they_came_from(
+    tmp_path, caplog
+):
+    """The warning about absence queries given twice named no file, while the one about
+    present queries did: with a query file it names the file, and --absent beside it."""
+    import logging
+
+    from quash_plugins.evaluation.report import plan_queries
+
+    lmap, _ = _robot_map_and_peer()
+    q = str(tmp_path / "q.yaml")
+
+    def warned(**kwargs):
+        caplog.clear()
+        with caplog.at_level(logging.WARNING, logger="quash_plugins.evaluation"):
+            plan_queries(lmap, queries=["robot arm"], **kwargs)
+        said = [r.getMessage() for r in caplog.records if "absence queries given" in r.message]
+        assert len(said) == 1
+        return said[0]
+
+    both = ["a giraffe", "A Giraffe"]
+    said = warned(absent=both, query_file=q, absent_in_file=both)
+    assert said.startswith(f"{q}: absence queries given more than once")
+    said = warned(absent=both, query_file=q, absent_in_file=both[:1])
+    assert said.startswith(f"{q} and --absent: absence queries given more than once")
+    assert "'a giraffe' (also 'A Giraffe')" in said
+    # without a query file, as before: the queries and --absent
+    assert warned(absent=both).startswith("absence queries given more than once")
