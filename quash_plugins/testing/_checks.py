@@ -444,8 +444,8 @@ _OUTPUT_NEUTRAL = ("device", "batch_size")
 
 def _varied_params(enc: Any) -> tuple[dict[str, Any], list[str]] | None:
     """The constructor's parameters with the values ``enc`` holds (as ``p`` or ``_p``,
-    else the default), and the numeric and boolean ones to vary; None when they cannot
-    be known."""
+    else the default), and the numeric, boolean and string ones to vary; None when
+    they cannot be known."""
     import inspect
 
     try:
@@ -464,14 +464,43 @@ def _varied_params(enc: Any) -> tuple[dict[str, Any], list[str]] | None:
             if param.default is param.empty:
                 return None
             values[name] = param.default
-    # numbers and switches (a `lowercase: True` changes the output as a size does)
+    # numbers, switches (a `lowercase: True` changes the output as a size does) and
+    # strings (a prompt prefix, a salt, a mode)
     varied = [
         n
         for n, v in values.items()
         if n not in _OUTPUT_NEUTRAL
-        and isinstance(v, (int, float, np.integer, np.floating, np.bool_))
+        and isinstance(v, (int, float, str, np.integer, np.floating, np.bool_))
     ]
     return values, varied
+
+
+def _other_values(enc: Any, name: str, old: Any) -> list[Any]:
+    """Values to try for parameter ``name`` in place of ``old``: the other switch, the
+    next number, and for a string the other choices its annotation lists
+    (``Literal["fast", "exact"]``), else ``old`` with a suffix (a value the class
+    refuses, a path that is not there, is skipped)."""
+    import typing
+
+    if isinstance(old, (bool, np.bool_)):
+        return [not old]
+    if isinstance(old, (int, np.integer)):
+        return [old + 1]
+    if not isinstance(old, str):
+        return [old * 1.5 + 0.5]
+    try:
+        hint = typing.get_type_hints(type(enc).__init__).get(name)
+    except Exception:  # noqa: BLE001 - an annotation that does not resolve: no choices
+        hint = None
+    # Literal["a", "b"], or one inside a union (Literal["a", "b"] | None)
+    choices = [
+        c
+        for arg in (hint, *typing.get_args(hint))
+        if typing.get_origin(arg) is typing.Literal
+        for c in typing.get_args(arg)
+    ]
+    others = [c for c in choices if isinstance(c, str) and c != old]
+    return others[:4] if others else [f"{old}x"]
 
 
 def check_encoder_fingerprint_follows_params(enc: Any, tmp_path: Path) -> None:
@@ -482,14 +511,9 @@ def check_encoder_fingerprint_follows_params(enc: Any, tmp_path: Path) -> None:
         return
     values, varied = found
     texts = ["chair", "kitchen sink"]
-    for name in varied:
-        old = values[name]
-        if isinstance(old, (bool, np.bool_)):
-            new = not old
-        elif isinstance(old, (int, np.integer)):
-            new = old + 1
-        else:
-            new = old * 1.5 + 0.5
+    for name, old, new in (
+        (n, values[n], v) for n in varied for v in _other_values(enc, n, values[n])
+    ):
         try:
             a = type(enc)(**values)
             b = type(enc)(**{**values, name: new})

@@ -3,6 +3,8 @@ check, what is wrong and the fix; a conformant one passes."""
 
 from __future__ import annotations
 
+from typing import Literal
+
 import numpy as np
 import pytest
 
@@ -141,3 +143,83 @@ def test_a_refusal_must_say_something(tmp_path):
 
     msg = _failure(Mute(), tmp_path)
     assert "check_encoder_empty_string: encode_text(['']) raised ValueError with no message" in msg
+
+
+class _PrivatePrefix(Encoder):
+    """Conformant but for one thing: its prompt ``prefix`` (a string) changes the rows
+    and lives in ``_prefix``, which config() does not name."""
+
+    name = "private-prefix"
+
+    def __init__(self, prefix: str = "a photo of") -> None:
+        self._prefix = prefix
+
+    @property
+    def dim(self) -> int:
+        return 8
+
+    def encode_text(self, texts):
+        return HashingEncoder(8).encode_text([f"{self._prefix} {t}" for t in texts])
+
+    def config(self):
+        return {}
+
+
+def test_the_kit_catches_a_string_parameter_the_fingerprint_misses(tmp_path):
+    """Only numbers and booleans were varied: a prompt prefix that changes every row
+    passed, and the text cache served one prefix's embeddings to the other."""
+    a, b = _PrivatePrefix(), _PrivatePrefix("a picture of")
+    assert a.fingerprint() == b.fingerprint()
+    assert not np.allclose(a.encode_text(["chair"]), b.encode_text(["chair"]))
+    msg = _failure(_PrivatePrefix(), tmp_path)
+    assert msg.startswith("encoder 'private-prefix': check_encoder_fingerprint_follows_params:")
+    assert "parameter 'prefix'" in msg and "prefix='a photo of' and prefix='a photo ofx'" in msg
+
+    class Fixed(_PrivatePrefix):
+        def config(self):
+            return {"prefix": self._prefix}
+
+    check_encoder(Fixed(), tmp_path / "ok")
+
+
+class _PrivateMode(Encoder):
+    """A string parameter with fixed choices, refusing any other value: the kit tries
+    the other choices its annotation lists."""
+
+    name = "private-mode"
+
+    def __init__(self, mode: Literal["words", "letters"] | None = "words") -> None:
+        if mode not in ("words", "letters"):
+            raise ValueError(f"mode must be 'words' or 'letters'; got {mode!r}")
+        self._mode = mode
+
+    @property
+    def dim(self) -> int:
+        return 8
+
+    def encode_text(self, texts):
+        split = (lambda t: " ".join(t)) if self._mode == "letters" else (lambda t: t)
+        return HashingEncoder(8).encode_text([split(t) for t in texts])
+
+    def config(self):
+        return {}
+
+
+def test_a_string_with_fixed_choices_is_varied_over_them(tmp_path):
+    msg = _failure(_PrivateMode(), tmp_path)
+    assert msg.startswith("encoder 'private-mode': check_encoder_fingerprint_follows_params:")
+    assert "mode='words' and mode='letters'" in msg
+
+    class Fixed(_PrivateMode):
+        def config(self):
+            return {"mode": self._mode}
+
+    check_encoder(Fixed(), tmp_path / "ok")
+
+
+def test_a_string_parameter_that_does_not_change_the_output_passes(tmp_path):
+    class Labelled(_PrivatePrefix):
+        def encode_text(self, texts):  # the prefix is a label only
+            return HashingEncoder(8).encode_text(list(texts))
+
+    check_encoder(Labelled(), tmp_path)
