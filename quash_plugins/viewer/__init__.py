@@ -15,7 +15,9 @@ from ._display import colormap, display_indices, pca_colors, slugify
 from ._log_eval import EVAL_METRICS
 from ._log_map import MATCH_COLOR, REJECTED_COLOR
 from ._log_result import INSTANCE_COLOR
+from ._machine import display_available, rerun_executable
 from ._rerun import RerunLogger, import_rerun
+from ._rrd_files import is_quash_app_id, is_quash_rrd, is_rrd, rrd_application_ids
 from ._sinks import (
     DEFAULT_BIND,
     DEFAULT_GRPC_PORT,
@@ -27,13 +29,7 @@ from ._sinks import (
     check_distinct_ports,
     check_port,
     check_rrd_name,
-    display_available,
-    is_quash_app_id,
-    is_quash_rrd,
-    is_rrd,
     open_viewer,
-    rerun_executable,
-    rrd_application_ids,
     web_viewer_url,
 )
 
