@@ -405,14 +405,15 @@ def check_encoder_empty_string(enc: Any, tmp_path: Path) -> None:
         "the empty one too (a dropped row shifts every row after it onto the wrong text); "
         "or refuse it with quash_plugins.core.errors.EncoderError"
     )
-    try:
-        _unit_rows(alone, [""])
-    except AssertionError as exc:
-        raise AssertionError(
-            f"{exc}. The empty string has no words or tokens of its own: give it a row "
-            "(a boundary token, as `text.split() or ['']` does), or refuse it with "
-            "quash_plugins.core.errors.EncoderError"
-        ) from None
+    norm = float(np.linalg.norm(alone.astype(np.float64)))
+    assert np.isfinite(alone).all() and abs(norm - 1.0) <= 1e-3, (
+        "encode_text(['']) returned "
+        + ("NaN/Inf" if not np.isfinite(alone).all() else f"a row of norm {norm:.4g}")
+        + ": the empty string has no words or tokens of its own, and a row of zeros "
+        "divided by its norm is NaN. Give it a row (a boundary token, as "
+        "`text.split() or ['']` does), or refuse it with "
+        "quash_plugins.core.errors.EncoderError"
+    )
     batch = np.asarray(enc.encode_text(["chair", ""]))
     assert batch.shape == (2, enc.dim) and np.allclose(batch[1], alone[0], atol=1e-3), (
         "encode_text(['chair', '']) must give the empty string the row it gets alone"

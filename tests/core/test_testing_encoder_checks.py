@@ -108,8 +108,8 @@ class _Words(Encoder):
 @pytest.mark.parametrize(
     ("empty", "says"),
     [
-        ("nan", "encode_text returned NaN/Inf for ''"),
-        ("zero", "the row of '' has norm 0"),
+        ("nan", "encode_text(['']) returned NaN/Inf: the empty string has no words"),
+        ("zero", "encode_text(['']) returned a row of norm 0: the empty string has no words"),
         ("drop", "encode_text(['']) shape (0, 8), expected (1, 8)"),
         ("crash", "encode_text(['']) raised IndexError"),
     ],
