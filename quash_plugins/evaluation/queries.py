@@ -150,7 +150,8 @@ def match_labels(
     for "bed", "chiar" for "chair"): that is refused, naming the query, the close names
     and ``source`` (the query file it came from), since a misspelt label would score an
     object that is there as absent. A label listed among the ``absent`` queries is taken
-    as written. (A label of the map that no item carries is an absence query too:
+    as written, and a query listed there itself is not warned about. (A label of the map
+    that no item carries is an absence query too:
     :func:`~quash_plugins.evaluation.report.plan_queries`.)
 
     >>> match_labels({"a cobot": "Robot Arm", "Forklift": "Forklift"}, ["robot arm", "forklift"])
@@ -163,6 +164,7 @@ def match_labels(
     for n in names:
         folded.setdefault(label_key(n), []).append(n)
     listed_absent = {label_key(a) for a in absent}
+    absent_texts = {spelling(a) for a in absent}  # the query itself listed absent
     out: dict[str, str] = {}
     for text, label in gt_of.items():
         if label not in exact:
@@ -174,7 +176,7 @@ def match_labels(
                 near = _near_names(label, names)
                 if near:
                     raise QuashError(_typo_message(text, label, near, source))
-                if text != label:
+                if text != label and spelling(text) not in absent_texts:
                     where = f"under 'absent' in {source}" if source else "under --absent"
                     log.warning(
                         "%squery %r: its label %r is not a label of the map, so it is scored "

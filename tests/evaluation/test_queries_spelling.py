@@ -162,3 +162,28 @@ def test_absence_queries_given_twice_name_the_query_file_and_absent_they_came_fr
     assert "'a giraffe' (also 'A Giraffe')" in said
     # without a query file, as before: the queries and --absent
     assert warned(absent=both).startswith("absence queries given more than once")
+
+
+def test_a_query_whose_label_the_map_lacks_listed_absent_itself_is_not_warned_about(caplog):
+    """The warning said 'list it under --absent to say so'; listing the query there (in any
+    case) still warned. It is one absence query, said once."""
+    import logging
+
+    from quash_plugins.evaluation.report import plan_queries
+
+    lmap, _ = _robot_map_and_peer()
+
+    def warned(**kwargs):
+        caplog.clear()
+        with caplog.at_level(logging.WARNING, logger="quash_plugins.evaluation"):
+            out = plan_queries(lmap, queries=["robot arm", "a Giraffe=giraffe"], **kwargs)
+        return [
+            r.getMessage() for r in caplog.records if "not a label of the map" in r.message
+        ], out
+
+    said, _ = warned()
+    assert len(said) == 1 and "query 'a Giraffe': its label 'giraffe'" in said[0]
+    for listed in (["a Giraffe"], ["A  giraffe"], ["giraffe"]):
+        said, (_, _, _, presence, absence) = warned(absent=listed)
+        assert said == [] and presence == ["robot arm"]
+        assert absence[0] == "a Giraffe"
