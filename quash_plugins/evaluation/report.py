@@ -506,27 +506,33 @@ def _check_absent(
     (:func:`~quash_plugins.evaluation.queries.spelling`): both spellings are named."""
     have = {label_key(n): n for n, c in counts.items() if c}
     present_as = {spelling(p): p for p in presence}
+    there = f"in {query_file}" if query_file else "the queries"
     for a in absent:
         here = f"under 'absent' in {query_file}" if a in in_file else "--absent"
-        p = present_as.get(spelling(a))
-        if p is not None:
-            there = f"in {query_file}" if query_file else "the queries"
-            both = (
-                f"{a!r} is both a present query ({there}) and"
-                if p == a
-                else f"{p!r} is a present query ({there}) and {a!r}, the same query in "
-                "another case or spacing,"
+        if a in presence:
+            raise QuashError(
+                f"{a!r} is both a present query ({there}) and an absence query ({here}): "
+                "remove it from one of them."
             )
-            raise QuashError(f"{both} an absence query ({here}): remove it from one of them.")
+        p = present_as.get(spelling(a))
+        twin = (
+            f"{p!r} is a present query ({there}) and {a!r}, the same query in another case "
+            f"or spacing, an absence query ({here})"
+            if p is not None
+            else None
+        )
         name = have.get(label_key(a))
         if name is not None:
             what = f"{query_file}: absence query {a!r} (under 'absent')"
             what = what if a in in_file else f"Absence query {a!r} (--absent)"
             raise QuashError(
                 f"{what}: {counts[name]} items of the map carry the label "
-                f"{name!r}, so it is not absent. Absence queries name objects the map does "
-                f"not have; remove it from {here.removeprefix('under ')}."
+                f"{name!r}, so it is not absent{f'; {twin}' if twin else ''}. Absence "
+                "queries name objects the map does not have; remove it from "
+                f"{here.removeprefix('under ')}."
             )
+        if twin:
+            raise QuashError(f"{twin}: remove it from one of them.")
 
 
 #: What each heuristic gives a method besides the query (the "given" column of a table).

@@ -25,12 +25,15 @@ from quash_plugins.evaluation import queries as queries_module
             "'a cobot' is a present query (the queries) and 'A  Cobot', the same query in "
             "another case or spacing, an absence query (--absent): remove it from one of them.",
         ),
-        # a label of the map: the present spelling is named beside the absent one
+        # a label the map's items carry: said so, and the present spelling named too
         (
             ["Forklift"],
             ["forklift"],
-            "'Forklift' is a present query (the queries) and 'forklift', the same query in "
-            "another case or spacing, an absence query (--absent)",
+            "Absence query 'forklift' (--absent): 8 items of the map carry the label "
+            "'forklift', so it is not absent; 'Forklift' is a present query (the queries) and "
+            "'forklift', the same query in another case or spacing, an absence query "
+            "(--absent). Absence queries name objects the map does not have; remove it from "
+            "--absent.",
         ),
         # the same spelling keeps its message
         (
