@@ -223,3 +223,25 @@ def test_a_string_parameter_that_does_not_change_the_output_passes(tmp_path):
             return HashingEncoder(8).encode_text(list(texts))
 
     check_encoder(Labelled(), tmp_path)
+
+
+def test_the_encoder_checks_have_a_module_of_their_own_and_are_importable_as_before():
+    """They moved out of _checks.py (864 lines); the names a plugin's tests imported from
+    there are the same functions, and the kit runs them in the same order."""
+    from quash_plugins.testing import _checks, _encoder_checks
+
+    names = [c.__name__ for c in _encoder_checks.ENCODER_CHECKS]
+    assert names == [
+        "check_encoder_output",
+        "check_encoder_deterministic",
+        "check_encoder_same_in_another_process",
+        "check_encoder_batch_independent",
+        "check_encoder_empty",
+        "check_encoder_empty_string",
+        "check_encoder_fingerprint",
+        "check_encoder_fingerprint_follows_params",
+    ]
+    for name in names:
+        assert getattr(_checks, name) is getattr(_encoder_checks, name)
+        assert getattr(_encoder_checks, name).__module__ == _encoder_checks.__name__
+    assert _checks._CHECKS["encoders"] == _encoder_checks.ENCODER_CHECKS
