@@ -99,6 +99,19 @@ def taxonomy_missing(lmap: Any) -> tuple[str, bool]:
     return f"looked for {cand}, not found", False
 
 
+def _no_file_hint(lmap: Any) -> str:
+    """For a map read from an object in memory (a live VLMap), no file: where to say
+    which file it was loaded from, so that the taxonomy beside that file is read."""
+    source = (getattr(lmap, "source", None) or {}) if lmap is not None else {}
+    if not source.get("live") or source.get("path"):
+        return ""
+    return (
+        f" This map is a live {source['live']} object with no file, so no taxonomy beside "
+        "a file is looked for: set vlmap.map_save_path to the file it was loaded from, or "
+        "give the vlmaps-live adapter's path option (docs/vlmaps.md)."
+    )
+
+
 class TaxonomyHeuristic(Heuristic):
     """Synonyms from the query label's sub-classes, antonyms from the other labels'.
 
@@ -193,6 +206,7 @@ class TaxonomyHeuristic(Heuristic):
             "({label: [sub-class, ...]}) or query a map that has label_names (or a "
             "MAP.taxonomy.yaml beside its file); quash expand reads that map with --map MAP."
             + (f" This map has no label names; {missing}." if missing else "")
+            + _no_file_hint(context.map)
         )
 
     def _labels_source(self, context: ExpansionContext | None) -> str:

@@ -97,8 +97,11 @@ def test_a_loaded_vlmap_reads_the_taxonomy_beside_its_file(converted):
 def test_without_a_file_the_path_option_names_it(converted):
     folder, written, config = converted
     vlmap = LoadedVLMap(folder, remember_path=False)  # an object that does not remember
-    with pytest.raises(HeuristicError, match="no taxonomy"):
+    with pytest.raises(HeuristicError, match="no taxonomy") as err:
         query(vlmap, "chair", quash=config)
+    # the error says why a live map has none, and the two ways to give its file
+    assert "live LoadedVLMap object with no file" in str(err.value)
+    assert "vlmap.map_save_path" in str(err.value) and "path option" in str(err.value)
     named = query(vlmap, "chair", quash=config, path=str(written))
     assert "armchair" in named.queryset.positives
     with pytest.raises(HeuristicError, match="no taxonomy"):  # None: no file recorded
