@@ -341,8 +341,12 @@ def _other_values(enc: Any, name: str, old: Any) -> list[Any]:
     """Values to try for parameter ``name`` in place of ``old``: the other switch, the
     next number, and for a string the other choices its annotation lists
     (``Literal["fast", "exact"]``), else ``old`` with a suffix (a value the class
-    refuses, a path that is not there, is skipped)."""
+    refuses is skipped). A credential (``api_key``, ``token``) is never varied, nor is
+    a path or a URL: the kit would send a changed key to a server, or write a file
+    beside the one named, and a model path changed is only a model that does not load."""
     import typing
+
+    from ..core.redact import is_secret_param
 
     if isinstance(old, (bool, np.bool_)):
         return [not old]
@@ -350,6 +354,8 @@ def _other_values(enc: Any, name: str, old: Any) -> list[Any]:
         return [old + 1]
     if not isinstance(old, str):
         return [old * 1.5 + 0.5]
+    if is_secret_param(name):
+        return []
     try:
         hint = typing.get_type_hints(type(enc).__init__).get(name)
     except Exception:  # noqa: BLE001 - an annotation that does not resolve: no choices
@@ -362,7 +368,21 @@ def _other_values(enc: Any, name: str, old: Any) -> list[Any]:
         for c in typing.get_args(arg)
     ]
     others = [c for c in choices if isinstance(c, str) and c != old]
-    return others[:4] if others else [f"{old}x"]
+    if others:
+        return others[:4]
+    if _path_like(old):
+        return []
+    return [f"{old}x"]
+
+
+def _path_like(text: str) -> bool:
+    """True for a string that names a file, a folder or a URL."""
+    if "/" in text or "\\" in text:
+        return True
+    try:
+        return bool(text) and Path(text).exists()
+    except (OSError, ValueError):  # a name too long, a NUL
+        return False
 
 
 def check_encoder_fingerprint_follows_params(enc: Any, tmp_path: Path) -> None:

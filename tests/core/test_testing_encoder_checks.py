@@ -245,3 +245,37 @@ def test_the_encoder_checks_have_a_module_of_their_own_and_are_importable_as_bef
         assert getattr(_checks, name) is getattr(_encoder_checks, name)
         assert getattr(_encoder_checks, name).__module__ == _encoder_checks.__name__
     assert _checks._CHECKS["encoders"] == _encoder_checks.ENCODER_CHECKS
+
+
+class _Remote(Encoder):
+    """An encoder that 'sends' its key and writes a log file: the kit must vary
+    neither, since a changed key goes to a server and a changed path is a new file."""
+
+    name = "remote"
+    keys_sent: list[str] = []
+
+    def __init__(self, api_key: str = "sk-test-0123456789", log: str = "remote.log") -> None:
+        self._api_key = api_key
+        self._log = log
+
+    @property
+    def dim(self) -> int:
+        return 8
+
+    def encode_text(self, texts):
+        type(self).keys_sent.append(self._api_key)
+        with open(self._log, "a", encoding="utf-8") as f:
+            f.write(f"{len(texts)}\n")
+        return HashingEncoder(8).encode_text(list(texts))
+
+    def config(self):
+        return {}
+
+
+def test_a_key_or_a_path_is_not_varied(tmp_path):
+    log = tmp_path / "remote.log"
+    _Remote.keys_sent = []
+    check_encoder(_Remote(log=str(log)), tmp_path / "kit")
+    assert log.is_file()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["kit", "remote.log"]
+    assert set(_Remote.keys_sent) == {"sk-test-0123456789"}
