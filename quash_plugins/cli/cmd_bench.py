@@ -103,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
     bad = [t for t in tables if t not in TABLES]
     if bad:
         raise UsageError(f"Unknown table {bad[0]!r}; known: {', '.join(TABLES)}.")
-    split = lambda s: [t.strip() for t in (s or "").split(",") if t.strip()]  # noqa: E731
+    split = lambda s: [" ".join(t.split()) for t in (s or "").split(",") if t.strip()]  # noqa: E731
     if args.queries is not None and not split(args.queries):
         raise UsageError(
             "--queries is empty: give labels or TEXT=LABEL items, or leave it out to score "

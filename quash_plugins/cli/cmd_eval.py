@@ -44,7 +44,9 @@ quash report, plot or quash recording, or with --force."""
 
 
 def _split(text: str | None) -> list[str]:
-    return [t.strip() for t in (text or "").split(",") if t.strip()]
+    """The items of a comma-separated option, each with its spacing made single (as a
+    query file's are), empty ones dropped."""
+    return [" ".join(t.split()) for t in (text or "").split(",") if t.strip()]
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

@@ -214,6 +214,11 @@ def test_bench_usage_errors(scene, tmp_path, capsys, args, message):
     "args,message",
     [
         (["--absent", "Wall"], "Absence query 'Wall' (--absent): "),
+        # a present query given again as absent in another case; its spacing made single
+        (
+            ["--queries", "a seat=chair", "--absent", "A   Seat"],
+            "'a seat' is a present query (the queries) and 'A Seat', the same query in another",
+        ),
         (["--queries", "bunk bed="], "write an open-vocabulary query as TEXT=LABEL"),
         (["--queries", "a=b=bed"], "holds more than one '='"),
         (["--queries", " , "], "--queries is empty"),  # as quash eval refuses it

@@ -384,3 +384,10 @@ def test_eval_counts_its_queries_in_words_that_agree(world, capsys):
     assert main([*base, "--queries", ",".join(have[:2])]) == 0
     out = " ".join(capsys.readouterr().out.split())
     assert ": 2 queries, 0 absence queries" in out
+
+
+def test_eval_makes_the_spacing_of_absent_and_queries_single_as_a_query_file_does(world, tmp_path):
+    """--absent ' an   elephant ' was queried and reported with its inner spaces (a query
+    file's absent list had them made single), so the encoder saw another text."""
+    data = _eval_json(world, tmp_path, "--absent", " an   elephant ")
+    assert list(data["absence"]["per_query"]) == ["an elephant"]
