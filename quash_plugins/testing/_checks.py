@@ -26,6 +26,7 @@ from ._encoder_checks import (  # noqa: F401 - re-exported
     check_encoder_fingerprint_follows_params,
     check_encoder_output,
     check_encoder_same_in_another_process,
+    remember_params,
 )
 
 _WORDS = [
@@ -144,7 +145,7 @@ def build(kind: str, name: str, tmp_path: Path) -> Any:
     if callable(factory):
         params = dict(factory(Path(tmp_path)))
     try:
-        return registry.create(kind, name, **params)
+        plugin = registry.create(kind, name, **params)
     except ConfigError as exc:
         if callable(factory):
             given = ", ".join(params) or "no parameters"
@@ -159,6 +160,8 @@ def build(kind: str, name: str, tmp_path: Path) -> Any:
             "arguments to build it with (files may be written under tmp_path), or set "
             "conformance_skip = 'why' on it."
         ) from exc
+    remember_params(plugin, params)
+    return plugin
 
 
 # ---------------------------------------------------------------- heuristics

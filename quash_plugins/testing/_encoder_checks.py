@@ -4,6 +4,7 @@ a fingerprint that is stable and follows the parameters that change the output."
 
 from __future__ import annotations
 
+import weakref
 from pathlib import Path
 from typing import Any
 
@@ -300,6 +301,20 @@ def check_encoder_fingerprint(enc: Any, tmp_path: Path) -> None:
     assert isinstance(enc.name, str) and enc.name, "name must be a non-empty string"
 
 
+#: Plugin -> the parameters the kit built it with (its ``conformance_params``): a
+#: parameter without a default that the plugin keeps under another attribute name
+#: (``self._path = vocab``) is known from here, not guessed.
+_BUILT_WITH: weakref.WeakKeyDictionary[Any, dict[str, Any]] = weakref.WeakKeyDictionary()
+
+
+def remember_params(plugin: Any, params: dict[str, Any]) -> None:
+    """Record that the kit built ``plugin`` with ``params``."""
+    import contextlib
+
+    with contextlib.suppress(TypeError):  # not weakly referenceable (__slots__): not kept
+        _BUILT_WITH[plugin] = dict(params)
+
+
 #: Parameters documented not to change the output (docs/plugins.md): not varied.
 _OUTPUT_NEUTRAL = ("device", "batch_size")
 
@@ -314,6 +329,10 @@ def _varied_params(enc: Any) -> tuple[dict[str, Any], list[str]] | None:
         sig = inspect.signature(type(enc).__init__)
     except (TypeError, ValueError):
         return None
+    try:
+        built = _BUILT_WITH.get(enc, {})
+    except TypeError:
+        built = {}
     values: dict[str, Any] = {}
     for name, param in list(sig.parameters.items())[1:]:
         if param.kind not in (param.POSITIONAL_OR_KEYWORD, param.KEYWORD_ONLY):
@@ -323,9 +342,12 @@ def _varied_params(enc: Any) -> tuple[dict[str, Any], list[str]] | None:
                 values[name] = vars(enc)[attr]
                 break
         else:
-            if param.default is param.empty:
+            if name in built:
+                values[name] = built[name]
+            elif param.default is param.empty:
                 return None
-            values[name] = param.default
+            else:
+                values[name] = param.default
     # numbers, switches (a `lowercase: True` changes the output as a size does) and
     # strings (a prompt prefix, a salt, a mode)
     varied = [

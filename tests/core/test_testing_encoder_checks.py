@@ -279,3 +279,54 @@ def test_a_key_or_a_path_is_not_varied(tmp_path):
     assert log.is_file()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["kit", "remote.log"]
     assert set(_Remote.keys_sent) == {"sk-test-0123456789"}
+
+
+class _VocabFile(Encoder):
+    """Needs a file (no default), keeps it as ``_words`` (not ``vocab``), and keeps its
+    ``seed`` out of config(): two seeds share a fingerprint."""
+
+    name = "vocab-file"
+
+    def __init__(self, vocab: str, seed: int = 0) -> None:
+        with open(vocab, encoding="utf-8") as f:
+            self._words = f.read().split()
+        self._seed = seed
+
+    @classmethod
+    def conformance_params(cls, tmp_path):
+        path = tmp_path / "vocab.txt"
+        path.write_text("chair table sofa\n", encoding="utf-8")
+        return {"vocab": str(path)}
+
+    @property
+    def dim(self) -> int:
+        return 8
+
+    def encode_text(self, texts):
+        return HashingEncoder(8).encode_text([f"{self._seed} {t}" for t in texts])
+
+    def config(self):
+        return {"words": self._words}
+
+
+def test_a_required_parameter_under_another_name_does_not_skip_the_fingerprint_check(
+    tmp_path,
+):
+    """The kit guessed the constructor's parameters from the instance's attributes only;
+    'vocab', kept as '_words', was unknown, so the fingerprint check returned early and
+    the seed the fingerprint misses passed. The kit now knows what it built it with."""
+    from quash_plugins.core import registry
+    from quash_plugins.testing import check_plugin
+
+    assert _VocabFile(**_VocabFile.conformance_params(tmp_path)).fingerprint() == (
+        _VocabFile(seed=1, **_VocabFile.conformance_params(tmp_path)).fingerprint()
+    )
+    registry.register("encoders", "kit-vocab-file", _VocabFile, dist="lab-vocab")
+    try:
+        with pytest.raises(AssertionError) as err:
+            check_plugin("encoders", "kit-vocab-file", tmp_path / "kit")
+    finally:
+        registry.unregister("encoders", "kit-vocab-file", dist="lab-vocab")
+    msg = str(err.value)
+    assert msg.startswith("encoders:kit-vocab-file-check_encoder_fingerprint_follows_params: ")
+    assert "parameter 'seed'" in msg and "seed=0 and seed=1" in msg
