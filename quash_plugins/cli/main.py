@@ -113,7 +113,13 @@ def _output_options(suppress: bool) -> argparse.ArgumentParser:
         help="More log output (-vv: most).",
         **(none or {"default": 0}),
     )
-    g.add_argument("-q", "--quiet", action="store_true", help="Only warnings and errors.", **none)
+    g.add_argument(
+        "-q",
+        "--quiet",
+        action="store_true",
+        help="Only warnings and errors (the Hugging Face libraries': errors only).",
+        **none,
+    )
     g.add_argument("--debug", action="store_true", help="Show tracebacks on errors.", **none)
     return common
 

@@ -40,14 +40,75 @@ _CONFIG_NAMES = (
 
 
 def require(module: str, extra: str) -> Any:
-    """Import ``module`` or raise an :class:`EncoderError` naming the extra to install."""
+    """Import ``module`` or raise an :class:`EncoderError` naming the extra to install.
+    Once imported, the Hugging Face libraries log through ``quash``'s handlers
+    (:func:`route_library_logs`)."""
     try:
-        return importlib.import_module(module)
+        imported = importlib.import_module(module)
     except ImportError as exc:
         raise EncoderError(
             f"This encoder needs the Python package {module!r} ({exc}). Install it with "
             f'pip install "quash-plugins[{extra}]"'
         ) from None
+    route_library_logs()
+    return imported
+
+
+#: The loggers of the libraries the torch encoders load their models through; each
+#: puts a handler of its own on its logger when imported.
+LIBRARY_LOGGERS = ("huggingface_hub", "transformers", "sentence_transformers")
+
+
+class _ToPackageHandlers(logging.Handler):
+    """Hands a library's record to the handlers of the ``quash_plugins`` logger, as they
+    are when it is emitted (the format, redaction and escaping of ``quash``'s own lines):
+    under ``--quiet`` (that logger at WARNING or above) only errors, else the library's
+    warnings too (and whatever its own level lets through), each line prefixed with the
+    library's name."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        ours = logging.getLogger("quash_plugins")
+        if not _command_logging(ours):  # no longer the command's: as Python would
+            if logging.lastResort is not None and record.levelno >= logging.lastResort.level:
+                logging.lastResort.handle(record)
+            return
+        if ours.getEffectiveLevel() >= logging.WARNING and record.levelno < logging.ERROR:
+            return
+        # said as whose it is, as open_clip's are ("huggingface_hub: Retrying in 1s ...")
+        library = record.name.split(".", 1)[0]
+        record = logging.makeLogRecord(
+            {**record.__dict__, "msg": f"{library}: {record.getMessage()}", "args": None}
+        )
+        for handler in ours.handlers:
+            if record.levelno >= handler.level:
+                handler.handle(record)
+
+
+def _command_logging(ours: logging.Logger) -> bool:
+    """Whether the ``quash`` command set up the package's logging: handlers of its own,
+    not propagated."""
+    return not ours.propagate and any(not isinstance(h, logging.NullHandler) for h in ours.handlers)
+
+
+def route_library_logs() -> None:
+    """Send the Hugging Face libraries' log lines (the hub's "Retrying in 2s" and request
+    errors, transformers' warnings) through the ``quash`` command's logging, in place of
+    the handlers the libraries print with themselves, so that ``--quiet`` silences their
+    warnings and the default and ``--verbose`` show them as ``WARNING  ...`` lines.
+
+    Only where the command set up logging (:func:`quash_plugins.cli._output.setup_logging`
+    gives the ``quash_plugins`` logger its own handlers and stops its propagation): a
+    program that uses the package and configures logging itself is left alone."""
+    if not _command_logging(logging.getLogger("quash_plugins")):
+        return
+    for name in LIBRARY_LOGGERS:
+        lib = logging.getLogger(name)
+        if (
+            not any(isinstance(h, _ToPackageHandlers) for h in lib.handlers)
+            or len(lib.handlers) > 1
+        ):
+            lib.handlers[:] = [_ToPackageHandlers()]
+        lib.propagate = False
 
 
 def resolve_device(device: str | None) -> str:
