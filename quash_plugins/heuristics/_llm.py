@@ -156,6 +156,12 @@ def request_url(base_url: str) -> str:
     return chat_endpoint(base_url) + (f"?{query}" if query else "")
 
 
+def _dropped_errors(httpx: Any) -> tuple[type[Exception], ...]:
+    """httpx's errors for a connection the server closed after it was made (not a
+    connection that could not be made: httpx.ConnectError)."""
+    return (httpx.ReadError, httpx.WriteError, httpx.CloseError, httpx.RemoteProtocolError)
+
+
 def _import_httpx() -> Any:
     try:
         import httpx
@@ -507,6 +513,15 @@ class LLMHeuristic(Heuristic):
                     )
                 except httpx.TimeoutException:
                     last, why = f"timed out after {self.timeout:g} s", "timeout"
+                except _dropped_errors(httpx) as exc:
+                    # the server took the request and closed the connection without a
+                    # whole reply: it is there (crashed, killed, or a proxy cut it off)
+                    text = redact(str(exc), secrets)
+                    last = (
+                        "the server closed the connection before a whole reply "
+                        f"({type(exc).__name__}{': ' + text if text else ''})"
+                    )
+                    why = "dropped"
                 except httpx.TransportError as exc:
                     last, why = connect_reason(exc, self.endpoint, secrets), "connect"
                 except httpx.RequestError as exc:  # none other is known; never "unexpected"
@@ -567,10 +582,13 @@ class LLMHeuristic(Heuristic):
                             f"{redact(self._status_hint(status, client), secrets)}"
                             f"{proxy_note(self.endpoint)}"
                         )
-                log.warning("llm: %s %s", self.endpoint, last)
                 if attempt + 1 < attempts:
-                    time.sleep(min(wait, MAX_RETRY_AFTER))
-        proxied = ("connect", "timeout", "status", "api", "decode")
+                    wait = min(wait, MAX_RETRY_AFTER)
+                    log.warning("llm: %s %s; retrying in %.3g s", self.endpoint, last, wait)
+                    time.sleep(wait)
+                else:
+                    log.warning("llm: %s %s", self.endpoint, last)
+        proxied = ("connect", "dropped", "timeout", "status", "api", "decode")
         raise HeuristicError(
             f"Heuristic 'llm': no usable reply from {self.endpoint} (model {self.model!r}) for "
             f"{query!r} after {attempts} attempt(s); last: {last}. {self._fix(why)}"
@@ -626,6 +644,12 @@ class LLMHeuristic(Heuristic):
             return (
                 f"Start the server (Ollama: ollama serve; vLLM: vllm serve MODEL; llama.cpp: "
                 f"llama-server -m MODEL.gguf) or set base_url to where it listens, {cached}"
+            )
+        if why == "dropped":
+            return (
+                "The server took the request and closed the connection without a whole "
+                "reply (it crashed or was killed, ran out of memory loading the model, or a "
+                f"proxy in between cut it): see the server's log, raise max_retries, {cached}"
             )
         if why == "timeout":
             return (

@@ -1,0 +1,99 @@
+"""The ``llm`` heuristic against servers that misbehave as real ones do: a server that
+closes the connection (before a reply, or in the middle of one), and a rate limit
+whose wait is logged. On 127.0.0.1, through the servers of test_heuristics_llm and
+test_llm_http_limits."""
+
+from __future__ import annotations
+
+import logging
+import socket
+
+import pytest
+from test_heuristics_llm import _completion, make
+from test_llm_http_limits import RawServer, _make
+
+from quash_plugins.core.errors import HeuristicError
+
+pytest.importorskip("httpx")
+
+
+@pytest.fixture
+def raw():
+    """Start a RawServer of test_llm_http_limits with a POST handler; closed after."""
+    servers: list[RawServer] = []
+
+    def start(handler) -> RawServer:
+        servers.append(RawServer(handler))
+        return servers[-1]
+
+    yield start
+    for s in servers:
+        s.close()
+
+
+def _hang_up(handler, server) -> None:
+    """Read the request, answer nothing, close the connection."""
+    handler.connection.shutdown(socket.SHUT_RDWR)
+
+
+def _half_reply(handler, server) -> None:
+    """Promise a whole completion, send half of it, close the connection."""
+    body = _completion('{"synonyms": ["seat"], "antonyms": ["table"]}')
+    handler.send_response(200)
+    handler.send_header("Content-Type", "application/json")
+    handler.send_header("Content-Length", str(len(body)))
+    handler.end_headers()
+    handler.wfile.write(body[: len(body) // 2])
+    handler.wfile.flush()
+    handler.connection.shutdown(socket.SHUT_RDWR)
+
+
+@pytest.mark.parametrize(
+    ("handler", "words"),
+    [
+        (_hang_up, "RemoteProtocolError: Server disconnected without sending a response."),
+        (_half_reply, "RemoteProtocolError: peer closed connection without sending complete"),
+    ],
+)
+def test_a_server_that_hangs_up_is_not_told_to_start(raw, tmp_path, caplog, handler, words):
+    """A server that took the request and closed the connection is running: the error
+    said 'connection failed (...)' and 'Start the server ... or set base_url to where it
+    listens', which sent users to check a server that was up (it had crashed on the
+    request, or run out of memory loading the model). Retried, bounded, nothing cached."""
+    s = raw(handler)
+    h = _make(s.base_url, tmp_path, max_retries=1)
+    caplog.set_level(logging.INFO, logger="quash_plugins")
+    with pytest.raises(HeuristicError) as err:
+        h.expand("chair")
+    msg = str(err.value)
+    assert len(s.requests) == 2
+    assert h.endpoint in msg and "after 2 attempt(s)" in msg
+    assert f"last: the server closed the connection before a whole reply ({words}" in msg
+    assert "see the server's log, raise max_retries" in msg
+    assert "Start the server" not in msg and "nothing listens" not in msg
+    warned = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    assert len(warned) == 2 and all("the server closed the connection" in w for w in warned)
+    assert not list((tmp_path / "llm").glob("*.json"))
+
+
+def test_each_retry_says_how_long_it_waits(server, tmp_path, caplog):
+    """A 429 with Retry-After: 1 was logged as 'status 429: ...' and then nothing for the
+    wait (up to 60 s a try): the warning now says when the next attempt comes. The last
+    failed attempt has no next one, and says none."""
+    server.play(
+        429, raw=b'{"error": {"message": "Rate limit reached"}}', headers={"Retry-After": "1"}
+    )
+    server.play(500, raw=b'{"error": "boom"}')
+    server.play(500, raw=b'{"error": "boom"}')
+    caplog.set_level(logging.WARNING, logger="quash_plugins")
+    with pytest.raises(HeuristicError, match="after 3 attempt"):
+        make(server, tmp_path, max_retries=2, backoff=0.05).expand("chair")
+    warned = [r.getMessage() for r in caplog.records if r.name.endswith("_llm")]
+    assert warned == [
+        f"llm: {server.base_url}/chat/completions status 429: "
+        '\'{"error": {"message": "Rate limit reached"}}\'; retrying in 1 s',
+        f'llm: {server.base_url}/chat/completions status 500: \'{{"error": "boom"}}\'; '
+        "retrying in 0.1 s",
+        f'llm: {server.base_url}/chat/completions status 500: \'{{"error": "boom"}}\'',
+    ]
+    assert server.times[1] - server.times[0] >= 0.95
