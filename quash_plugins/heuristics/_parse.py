@@ -32,6 +32,7 @@ from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
 from ..core.redact import redact_start
+from ._taxonomy import normalise_name
 
 _SYN_KEYS = ("synonyms", "synonym", "positives", "positive")
 _ANT_KEYS = ("antonyms", "antonym", "negatives", "negative")
@@ -109,12 +110,18 @@ def clean_lists(
     --------
     >>> clean_lists("chair", ["Seat", "seat", "chair"], ["chair", "seat", "table"], 5, 5)
     (['seat'], ['table'])
+    >>> clean_lists("chair", ["seat"], ["chairs", "a chair", "seats", "tables"], 5, 5)
+    (['seat'], ['tables'])
     """
     q = _norm(query)
     syn = list(itertools.islice((s for s in _dedupe(synonyms, keep) if s != q), max(0, n_syn)))
-    taken = {q, *syn}
+    # an antonym that names the query or a synonym in another number or with an article
+    # ("chairs", "a chair") would be a negative for the very thing asked for
+    taken = {normalise_name(w) for w in (q, *syn)}
     ant = list(
-        itertools.islice((a for a in _dedupe(antonyms, keep) if a not in taken), max(0, n_ant))
+        itertools.islice(
+            (a for a in _dedupe(antonyms, keep) if normalise_name(a) not in taken), max(0, n_ant)
+        )
     )
     return syn, ant
 

@@ -1,6 +1,7 @@
 """The ``llm`` heuristic against servers that misbehave as real ones do: a server that
-closes the connection (before a reply, or in the middle of one), and a rate limit
-whose wait is logged. On 127.0.0.1, through the servers of test_heuristics_llm and
+closes the connection (before a reply, or in the middle of one), a rate limit whose
+wait is logged, and a model that lists the query (in the plural, with an article) among
+its antonyms. On 127.0.0.1, through the servers of test_heuristics_llm and
 test_llm_http_limits."""
 
 from __future__ import annotations
@@ -97,3 +98,19 @@ def test_each_retry_says_how_long_it_waits(server, tmp_path, caplog):
         f'llm: {server.base_url}/chat/completions status 500: \'{{"error": "boom"}}\'',
     ]
     assert server.times[1] - server.times[0] >= 0.95
+
+
+def test_the_query_in_another_number_is_no_antonym(server, tmp_path):
+    """'chairs' and 'a chair' among the antonyms of 'chair' were kept as negatives, and
+    cached: the classifier was trained to reject the very thing asked for. So were
+    'seats' for the synonym 'seat'. Dropped as the query itself is."""
+    server.default = (
+        '{"synonyms": ["seat", "Chairs", "stool"], '
+        '"antonyms": ["chairs", "A Chair", "seats", "tables", "lamp"]}'
+    )
+    h = make(server, tmp_path)
+    qs = h.expand("chair")
+    assert qs.positives == ["chair", "seat", "chairs", "stool"]
+    assert qs.negatives == ["tables", "lamp"]
+    again = make(server, tmp_path).expand("chair")  # from the cache, as cleaned
+    assert again.provenance["source"] == "cache" and again.negatives == ["tables", "lamp"]
