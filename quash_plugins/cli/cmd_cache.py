@@ -12,7 +12,8 @@ The text-embedding cache keeps every string's embedding, keyed by the encoder's
 fingerprint (model, weights identity, normalisation) and the exact string, so a repeated
 query makes no call to the model. Location: $QUASH_CACHE_DIR/text-embeddings, else the
 user cache directory. Size bound: $QUASH_CACHE_MAX_MB (default 512). Turn it off for one
-run with --no-cache (query, expand) or 'cache: false' in the config.
+run with --no-cache (query, expand, eval, demo, make-scene, bench), QUASH_NO_CACHE=1,
+or 'cache: false' in the config.
 
 The llm heuristic keeps each query set it got from the server (one JSON file per query,
 model, endpoint, prompt version and counts), so a second run asks no server. Location:
@@ -25,7 +26,7 @@ examples:
   quash cache info --json
   quash cache clear                       # text embeddings
   quash cache clear --llm                 # LLM query sets
-  quash cache clear --llm --dir llm-cache # those of a config with cache_dir: llm-cache"""
+  quash cache clear --llm --dir llm-cache # a config's cache_dir: llm-cache (from its folder)"""
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

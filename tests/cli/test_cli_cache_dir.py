@@ -57,3 +57,21 @@ def test_info_llm_dir_lists_only_that_folder(tmp_path, capsys):
     assert main(["cache", "info", "--llm", "--json", "--dir", str(own)]) == 0
     info = json.loads(capsys.readouterr().out)
     assert info["directory"] == str(own) and [m["model"] for m in info["models"]] == ["own-model"]
+
+
+def test_cache_help_names_every_command_that_takes_no_cache():
+    """`quash cache --help` says which commands turn the cache off with --no-cache: all
+    of them (it once named only query and expand)."""
+    import re
+
+    from quash_plugins.cli import cmd_cache
+    from quash_plugins.cli.main import build_parser, subcommand_parsers
+
+    takes = sorted(
+        name
+        for name, sub in subcommand_parsers(build_parser()).items()
+        if any("--no-cache" in a.option_strings for a in sub._actions)
+    )
+    said = re.search(r"--no-cache \(([^)]*)\)", " ".join(cmd_cache.DESCRIPTION.split()))
+    assert takes and said is not None
+    assert sorted(w.strip() for w in said.group(1).split(",")) == takes
