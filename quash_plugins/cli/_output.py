@@ -1,7 +1,7 @@
 """Console output of the subcommands: logging, JSON and rich tables.
 
 Tables printed to the terminal are rich tables sized to its width: headers and text
-cells wrap at spaces only, numbers never fold, and a table whose columns cannot fit is
+cells wrap at spaces only, numbers never fold, a row's name and a label stay on one line, and a table whose columns cannot fit is
 shown in parts (each with the first column) under a note. A Markdown image line is
 printed as ``plot: PATH``. Markdown is only what the commands write to files.
 """
@@ -191,6 +191,18 @@ def _blocks(md: str) -> Iterator[tuple[str, list[str]]]:
             i += 1
 
 
+#: Headers of text columns that, as the first column, name something and are kept on one
+#: line: a ground-truth label ("tv monitor", "chest of drawers") broken over two lines reads
+#: as two labels.
+_WHOLE = ("label",)
+
+
+def _whole(i: int, header: list[str]) -> bool:
+    """Whether column ``i`` keeps each cell on one line: the first column (it names the
+    row: a query, a method) and a column of :data:`_WHOLE` (a label)."""
+    return i == 0 or _cell(header[i]).plain.strip().casefold() in _WHOLE
+
+
 #: Spaces between two columns of a terminal table (a one-space divider plus padding),
 #: from the most generous to the tightest.
 _GAPS = (3, 2, 1)
@@ -198,8 +210,8 @@ _GAPS = (3, 2, 1)
 
 def _widths(header: list[str], body: list[list[str]], align: list[str]) -> list[tuple]:
     """Per column ``(lo, hi, right)``: the narrowest width that breaks no word of its
-    header and no cell (a number or the first column is never wrapped; other text wraps
-    at spaces), the width that shows every cell and the header on one line, and whether
+    header and no cell (a number, the first column or a label is never wrapped; other
+    text wraps at spaces), the width that shows every cell and the header on one line, and whether
     it is right-aligned (``---:`` in the Markdown)."""
     from rich.cells import cell_len
 
@@ -212,7 +224,7 @@ def _widths(header: list[str], body: list[list[str]], align: list[str]) -> list[
         full = max([cell_len(c) for c in cells], default=0)
         words = [cell_len(w) for c in cells for w in c.split()]
         head_words = max((cell_len(w) for w in head.split()), default=0)
-        if i == 0:  # names the row: on one line, header included
+        if _whole(i, header):  # names the row, or a label: on one line, header included
             lo = max(full, cell_len(head))
         elif right:  # a number is never folded
             lo = max(full, head_words)
@@ -264,7 +276,8 @@ def markdown_table(lines: list[str], width: int | None = None) -> Any:
 
     Columns aligned ``---:`` in the Markdown are right-aligned, and a number is never
     folded. A header wraps only at its spaces, and a text cell too; the first column,
-    which names the row, stays on one line. When the columns do not fit even so (many
+    which names the row, and a ``label`` column (a query's ground-truth label) stay on
+    one line. When the columns do not fit even so (many
     configs side by side on a narrow terminal), the table is printed in parts, each with
     the first column and as many others as fit, under a note saying so.
     """
@@ -304,9 +317,9 @@ def markdown_table(lines: list[str], width: int | None = None) -> Any:
             _cell(name),
             justify="right" if cols[i][2] else "left",
             overflow="fold",
-            no_wrap=i == 0,
+            no_wrap=_whole(i, header),
             width=fixed[i] if fixed else None,
-            min_width=cols[i][0] if cols[i][2] or i == 0 else None,
+            min_width=cols[i][0] if cols[i][2] or _whole(i, header) else None,
         )
     for row in body:
         table.add_row(*[_cell(c) for c in row[: len(header)]])

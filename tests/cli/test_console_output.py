@@ -219,6 +219,59 @@ def test_eval_at_80_columns_breaks_no_header_word(minilm_scene, monkeypatch, cap
     assert len(row) == 9 and "/" in row[-1]  # the last column, present -> empty, is there
 
 
+def _config(name: str, f1s: dict[str, tuple[str, float]], absent: dict[str, str]) -> dict:
+    """A report's config entry as evaluate() writes it (the fields the tables read)."""
+    per_query = {q: {"label": label, "f1": f1} for q, (label, f1) in f1s.items()}
+    mean = {k: 0.5 for k in ("precision", "recall", "f1", "iou", "ap", "inv_rank")}
+    return {
+        "name": name,
+        "given": "the label list (the map's label names)",
+        "mean": mean,
+        "per_query": per_query,
+        "absence": {
+            "score": 1.0,
+            "empty_tolerance": 0,
+            "present_empty": 0,
+            "per_query": {
+                q: {"label": label, "matched": 0, "empty": True} for q, label in absent.items()
+            },
+        },
+    }
+
+
+@pytest.mark.parametrize("width", [80, 72])
+def test_a_label_cell_never_breaks_inside_a_name(width):
+    """At 80 columns the label 'tv monitor' of 'a television screen=tv monitor' printed
+    as 'tv' over 'monitor', which reads as two labels."""
+    from quash_plugins.evaluation.report import report_markdown
+
+    labels = {
+        "a television screen": "tv monitor",
+        "somewhere to put clothes": "chest of drawers",
+        "bunk bed": "bed",
+    }
+    names = ["vlmaps-labels", "openscene-labels", "quash-labels", "quash-taxonomy"]
+    configs = [
+        _config(
+            n, {q: (lab, 0.1 * (i + 1)) for q, lab in labels.items()}, {"a grand piano": "piano"}
+        )
+        for i, n in enumerate(names)
+    ]
+    lines = _printed(report_markdown(configs), width)
+    text = "\n".join(lines)
+    assert max(len(ln.rstrip()) for ln in lines) <= width, text
+    for query, label in labels.items():
+        rows = [ln for ln in lines if ln.startswith(query)]
+        assert rows and re.match(rf"{query}\s+{label}\s", rows[0]), text
+        # the line below the query's row is not the rest of its label
+        below = lines[lines.index(rows[0]) + 1].split()
+        assert not below or below[0] not in label.split()[1:], text
+    # every config's F1 of every query is still printed whole
+    values = {w for ln in lines for w in ln.split()}
+    assert {"0.100", "0.200", "0.300", "0.400"} <= values, text
+    assert set(names) <= values, text
+
+
 def test_a_markdown_image_prints_as_its_path():
     console = Console(width=80, record=True, highlight=False)
     print_markdown(console, "## Fair\n\n![The fair protocol](fair.png)\n", base="out/bench")
