@@ -546,7 +546,7 @@ class LLMHeuristic(Heuristic):
                         finish = None
                         try:
                             content, finish = content_of(resp, secrets)
-                            syn, ant = parse_reply(content, secrets)
+                            syn, ant = parse_reply(content, secrets, finish == "length")
                             # A reply that echoes a credential never reaches a query set,
                             # a cache file or a log line.
                             return clean_lists(

@@ -64,11 +64,15 @@ _THOUGHTS_END = re.compile(rf"</(?:{_THOUGHT_TAGS})\s*>", re.I)
 _THOUGHTS_OPEN = re.compile(rf"<(?:{_THOUGHT_TAGS})>", re.I)
 
 
-def parse_reply(text: str, secrets: Iterable[str | None] = ()) -> tuple[list[str], list[str]]:
+def parse_reply(
+    text: str, secrets: Iterable[str | None] = (), cut_off: bool = False
+) -> tuple[list[str], list[str]]:
     """Return raw ``(synonyms, antonyms)`` from a reply; ValueError when neither is found.
 
     ``secrets`` (the API key) are redacted from the reply quoted in the ValueError before
-    it is shortened.
+    it is shortened. ``cut_off``: the reply stopped at the token limit (``finish_reason``
+    ``length``), so only a whole JSON object is taken: a list of lines or commas read up
+    to the cut would end in a cut item ("la" of "lamp") and lack the rest.
 
     Examples
     --------
@@ -85,6 +89,8 @@ def parse_reply(text: str, secrets: Iterable[str | None] = ()) -> tuple[list[str
         found = _from_json(obj)
         if found is not None:
             return found
+    if cut_off:
+        raise ValueError(f"no whole JSON lists before the cut in {_short(text, secrets)}")
     found = _from_sections(text)
     if found is not None:
         return found

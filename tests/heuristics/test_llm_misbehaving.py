@@ -6,6 +6,7 @@ test_llm_http_limits."""
 
 from __future__ import annotations
 
+import json
 import logging
 import socket
 
@@ -114,3 +115,33 @@ def test_the_query_in_another_number_is_no_antonym(server, tmp_path):
     assert qs.negatives == ["tables", "lamp"]
     again = make(server, tmp_path).expand("chair")  # from the cache, as cleaned
     assert again.provenance["source"] == "cache" and again.negatives == ["tables", "lamp"]
+
+
+def _cut(content: str) -> bytes:
+    """A chat completion that stopped at the token limit."""
+    message = {"role": "assistant", "content": content}
+    return json.dumps({"choices": [{"message": message, "finish_reason": "length"}]}).encode()
+
+
+@pytest.mark.parametrize(
+    "reply",
+    ["Synonyms:\n1. seat\n2. stool\nAntonyms:\n1. table\n2. la", "Synonyms: seat, stool, arm"],
+)
+def test_a_list_cut_at_the_token_limit_is_not_taken_or_cached(server, tmp_path, reply):
+    """A model that answers in lines or commas and stops at its token limit: the lists
+    read up to the cut were taken (antonyms ['table', 'la'], a synonym 'arm') and cached,
+    so every later run served the cut set. Now the failure says 'token limit'."""
+    server.play(raw=_cut(reply))
+    h = make(server, tmp_path, max_retries=0)
+    with pytest.raises(HeuristicError) as err:
+        h.expand("chair")
+    msg = str(err.value)
+    assert "no whole JSON lists before the cut" in msg and "finish_reason 'length'" in msg
+    assert "stopped at its token limit" in msg
+    assert not h.cache_path("chair").exists()
+
+
+def test_a_whole_json_object_before_the_token_limit_is_used(server, tmp_path):
+    server.play(raw=_cut('{"synonyms": ["seat"], "antonyms": ["table"]}\nAlso, a'))
+    qs = make(server, tmp_path, max_retries=0).expand("chair")
+    assert qs.positives == ["chair", "seat"] and qs.negatives == ["table"]
