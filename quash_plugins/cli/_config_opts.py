@@ -136,7 +136,10 @@ def check_devices_present(cfg: QuashConfig, flag: bool = False) -> None:
     from ..engine.device import device_unavailable
 
     asked: list[tuple[str, tuple[str, ...]]] = []
-    if not _is_mps(cfg.device) or _encoder_takes_device(cfg):
+    # mps reaches only an encoder that takes a device and has none of its own
+    if not _is_mps(cfg.device) or (
+        "device" not in cfg.encoder.params and _encoder_takes_device(cfg)
+    ):
         asked.append((cfg.device, ("device",)))
     for section, value in vars(cfg).items():
         if isinstance(value, PluginSpec):

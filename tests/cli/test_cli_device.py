@@ -73,6 +73,11 @@ def test_mps_without_mps_is_refused_for_a_torch_encoder(monkeypatch, reads, tmp_
     # an encoder that takes no device never runs on mps: nothing is refused
     cfg = QuashConfig.from_dict({"encoder": "bag-of-words", "device": "mps"})
     check_devices_present(cfg)
+    # nor for one whose section names its own device
+    cfg = QuashConfig.from_dict({"encoder": {"name": "minilm", "device": "cpu"}, "device": "mps"})
+    check_devices_present(cfg)
+    with pytest.raises(ConfigError, match="device: 'mps': torch sees no Apple MPS"):
+        check_devices_present(QuashConfig.from_dict({"encoder": "minilm", "device": "mps"}))
 
 
 def test_a_config_files_device_is_refused_naming_the_file_and_field(
