@@ -92,6 +92,28 @@ def test_passes_the_conformance_kit(installed, tmp_path):
         c(tmp_path / c.check.__name__)
 
 
+def test_the_example_package_runs_the_kit_in_its_own_test_suite(installed, tmp_path):
+    """The example's tests/test_conformance.py, the one line docs/plugins.md asks of a
+    plugin package, collects every check of the example's encoder, and each passes."""
+    tests = EXAMPLES / "quash-char-ngram" / "tests"
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(installed), *sys.path])}
+    done = subprocess.run(
+        [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-p", "no:dash"]
+        + ["--rootdir", str(tests), "-c", os.devnull, "--basetemp", str(tmp_path / "t")]
+        + [str(tests)],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-2000:]
+    from quash_plugins.testing import plugin_checks
+
+    n = len(plugin_checks(dist="quash-char-ngram"))
+    assert n >= 8 and f"{n} passed" in done.stdout, done.stdout[-1000:]
+
+
 def test_broken_plugin_is_reported_and_others_keep_working(installed):
     with pytest.raises(PluginError) as err:
         registry.load("encoders", "broken-encoder")
