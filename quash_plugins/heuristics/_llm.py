@@ -390,6 +390,12 @@ class LLMHeuristic(Heuristic):
         if cached is not None:
             synonyms, antonyms = list(cached["synonyms"]), list(cached["antonyms"])
             log.info("llm: %r served from cache %s", query, self.cache_path(query, seed))
+            if not synonyms and not antonyms:  # a file edited by hand
+                log.warning(
+                    "llm: the cached set for %r (%s) holds no synonyms and no antonyms",
+                    query,
+                    self.cache_path(query, seed),
+                )
         elif self.offline:
             where = self._cache_root() if self.cache else "(cache disabled)"
             sampled = (
@@ -427,14 +433,18 @@ class LLMHeuristic(Heuristic):
                     len(antonyms),
                     self.n_antonyms,
                 )
-            if self.cache:
-                if synonyms or antonyms:
-                    self._write_cache(query, synonyms, antonyms, seed)
-                    self._cached_now += 1
-                else:
-                    log.warning("llm: empty reply for %r is not cached", query)
-        if not synonyms and not antonyms:
-            log.warning("llm: %s returned no synonyms and no antonyms for %r", self.model, query)
+            if not synonyms and not antonyms:
+                log.warning(
+                    "llm: %s (%s) returned no synonyms and no antonyms for %r: the query "
+                    "alone is the positive%s",
+                    self.endpoint,
+                    self.model,
+                    query,
+                    "; not cached, so the next run asks again" if self.cache else "",
+                )
+            elif self.cache:
+                self._write_cache(query, synonyms, antonyms, seed)
+                self._cached_now += 1
         extra: dict[str, Any] = {"source": source, "prompt_version": PROMPT_VERSION}
         if self.cache:
             extra["cache_file"] = str(self.cache_path(query, seed))

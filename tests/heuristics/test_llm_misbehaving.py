@@ -145,3 +145,36 @@ def test_a_whole_json_object_before_the_token_limit_is_used(server, tmp_path):
     server.play(raw=_cut('{"synonyms": ["seat"], "antonyms": ["table"]}\nAlso, a'))
     qs = make(server, tmp_path, max_retries=0).expand("chair")
     assert qs.positives == ["chair", "seat"] and qs.negatives == ["table"]
+
+
+@pytest.mark.parametrize(
+    "reply", ['{"synonyms": [], "antonyms": []}', '{"synonyms": ["Chair"], "antonyms": ["chairs"]}']
+)
+def test_an_empty_reply_is_one_warning_naming_the_endpoint(server, tmp_path, caplog, reply):
+    """Two warnings said it ('empty reply for 'chair' is not cached', then 'test-model
+    returned no synonyms and no antonyms'), and neither named the endpoint."""
+    server.default = reply
+    caplog.set_level(logging.WARNING, logger="quash_plugins")
+    h = make(server, tmp_path)
+    qs = h.expand("chair")
+    assert qs.positives == ["chair"] and qs.negatives == []
+    warned = [r.getMessage() for r in caplog.records]
+    assert warned == [
+        f"llm: {h.endpoint} (test-model) returned no synonyms and no antonyms for 'chair': "
+        "the query alone is the positive; not cached, so the next run asks again"
+    ]
+    assert not h.cache_path("chair").exists()
+
+
+def test_an_empty_cached_set_says_which_file(server, tmp_path, caplog):
+    """A cache file emptied by hand: the warning named the model as if the server had
+    answered; it names the file to delete."""
+    h = make(server, tmp_path)
+    path = h._write_cache("chair", [], [])
+    caplog.set_level(logging.WARNING, logger="quash_plugins")
+    qs = h.expand("chair")
+    assert qs.provenance["source"] == "cache" and qs.positives == ["chair"]
+    assert [r.getMessage() for r in caplog.records] == [
+        f"llm: the cached set for 'chair' ({path}) holds no synonyms and no antonyms"
+    ]
+    assert server.requests == []
