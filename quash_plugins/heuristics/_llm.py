@@ -39,6 +39,7 @@ from ._llm_http import (
     redirect_hint,
     retry_after,
     snippet,
+    tls_failure,
 )
 from ._parse import clean_lists, parse_reply
 
@@ -533,7 +534,10 @@ class LLMHeuristic(Heuristic):
                     )
                     why = "dropped"
                 except httpx.TransportError as exc:
-                    last, why = connect_reason(exc, self.endpoint, secrets), "connect"
+                    last = connect_reason(exc, self.endpoint, secrets)
+                    why = {"plain": "tls-plain", "cert": "tls-cert"}.get(
+                        tls_failure(exc) or "", "connect"
+                    )
                 except httpx.RequestError as exc:  # none other is known; never "unexpected"
                     last = f"request failed ({type(exc).__name__}: {redact(exc, secrets)})"
                     why = "status"
@@ -598,7 +602,16 @@ class LLMHeuristic(Heuristic):
                     time.sleep(wait)
                 else:
                     log.warning("llm: %s %s", self.endpoint, last)
-        proxied = ("connect", "dropped", "timeout", "status", "api", "decode")
+        proxied = (
+            "connect",
+            "tls-plain",
+            "tls-cert",
+            "dropped",
+            "timeout",
+            "status",
+            "api",
+            "decode",
+        )
         raise HeuristicError(
             f"Heuristic 'llm': no usable reply from {self.endpoint} (model {self.model!r}) for "
             f"{query!r} after {attempts} attempt(s); last: {last}. {self._fix(why)}"
@@ -654,6 +667,19 @@ class LLMHeuristic(Heuristic):
             return (
                 f"Start the server (Ollama: ollama serve; vLLM: vllm serve MODEL; llama.cpp: "
                 f"llama-server -m MODEL.gguf) or set base_url to where it listens, {cached}"
+            )
+        if why == "tls-plain":
+            plain = urlunsplit(("http", *urlsplit(self.base_url)[1:]))
+            return (
+                "The server speaks plain http (a local vLLM, Ollama or llama.cpp does): set "
+                f"base_url: {plain}, {cached}"
+            )
+        if why == "tls-cert":
+            return (
+                "This machine does not trust the server's certificate (self-signed, or "
+                "issued by an in-house authority or a proxy that inspects https): set "
+                "SSL_CERT_FILE to the CA bundle that signed it, or use the host name the "
+                f"certificate is for, {cached}"
             )
         if why == "dropped":
             return (

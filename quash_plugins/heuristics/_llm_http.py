@@ -126,6 +126,18 @@ def _secrets(key: str | Iterable[str]) -> list[str]:
     return [key] if isinstance(key, str) else list(key)
 
 
+def tls_failure(exc: Any) -> str | None:
+    """``"plain"`` when an https handshake met a server that speaks plain http (OpenSSL's
+    "wrong version number": ``https://`` for a local vLLM, Ollama or llama.cpp),
+    ``"cert"`` when the server's certificate is not trusted, else None."""
+    low = str(exc).lower()
+    if "wrong version number" in low or "wrong_version_number" in low:
+        return "plain"
+    if "certificate verify failed" in low or "certificate_verify_failed" in low:
+        return "cert"
+    return None
+
+
 def connect_reason(exc: Any, endpoint: str, key: str | Iterable[str] = "") -> str:
     """Why a connection failed, in words: refused, an unknown host, or httpx's reason;
     through which proxy, when the environment names one for ``endpoint``. ``key``: the
@@ -139,6 +151,11 @@ def connect_reason(exc: Any, endpoint: str, key: str | Iterable[str] = "") -> st
             f"connection failed through the proxy {proxy} from the environment "
             f"({type(exc).__name__}{': ' + text if text else ''})"
         )
+    tls = tls_failure(exc)
+    if tls == "plain":
+        return f"TLS handshake failed: {parts.netloc} answers plain http, not https ({text})"
+    if tls == "cert":
+        return f"TLS handshake failed: the certificate of {parts.hostname} is not trusted ({text})"
     if "refused" in low:
         return f"connection refused (nothing listens on {parts.netloc})"
     unknown = ("name or service not known", "nodename nor servname", "name resolution")

@@ -178,3 +178,42 @@ def test_an_empty_cached_set_says_which_file(server, tmp_path, caplog):
         f"llm: the cached set for 'chair' ({path}) holds no synonyms and no antonyms"
     ]
     assert server.requests == []
+
+
+def test_https_to_a_plain_http_server_says_to_use_http(server, tmp_path):
+    """base_url https:// for a local server: the error was 'connection failed
+    (ConnectError: [SSL: WRONG_VERSION_NUMBER] ...)' with 'Start the server', for a
+    server that was up."""
+    url = server.base_url.replace("http://", "https://")
+    h = _make(url, tmp_path)
+    with pytest.raises(HeuristicError) as err:
+        h.expand("chair")
+    msg = str(err.value)
+    netloc = url.split("/")[2]
+    assert f"last: TLS handshake failed: {netloc} answers plain http, not https" in msg
+    assert f"set base_url: {server.base_url}," in msg
+    assert "Start the server" not in msg and server.requests == []
+
+
+def test_an_untrusted_certificate_says_ssl_cert_file(tmp_path, monkeypatch):
+    import httpx
+
+    from quash_plugins.heuristics import _llm
+
+    def refuse(*args, **kwargs):
+        raise httpx.ConnectError(
+            "[SSL: CERTIFICATE_VERIFY_FAILED] certificate verify failed: self-signed "
+            "certificate (_ssl.c:1006)"
+        )
+
+    monkeypatch.setattr(_llm, "bounded_request", refuse)
+    for name in ("HTTP_PROXY", "HTTPS_PROXY", "ALL_PROXY"):  # no proxy named in the reason
+        monkeypatch.delenv(name, raising=False)
+        monkeypatch.delenv(name.lower(), raising=False)
+    h = _make("https://llm.lab.example/v1", tmp_path)
+    with pytest.raises(HeuristicError) as err:
+        h.expand("chair")
+    msg = str(err.value)
+    assert "TLS handshake failed: the certificate of llm.lab.example is not trusted" in msg
+    assert "set SSL_CERT_FILE to the CA bundle that signed it" in msg
+    assert "Start the server" not in msg
