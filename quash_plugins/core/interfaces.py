@@ -50,7 +50,13 @@ class Encoder(ABC):
 
     @abstractmethod
     def encode_text(self, texts: Sequence[str]) -> np.ndarray:
-        """Embed ``texts``; return ``(len(texts), dim)`` float32 with unit-norm rows."""
+        """Embed ``texts``; return ``(len(texts), dim)`` float32 with unit-norm rows.
+
+        One row per text, in order, each independent of the others in the batch. The
+        empty string ``""`` is a text like any other: embed it (one finite unit-norm row)
+        or refuse it with an :class:`~quash_plugins.core.errors.EncoderError` that says
+        so; never a zero or NaN row. ``quash_plugins.testing.check_encoder`` checks this.
+        """
 
     def encode_images(self, images: Any) -> np.ndarray:
         """Optional: global image embeddings ``(n, dim)``. Not every encoder has an image tower."""
