@@ -131,8 +131,16 @@ def chat_endpoint(base_url: str) -> str:
         ok = False
     if not ok:
         shown = redact_url(str(base_url))  # no query value, no user-info
+        text = str(base_url).strip()
+        guess = ""
+        if text and "://" not in text:  # "127.0.0.1:8000/v1", "localhost:11434/v1"
+            try:
+                if urlsplit(f"http://{text}").hostname:
+                    guess = f" Did you mean base_url: {redact_url('http://' + text)}?"
+            except ValueError:
+                pass
         raise ConfigError(
-            f"Heuristic 'llm': base_url {shown!r} is not an http(s) URL; e.g. "
+            f"Heuristic 'llm': base_url {shown!r} is not an http(s) URL.{guess} E.g. "
             "http://127.0.0.1:8000/v1 (vLLM), http://127.0.0.1:11434/v1 (Ollama), "
             "http://127.0.0.1:8080/v1 (llama.cpp)."
         )

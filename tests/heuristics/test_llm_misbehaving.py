@@ -217,3 +217,34 @@ def test_an_untrusted_certificate_says_ssl_cert_file(tmp_path, monkeypatch):
     assert "TLS handshake failed: the certificate of llm.lab.example is not trusted" in msg
     assert "set SSL_CERT_FILE to the CA bundle that signed it" in msg
     assert "Start the server" not in msg
+
+
+@pytest.mark.parametrize(
+    ("given", "meant"),
+    [
+        ("127.0.0.1:11434/v1", "http://127.0.0.1:11434/v1"),
+        ("localhost:8000/v1/", "http://localhost:8000/v1/"),
+        ("gpu-box:8080/v1?key=s3cret-value", "http://gpu-box:8080/v1?key=***"),
+    ],
+)
+def test_a_base_url_without_a_scheme_is_answered_with_one(given, meant):
+    """'localhost:8000/v1' was refused as 'not an http(s) URL' with three examples; the
+    message now gives the URL meant (query values hidden)."""
+    from quash_plugins.core.errors import ConfigError
+    from quash_plugins.heuristics._llm import LLMHeuristic
+
+    with pytest.raises(ConfigError) as err:
+        LLMHeuristic(model="m", base_url=given)
+    msg = str(err.value)
+    assert f"is not an http(s) URL. Did you mean base_url: {meant}?" in msg
+    assert "s3cret-value" not in msg
+
+
+def test_a_base_url_that_is_no_url_at_all_gets_no_guess():
+    from quash_plugins.core.errors import ConfigError
+    from quash_plugins.heuristics._llm import LLMHeuristic
+
+    with pytest.raises(ConfigError) as err:
+        LLMHeuristic(model="m", base_url="ftp://files/v1")
+    msg = str(err.value)
+    assert "Did you mean" not in msg and "E.g. http://127.0.0.1:8000/v1" in msg
