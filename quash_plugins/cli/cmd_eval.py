@@ -16,10 +16,10 @@ Scores each config's mask for every query against the map's ground truth
 mean, and from the scores the average precision (AP) and OpenLex3D's inverse rank.
 Open-vocabulary queries name their ground-truth label: --queries "bunk bed=bed,somewhere
 to sleep=bed" or --queries-file FILE.yaml. Unlabelled items (label < 0) and --exclude
-labels count neither as TP nor FP. Queries whose label no item carries, and every
---absent query, are absence queries: their score is the share that returns an empty
-mask (at most --empty-tolerance items); a label that is a near miss of one of the map's
-names ('bedd') is refused as a typo. Each row says what the method was given (the
+labels count neither as TP nor FP. Queries whose label no item carries (warned about
+unless given to --absent too), and every --absent query, are absence queries: their
+score is the share that returns an empty mask (at most --empty-tolerance items); a
+label that is a near miss of one of the map's names ('bedd') is refused as a typo. Each row says what the method was given (the
 label list, or the query alone) and how many present queries it returned empty. With no
 -c it runs the fair comparison: the default config beside VLMaps' rule over its category
 list and OpenScene's label argmax, all given the same label list."""
@@ -63,7 +63,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="A,B,...",
         help="Comma-separated queries to score: labels, or TEXT=LABEL for an "
         "open-vocabulary query with its ground-truth label ('bunk bed=bed'); a label "
-        "matches the map's names ignoring case and spacing.",
+        "matches the map's names ignoring case and spacing. It splits at every comma: "
+        "give a query text that holds a comma in --queries-file. A query whose label no "
+        "item of the map carries is scored as an absence query, with a warning unless it "
+        "or its label is given to --absent.",
     )
     g.add_argument(
         "--queries-file",

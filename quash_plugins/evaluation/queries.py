@@ -145,13 +145,14 @@ def match_labels(
     A label that is not one of the map's ``names`` but is one when case, spacing and
     underscores are ignored ("Robot Arm", "robot_arm") becomes that name. A label that is
     still no name of the map is an object the map does not have, so its query is an
-    absence query (a ``TEXT=LABEL`` query is warned about), except when the label is a
+    absence query, with a warning naming it and where it came from (``source``, else
+    --queries), except when the label is a
     near miss of a name of the map (difflib ratio at least :data:`TYPO_CUTOFF`: "bedd"
     for "bed", "chiar" for "chair"): that is refused, naming the query, the close names
     and ``source`` (the query file it came from), since a misspelt label would score an
     object that is there as absent. A label listed among the ``absent`` queries is taken
-    as written, and a query listed there itself is not warned about. (A label of the map
-    that no item carries is an absence query too:
+    as written, and neither it nor a query listed there itself is warned about. (A label
+    of the map that no item carries is an absence query too, warned about alike:
     :func:`~quash_plugins.evaluation.report.plan_queries`.)
 
     >>> match_labels({"a cobot": "Robot Arm", "Forklift": "Forklift"}, ["robot arm", "forklift"])
@@ -176,18 +177,38 @@ def match_labels(
                 near = _near_names(label, names)
                 if near:
                     raise QuashError(_typo_message(text, label, near, source))
-                if text != label and spelling(text) not in absent_texts:
-                    where = f"under 'absent' in {source}" if source else "under --absent"
-                    log.warning(
-                        "%squery %r: its label %r is not a label of the map, so it is scored "
-                        "as an absence query (list it %s to say so).",
-                        f"{source}: " if source else "",
-                        text,
-                        label,
-                        where,
-                    )
+                if spelling(text) not in absent_texts:
+                    warn_scored_absent(text, label, "is not a label of the map", source, comma=True)
         out[text] = label
     return out
+
+
+def warn_scored_absent(
+    text: str, label: str, why: str, source: str | Path | None, comma: bool = False
+) -> None:
+    """Warn that the present query ``text`` (its ``label``) is scored as an absence query
+    because its label ``why`` ("is not a label of the map"), naming where it came from
+    (the query file ``source``, else --queries) and how to say it is meant so. With
+    ``comma``, a label alone from --queries (no label of the map) may be a part of a query
+    text that held a comma (the option splits at every comma): the warning says that such
+    a text needs a query file.
+    """
+    where = f"under 'absent' in {source}" if source else "under --absent"
+    alone = spelling(text) == spelling(label)  # a label alone, no TEXT=LABEL
+    what = f"query {text!r}" if alone else f"query {text!r}: its label {label!r}"
+    hint = (
+        "; --queries splits at every comma, so a query text that holds a comma needs --queries-file"
+        if comma and alone and not source
+        else ""
+    )
+    log.warning(
+        "%s%s %s, so it is scored as an absence query (list it %s to say so%s).",
+        f"{source}: " if source else "--queries: ",
+        what,
+        why,
+        where,
+        hint,
+    )
 
 
 #: How alike (difflib's ratio, on names folded for case and spacing) a query's label and a
@@ -339,4 +360,5 @@ __all__ = [
     "read_query_file",
     "say_twice",
     "spelling",
+    "warn_scored_absent",
 ]

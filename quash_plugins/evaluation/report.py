@@ -37,6 +37,7 @@ from .queries import (
     parse_queries,
     say_twice,
     spelling,
+    warn_scored_absent,
 )
 
 log = logging.getLogger(__name__)
@@ -254,20 +255,24 @@ def plan_queries(
     _check_absent(absent, presence, counts_of, query_file=query_file, in_file=in_file)
     absence, twice = one_per_spelling([*unknown_here, *absent])
     say_twice("absence queries", twice, _twice_from(twice, query_file, in_file, unknown_here))
-    no_items = [q for q in unknown_here if gt_of[q] in index]
+    # a present query scored as absent is warned about (match_labels warned about those
+    # whose label is no label of the map) unless it, or its label, is listed absent: those
+    # are said at INFO
+    listed = {label_key(a) for a in absent}
+    texts = {spelling(a) for a in absent}
+    quiet = {q for q in unknown_here if label_key(gt_of[q]) in listed or spelling(q) in texts}
+    for q in unknown_here:
+        if gt_of[q] in index and q not in quiet:
+            warn_scored_absent(
+                q, gt_of[q], "is a label that no item of the map carries", query_file
+            )
+    no_items = [q for q in unknown_here if gt_of[q] in index and q in quiet]
     if no_items:
         log.info(
             "queries of labels no item of the map carries, scored as absence queries: %s",
             ", ".join(no_items),
         )
-    # a label that is no label of the map: match_labels warned about a TEXT=LABEL query
-    # whose label is not listed absent; say the others (a label alone, or listed absent)
-    listed = {label_key(a) for a in absent}
-    no_label = [
-        q
-        for q in unknown_here
-        if gt_of[q] not in index and (q == gt_of[q] or label_key(gt_of[q]) in listed)
-    ]
+    no_label = [q for q in unknown_here if gt_of[q] not in index and q in quiet]
     if no_label:
         log.info(
             "queries whose label is not a label of the map, scored as absence queries: %s",

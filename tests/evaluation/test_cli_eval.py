@@ -391,3 +391,65 @@ def test_eval_makes_the_spacing_of_absent_and_queries_single_as_a_query_file_doe
     file's absent list had them made single), so the encoder saw another text."""
     data = _eval_json(world, tmp_path, "--absent", " an   elephant ")
     assert list(data["absence"]["per_query"]) == ["an elephant"]
+
+
+def _scored_absent_warnings(capsys) -> list[str]:
+    err = capsys.readouterr().err.splitlines()
+    return [ln for ln in err if ln.startswith("WARNING") and "scored as an absence query" in ln]
+
+
+def test_a_piece_of_queries_split_at_a_comma_is_warned_about_not_said_at_info(
+    world, tmp_path, capsys
+):
+    """--queries "swivel chair, desk chair=chair" is two queries (the option splits at
+    every comma); the first piece is no label of the map, so it was scored as an absence
+    query with only an INFO line. It is warned about, naming the piece, --queries and
+    --queries-file; the valid uses stay quiet."""
+    labels, names = _scene_labels(world)
+    assert "swivel chair" not in names and "chair" in names
+    capsys.readouterr()
+    data = _eval_json(world, tmp_path, "--queries", "swivel chair, desk chair=chair")
+    assert list(data["per_query"]) == ["desk chair"]
+    assert data["per_query"]["desk chair"]["label"] == "chair"
+    assert list(data["absence"]["per_query"]) == ["swivel chair"]
+    (said,) = _scored_absent_warnings(capsys)
+    assert "--queries: query 'swivel chair' is not a label of the map" in said
+    assert "a query text that holds a comma needs --queries-file" in said
+    # labels, TEXT=LABEL items, and a label meant as absent listed under --absent: quiet
+    have = [names[i] for i in np.unique(labels[labels >= 0])][:2]
+    quiet = [
+        ("--queries", ",".join(have)),
+        ("--queries", "desk chair=chair,seat=chair", "--absent", "an elephant"),
+        ("--queries", f"{have[0]},piano", "--absent", "piano"),
+        ("--queries", f"{have[0]},grand piano=piano", "--absent", "piano"),
+    ]
+    for args in quiet:
+        data = _eval_json(world, tmp_path, *args)
+        assert data["per_query"], args
+        assert not _scored_absent_warnings(capsys), args
+
+
+def test_a_query_of_a_label_no_item_carries_is_warned_about_as_one_the_map_lacks_is(
+    world, tmp_path, capsys
+):
+    """'X=LABEL' whose LABEL is in the map's label list but carried by no item became an
+    absence query with only an INFO line, while a LABEL that is not in the list at all is
+    warned about: a query meant as present, scored as absent, is warned about either way."""
+    labels, names = _scene_labels(world)
+    carried = set(np.unique(labels[labels >= 0]).tolist())
+    empty = [n for i, n in enumerate(names) if i not in carried]
+    (cls,) = [c for c in CLASSES if c.label == empty[0]]
+    text = cls.language[0]  # an open-vocabulary query of that label
+    capsys.readouterr()
+    data = _eval_json(world, tmp_path, "--queries", f"{text}={cls.label},chair")
+    assert list(data["per_query"]) == ["chair"]
+    assert data["absence"]["per_query"][text]["label"] == cls.label
+    (said,) = _scored_absent_warnings(capsys)
+    assert f"query {text!r}: its label {cls.label!r} is a label that no item of the map" in said
+    assert "list it under --absent" in said and "--queries-file" not in said
+    # the label alone is warned about too; listed under --absent, neither is
+    _eval_json(world, tmp_path, "--queries", f"{cls.label},chair")
+    (said,) = _scored_absent_warnings(capsys)
+    assert f"query {cls.label!r} is a label that no item of the map carries" in said
+    _eval_json(world, tmp_path, "--queries", f"{text}={cls.label},chair", "--absent", cls.label)
+    assert not _scored_absent_warnings(capsys)

@@ -174,13 +174,19 @@ def test_a_misspelt_label_is_refused_with_the_closest_names(caplog):
     with pytest.raises(QuashError, match=r"Query 'forklfit' is not a label.*'forklift'\?"):
         evaluate(lmap, [peer], queries=["forklfit"])
     # a label that is no near miss of the map's names is an object the map does not have:
-    # an absence query (a TEXT=LABEL one with a warning), as a user of `--queries` expects
+    # an absence query, warned about (a query given as present, scored as absent: a label
+    # alone may be a piece of a query text that held a comma)
     with caplog.at_level(logging.WARNING, logger="quash_plugins.evaluation.queries"):
         rep = evaluate(lmap, [peer], queries=["forklift", "drone", "quadcopter=drone"])
     assert rep.queries == ["forklift"] and rep.absent == ["drone", "quadcopter"]
     warned = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
     assert any("'quadcopter': its label 'drone' is not a label" in m for m in warned)
-    assert not any("'drone' is not" in m and "quadcopter" not in m for m in warned)
+    assert any("query 'drone' is not a label of the map" in m for m in warned)
+    # listed under --absent, neither is warned about
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="quash_plugins.evaluation.queries"):
+        evaluate(lmap, [peer], queries=["forklift", "drone", "quadcopter=drone"], absent=["drone"])
+    assert not [r for r in caplog.records if r.levelno == logging.WARNING]
 
 
 def test_a_misspelt_label_in_a_query_file_names_the_file(tmp_path, capsys):
@@ -227,12 +233,17 @@ def test_a_query_whose_label_is_listed_absent_or_carried_by_no_item_is_an_absenc
     # the label is among the absence queries: the query is one too
     rep = evaluate(lmap, [peer], queries=["forklift", "quadcopter=Drone"], absent=["drone"])
     assert rep.queries == ["forklift"] and rep.absent == ["quadcopter", "drone"]
-    # a label of the map that no item carries: an absence query, as before, said in the log
+    # a label of the map that no item carries: an absence query, as before, warned about
     three = dataclasses.replace(lmap, label_names=["robot arm", "forklift", "drone"])
-    with caplog.at_level(logging.INFO, logger="quash_plugins.evaluation.report"):
+    with caplog.at_level(logging.INFO, logger="quash_plugins.evaluation"):
         rep = evaluate(three, [peer], queries=["forklift", "quadcopter=drone"])
     assert rep.queries == ["forklift"] and rep.absent == ["quadcopter"]
-    assert any("scored as absence queries: quadcopter" in r.getMessage() for r in caplog.records)
+    assert any(
+        r.levelno == logging.WARNING
+        and "'quadcopter': its label 'drone' is a label that no item of the map carries"
+        in r.getMessage()
+        for r in caplog.records
+    )
 
 
 def test_an_absence_query_that_the_map_has_is_refused():
@@ -573,9 +584,9 @@ def test_the_log_says_a_querys_label_is_not_a_label_of_the_map_not_that_no_item_
     assert rep.absent == ["quadcopter", "drone"]
     said = [r.getMessage() for r in caplog.records]
     assert not any("no item of the map carries" in m for m in said), said
-    # the TEXT=LABEL query is warned about; the label alone is said at INFO, accurately
+    # the TEXT=LABEL query and the label alone are warned about, accurately
     assert any("'quadcopter': its label 'drone' is not a label of the map" in m for m in said)
-    assert any(m.endswith("not a label of the map, scored as absence queries: drone") for m in said)
+    assert any("query 'drone' is not a label of the map" in m for m in said)
     # listed absent, the TEXT=LABEL query is not warned about: the INFO line names it
     caplog.clear()
     with caplog.at_level(logging.INFO, logger="quash_plugins.evaluation"):
@@ -585,17 +596,24 @@ def test_the_log_says_a_querys_label_is_not_a_label_of_the_map_not_that_no_item_
         m.endswith("not a label of the map, scored as absence queries: quadcopter") for m in said
     )
     assert not any("no item of the map carries" in m for m in said), said
-    # a label of the map that no item carries is still said to be one
+    # a label of the map that no item carries is still said to be one (warned about, and
+    # at INFO when it is listed absent)
     three = dataclasses.replace(lmap, label_names=[*lmap.label_names, "drone"])
     caplog.clear()
     with caplog.at_level(logging.INFO, logger="quash_plugins.evaluation"):
         evaluate(three, [peer], queries=["forklift", "quadcopter=drone"])
     said = [r.getMessage() for r in caplog.records]
+    assert any("'drone' is a label that no item of the map carries" in m for m in said)
+    assert not any("not a label of the map" in m for m in said), said
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="quash_plugins.evaluation"):
+        evaluate(three, [peer], queries=["forklift", "quadcopter=drone"], absent=["drone"])
+    said = [r.getMessage() for r in caplog.records]
     assert any(
         m.endswith("no item of the map carries, scored as absence queries: quadcopter")
         for m in said
     )
-    assert not any("not a label of the map" in m for m in said), said
+    assert not [r for r in caplog.records if r.levelno >= logging.WARNING]
 
 
 def test_an_open_vocabulary_absence_query_keeps_its_label_in_the_report():
