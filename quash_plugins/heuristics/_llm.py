@@ -10,18 +10,18 @@ from __future__ import annotations
 import json
 import logging
 import os
-import re
 import time
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
-from urllib.parse import urlsplit, urlunsplit
+from urllib.parse import urlsplit
 
 from ..core.errors import ConfigError, HeuristicError, QuashError
 from ..core.interfaces import ExpansionContext, Heuristic
 from ..core.redact import RedactingFilter, redact, redact_url, url_secrets
 from ..core.types import QuerySet
 from ._llm_cache import cache_file_name, llm_cache_root
+from ._llm_endpoint import chat_endpoint, check_key_env, request_url
 from ._llm_http import (
     MAX_REPLY_BYTES,
     MAX_RETRY_AFTER,
@@ -33,6 +33,7 @@ from ._llm_http import (
     client_options,
     connect_reason,
     content_of,
+    failure_fix,
     known_models,
     not_found_hint,
     proxy_note,
@@ -78,91 +79,8 @@ Reply exactly in this form:
 #: HTTP statuses worth retrying.
 RETRY_STATUSES = frozenset({408, 409, 425, 429, 500, 502, 503, 504})
 
-#: What ``api_key_env`` must be: the name of an environment variable.
-_ENV_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
-#: A part (between underscores) of a name that looks like a key's random characters:
-#: 16 or more letters and digits, both present (``gsk_ZQX9secretkey7731abcdef``).
-_RANDOM_PART = re.compile(r"(?=[A-Za-z0-9]*[0-9])(?=[A-Za-z0-9]*[A-Za-z])[A-Za-z0-9]{16,}")
 #: Hosts warned about once: an http:// endpoint elsewhere that is sent the key.
 _CLEARTEXT_WARNED: set[str] = set()
-
-
-def _check_key_env(value: Any) -> str | None:
-    """``api_key_env`` as given, when it names an environment variable; ConfigError (which
-    never shows the value: it may be a key pasted in the wrong place) otherwise.
-
-    A value that is a name but looks like a key (a part between underscores of 16
-    characters or more, letters and digits mixed, as in ``gsk_ZQX9secretkey7731abcdef``
-    or ``hf_...``) is refused too, unless a variable of that name is set."""
-    if value is None or value == "":
-        return value
-    fix = (
-        "Export the key in a variable (export OPENAI_API_KEY=...) and set api_key_env to "
-        "its name (api_key_env: OPENAI_API_KEY)."
-    )
-    if not isinstance(value, str) or not _ENV_NAME.fullmatch(value):
-        raise ConfigError(
-            "Heuristic 'llm': api_key_env must be the NAME of the environment variable "
-            "that holds the API key (letters, digits and underscores, not starting with "
-            "a digit); the value given is not such a name (it is not shown: it may be the "
-            f"key itself). {fix}"
-        )
-    random_part = any(_RANDOM_PART.fullmatch(part) for part in value.split("_"))
-    if random_part and value not in os.environ:
-        raise ConfigError(
-            "Heuristic 'llm': api_key_env must be the NAME of the environment variable "
-            "that holds the API key, not the key: the value given looks like a key (not "
-            f"shown) and no variable of that name is set. {fix}"
-        )
-    return value
-
-
-def chat_endpoint(base_url: str) -> str:
-    """The chat-completions URL for ``base_url``, without credentials or query string.
-
-    Credentials written into the URL (``https://user:key@host``) are dropped: they are
-    never sent, logged or cached. Put the key in the variable named by ``api_key_env``.
-    """
-    try:
-        parts = urlsplit(str(base_url).strip())
-        ok = parts.scheme in ("http", "https") and bool(parts.hostname)
-        port = parts.port if ok else None
-    except ValueError:  # a malformed port or address
-        ok = False
-    if not ok:
-        shown = redact_url(str(base_url))  # no query value, no user-info
-        text = str(base_url).strip()
-        guess = ""
-        if text and "://" not in text:  # "127.0.0.1:8000/v1", "localhost:11434/v1"
-            try:
-                if urlsplit(f"http://{text}").hostname:
-                    guess = f" Did you mean base_url: {redact_url('http://' + text)}?"
-            except ValueError:
-                pass
-        raise ConfigError(
-            f"Heuristic 'llm': base_url {shown!r} is not an http(s) URL.{guess} E.g. "
-            "http://127.0.0.1:8000/v1 (vLLM), http://127.0.0.1:11434/v1 (Ollama), "
-            "http://127.0.0.1:8080/v1 (llama.cpp)."
-        )
-    netloc = parts.hostname if ":" not in parts.hostname else f"[{parts.hostname}]"
-    if port:
-        netloc += f":{port}"
-    path = parts.path.rstrip("/")
-    if not path.endswith("/chat/completions"):
-        path += "/chat/completions"
-    return urlunsplit((parts.scheme, netloc, path, "", ""))
-
-
-def request_url(base_url: str) -> str:
-    """The URL requests go to: :func:`chat_endpoint` with ``base_url``'s query string
-    (``?api-version=...``, which Azure-style endpoints require), which
-    :func:`chat_endpoint` leaves out of everything recorded or shown.
-
-    >>> request_url("https://h/openai/deployments/gpt4o?api-version=2024-02-01")
-    'https://h/openai/deployments/gpt4o/chat/completions?api-version=2024-02-01'
-    """
-    query = urlsplit(str(base_url).strip()).query
-    return chat_endpoint(base_url) + (f"?{query}" if query else "")
 
 
 def _dropped_errors(httpx: Any) -> tuple[type[Exception], ...]:
@@ -272,7 +190,7 @@ class LLMHeuristic(Heuristic):
                 raise ConfigError(f"Heuristic 'llm': {field!r} must be >= 0; got {value!r}.")
         if float(timeout) <= 0:
             raise ConfigError(f"Heuristic 'llm': 'timeout' must be positive; got {timeout!r}.")
-        self.api_key_env = _check_key_env(api_key_env)
+        self.api_key_env = check_key_env(api_key_env)
         self.model = str(model)
         self.endpoint = chat_endpoint(base_url)
         # the query string goes with each request, never into a cache key, provenance or
@@ -622,7 +540,8 @@ class LLMHeuristic(Heuristic):
         )
         raise HeuristicError(
             f"Heuristic 'llm': no usable reply from {self.endpoint} (model {self.model!r}) for "
-            f"{query!r} after {attempts} attempt(s); last: {last}. {self._fix(why)}"
+            f"{query!r} after {attempts} attempt(s); last: {last}. "
+            f"{failure_fix(why, self.timeout, self.json_mode, self.base_url)}"
             f"{proxy_note(self.endpoint) if why in proxied else ''}"
         )
 
@@ -667,73 +586,3 @@ class LLMHeuristic(Heuristic):
                 "set json_mode: false (replies are parsed anyway)."
             )
         return ""
-
-    def _fix(self, why: str) -> str:
-        """What to do about the last failure of :meth:`ask`."""
-        cached = "or use offline: true with a cache that holds the query sets."
-        if why == "connect":
-            return (
-                f"Start the server (Ollama: ollama serve; vLLM: vllm serve MODEL; llama.cpp: "
-                f"llama-server -m MODEL.gguf) or set base_url to where it listens, {cached}"
-            )
-        if why == "tls-plain":
-            plain = urlunsplit(("http", *urlsplit(self.base_url)[1:]))
-            return (
-                "The server speaks plain http (a local vLLM, Ollama or llama.cpp does): set "
-                f"base_url: {plain}, {cached}"
-            )
-        if why == "tls-cert":
-            return (
-                "This machine does not trust the server's certificate (self-signed, or "
-                "issued by an in-house authority or a proxy that inspects https): set "
-                "SSL_CERT_FILE to the CA bundle that signed it, or use the host name the "
-                f"certificate is for, {cached}"
-            )
-        if why == "dropped":
-            return (
-                "The server took the request and closed the connection without a whole "
-                "reply (it crashed or was killed, ran out of memory loading the model, or a "
-                f"proxy in between cut it): see the server's log, raise max_retries, {cached}"
-            )
-        if why == "timeout":
-            return (
-                f"The server is slow to answer (a model still loading, a long reply): raise "
-                f"timeout (now {self.timeout:g} s) or max_retries, {cached}"
-            )
-        if why == "rate":
-            return f"The server is rate-limiting: raise max_retries or backoff, {cached}"
-        if why == "api":
-            return (
-                "The body is not a chat completion: base_url leads to something other than "
-                "an OpenAI-compatible API (a web page, a login proxy, a chat UI such as Open "
-                "WebUI?). Set base_url to the server's API, e.g. http://127.0.0.1:11434/v1 "
-                f"(Ollama) or http://127.0.0.1:8000/v1 (vLLM), {cached}"
-            )
-        if why == "length":
-            return (
-                "The model stopped at its token limit before it finished the lists (a "
-                "reasoning model spends tokens thinking first): use an instruction-tuned "
-                "model without reasoning, raise the server's context size (Ollama: num_ctx; "
-                "llama.cpp: --ctx-size; vLLM: --max-model-len) or lower n_synonyms and "
-                f"n_antonyms, {cached}"
-            )
-        if why == "decode":
-            return (
-                "The body does not match its Content-Encoding header (plain text labelled "
-                "gzip?): check the compression settings of the server or of a proxy in "
-                f"between, or set base_url to the server itself, {cached}"
-            )
-        if why == "size":
-            return (
-                "A chat reply with the lists asked for is a few kB: base_url may lead to "
-                "something other than a chat API (a file, a stream), or the model did not "
-                "stop. Check base_url, use an instruction-tuned model or lower n_synonyms "
-                f"and n_antonyms, {cached}"
-            )
-        if why == "reply":
-            fix = "" if self.json_mode else "set json_mode: true (vLLM, llama.cpp, Ollama) or "
-            return (
-                "The model did not answer with the asked lists: "
-                f"{fix}use an instruction-tuned model, {cached}"
-            )
-        return f"The server failed: see its log, raise max_retries, {cached}"

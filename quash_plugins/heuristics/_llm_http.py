@@ -458,3 +458,76 @@ def _names(models: list[str]) -> str:
     shown = ", ".join(repr(m) for m in models[:MAX_MODELS_SHOWN])
     more = len(models) - MAX_MODELS_SHOWN
     return shown + (f" and {more} more" if more > 0 else "")
+
+
+def failure_fix(why: str, timeout: float, json_mode: bool, base_url: str) -> str:
+    """What to do about the last failure of a chat request, by its kind ``why``
+    (``"connect"``, ``"timeout"``, ``"rate"``...): the closing sentence of the
+    ``llm`` heuristic's error. ``base_url`` is shown as it is: pass it redacted."""
+    cached = "or use offline: true with a cache that holds the query sets."
+    if why == "connect":
+        return (
+            f"Start the server (Ollama: ollama serve; vLLM: vllm serve MODEL; llama.cpp: "
+            f"llama-server -m MODEL.gguf) or set base_url to where it listens, {cached}"
+        )
+    if why == "tls-plain":
+        plain = urlunsplit(("http", *urlsplit(base_url)[1:]))
+        return (
+            "The server speaks plain http (a local vLLM, Ollama or llama.cpp does): set "
+            f"base_url: {plain}, {cached}"
+        )
+    if why == "tls-cert":
+        return (
+            "This machine does not trust the server's certificate (self-signed, or "
+            "issued by an in-house authority or a proxy that inspects https): set "
+            "SSL_CERT_FILE to the CA bundle that signed it, or use the host name the "
+            f"certificate is for, {cached}"
+        )
+    if why == "dropped":
+        return (
+            "The server took the request and closed the connection without a whole "
+            "reply (it crashed or was killed, ran out of memory loading the model, or a "
+            f"proxy in between cut it): see the server's log, raise max_retries, {cached}"
+        )
+    if why == "timeout":
+        return (
+            f"The server is slow to answer (a model still loading, a long reply): raise "
+            f"timeout (now {timeout:g} s) or max_retries, {cached}"
+        )
+    if why == "rate":
+        return f"The server is rate-limiting: raise max_retries or backoff, {cached}"
+    if why == "api":
+        return (
+            "The body is not a chat completion: base_url leads to something other than "
+            "an OpenAI-compatible API (a web page, a login proxy, a chat UI such as Open "
+            "WebUI?). Set base_url to the server's API, e.g. http://127.0.0.1:11434/v1 "
+            f"(Ollama) or http://127.0.0.1:8000/v1 (vLLM), {cached}"
+        )
+    if why == "length":
+        return (
+            "The model stopped at its token limit before it finished the lists (a "
+            "reasoning model spends tokens thinking first): use an instruction-tuned "
+            "model without reasoning, raise the server's context size (Ollama: num_ctx; "
+            "llama.cpp: --ctx-size; vLLM: --max-model-len) or lower n_synonyms and "
+            f"n_antonyms, {cached}"
+        )
+    if why == "decode":
+        return (
+            "The body does not match its Content-Encoding header (plain text labelled "
+            "gzip?): check the compression settings of the server or of a proxy in "
+            f"between, or set base_url to the server itself, {cached}"
+        )
+    if why == "size":
+        return (
+            "A chat reply with the lists asked for is a few kB: base_url may lead to "
+            "something other than a chat API (a file, a stream), or the model did not "
+            "stop. Check base_url, use an instruction-tuned model or lower n_synonyms "
+            f"and n_antonyms, {cached}"
+        )
+    if why == "reply":
+        fix = "" if json_mode else "set json_mode: true (vLLM, llama.cpp, Ollama) or "
+        return (
+            "The model did not answer with the asked lists: "
+            f"{fix}use an instruction-tuned model, {cached}"
+        )
+    return f"The server failed: see its log, raise max_retries, {cached}"
