@@ -101,7 +101,7 @@ def add_viewer_arguments(
         "on. auto (default): the one the map's format fixes (VLMaps camera-base maps: +y; "
         "mobile-base maps and 2023 grids: +z), else +z. Give it for a map whose format does "
         "not say, such as a ConceptFusion cloud in a y-up dataset frame. "
-        "quash query also records it in --out (npz, openlex3d).",
+        "quash query also records it in --out (npz, zarr, openlex3d).",
     )
 
 
