@@ -165,7 +165,8 @@ def connect_reason(exc: Any, endpoint: str, key: str | Iterable[str] = "") -> st
 
 
 def content_of(resp: Any, key: str | Iterable[str] = "") -> tuple[str, str | None]:
-    """The assistant message of a chat-completions response and its ``finish_reason``;
+    """The assistant message of a chat-completions response and its ``finish_reason``
+    (a message given as content parts, ``[{"type": "text", "text": ...}]``, joined);
     :class:`ReplyError` when the body is not a chat completion or holds no text. ``key``:
     the secrets (one, or several) to redact from the body quoted in the error."""
     secrets = _secrets(key)
@@ -181,6 +182,10 @@ def content_of(resp: Any, key: str | Iterable[str] = "") -> tuple[str, str | Non
             f"no choices[0].message.content in {snippet(resp.text, secrets)}", "api"
         ) from None
     finish = choice.get("finish_reason") if isinstance(choice, dict) else None
+    if isinstance(content, list):  # content parts: [{"type": "text", "text": "..."}]
+        texts = [p.get("text") for p in content if isinstance(p, dict)]
+        if texts and all(isinstance(t, str) for t in texts):
+            content = "".join(texts)
     if not isinstance(content, str):
         why = f"message content is {'empty' if content is None else type(content).__name__}"
         if finish == "length":

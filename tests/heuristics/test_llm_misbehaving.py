@@ -248,3 +248,18 @@ def test_a_base_url_that_is_no_url_at_all_gets_no_guess():
         LLMHeuristic(model="m", base_url="ftp://files/v1")
     msg = str(err.value)
     assert "Did you mean" not in msg and "E.g. http://127.0.0.1:8000/v1" in msg
+
+
+def test_a_message_given_as_content_parts_is_read(server, tmp_path):
+    """Some gateways answer with the message as a list of parts; it failed as 'message
+    content is list' on every attempt."""
+    parts = [
+        {"type": "text", "text": '{"synonyms": ["seat"], '},
+        {"type": "text", "text": '"antonyms": ["table"]}'},
+    ]
+    message = {"role": "assistant", "content": parts}
+    server.play(
+        raw=json.dumps({"choices": [{"message": message, "finish_reason": "stop"}]}).encode()
+    )
+    qs = make(server, tmp_path, max_retries=0).expand("chair")
+    assert qs.positives == ["chair", "seat"] and qs.negatives == ["table"]
