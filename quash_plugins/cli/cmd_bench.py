@@ -24,6 +24,7 @@ examples:
   quash make-scene scene.npz --seed 1
   quash bench scene.npz --taxonomy scene.taxonomy.yaml --out bench/
   quash bench scene.npz --taxonomy scene.taxonomy.yaml --tables antonyms,classifiers
+  quash bench scene.npz --taxonomy scene.taxonomy.yaml --queries-file scene.open-queries.yaml
   quash bench scene.npz --taxonomy scene.taxonomy.yaml --tables sources \\
       --llm-model llama3.1:8b --llm-base-url http://127.0.0.1:11434/v1"""
 
@@ -50,12 +51,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--tables", default=",".join(TABLES), help="Comma-separated subset of: %(default)s."
     )
     p.add_argument("--encoder", default="minilm", help="Encoder name (default: minilm).")
-    p.add_argument(
+    g = p.add_mutually_exclusive_group()
+    g.add_argument(
         "--queries",
         metavar="A,B,...",
         default=None,
         help="Queries to score: labels, or TEXT=LABEL as in quash eval (default: every "
-        "label present in the map).",
+        "label present in the map). It splits at every comma: give a query text that "
+        "holds a comma in --queries-file.",
+    )
+    g.add_argument(
+        "--queries-file",
+        metavar="FILE.yaml",
+        default=None,
+        help="Queries from a YAML file, as quash eval reads it: {present: {text: label} or "
+        "[labels], absent: [texts]} (make-scene writes SCENE.queries.yaml and "
+        "SCENE.open-queries.yaml); --absent adds to its absent list.",
     )
     p.add_argument(
         "--absent",
@@ -93,6 +104,7 @@ def run(args: argparse.Namespace) -> int:
     from ..evaluation.ablations import TABLES, run_bench
     from ._backend_opts import backend_overrides
     from ._output import console, each_log_line_once, print_markdown
+    from .cmd_eval import queries_from_options
 
     tables = tuple(t.strip() for t in args.tables.split(",") if t.strip())
     if not tables:
@@ -103,12 +115,10 @@ def run(args: argparse.Namespace) -> int:
     bad = [t for t in tables if t not in TABLES]
     if bad:
         raise UsageError(f"Unknown table {bad[0]!r}; known: {', '.join(TABLES)}.")
-    split = lambda s: [" ".join(t.split()) for t in (s or "").split(",") if t.strip()]  # noqa: E731
-    if args.queries is not None and not split(args.queries):
-        raise UsageError(
-            "--queries is empty: give labels or TEXT=LABEL items, or leave it out to score "
-            "every label of the map."
-        )
+    # read as quash eval reads them; a query file's mistakes before any work
+    queries, absent, absent_in_file = queries_from_options(
+        args.queries, args.queries_file, args.absent
+    )
     if args.taxonomy and not Path(args.taxonomy).exists():
         raise UsageError(f"Taxonomy file not found: {args.taxonomy}")
     if args.llm_base_url and not args.llm_model:
@@ -134,8 +144,10 @@ def run(args: argparse.Namespace) -> int:
             encoder=args.encoder,
             llm=llm,
             overrides=overrides,
-            queries=split(args.queries) or None,
-            absent=tuple(split(args.absent)),
+            queries=queries,
+            absent=tuple(absent),
+            query_file=args.queries_file,
+            absent_in_file=absent_in_file,
             # progress, not a result: --quiet leaves it out
             on_table=None if args.quiet else lambda t: out.print(f"table {t}: done"),
         )
@@ -152,7 +164,7 @@ def _check_outputs(args: argparse.Namespace, outdir, tables) -> None:
 
     if outdir.exists() and not outdir.is_dir():
         raise UsageError(f"--out {outdir} exists and is not a folder. Choose a folder.")
-    inputs = (args.map, args.taxonomy)
+    inputs = (args.map, args.taxonomy, args.queries_file)
     files = [("bench.md", is_report_file), ("bench.json", is_report_file)]
     files += [(f"{t}.png", is_plot_png) for t in tables]
     for name, known in files:

@@ -231,26 +231,37 @@ def _queries(args: argparse.Namespace) -> tuple[Any, list[str], list[str]]:
     """The queries to score (None: every label), the absence queries, and those of them
     that came from the query file (the others came from --absent)."""
     from ..core.errors import UsageError
-    from ..evaluation.queries import read_query_file
 
     if args.empty_tolerance < 0:
         raise UsageError("--empty-tolerance takes N >= 0 (items an empty mask may have).")
-    queries: Any = _split(args.queries) or None
-    if args.queries is not None and not queries:
+    return queries_from_options(args.queries, args.queries_file, args.absent)
+
+
+def queries_from_options(
+    queries_text: str | None, queries_file: str | None, absent_text: str | None
+) -> tuple[Any, list[str], list[str]]:
+    """What --queries, --queries-file and --absent give (``quash eval`` and ``quash
+    bench`` read them alike): the queries (None: every label), the absence queries (the
+    file's, then --absent's), and those that came from the file."""
+    from ..core.errors import UsageError
+    from ..evaluation.queries import read_query_file
+
+    queries: Any = _split(queries_text) or None
+    if queries_text is not None and not queries:
         raise UsageError(
             "--queries is empty: give labels or TEXT=LABEL items, or leave it out to score "
             "every label of the map."
         )
-    absent, in_file = _split(args.absent), []
-    if args.queries_file:
-        queries, in_file, lookalikes = read_query_file(args.queries_file)
+    absent, in_file = _split(absent_text), []
+    if queries_file:
+        queries, in_file, lookalikes = read_query_file(queries_file)
         absent = list(dict.fromkeys([*in_file, *absent]))
         for label, names in lookalikes.items():
             log.warning(
                 "%s: the scene's appearance names %s read as the absent %r (make-scene's "
                 "absent_lookalikes): a match of its absence queries may be the scene's "
                 "features, not a method's mistake",
-                args.queries_file,
+                queries_file,
                 ", ".join(names),
                 label,
             )

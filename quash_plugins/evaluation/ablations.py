@@ -20,7 +20,7 @@ docs/benchmarks.md):
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from pathlib import Path
 from typing import Any
 
@@ -178,11 +178,18 @@ def run_bench(
     encoder: Any = "minilm",
     llm: dict[str, Any] | None = None,
     overrides: dict[str, Any] | None = None,
-    queries: list[str] | None = None,
+    queries: Any = None,
     absent: tuple[str, ...] = (),
     on_table: Callable[[str], None] | None = None,
+    query_file: str | Path | None = None,
+    absent_in_file: Collection[str] | None = None,
 ) -> dict[str, Any]:
-    """Run the tables; write ``bench.md``, ``bench.json`` and ``<table>.png`` into ``out``."""
+    """Run the tables; write ``bench.md``, ``bench.json`` and ``<table>.png`` into ``out``.
+
+    ``queries`` and ``absent`` are as :func:`~.report.evaluate` takes them (labels,
+    ``TEXT=LABEL`` items or ``{text: label}``); ``query_file`` is the file they came
+    from and ``absent_in_file`` the absence queries read from it (messages name it, and
+    each table's provenance records it)."""
     import json
 
     from ..core.atomic import atomic_write_text
@@ -195,7 +202,8 @@ def run_bench(
     all_cfgs = bench_configs(taxonomy, encoder, llm)
     overrides = dict(overrides or {})
     lmap = Quash.from_config(all_cfgs["prompt"][1], **overrides).read_map(source)
-    plan_queries(lmap, queries, absent=absent)  # a query list it cannot score: before any table
+    where = {"query_file": query_file, "absent_in_file": absent_in_file}
+    plan_queries(lmap, queries, absent=absent, **where)  # a list it cannot score: before any table
     out.mkdir(parents=True, exist_ok=True)
     results: dict[str, Any] = {}
     md = ["# quash bench", "", f"Map: {lmap.describe()}", ""]
@@ -222,7 +230,9 @@ def run_bench(
         with progress(len(cfgs), f"table {table}: {len(cfgs)} config(s)") as advance:
             for cfg in cfgs:
                 try:
-                    rep = evaluate(lmap, [cfg], queries=queries, absent=absent, overrides=overrides)
+                    rep = evaluate(
+                        lmap, [cfg], queries=queries, absent=absent, overrides=overrides, **where
+                    )
                     rows.extend(rep.configs)
                     # what the table scored, as quash eval --json records it: the map,
                     # the queries, the absent ones and each row's config

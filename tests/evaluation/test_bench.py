@@ -315,3 +315,38 @@ def test_run_bench_reports_progress_through_each_tables_configs(
     lines = [r.getMessage() for r in caplog.records if r.name == "quash_plugins.progress"]
     assert any(m.startswith(f"table classifiers: {n} config(s): 1/{n} ") for m in lines), lines
     assert any(f": {n}/{n} (100%" in m for m in lines), lines
+
+
+def test_bench_reads_a_query_file_as_quash_eval_does(scene, tmp_path, capsys):
+    """A held-out query file (open-vocabulary TEXT: LABEL items and an absent list) could
+    reach bench only through --queries/--absent, where a text with a comma cannot go."""
+    q = tmp_path / "held-out.yaml"
+    q.write_text(
+        "present:\n  somewhere to sit, by the window: chair\n  a partition: wall\n"
+        "absent: [a grand piano]\n"
+    )
+    out = tmp_path / "o"
+    args = ["bench", str(scene / "scene.npz"), "--out", str(out), "--tables", "antonyms"]
+    args += ["--encoder", ENCODER, "--no-cache"]
+    assert main([*args, "--queries-file", str(q), "--absent", "an elephant"]) == 0
+    data = json.loads((out / "bench.json").read_text())["antonyms"]
+    assert data["configs"] and not data["notes"]
+    for row in data["configs"]:
+        labels = {text: m["label"] for text, m in row["per_query"].items()}
+        assert labels == {"somewhere to sit, by the window": "chair", "a partition": "wall"}
+        assert list(row["absence"]["per_query"]) == ["a grand piano", "an elephant"]
+    prov = data["provenance"]
+    assert prov["query_file"] == str(q)
+    assert prov["queries"] == {"somewhere to sit, by the window": "chair", "a partition": "wall"}
+    assert prov["absent"] == ["a grand piano", "an elephant"]
+    # the same file's mistake is refused before any table, naming the file
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("presnt:\n  a partition: wall\nabsent: [a grand piano]\n")
+    capsys.readouterr()
+    assert main([*args[:3], str(tmp_path / "o2"), *args[4:], "--queries-file", str(bad)]) != 0
+    assert f"{bad}: unknown key 'presnt'" in capsys.readouterr().err
+    assert not (tmp_path / "o2").exists()
+    # --queries and --queries-file exclude each other, as in quash eval
+    with pytest.raises(SystemExit):
+        main([*args, "--queries", "chair", "--queries-file", str(q)])
+    assert "not allowed with argument" in capsys.readouterr().err
