@@ -522,6 +522,10 @@ class LLMHeuristic(Heuristic):
                             f"{redact(self._status_hint(status, client), secrets)}"
                             f"{proxy_note(self.endpoint)}"
                         )
+                if why in ("tls-plain", "tls-cert"):  # the same on every attempt: no retry
+                    log.warning("llm: %s %s", self.endpoint, last)
+                    attempts = attempt + 1
+                    break
                 if attempt + 1 < attempts:
                     wait = min(wait, MAX_RETRY_AFTER)
                     log.warning("llm: %s %s; retrying in %.3g s", self.endpoint, last, wait)

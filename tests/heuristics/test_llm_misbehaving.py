@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import logging
 import socket
+import time
 
 import pytest
 from test_heuristics_llm import _completion, make
@@ -183,12 +184,15 @@ def test_an_empty_cached_set_says_which_file(server, tmp_path, caplog):
 def test_https_to_a_plain_http_server_says_to_use_http(server, tmp_path):
     """base_url https:// for a local server: the error was 'connection failed
     (ConnectError: [SSL: WRONG_VERSION_NUMBER] ...)' with 'Start the server', for a
-    server that was up."""
+    server that was up, after every retry's backoff. Now it says so at the first try."""
     url = server.base_url.replace("http://", "https://")
-    h = _make(url, tmp_path)
+    h = _make(url, tmp_path, max_retries=4, backoff=1.0)
+    t = time.monotonic()
     with pytest.raises(HeuristicError) as err:
         h.expand("chair")
+    assert time.monotonic() - t < 2.0  # not retried: 1 + 2 + 4 + 8 s of backoff for nothing
     msg = str(err.value)
+    assert "after 1 attempt(s)" in msg
     netloc = url.split("/")[2]
     assert f"last: TLS handshake failed: {netloc} answers plain http, not https" in msg
     assert f"set base_url: {server.base_url}," in msg
