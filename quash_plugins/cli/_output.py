@@ -208,12 +208,18 @@ def _whole(i: int, header: list[str]) -> bool:
 _GAPS = (3, 2, 1)
 
 
-def _widths(header: list[str], body: list[list[str]], align: list[str]) -> list[tuple]:
+def _widths(
+    header: list[str], body: list[list[str]], align: list[str], whole: set[int] | None = None
+) -> list[tuple]:
     """Per column ``(lo, hi, right)``: the narrowest width that breaks no word of its
     header and no cell (a number, the first column or a label is never wrapped; other
     text wraps at spaces), the width that shows every cell and the header on one line, and whether
-    it is right-aligned (``---:`` in the Markdown)."""
+    it is right-aligned (``---:`` in the Markdown). ``whole``: the columns kept on one
+    line (default: those of :func:`_whole`)."""
     from rich.cells import cell_len
+
+    if whole is None:
+        whole = {i for i in range(len(header)) if _whole(i, header)}
 
     out = []
     for i, name in enumerate(header):
@@ -224,7 +230,7 @@ def _widths(header: list[str], body: list[list[str]], align: list[str]) -> list[
         full = max([cell_len(c) for c in cells], default=0)
         words = [cell_len(w) for c in cells for w in c.split()]
         head_words = max((cell_len(w) for w in head.split()), default=0)
-        if _whole(i, header):  # names the row, or a label: on one line, header included
+        if i in whole:  # names the row, or a label: on one line, header included
             lo = max(full, cell_len(head))
         elif right:  # a number is never folded
             lo = max(full, head_words)
@@ -277,7 +283,7 @@ def markdown_table(lines: list[str], width: int | None = None) -> Any:
     Columns aligned ``---:`` in the Markdown are right-aligned, and a number is never
     folded. A header wraps only at its spaces, and a text cell too; the first column,
     which names the row, and a ``label`` column (a query's ground-truth label) stay on
-    one line. When the columns do not fit even so (many
+    one line (a label too long for that beside the first column wraps at its spaces). When the columns do not fit even so (many
     configs side by side on a narrow terminal), the table is printed in parts, each with
     the first column and as many others as fit, under a note saying so.
     """
@@ -287,7 +293,16 @@ def markdown_table(lines: list[str], width: int | None = None) -> Any:
     from rich.text import Text
 
     header, align, *body = (_split_row(ln) for ln in lines)
-    cols = _widths(header, body, align)
+    whole = {i for i in range(len(header)) if _whole(i, header)}
+    cols = _widths(header, body, align, whole)
+    if width is not None:
+        # a label that cannot stand on one line beside the first column wraps at its
+        # spaces, as other text does: cut, 'chest of drawers' read 'chest of drawer'
+        gap = _GAPS[-1]
+        tight = {i for i in whole - {0} if cols[0][0] + gap + cols[i][0] > width}
+        if tight:
+            whole -= tight
+            cols = _widths(header, body, align, whole)
     layout = _layout(cols, width)
     if layout is None and width is not None and len(header) > 2:
         parts = _groups(cols, width)
@@ -317,9 +332,9 @@ def markdown_table(lines: list[str], width: int | None = None) -> Any:
             _cell(name),
             justify="right" if cols[i][2] else "left",
             overflow="fold",
-            no_wrap=_whole(i, header),
+            no_wrap=i in whole,
             width=fixed[i] if fixed else None,
-            min_width=cols[i][0] if cols[i][2] or _whole(i, header) else None,
+            min_width=cols[i][0] if cols[i][2] or i in whole else None,
         )
     for row in body:
         table.add_row(*[_cell(c) for c in row[: len(header)]])

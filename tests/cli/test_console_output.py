@@ -239,10 +239,11 @@ def _config(name: str, f1s: dict[str, tuple[str, float]], absent: dict[str, str]
     }
 
 
-@pytest.mark.parametrize("width", [80, 72])
+@pytest.mark.parametrize("width", [80, 72, 40])
 def test_a_label_cell_never_breaks_inside_a_name(width):
     """At 80 columns the label 'tv monitor' of 'a television screen=tv monitor' printed
-    as 'tv' over 'monitor', which reads as two labels."""
+    as 'tv' over 'monitor', which reads as two labels. At 40 it cannot stand beside the
+    query, and wraps at its spaces."""
     from quash_plugins.evaluation.report import report_markdown
 
     labels = {
@@ -259,6 +260,12 @@ def test_a_label_cell_never_breaks_inside_a_name(width):
     ]
     lines = _printed(report_markdown(configs), width)
     text = "\n".join(lines)
+    words = {w for ln in lines for w in ln.split()}
+    assert {w for label in labels.values() for w in label.split()} <= words, text
+    if width < len("somewhere to put clothes chest of drawers"):
+        # no room for the label on one line beside the query: it wraps at its spaces,
+        # never cut ('chest of drawer')
+        return
     assert max(len(ln.rstrip()) for ln in lines) <= width, text
     for query, label in labels.items():
         rows = [ln for ln in lines if ln.startswith(query)]
