@@ -146,9 +146,8 @@ def match_labels(
     underscores are ignored ("Robot Arm", "robot_arm") becomes that name. A label that is
     still no name of the map is an object the map does not have, so its query is an
     absence query, with a warning naming it and where it came from (``source``, else
-    --queries), except when the label is a
-    near miss of a name of the map (difflib ratio at least :data:`TYPO_CUTOFF`: "bedd"
-    for "bed", "chiar" for "chair"): that is refused, naming the query, the close names
+    --queries), except when the label is a near miss of a name of the map (difflib ratio
+    at least :data:`TYPO_CUTOFF`: "bedd" for "bed", "chiar" for "chair"): that is refused, naming the query, the close names
     and ``source`` (the query file it came from), since a misspelt label would score an
     object that is there as absent. A label listed among the ``absent`` queries is taken
     as written, and neither it nor a query listed there itself is warned about. (A label
