@@ -289,7 +289,8 @@ class LLMHeuristic(Heuristic):
 
     def _write_cache(
         self, query: str, synonyms: list[str], antonyms: list[str], seed: int | None = None
-    ) -> Path:
+    ) -> Path | None:
+        """Cache a query set; its file, or None (with a warning) when it cannot be written."""
         from ..core.atomic import atomic_write_text
         from ..core.cache_dirs import make_private_dirs
 
@@ -307,6 +308,7 @@ class LLMHeuristic(Heuristic):
         # unwritable, or a link or folder planted at the cache path (never followed)
         except (OSError, QuashError) as exc:
             log.warning("llm: query set for %r not cached: %s", query, exc)
+            return None
         return path
 
     # ------------------------------------------------------------------ expansion
@@ -369,11 +371,10 @@ class LLMHeuristic(Heuristic):
                     query,
                     "; not cached, so the next run asks again" if self.cache else "",
                 )
-            elif self.cache:
-                self._write_cache(query, synonyms, antonyms, seed)
+            elif self.cache and self._write_cache(query, synonyms, antonyms, seed):
                 self._cached_now += 1
         extra: dict[str, Any] = {"source": source, "prompt_version": PROMPT_VERSION}
-        if self.cache:
+        if self.cache and self.cache_path(query, seed).is_file():  # none when not written
             extra["cache_file"] = str(self.cache_path(query, seed))
         return QuerySet(query, [query, *synonyms], antonyms, self.provenance(context, **extra))
 

@@ -267,3 +267,23 @@ def test_a_message_given_as_content_parts_is_read(server, tmp_path):
     )
     qs = make(server, tmp_path, max_retries=0).expand("chair")
     assert qs.positives == ["chair", "seat"] and qs.negatives == ["table"]
+
+
+def test_cache_file_is_shown_only_when_written(server, tmp_path, caplog):
+    """The provenance named a cache_file for a set that was never written (an empty
+    reply, or a cache folder that cannot be made), and docs say to delete that file to
+    ask again; and a later failure said the unwritten sets 'are cached'."""
+    server.default = '{"synonyms": [], "antonyms": []}'
+    qs = make(server, tmp_path).expand("chair")
+    assert "cache_file" not in qs.provenance and qs.provenance["source"] == "server"
+
+    server.default = '{"synonyms": ["seat"], "antonyms": ["table"]}'
+    blocked = tmp_path / "not-a-folder"
+    blocked.write_text("a file where the cache folder would be")
+    h = make(server, tmp_path, cache_dir=str(blocked / "llm"), max_retries=0)
+    qs = h.expand("chair")
+    assert qs.positives == ["chair", "seat"] and "cache_file" not in qs.provenance
+    server.play(503, raw=b"{}")
+    with pytest.raises(HeuristicError) as err:
+        h.expand("sofa")
+    assert "are cached" not in str(err.value)
