@@ -520,7 +520,7 @@ class LLMHeuristic(Heuristic):
                         raise HeuristicError(
                             f"Heuristic 'llm': {self.endpoint} answered status {status}: "
                             f"{snippet(resp.text, secrets)}."
-                            f"{redact(self._status_hint(status, client), secrets)}"
+                            f"{redact(self._status_hint(status, client, resp.text), secrets)}"
                             f"{proxy_note(self.endpoint)}"
                         )
                 if why in ("tls-plain", "tls-cert"):  # the same on every attempt: no retry
@@ -567,8 +567,9 @@ class LLMHeuristic(Heuristic):
             self.api_key_env,
         )
 
-    def _status_hint(self, status: int, client: Any) -> str:
-        """What to do about a status that is not retried (401, 403, 404, 400...)."""
+    def _status_hint(self, status: int, client: Any, body: str = "") -> str:
+        """What to do about a status that is not retried (401, 403, 404, 400...);
+        ``body``: the server's reply, which a 400 about the model is told by."""
         if status in (401, 403):
             if self.api_key_env:
                 return f" Check the API key in {self.api_key_env!r} (api_key_env)."
@@ -585,6 +586,17 @@ class LLMHeuristic(Heuristic):
                 urlsplit(self._url).query,
             )
             return not_found_hint(self.endpoint, self.model, base, models)
+        if status in (400, 422) and "model" in body.lower():
+            # LiteLLM, some gateways and older vLLM answer an unknown model with a 400
+            base, models = known_models(
+                client,
+                self.endpoint,
+                self._headers(),
+                min(self.timeout, 5.0),
+                urlsplit(self._url).query,
+            )
+            if models and self.model not in models:
+                return not_found_hint(self.endpoint, self.model, base, models)
         if status in (400, 422) and self.json_mode:
             return (
                 " json_mode: true sends response_format, which this server may not support: "

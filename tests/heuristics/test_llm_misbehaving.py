@@ -287,3 +287,25 @@ def test_cache_file_is_shown_only_when_written(server, tmp_path, caplog):
     with pytest.raises(HeuristicError) as err:
         h.expand("sofa")
     assert "are cached" not in str(err.value)
+
+
+def test_a_400_about_the_model_lists_the_servers_models(server, tmp_path):
+    """A gateway that answers an unknown model with 400 (LiteLLM: 'Invalid model name
+    passed in model=gpt4o') got no hint at all; it now gets the 404's: the models the
+    server serves."""
+    server.models = ["gpt-4o", "gpt-4o-mini"]
+    server.play(400, raw=b'{"error": {"message": "Invalid model name passed in model=gpt4o"}}')
+    with pytest.raises(HeuristicError) as err:
+        make(server, tmp_path, model="gpt4o").expand("chair")
+    msg = str(err.value)
+    assert """answered status 400: '{"error": {"message": "Invalid model name""" in msg
+    assert "The server does not serve model 'gpt4o'; it serves 'gpt-4o', 'gpt-4o-mini'." in msg
+    assert server.gets == ["/v1/models"] and len(server.requests) == 1
+
+
+def test_a_400_about_something_else_asks_for_no_model_list(server, tmp_path):
+    server.models = ["test-model"]
+    server.play(400, raw=b'{"error": "temperature must be <= 2"}')
+    with pytest.raises(HeuristicError) as err:
+        make(server, tmp_path).expand("chair")
+    assert "does not serve" not in str(err.value) and server.gets == []
