@@ -42,7 +42,8 @@ when its format does not say, as for ``quash make-scene``) goes ``(x, y, z) -> (
 rows keep their order: queries and instances are the same, in the rotated frame. The
 ``vlmaps`` adapter reads the file back as y-up (``source["up"] == "+y"``).
 
-The encoder that built the map (``encoder``, ``encoder_fingerprint``), when the source
+The encoder that built the map (``encoder``, ``encoder_fingerprint``, ``encoder_params``:
+:data:`~quash_plugins.adapters._npz.ENCODER_KEYS`), when the source
 records it, is kept as attributes of the file's root group: VLMaps reads datasets by
 name and ignores them; the ``vlmaps`` adapter reads them back, so a query with another
 encoder warns as it does on the NPZ.

@@ -496,12 +496,21 @@ def make_scene(encoder: Any, options: SceneOptions | None = None, cache: Any = N
 
 def _built_by(encoder: Any) -> dict[str, str]:
     """The map's record of the encoder that built it (``LatentMap.source``), so that a
-    query with another encoder is warned about."""
+    query with another encoder is warned about, naming the parameters to write
+    (``encoder_params``: :func:`~quash_plugins.adapters._npz.encoder_params` as JSON)."""
+    import json
+
+    from ..adapters._npz import encoder_params
+
     fingerprint = getattr(encoder, "fingerprint", None)
     if not callable(fingerprint):
         return {}
     # The name a config writes (a factory entry point may build a class of another name).
-    return {"encoder": plugin_name(encoder), "encoder_fingerprint": fingerprint()}
+    record = {"encoder": plugin_name(encoder), "encoder_fingerprint": fingerprint()}
+    params = encoder_params(encoder)
+    if params is not None:
+        record["encoder_params"] = json.dumps(params, allow_nan=False)
+    return record
 
 
 def _unit_rows(rng: np.random.Generator, n: int, d: int) -> np.ndarray:

@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from ..adapters._npz import encoder_params, recorded_params
 from ..core.errors import DimensionMismatchError, EmptyMapWarning, MapFormatError
 from ..core.interfaces import plugin_name, source_digest
 from ..core.once import first_time
@@ -53,6 +54,7 @@ def check_encoder_fits(encoder: Any, lmap: LatentMap, config_source: Any = None)
     name = plugin_name(encoder)  # what the config's encoder section calls it
     section = f" (the 'encoder:' section of {config_source})" if config_source else ""
     built = lmap.source.get("encoder")
+    recorded = recorded_params(lmap.source)
     fixes = []
     if (
         isinstance(built, str)
@@ -64,10 +66,19 @@ def check_encoder_fits(encoder: Any, lmap: LatentMap, config_source: Any = None)
         # this one (which would only give rows of the right length in another space).
         fix = f"the map records that encoder {built!r} built it"
         if _registered_encoder(built):
-            fix += f": write 'encoder: {built}' with the parameters the map was built with"
+            if recorded is not None:
+                fix += f": write 'encoder: {config_entry(built, recorded)}'"
+            else:
+                fix += f": write 'encoder: {built}' with the parameters the map was built with"
         else:  # a class name no entry point registers, or a name two distributions claim
             fix += f" (fingerprint {lmap.source.get('encoder_fingerprint', '?')}): query with it"
         fixes.append(fix)
+    elif recorded is not None:
+        # the map's own encoder, built with other parameters: the map says which
+        fixes.append(
+            f"write 'encoder: {config_entry(name, recorded)}' (the parameters the map "
+            "records it was built with)"
+        )
     else:
         if "dim" in (accepted_params(type(encoder)) or []):
             fixes.append(
@@ -85,6 +96,47 @@ def check_encoder_fits(encoder: Any, lmap: LatentMap, config_source: Any = None)
         f"{name!r}{section} produces {enc_dim}-dimensional ones. Use the text "
         f"encoder that built the map.{suggestion}"
     )
+
+
+def config_entry(name: str, params: dict[str, Any]) -> str:
+    """The ``encoder:`` entry of a config that builds ``name`` with ``params``, in YAML
+    flow style (``{name: bag-of-words, dim: 64}``; the bare name without parameters),
+    valid to paste after ``encoder:``."""
+    import yaml
+
+    if not params:
+        return _flow(name)
+    entry = {"name": name, **{k: v for k, v in params.items() if k != "name"}}
+    text = yaml.safe_dump(entry, default_flow_style=True, sort_keys=False, width=float("inf"))
+    return text.strip()
+
+
+def _param_differences(recorded: dict[str, Any], encoder: Any) -> str | None:
+    """The parameters the map records that ``encoder`` (the config's) has otherwise,
+    as ``dim: 64 (the map) vs 32 (this config)``; "" when none differs, None when the
+    config's encoder names none."""
+    ours = encoder_params(encoder)
+    if ours is None:
+        return None
+    missing = object()
+    parts = []
+    for key in [*recorded, *(k for k in ours if k not in recorded)]:
+        theirs, mine = recorded.get(key, missing), ours.get(key, missing)
+        if theirs == mine and type(theirs) is type(mine):
+            continue
+        parts.append(
+            f"{key}: {'(not recorded)' if theirs is missing else _flow(theirs)} (the map) "
+            f"vs {'(not set)' if mine is missing else _flow(mine)} (this config)"
+        )
+    return "; ".join(parts)
+
+
+def _flow(value: Any) -> str:
+    """``value`` as YAML writes it in a config (``64``, ``true``, ``[a, b]``)."""
+    import yaml
+
+    text = yaml.safe_dump(value, default_flow_style=True, width=float("inf"))
+    return text.removesuffix("\n...\n").strip()
 
 
 def _registered_encoder(name: str) -> bool:
@@ -141,6 +193,8 @@ def warn_built_by(encoder: Any, lmap: LatentMap) -> None:
         return
     name = plugin_name(encoder)  # what the config's encoder section calls it
     built_name = lmap.source.get("encoder", "?")
+    recorded = recorded_params(lmap.source)
+    entry = ""  # the config's encoder entry that builds the map's encoder, when known
     # A map may record either name: the registered one, or the instance's ``name``.
     # 'dist:name' is another distribution's plugin than the bare name: a map that
     # records the bare name was not built with it
@@ -171,15 +225,30 @@ def warn_built_by(encoder: Any, lmap: LatentMap) -> None:
                     f", or another release of its distribution (now {release}): the "
                     "fingerprint covers the version, so a map built before an upgrade counts"
                 )
+        changed = None if recorded is None else _param_differences(recorded, encoder)
+        if changed:
+            differs += f". The parameters that differ: {changed}"
+            entry = config_entry(name, recorded)
+        elif changed == "":
+            differs += (
+                f". The parameters the map records ({config_entry(name, recorded)}) "
+                "are this config's, so the difference is not in them"
+            )
     else:
         differs = f"this config's encoder is {name!r} ({ours})"
+        if recorded is not None and isinstance(built_name, str) and _registered_encoder(built_name):
+            entry = config_entry(built_name, recorded)
+    fix = "query with the encoder that built the map"
+    if entry:
+        fix += f" ('encoder: {entry}')"
     log.warning(
         "%s was built with encoder %r (fingerprint %s), but %s. Scores mean something only "
-        "when both embed text into the same space: query with the encoder that built the map.",
+        "when both embed text into the same space: %s.",
         lmap.source.get("path", "the map"),
         built_name,
         built,
         differs,
+        fix,
     )
 
 

@@ -145,7 +145,8 @@ def test_a_dimension_mismatch_names_the_encoder_the_map_records(tmp_path, caplog
             _quash(_DimHashing(24)).query(str(paths["map"]), "chair")
     finally:
         registry.unregister("encoders", "hashing-test", dist="pkg-hash")
-    assert "write 'encoder: hashing-test' with the parameters" in str(err.value)
+    # the map records the parameters it was built with: the entry to write, in full
+    assert "write 'encoder: {name: hashing-test, dim: 32}'" in str(err.value)
     # The same encoder at another size: the map's own encoder, so its dim is the fix.
     same = HashingEncoder(16)
     with pytest.raises(DimensionMismatchError) as err:
@@ -228,7 +229,7 @@ def test_a_plugin_that_shadows_the_maps_encoder_is_named_as_the_config_names_it(
         once.forget("registry")  # a shadow warning given before is given again
         with (
             caplog.at_level("WARNING", logger="quash_plugins"),
-            pytest.raises(DimensionMismatchError, match="write 'encoder: hashing-test'"),
+            pytest.raises(DimensionMismatchError, match=r"write 'encoder: \{name: hashing-test, "),
         ):
             _quash(_DimHashing(24)).query(str(paths["map"]), "chair")
         assert not [r for r in caplog.records if "also claimed by" in r.getMessage()]
