@@ -42,19 +42,48 @@ def is_plot_png(path: str | Path) -> bool:
     return False
 
 
-def plot_precision_recall(
-    configs: Sequence[dict[str, Any]], path: str | Path, title: str = "precision vs recall"
-) -> Path:
-    """Precision against recall per method (mean: large marker; per query: small dots)."""
+#: The iso-F1 curves drawn behind the points, each labelled with its F1.
+ISO_F1 = (0.2, 0.4, 0.6, 0.8)
+
+
+def _legend_label(c: dict[str, Any]) -> str:
+    """A method's legend entry: its name, mean F1, absence score, the present queries it
+    answered with nothing (their dots are all at the origin), and what it was given."""
+    text = f"{c['name']}: F1 {c['mean']['f1']:.2f}"
+    absence = c.get("absence") or {}
+    if isinstance(absence.get("score"), (int, float)):
+        text += f", absence {absence['score']:.2f}"
+    empty, n = absence.get("present_empty"), len(c.get("per_query") or {})
+    if isinstance(empty, int) and empty and n:  # those queries' dots all sit at (0, 0)
+        text += f", present -> empty {empty}/{n}"
+    if c.get("given"):
+        text += f"\ngiven {c['given']}"
+    return text
+
+
+def precision_recall_figure(
+    configs: Sequence[dict[str, Any]], title: str = "precision vs recall"
+) -> Any:
+    """The figure :func:`plot_precision_recall` writes (a ``matplotlib.figure.Figure``).
+
+    One colour per method: a large marker at its macro mean over the present queries and
+    a small dot per query. The legend, right of the axes so it covers no point, names each
+    method with its mean F1, its absence score (the share of absence queries it answered
+    with nothing), how many present queries it answered with nothing and what it was given, then what the markers and the dotted iso-F1
+    curves (each labelled with its F1) mean.
+    """
     try:
         import matplotlib
 
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
+        from matplotlib.lines import Line2D
     except ImportError:
         raise QuashError('Plots need matplotlib: pip install "quash-plugins[plots]"') from None
-    fig, ax = plt.subplots(figsize=(6.4, 5.2), dpi=110)
+    n_lines = sum(1 + bool(c.get("given")) for c in configs) + 3
+    fig, ax = plt.subplots(figsize=(10.0, max(5.2, 1.0 + 0.16 * n_lines)), dpi=110)
     cmap = plt.get_cmap("tab10" if len(configs) <= 10 else "tab20")
+    handles: list[Any] = []
     for i, c in enumerate(configs):
         color = cmap(i % cmap.N)
         pq = list((c.get("per_query") or {}).values())
@@ -64,26 +93,71 @@ def plot_precision_recall(
             )
         if c["mean"]["f1"] is None:  # nothing scored (absence queries only): no mean to place
             continue
-        ax.scatter(
-            [c["mean"]["recall"]],
-            [c["mean"]["precision"]],
-            s=90,
-            color=color,
-            edgecolor="black",
-            label=f"{c['name']} (F1 {c['mean']['f1']:.2f})",
-            zorder=3,
+        handles.append(
+            ax.scatter(
+                [c["mean"]["recall"]],
+                [c["mean"]["precision"]],
+                s=90,
+                color=color,
+                edgecolor="black",
+                label=_legend_label(c),
+                zorder=3,
+            )
         )
     r = np.linspace(0.01, 1, 200)
-    for f in (0.2, 0.4, 0.6, 0.8):
+    for f in ISO_F1:
         p = f * r / (2 * r - f)
         ok = (p > 0) & (p <= 1)
         ax.plot(r[ok], p[ok], color="grey", lw=0.6, ls=":")
-    ax.set(xlim=(0, 1.02), ylim=(0, 1.02), xlabel="recall", ylabel="precision", title=title)
-    if ax.get_legend_handles_labels()[0]:
-        ax.legend(fontsize=7, loc="lower left")
+        # at the curve's right end (recall 1), inside the axes
+        ax.annotate(
+            f"F1 {f:.1f}",
+            (1.0, f / (2 - f)),
+            xytext=(-2, 2),
+            textcoords="offset points",
+            ha="right",
+            va="bottom",
+            fontsize=7,
+            color="dimgrey",
+        )
+    ax.set(
+        xlim=(-0.02, 1.02),
+        ylim=(-0.02, 1.02),
+        xlabel="recall (share of the label's items matched)",
+        ylabel="precision (share of the matched items that carry the label)",
+        title=title,
+    )
+    ax.xaxis.label.set_fontsize(9)
+    ax.yaxis.label.set_fontsize(9)
+    if handles:
+        keys = [
+            Line2D([], [], ls="", marker="o", ms=9, mfc="white", mec="black"),
+            Line2D([], [], ls="", marker="o", ms=3, mfc="grey", mec="grey", alpha=0.5),
+            Line2D([], [], color="grey", lw=0.6, ls=":"),
+        ]
+        names = ["mean over the present queries", "one query", "iso-F1 curves"]
+        ax.legend(
+            [*handles, *keys],
+            [h.get_label() for h in handles] + names,
+            fontsize=7,
+            loc="upper left",
+            bbox_to_anchor=(1.02, 1.0),
+            borderaxespad=0.0,
+        )
     fig.tight_layout()
+    return fig
+
+
+def plot_precision_recall(
+    configs: Sequence[dict[str, Any]], path: str | Path, title: str = "precision vs recall"
+) -> Path:
+    """Precision against recall per method (mean: large marker; per query: small dots),
+    written as a PNG: :func:`precision_recall_figure`."""
+    fig = precision_recall_figure(configs, title)
+    import matplotlib.pyplot as plt  # there: the figure was made with it
+
     path = Path(path)
     with atomic_write(path, suffix=".png") as tmp:
-        fig.savefig(tmp, format="png", metadata={"Software": PNG_SOFTWARE})
+        fig.savefig(tmp, format="png", metadata={"Software": PNG_SOFTWARE}, bbox_inches="tight")
     plt.close(fig)
     return path

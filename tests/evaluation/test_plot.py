@@ -1,0 +1,123 @@
+"""The precision-recall plot: what its legend, axes and curves say, and that the legend
+covers no data (read back from the figure object)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytest.importorskip("matplotlib")
+
+from quash_plugins.evaluation.plot import (  # noqa: E402
+    ISO_F1,
+    is_plot_png,
+    plot_precision_recall,
+    precision_recall_figure,
+)
+
+
+def _config(name, given, points, absence_score, present_empty):
+    per_query = {
+        f"q{i}": {"precision": p, "recall": r, "f1": 0.0 if p + r == 0 else 2 * p * r / (p + r)}
+        for i, (r, p) in enumerate(points)
+    }
+    mean = {k: float(np.mean([q[k] for q in per_query.values()])) for k in ("precision", "recall")}
+    mean["f1"] = float(np.mean([q["f1"] for q in per_query.values()]))
+    return {
+        "name": name,
+        "given": given,
+        "mean": mean,
+        "per_query": per_query,
+        "absence": {"score": absence_score, "present_empty": present_empty, "per_query": {}},
+    }
+
+
+#: Points in every corner, as a real run has them (a peer's low-precision dots bottom left
+#: and bottom right, a method's good queries top right, empty answers at the origin).
+CONFIGS = [
+    _config("peer", "the query alone", [(0.05, 0.03), (0.9, 0.05), (0.02, 0.1)], 0.0, 0),
+    _config(
+        "quash-labels",
+        "the label list (the map's label names)",
+        [(0.95, 0.97), (0.0, 0.0), (0.0, 0.0), (0.9, 0.92)],
+        1.0,
+        2,
+    ),
+]
+
+
+def _figure():
+    fig = precision_recall_figure(CONFIGS, title="t")
+    fig.canvas.draw()
+    return fig, fig.axes[0]
+
+
+def test_the_legend_covers_no_point():
+    """The legend sat in the lower left corner of the axes, over the dots of the queries
+    a peer answered with low precision and recall."""
+    import matplotlib.pyplot as plt
+
+    fig, ax = _figure()
+    box = ax.get_legend().get_window_extent()
+    points = np.vstack([c.get_offsets() for c in ax.collections])
+    assert len(points) == sum(len(c["per_query"]) + 1 for c in CONFIGS)
+    shown = ax.transData.transform(points)
+    inside = (
+        (shown[:, 0] >= box.x0)
+        & (shown[:, 0] <= box.x1)
+        & (shown[:, 1] >= box.y0)
+        & (shown[:, 1] <= box.y1)
+    )
+    assert not inside.any(), points[inside]
+    plt.close(fig)
+
+
+def test_the_legend_says_method_score_absence_empty_answers_and_given():
+    import matplotlib.pyplot as plt
+
+    fig, ax = _figure()
+    texts = [t.get_text() for t in ax.get_legend().get_texts()]
+    for c in CONFIGS:
+        [entry] = [t for t in texts if t.startswith(f"{c['name']}: ")]
+        assert f"F1 {c['mean']['f1']:.2f}" in entry
+        assert f"absence {c['absence']['score']:.2f}" in entry
+        assert f"given {c['given']}" in entry
+        n = len(c["per_query"])
+        empty = c["absence"]["present_empty"]
+        assert (f"present -> empty {empty}/{n}" in entry) == bool(empty)
+    # what the markers and the dotted curves are
+    assert texts[-3:] == ["mean over the present queries", "one query", "iso-F1 curves"]
+    plt.close(fig)
+
+
+def test_the_iso_f1_curves_are_labelled_and_the_origin_dots_are_whole():
+    import matplotlib.pyplot as plt
+
+    fig, ax = _figure()
+    labels = {t.get_text(): t.xy for t in ax.texts}
+    for f in ISO_F1:
+        x, y = labels[f"F1 {f:.1f}"]
+        # the label sits where its curve ends at recall 1: precision = f / (2 - f)
+        assert x == 1.0 and y == pytest.approx(f / (2 - f))
+    # a query answered with nothing sits at (0, 0): the axes start below it, not on it
+    assert ax.get_xlim()[0] < 0 and ax.get_ylim()[0] < 0
+    assert "recall" in ax.get_xlabel() and "precision" in ax.get_ylabel()
+    plt.close(fig)
+
+
+def test_the_png_keeps_the_legend_and_is_recognised(tmp_path):
+    from PIL import Image
+
+    path = plot_precision_recall(CONFIGS, tmp_path / "pr.png")
+    assert is_plot_png(path)
+    fig, ax = _figure()
+    # the legend stands right of the axes: the saved image is wider than the axes' right
+    # edge plus the legend's width (bbox_inches="tight" keeps it)
+    width_px = Image.open(path).size[0]
+    legend = ax.get_legend().get_window_extent()
+    axes = ax.get_window_extent()
+    import matplotlib.pyplot as plt
+
+    assert legend.x0 > axes.x1
+    assert width_px >= legend.x1 - axes.x0
+    plt.close(fig)
