@@ -167,6 +167,17 @@ def _config_panel(rrb: Any, layout: Layout, c: str | None, name: str) -> Any:
     return rrb.Vertical(*views, name=name) if len(views) > 1 else views[0]
 
 
+#: The title of each metric's plot (a metric not named here: ``<metric> per query``).
+METRIC_TITLES = {
+    "f1": "F1 per query",
+    "precision": "precision per query",
+    "recall": "recall per query",
+    "iou": "IoU per query",
+    "ap": "AP per query",
+    "absence": "absence queries: 1 = answered with nothing (right), 0 = matched something",
+}
+
+
 def _eval_panel(rrb: Any, layout: Layout) -> Any:
     """One plot per metric (x: the query timeline, one series per config) and the summary.
 
@@ -180,7 +191,7 @@ def _eval_panel(rrb: Any, layout: Layout) -> Any:
     )
     plots = [
         rrb.TimeSeriesView(
-            name=f"{m} per query",
+            name=METRIC_TITLES.get(m, f"{m} per query"),
             origin=f"eval/{m}",
             plot_legend=rrb.PlotLegend(corner="RightTop", visible=True),
             axis_x=rrb.TimeAxis(view_range=x_range, zoom_lock=False),
