@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from ..core.cache_dirs import cache_dir, make_private_dirs
+from ..core.progress import progress
 from ..engine.map_fit import same_embedding_function
 from ..evaluation.report import EvalReport, evaluate
 from .scene import SceneOptions, make_scene, write_scene
@@ -118,7 +119,17 @@ def run_demo(
         viewer.log_map(lmap)
     present = set(lmap.label_names[i] for i in set(lmap.labels.tolist()))
     qs = [q for q in queries if q in present] or None
-    report = evaluate(lmap, quashes, queries=qs, absent=absent, keep_results=viewer is not None)
+    # each method is one pass over the map (seconds to half a minute on the full scene):
+    # without a line per method, a run on 2 cores said nothing for a minute and more
+    with progress(len(quashes), f"evaluating {len(quashes)} methods") as advance:
+        report = evaluate(
+            lmap,
+            quashes,
+            queries=qs,
+            absent=absent,
+            keep_results=viewer is not None,
+            on_query=lambda name, n: advance(1),
+        )
     if viewer is not None:
         _log_demo(viewer, lmap, quashes, report)
     return report, scene_path

@@ -283,3 +283,23 @@ def test_a_cached_scene_of_another_embedding_function_is_built_again(tmp_path, m
         built.clear()
         assert runner.demo_scene(Enc(), tiny=True) == path
         assert built == ([path] if rebuilt else []), recorded
+
+
+def test_the_demo_says_how_far_it_is_method_by_method(tmp_path, monkeypatch, caplog):
+    """Without a terminal the full demo said nothing between reading the scene and its
+    table (a minute and more on 2 cores): each method's pass is now a progress step."""
+    import logging
+
+    import quash_plugins.core.progress as progress_mod
+    from quash_plugins.demo.runner import run_demo
+
+    monkeypatch.setenv("QUASH_CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(progress_mod, "MIN_INTERVAL", 0.0)  # every step is news
+    monkeypatch.setattr(progress_mod.sys.stderr, "isatty", lambda: False, raising=False)
+    caplog.set_level(logging.INFO, logger="quash_plugins.progress")
+    configs = demo_config_paths()[:2]
+    report, _ = run_demo(tiny=True, configs=configs)
+    lines = [r.getMessage() for r in caplog.records if r.name == "quash_plugins.progress"]
+    steps = [ln for ln in lines if ln.startswith(f"evaluating {len(configs)} methods: ")]
+    assert [s.split(": ")[1].split(" ")[0] for s in steps] == ["1/2", "2/2"], lines
+    assert len(report.configs) == len(configs)
