@@ -8,21 +8,22 @@ NAME = "demo"
 HELP = "Offline demo: VLMaps, ConceptFusion, LERF and QuASH on a generated 3D scene."
 ORDER = 5
 DESCRIPTION = """\
-Builds (once, cached under $QUASH_CACHE_DIR/demo or the user cache dir) a labelled 3D
-indoor scene embedded with the shipped MiniLM model, then runs ten methods on ten
-queries and three absence queries: the VLMaps, ConceptFusion and LERF rules (one
-negative word each), VLMaps' and OpenScene's argmax over the scene's label list (what
-QuASH's label and taxonomy heuristics see), and QuASH with the labels, taxonomy
-(nearest-sample, and the paper's SVM), vocabulary and adjectives heuristics. Prints the
-comparison, writes demo.md, demo.json, demo.png and demo.rrd into --out. Needs no
-network. The method configs are package data; --list-configs prints their paths ('quash
-configs' lists every shipped config by name). Files in --out are replaced only when they
-are previous demo outputs, or with --force. --serve-web serves the recording to a
-browser on 127.0.0.1 until Ctrl-C or SIGTERM; the viewer opens on the best method's tab,
-the rooms seen from above."""
+Builds (once, cached under $QUASH_CACHE_DIR/demo or the user cache dir) a
+labelled 3D indoor scene embedded with the shipped MiniLM model, then runs ten
+methods on ten queries and three absence queries: the VLMaps, ConceptFusion and
+LERF rules (one negative word each), VLMaps' and OpenScene's argmax over the
+scene's label list (what QuASH's label and taxonomy heuristics see), and QuASH
+with the labels, taxonomy (nearest-sample, and the paper's SVM), vocabulary and
+adjectives heuristics. Prints the comparison, writes demo.md, demo.json,
+demo.png and demo.rrd into --out. Needs no network. The method configs are
+package data; --list-configs prints their paths ('quash configs' lists every
+shipped config by name). Files in --out are replaced only when they are
+previous demo outputs, or with --force. --serve-web serves the recording to a
+browser on 127.0.0.1 until Ctrl-C or SIGTERM; the viewer opens on the best
+method's tab, the rooms seen from above."""
 EPILOG = """\
 examples:
-  quash demo                      # writes ./quash-demo/{demo.rrd,demo.md,demo.json,demo.png}
+  quash demo                      # writes ./quash-demo/demo.{md,json,png,rrd}
   quash demo --spawn              # and opens the Rerun viewer (a desktop)
   quash demo --serve-web          # or serves it to a browser on 127.0.0.1
   quash demo --out /tmp/d --tiny  # a small scene, seconds"""

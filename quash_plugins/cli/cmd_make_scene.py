@@ -9,27 +9,29 @@ NAME = "make-scene"
 HELP = "Generate a labelled 3D indoor proxy scene (NPZ) and its taxonomy YAML."
 ORDER = 32
 DESCRIPTION = """\
-Rooms with floor, walls and ceiling, a few dozen objects of 32 classes (--classes b: a
-second table of 34 other labels with other names; --classes FILE.yaml: a table of your
-own, see --show-classes), surface voxels in metres with per-class colours. Each voxel's
-embedding is the normalised mean of a few "appearance" names of its class, embedded by a
-real text encoder, blended with neighbours at boundaries, mixed with other objects
-(semantic confusion), plus noise and a constant modality offset (--gap-class,
---gap-instance, --distortion: a gap that is not one constant vector). OUT.taxonomy.yaml
-holds only "language" names, disjoint from the appearance names; OUT.queries.yaml lists
-present labels and absence queries, OUT.open-queries.yaml open-vocabulary ones (sub-class
-names and free text with their label, absent ones). Both are `quash eval --queries-file`
-files. An appearance name that the encoder reads as an absent label (nearer its names
-than its own class's by more than 0.2 in cosine) is warned about and listed in both
-query files (absent_lookalikes): the map's features would hold that absent object.
-Existing files are replaced only when they are a previous make-scene output, or with
---force."""
+Rooms with floor, walls and ceiling, a few dozen objects of 32 classes
+(--classes b: a second table of 34 other labels with other names; --classes
+FILE.yaml: a table of your own, see --show-classes), surface voxels in metres
+with per-class colours. Each voxel's embedding is the normalised mean of a few
+"appearance" names of its class, embedded by a real text encoder, blended with
+neighbours at boundaries, mixed with other objects (semantic confusion), plus
+noise and a constant modality offset (--gap-class, --gap-instance,
+--distortion: a gap that is not one constant vector). OUT.taxonomy.yaml holds
+only "language" names, disjoint from the appearance names; OUT.queries.yaml
+lists present labels and absence queries, OUT.open-queries.yaml open-vocabulary
+ones (sub-class names and free text with their label, absent ones). Both are
+`quash eval --queries-file` files. An appearance name that the encoder reads as
+an absent label (nearer its names than its own class's by more than 0.2 in
+cosine) is warned about and listed in both query files (absent_lookalikes): the
+map's features would hold that absent object. Existing files are replaced only
+when they are a previous make-scene output, or with --force."""
 EPILOG = """\
 examples:
   quash make-scene scene.npz --seed 1
   quash make-scene tiny.npz --rooms 1 --voxel-size 0.25 --encoder minilm
-  quash make-scene held-out.npz --classes b --gap-class 0.5 --gap-instance 0.3 --distortion 0.5
-  quash make-scene --show-classes > my-classes.yaml   # table A as a file to edit
+  quash make-scene held-out.npz --classes b --gap-class 0.5 \\
+      --gap-instance 0.3 --distortion 0.5
+  quash make-scene --show-classes > my-classes.yaml  # table A, a file to edit
   quash make-scene mine.npz --classes my-classes.yaml --noise 2
   quash eval scene.npz -c my-method.yaml --absent piano,bathtub
   quash eval scene.npz -c my-method.yaml --queries-file scene.open-queries.yaml"""
