@@ -12,7 +12,6 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
-import math
 import os
 import warnings
 import zipfile
@@ -21,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from ..core.encoder_record import recorded_params
 from ..core.errors import MapFormatError
 from ..core.interfaces import MapAdapter
 from ..core.layout import layout_arrays, map_layout, read_frames, read_up
@@ -74,92 +74,6 @@ def _valid_params(record: dict[str, str], where: Any = None) -> dict[str, str]:
     if "encoder_params" in record and recorded_params(record, where) is None:
         record.pop("encoder_params")
     return record
-
-
-def recorded_params(source: Any, where: Any = None) -> dict[str, Any] | None:
-    """The parameters a map records its encoder was built with (``source["encoder_params"]``,
-    a JSON object), or None when it records none or the field is not a JSON object
-    (logged at debug level: the record is advisory, never an error)."""
-    text = source.get("encoder_params") if isinstance(source, dict) else None
-    if text is None:
-        return None
-    try:
-        params = json.loads(text) if isinstance(text, str) else None
-    except ValueError as exc:
-        params, why = None, f"not JSON ({exc})"
-    else:
-        why = "not a JSON object"
-    if isinstance(params, dict):
-        return params
-    where = where or (source.get("path") if isinstance(source, dict) else None) or "the map"
-    log.debug("%s: encoder_params %.80r is %s; it is ignored", where, text, why)
-    return None
-
-
-def _json_plain(value: Any) -> bool:
-    """True for data that JSON writes as it is: strings, finite numbers, booleans, None,
-    and lists or string-keyed mappings of them (no secret-named key inside)."""
-    if value is None or isinstance(value, (str, bool, int)):
-        return True
-    if isinstance(value, float):
-        return math.isfinite(value)
-    if isinstance(value, (list, tuple)):
-        return all(_json_plain(v) for v in value)
-    if isinstance(value, dict):
-        from ..core.redact import is_secret_param
-
-        return all(
-            isinstance(k, str) and not is_secret_param(k) and _json_plain(v)
-            for k, v in value.items()
-        )
-    return False
-
-
-def encoder_params(encoder: Any) -> dict[str, Any] | None:
-    """The parameters that identify ``encoder``'s output, as a config writes them beside
-    its name: its ``config()`` less what its entry point (or class) does not accept,
-    ``device``, ``name``, a value that is not plain JSON data, and a key named like a
-    credential (``api_key``, ``token``, ``password``: :func:`~quash_plugins.core.redact.is_secret_param`).
-    None when it has no ``config()``, or when nothing is left of a config() that names
-    parameters other than those it is built with (an empty record would say "built
-    with the defaults")."""
-    from ..core.interfaces import plugin_name
-    from ..core.redact import is_secret_param
-    from ..core.registry import accepted_params, load
-
-    config = getattr(encoder, "config", None)
-    if not callable(config):
-        return None
-    try:
-        values = config()
-    except Exception as exc:  # noqa: BLE001 - advisory: a config() that fails records nothing
-        log.debug("encoder %r: config() failed (%s); its parameters are not recorded", encoder, exc)
-        return None
-    if not isinstance(values, dict):
-        return None
-    built = type(encoder)
-    registered = getattr(encoder, "_quash_plugin_name", None)
-    if isinstance(registered, str) and registered:
-        # a factory entry point takes its own parameters, not its class's
-        with contextlib.suppress(Exception):
-            built = load("encoders", registered)
-    accepted = accepted_params(built)
-    params = {
-        k: v
-        for k, v in values.items()
-        if isinstance(k, str)
-        and k not in ("device", "name")
-        and (accepted is None or k in accepted)
-        and not is_secret_param(k)
-        and _json_plain(v)
-    }
-    if not params and accepted != []:
-        log.debug(
-            "encoder %r: config() names no parameter it is built with; none recorded",
-            plugin_name(encoder),
-        )
-        return None
-    return params
 
 
 def check_declared_sizes(path: Path) -> None:

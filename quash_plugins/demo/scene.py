@@ -500,7 +500,7 @@ def _built_by(encoder: Any) -> dict[str, str]:
     (``encoder_params``: :func:`~quash_plugins.adapters._npz.encoder_params` as JSON)."""
     import json
 
-    from ..adapters._npz import encoder_params
+    from ..core.encoder_record import encoder_params
 
     fingerprint = getattr(encoder, "fingerprint", None)
     if not callable(fingerprint):

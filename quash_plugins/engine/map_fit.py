@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from ..adapters._npz import encoder_params, recorded_params
+from ..core.encoder_record import encoder_params, recorded_params
 from ..core.errors import DimensionMismatchError, EmptyMapWarning, MapFormatError
 from ..core.interfaces import plugin_name, source_digest
 from ..core.once import first_time

@@ -10,6 +10,8 @@ from typing import Any
 
 import numpy as np
 
+from ..core.encoder_record import OUTPUT_NEUTRAL
+
 
 def check_encoder_output(enc: Any, tmp_path: Path) -> None:
     dim = enc.dim
@@ -315,10 +317,6 @@ def remember_params(plugin: Any, params: dict[str, Any]) -> None:
         _BUILT_WITH[plugin] = dict(params)
 
 
-#: Parameters documented not to change the output (docs/plugins.md): not varied.
-_OUTPUT_NEUTRAL = ("device", "batch_size")
-
-
 def _varied_params(enc: Any) -> tuple[dict[str, Any], list[str]] | None:
     """The constructor's parameters with the values ``enc`` holds (as ``p`` or ``_p``,
     else the default), and the numeric, boolean and string ones to vary; None when
@@ -353,7 +351,7 @@ def _varied_params(enc: Any) -> tuple[dict[str, Any], list[str]] | None:
     varied = [
         n
         for n, v in values.items()
-        if n not in _OUTPUT_NEUTRAL
+        if n not in OUTPUT_NEUTRAL  # documented not to change the output: not varied
         and isinstance(v, (int, float, str, np.integer, np.floating, np.bool_))
     ]
     return values, varied

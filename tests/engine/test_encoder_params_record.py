@@ -96,7 +96,7 @@ def test_no_secret_named_parameter_is_recorded(bag_of_words, tmp_path):
     assert SECRET not in stored and "api_key" not in stored
     assert "api_key" not in json.loads(read_map(path).source["encoder_params"])
 
-    from quash_plugins.adapters._npz import encoder_params
+    from quash_plugins.core.encoder_record import encoder_params
 
     class Nested(BagOfWords):
         def config(self):
@@ -202,7 +202,7 @@ def test_bad_json_in_the_record_is_ignored(bag_of_words, tmp_path, caplog):
     for bad in ("{not json", "[64]", ""):
         arrays["encoder_params"] = np.asarray(bad)
         np.savez(tmp_path / "bad.npz", **arrays)
-        with caplog.at_level(logging.DEBUG, logger="quash_plugins.adapters._npz"):
+        with caplog.at_level(logging.DEBUG, logger="quash_plugins.core.encoder_record"):
             lmap = read_map(tmp_path / "bad.npz")
         assert "encoder_params" not in lmap.source
         assert lmap.source["encoder"] == "bag-of-words"  # the rest of the record stays
@@ -211,3 +211,20 @@ def test_bad_json_in_the_record_is_ignored(bag_of_words, tmp_path, caplog):
     hand = LatentMap(lmap.embeddings, source=dict(lmap.source, encoder_params="{oops"))
     with pytest.raises(DimensionMismatchError, match="with the parameters the map was built"):
         map_fit.check_encoder_fits(HashingEncoder(16), hand)
+
+
+def test_parameters_that_never_change_the_output_are_not_recorded():
+    """device and batch_size (docs/plugins.md: output-neutral) would only add noise to
+    the entry a dimension error tells the user to write."""
+    from quash_plugins.core.encoder_record import OUTPUT_NEUTRAL, encoder_params
+
+    class Batched(BagOfWords):
+        def __init__(self, dim: int = 8, batch_size: int = 32, device: str = "cpu"):
+            super().__init__(dim)
+            self.batch_size, self.device = batch_size, device
+
+        def config(self):
+            return {"dim": self._dim, "batch_size": self.batch_size, "device": self.device}
+
+    assert set(OUTPUT_NEUTRAL) == {"device", "batch_size"}
+    assert encoder_params(Batched(dim=12, batch_size=7)) == {"dim": 12}
