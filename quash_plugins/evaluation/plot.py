@@ -42,8 +42,12 @@ def is_plot_png(path: str | Path) -> bool:
     return False
 
 
-#: The iso-F1 curves drawn behind the points, each labelled with its F1.
+#: The iso-F1 curves drawn behind the points, each labelled with its F1 right of the axes.
 ISO_F1 = (0.2, 0.4, 0.6, 0.8)
+#: Room (points) right of the axes for those labels; the legend stands beyond it.
+ISO_LABEL_PT = 34
+#: Width of the axes (inches) whatever the legend's.
+AXES_WIDTH_IN = 5.5
 
 
 def _legend_label(c: dict[str, Any]) -> str:
@@ -78,10 +82,11 @@ def precision_recall_figure(
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
         from matplotlib.lines import Line2D
+        from matplotlib.transforms import ScaledTranslation
     except ImportError:
         raise QuashError('Plots need matplotlib: pip install "quash-plugins[plots]"') from None
     n_lines = sum(1 + bool(c.get("given")) for c in configs) + 3
-    fig, ax = plt.subplots(figsize=(10.0, max(5.2, 1.0 + 0.16 * n_lines)), dpi=110)
+    fig, ax = plt.subplots(figsize=(AXES_WIDTH_IN + 0.9, max(5.2, 1.0 + 0.16 * n_lines)), dpi=110)
     cmap = plt.get_cmap("tab10" if len(configs) <= 10 else "tab20")
     handles: list[Any] = []
     for i, c in enumerate(configs):
@@ -109,16 +114,18 @@ def precision_recall_figure(
         p = f * r / (2 * r - f)
         ok = (p > 0) & (p <= 1)
         ax.plot(r[ok], p[ok], color="grey", lw=0.6, ls=":")
-        # at the curve's right end (recall 1), inside the axes
+        # right of the axes, where the curve ends (recall 1): over no point
         ax.annotate(
             f"F1 {f:.1f}",
             (1.0, f / (2 - f)),
-            xytext=(-2, 2),
+            xycoords=("axes fraction", "data"),
+            xytext=(3, 0),
             textcoords="offset points",
-            ha="right",
-            va="bottom",
+            ha="left",
+            va="center",
             fontsize=7,
             color="dimgrey",
+            annotation_clip=False,
         )
     ax.set(
         xlim=(-0.02, 1.02),
@@ -136,14 +143,20 @@ def precision_recall_figure(
             Line2D([], [], color="grey", lw=0.6, ls=":"),
         ]
         names = ["mean over the present queries", "one query", "iso-F1 curves"]
-        ax.legend(
+        legend = ax.legend(
             [*handles, *keys],
             [h.get_label() for h in handles] + names,
             fontsize=7,
             loc="upper left",
-            bbox_to_anchor=(1.02, 1.0),
+            bbox_to_anchor=(1.0, 1.0),
+            bbox_transform=ax.transAxes
+            + ScaledTranslation(ISO_LABEL_PT / 72, 0, fig.dpi_scale_trans),
             borderaxespad=0.0,
         )
+        # the axes keep their size; the figure widens by the legend's width
+        fig.canvas.draw()
+        extra = legend.get_window_extent().width / fig.dpi + ISO_LABEL_PT / 72
+        fig.set_size_inches(AXES_WIDTH_IN + 0.9 + extra, fig.get_size_inches()[1])
     fig.tight_layout()
     return fig
 

@@ -94,11 +94,16 @@ def test_the_iso_f1_curves_are_labelled_and_the_origin_dots_are_whole():
     import matplotlib.pyplot as plt
 
     fig, ax = _figure()
-    labels = {t.get_text(): t.xy for t in ax.texts}
+    labels = {t.get_text(): t for t in ax.texts}
+    axes, legend = ax.get_window_extent(), ax.get_legend().get_window_extent()
     for f in ISO_F1:
-        x, y = labels[f"F1 {f:.1f}"]
-        # the label sits where its curve ends at recall 1: precision = f / (2 - f)
+        label = labels[f"F1 {f:.1f}"]
+        x, y = label.xy
+        # at the height where its curve ends (recall 1): precision = f / (2 - f)
         assert x == 1.0 and y == pytest.approx(f / (2 - f))
+        # right of the axes (over no point), left of the legend
+        box = label.get_window_extent()
+        assert axes.x1 < box.x0 and box.x1 < legend.x0
     # a query answered with nothing sits at (0, 0): the axes start below it, not on it
     assert ax.get_xlim()[0] < 0 and ax.get_ylim()[0] < 0
     assert "recall" in ax.get_xlabel() and "precision" in ax.get_ylabel()
@@ -121,3 +126,27 @@ def test_the_png_keeps_the_legend_and_is_recognised(tmp_path):
     assert legend.x0 > axes.x1
     assert width_px >= legend.x1 - axes.x0
     plt.close(fig)
+
+
+def test_the_axes_keep_their_size_however_long_the_legend():
+    """Ten methods with long 'given' texts squeezed the axes to a strip beside the legend:
+    the figure widens instead."""
+    import matplotlib.pyplot as plt
+
+    many = [
+        _config(
+            f"method {k}",
+            "the label list (the map's label names + x.taxonomy.yaml)",
+            [(0.5, 0.5)],
+            1.0,
+            0,
+        )
+        for k in range(10)
+    ]
+    widths = []
+    for configs in (CONFIGS[:1], many):
+        fig = precision_recall_figure(configs)
+        fig.canvas.draw()
+        widths.append(fig.axes[0].get_window_extent().width)
+        plt.close(fig)
+    assert widths[1] == pytest.approx(widths[0], rel=0.05)
