@@ -7,6 +7,8 @@ import argparse
 NAME = "configs"
 HELP = "List the shipped method configs (use one with -c NAME), or print one."
 ORDER = 40
+#: Under this many columns the list is one block per config, not a table.
+NARROW = 100
 DESCRIPTION = """\
 The package ships method configs that any command takes by name (-c demo:quash-taxonomy).
 demo:* ones use the shipped MiniLM encoder and run offline, on the demo scene or on any
@@ -60,24 +62,37 @@ def run(args: argparse.Namespace) -> int:
             ]
         )
         return 0
+    import textwrap
+
     from rich import box
     from rich.table import Table
     from rich.text import Text
 
-    table = Table(
-        title="Shipped method configs: use one with -c NAME",
-        title_justify="left",
-        box=box.SIMPLE_HEAD,
-    )
-    table.add_column("name", no_wrap=True, style="bold")
-    table.add_column("needs")
-    table.add_column("description", ratio=1)
+    out = console()
+    rows = []
     for c in sorted(configs, key=lambda c: (not c.offline, c.name)):
         needs = (
             Text("nothing (offline, MiniLM)", style="green")
             if c.offline
             else Text(c.needs or "", style="yellow")
         )
+        rows.append((c, needs))
+    title = "Shipped method configs: use one with -c NAME"
+    if out.width < NARROW:
+        # three columns in under 100 left the description some 20 characters (a path in
+        # it cut with an ellipsis): each config is its name and needs, then its text
+        out.print(f"[bold]{title}[/]")
+        for c, needs in rows:
+            out.print()
+            out.print(Text.assemble((c.name, "bold"), "  needs ", needs), overflow="fold")
+            for line in textwrap.wrap(c.description, width=max(20, out.width - 4)):
+                out.print(Text("    " + line))
+        return 0
+    table = Table(title=title, title_justify="left", box=box.SIMPLE_HEAD)
+    table.add_column("name", no_wrap=True, style="bold")
+    table.add_column("needs", overflow="fold")
+    table.add_column("description", ratio=1, overflow="fold")
+    for c, needs in rows:
         table.add_row(Text(c.name), needs, Text(c.description))
-    console().print(table)
+    out.print(table)
     return 0

@@ -156,3 +156,25 @@ def test_a_printed_config_saved_elsewhere_still_finds_its_files(tmp_path, capsys
             printed["heuristic"]["file"] = heuristic["file"]
         assert printed == shipped, c.name
     assert with_files >= 2  # demo:quash-taxonomy and demo:quash-taxonomy-svm
+
+
+@pytest.mark.parametrize("columns", [60, 80, 100, 160])
+def test_quash_configs_loses_no_text_at_any_width(columns, capsys, monkeypatch):
+    """At 80 columns the description column was some 20 characters wide and a path in it
+    was cut with an ellipsis ('benchmarks/bench_qual…'); every line now fits the
+    terminal and every config's name, needs and description is there whole."""
+    from quash_plugins.cli import cmd_configs
+    from quash_plugins.core.shipped import shipped_configs
+
+    monkeypatch.setenv("COLUMNS", str(columns))
+    assert main(["configs"]) == 0
+    out = capsys.readouterr().out
+    assert "…" not in out
+    assert max(len(line) for line in out.splitlines()) <= columns
+    joined = "".join(out.split())
+    for c in shipped_configs():
+        for text in (c.name, c.needs or "", c.description):
+            if columns < cmd_configs.NARROW:  # one block per config: its text in order
+                assert "".join(text.split()) in joined, (c.name, text)
+            else:  # a table: the columns interleave, but no word is cut
+                assert all(word in out for word in text.split()), (c.name, text)
