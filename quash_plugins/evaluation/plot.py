@@ -65,6 +65,82 @@ def _legend_label(c: dict[str, Any]) -> str:
     return text
 
 
+#: Where a zoom of the means may go (axes fraction: x0, y0, width, height), the corner
+#: holding the fewest points is taken.
+ZOOM_CORNERS = (
+    (0.05, 0.55, 0.4, 0.4),
+    (0.05, 0.05, 0.4, 0.4),
+    (0.55, 0.55, 0.4, 0.4),
+    (0.55, 0.05, 0.4, 0.4),
+)
+#: Means closer than this (in recall and precision) overlap at the plot's scale.
+ZOOM_BELOW = 0.03
+
+
+def _overlapping_means(xy: Any) -> list[int]:
+    """The largest group of means that overlap one another (linked by gaps under
+    :data:`ZOOM_BELOW` in recall and precision; on a tie, the one with the closest
+    pair), as indices; [] when no two overlap."""
+    n = len(xy)
+    gaps = np.abs(xy[:, None, :] - xy[None, :, :]).max(axis=2)
+    np.fill_diagonal(gaps, np.inf)
+    group = list(range(n))
+    for i in range(n):
+        for j in range(i + 1, n):
+            if gaps[i, j] < ZOOM_BELOW and group[i] != group[j]:
+                old, new = group[j], group[i]
+                group = [new if g == old else g for g in group]
+    members: dict[int, list[int]] = {}
+    for i, g in enumerate(group):
+        members.setdefault(g, []).append(i)
+    linked = [m for m in members.values() if len(m) > 1]
+    if not linked:
+        return []
+    return max(linked, key=lambda m: (len(m), -gaps[np.ix_(m, m)].min()))
+
+
+def _zoom_on_the_means(ax: Any, means: list[tuple[float, float, Any]], points: Any) -> Any:
+    """An inset that shows overlapping means apart (a table whose rows score alike: the
+    antonyms all at recall ~1, precision ~0.05), in the corner of the axes that covers the
+    fewest points, with the zoomed area marked; None when no two means overlap. Only the
+    largest group of overlapping means is zoomed on."""
+    xy = np.array([(r, p) for r, p, _ in means], dtype=float).reshape(-1, 2)
+    picked = _overlapping_means(xy)
+    if not picked:
+        return None
+    lo, hi = xy[picked].min(axis=0), xy[picked].max(axis=0)
+    pad = max(0.15 * float((hi - lo).max()), 0.01)
+    lo, hi = lo - pad, hi + pad
+    x0, x1 = ax.get_xlim()
+    y0, y1 = ax.get_ylim()
+    lo, hi = np.maximum(lo, [x0, y0]), np.minimum(hi, [x1, y1])  # the mark stays inside
+    frac = (points - [x0, y0]) / [x1 - x0, y1 - y0]  # the points in axes fraction
+    zoomed = (np.array([lo, hi]) - [x0, y0]) / [x1 - x0, y1 - y0]
+
+    def crowd(corner: tuple) -> tuple[int, int]:
+        cx, cy, w, h = corner
+        inside = (
+            (frac[:, 0] >= cx)
+            & (frac[:, 0] <= cx + w)
+            & (frac[:, 1] >= cy)
+            & (frac[:, 1] <= cy + h)
+        )
+        over = not (
+            zoomed[1, 0] < cx or zoomed[0, 0] > cx + w or zoomed[1, 1] < cy or zoomed[0, 1] > cy + h
+        )
+        return (int(over), int(inside.sum()))  # never over the zoomed area itself
+
+    corner = min(ZOOM_CORNERS, key=crowd)
+    inset = ax.inset_axes(list(corner))
+    for r, p, color in means:
+        inset.scatter([r], [p], s=60, color=color, edgecolor="black", zorder=3)
+    inset.set(xlim=(lo[0], hi[0]), ylim=(lo[1], hi[1]))
+    inset.set_title("the means, zoomed", fontsize=7)
+    inset.tick_params(labelsize=6)
+    ax.indicate_inset_zoom(inset, edgecolor="dimgrey")
+    return inset
+
+
 def precision_recall_figure(
     configs: Sequence[dict[str, Any]], title: str = "precision vs recall"
 ) -> Any:
@@ -74,7 +150,8 @@ def precision_recall_figure(
     a small dot per query. The legend, right of the axes so it covers no point, names each
     method with its mean F1, its absence score (the share of absence queries it answered
     with nothing), how many present queries it answered with nothing and what it was given, then what the markers and the dotted iso-F1
-    curves (each labelled with its F1) mean.
+    curves (each labelled with its F1) mean. When means overlap, an inset in the emptiest
+    corner shows them apart.
     """
     try:
         import matplotlib
@@ -89,6 +166,7 @@ def precision_recall_figure(
     fig, ax = plt.subplots(figsize=(AXES_WIDTH_IN + 0.9, max(5.2, 1.0 + 0.16 * n_lines)), dpi=110)
     cmap = plt.get_cmap("tab10" if len(configs) <= 10 else "tab20")
     handles: list[Any] = []
+    means: list[tuple[float, float, Any]] = []
     for i, c in enumerate(configs):
         color = cmap(i % cmap.N)
         pq = list((c.get("per_query") or {}).values())
@@ -98,6 +176,7 @@ def precision_recall_figure(
             )
         if c["mean"]["f1"] is None:  # nothing scored (absence queries only): no mean to place
             continue
+        means.append((c["mean"]["recall"], c["mean"]["precision"], color))
         handles.append(
             ax.scatter(
                 [c["mean"]["recall"]],
@@ -136,6 +215,9 @@ def precision_recall_figure(
     )
     ax.xaxis.label.set_fontsize(9)
     ax.yaxis.label.set_fontsize(9)
+    offsets = [col.get_offsets() for col in ax.collections]
+    points = np.vstack(offsets) if offsets else np.zeros((0, 2))
+    _zoom_on_the_means(ax, means, np.asarray(points, dtype=float))
     if handles:
         keys = [
             Line2D([], [], ls="", marker="o", ms=9, mfc="white", mec="black"),

@@ -150,3 +150,49 @@ def test_the_axes_keep_their_size_however_long_the_legend():
         widths.append(fig.axes[0].get_window_extent().width)
         plt.close(fig)
     assert widths[1] == pytest.approx(widths[0], rel=0.05)
+
+
+def _alike(n):
+    """Rows that score alike (the antonyms table: every mean at recall ~1, precision
+    ~0.05), each a little apart, and one row far from them."""
+    rows = [
+        _config(f"baseline {k}", "the query alone", [(0.97 + 0.003 * k, 0.03 + 0.004 * k)], 0.0, 0)
+        for k in range(n)
+    ]
+    return [*rows, _config("quash", "the label list", [(0.6, 0.7)], 1.0, 0)]
+
+
+def test_means_that_overlap_are_shown_apart_in_a_zoom():
+    """The antonyms table's means all overlapped at recall ~1: which was which could not
+    be read. An inset zooms on them, inside the axes, where they stand apart."""
+    import matplotlib.pyplot as plt
+
+    configs = _alike(6)
+    fig = precision_recall_figure(configs)
+    fig.canvas.draw()
+    [ax] = fig.axes
+    [inset] = ax.child_axes
+    xy = np.array([(c["mean"]["recall"], c["mean"]["precision"]) for c in configs[:-1]])
+    (x0, x1), (y0, y1) = inset.get_xlim(), inset.get_ylim()
+    assert ((xy[:, 0] > x0) & (xy[:, 0] < x1) & (xy[:, 1] > y0) & (xy[:, 1] < y1)).all()
+    # the zoomed area is inside the main axes (its mark and lines stay in the plot)
+    (mx0, mx1), (my0, my1) = ax.get_xlim(), ax.get_ylim()
+    assert mx0 <= x0 < x1 <= mx1 and my0 <= y0 < y1 <= my1
+    # in the inset, the means are further apart than a marker is wide
+    shown = inset.transData.transform(xy)
+    gaps = np.linalg.norm(shown[:, None] - shown[None], axis=2)[np.triu_indices(len(xy), 1)]
+    [size] = {s for col in inset.collections for s in col.get_sizes()}
+    assert gaps.min() > np.sqrt(size) * fig.dpi / 72
+    # at the plot's own scale they overlapped
+    main = ax.transData.transform(xy)
+    main_gaps = np.linalg.norm(main[:, None] - main[None], axis=2)[np.triu_indices(len(xy), 1)]
+    assert main_gaps.min() < np.sqrt(90) * fig.dpi / 72
+    plt.close(fig)
+
+
+def test_means_apart_get_no_zoom():
+    import matplotlib.pyplot as plt
+
+    fig = precision_recall_figure(CONFIGS)
+    assert fig.axes[0].child_axes == []
+    plt.close(fig)
