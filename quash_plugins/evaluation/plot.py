@@ -142,7 +142,11 @@ def _zoom_on_the_means(ax: Any, means: list[tuple[float, float, Any]], points: A
 
 
 def precision_recall_figure(
-    configs: Sequence[dict[str, Any]], title: str = "precision vs recall"
+    configs: Sequence[dict[str, Any]],
+    title: str = "precision vs recall",
+    *,
+    dots: str = "one query",
+    mean: str = "mean over the present queries",
 ) -> Any:
     """The figure :func:`plot_precision_recall` writes (a ``matplotlib.figure.Figure``).
 
@@ -150,8 +154,9 @@ def precision_recall_figure(
     a small dot per query. The legend, right of the axes so it covers no point, names each
     method with its mean F1, its absence score (the share of absence queries it answered
     with nothing), how many present queries it answered with nothing and what it was given, then what the markers and the dotted iso-F1
-    curves (each labelled with its F1) mean. When means overlap, an inset in the emptiest
-    corner shows them apart.
+    curves (each labelled with its F1) mean: ``mean`` and ``dots`` say what the markers are
+    (a plot whose dots are seeds, not queries: ``dots="one seed"``). When means overlap,
+    an inset in the emptiest corner shows them apart.
     """
     try:
         import matplotlib
@@ -224,7 +229,7 @@ def precision_recall_figure(
             Line2D([], [], ls="", marker="o", ms=3, mfc="grey", mec="grey", alpha=0.5),
             Line2D([], [], color="grey", lw=0.6, ls=":"),
         ]
-        names = ["mean over the present queries", "one query", "iso-F1 curves"]
+        names = [mean, dots, "iso-F1 curves"]
         legend = ax.legend(
             [*handles, *keys],
             [h.get_label() for h in handles] + names,
@@ -244,11 +249,15 @@ def precision_recall_figure(
 
 
 def plot_precision_recall(
-    configs: Sequence[dict[str, Any]], path: str | Path, title: str = "precision vs recall"
+    configs: Sequence[dict[str, Any]],
+    path: str | Path,
+    title: str = "precision vs recall",
+    **legend: str,
 ) -> Path:
     """Precision against recall per method (mean: large marker; per query: small dots),
-    written as a PNG: :func:`precision_recall_figure`."""
-    fig = precision_recall_figure(configs, title)
+    written as a PNG: :func:`precision_recall_figure` (``legend``: its ``dots`` and
+    ``mean``)."""
+    fig = precision_recall_figure(configs, title, **legend)
     import matplotlib.pyplot as plt  # there: the figure was made with it
 
     path = Path(path)

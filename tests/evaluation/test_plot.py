@@ -196,3 +196,13 @@ def test_means_apart_get_no_zoom():
     fig = precision_recall_figure(CONFIGS)
     assert fig.axes[0].child_axes == []
     plt.close(fig)
+
+
+def test_the_legend_says_what_the_dots_are_when_they_are_not_queries():
+    """benchmarks/bench_quality.py plots one dot per seed."""
+    import matplotlib.pyplot as plt
+
+    fig = precision_recall_figure(CONFIGS, dots="one seed", mean="mean over the seeds")
+    texts = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    assert texts[-3:] == ["mean over the seeds", "one seed", "iso-F1 curves"]
+    plt.close(fig)
