@@ -94,9 +94,12 @@ def run(args: argparse.Namespace) -> int:
             rows.append(row)
         print_json(rows)
         return 0
+    from rich import box
     from rich.table import Table
 
-    table = Table(title="quash plugins")
+    # as 'quash configs' does: no vertical rules, so a row of a built-in ('0.1.0
+    # (editable)') fits 80 columns on one line (boxed, each row took two)
+    table = Table(title="quash plugins", box=box.SIMPLE_HEAD, show_edge=False, pad_edge=False)
     for col in ("kind", "name", "distribution", "version", "status"):
         # Names are what a config spells: never cut them short with an ellipsis.
         table.add_column(col, no_wrap=col == "name", overflow="fold")

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import importlib
 import json
+import re
 import sys
 
 import pytest
@@ -93,9 +94,24 @@ def test_the_version_column_marks_editable_installs(installed, capsys, monkeypat
     out = capsys.readouterr().out
     for name, (version, _, editable) in INSTALLS.items():
         (line,) = [row for row in out.splitlines() if f" {name} " in row]
-        cells = [c.strip() for c in line.strip("│ ").split("│")]
+        cells = re.split(r"\s{2,}", line.strip())  # columns: two spaces or more apart
         assert cells[2] == name
         assert cells[3] == (f"{version} (editable)" if editable else version), line
+
+
+def test_each_plugin_is_one_line_at_80_columns(capsys, monkeypatch):
+    """Boxed, the table was 83 columns wide with the built-ins' '0.1.0 (editable)': at 80
+    every row took two lines. Each row is one line of at most 80 columns."""
+    from quash_plugins.cli.cmd_plugins import version_text
+
+    monkeypatch.setenv("COLUMNS", "80")
+    infos = registry.plugins(load=True)
+    assert main(["plugins"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert max(len(line) for line in lines) <= 80
+    for info in infos:
+        cells = [info.kind, info.name, info.dist, version_text(info)]
+        assert any(re.split(r"\s{2,}", line.strip())[:4] == cells for line in lines), cells
 
 
 def test_a_plugin_registered_in_the_process_is_not_editable(capsys):

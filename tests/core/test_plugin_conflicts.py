@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 import textwrap
@@ -128,19 +129,24 @@ def test_cli_default_level_warns_once_about_each(installed, tiny_world):
     assert "WARNING" in proc.stderr and "Fix or uninstall 'quash-shadow-plugin'" in err
 
 
+def _table_rows(out: str) -> list[list[str]]:
+    """The rows of 'quash plugins'' table: kind, name, distribution, version, status
+    (its columns are set apart by two spaces or more, without rules)."""
+    rows = [re.split(r"\s{2,}", line.strip()) for line in out.splitlines()]
+    return [r for r in rows if len(r) == 5 and r[0] in registry.KINDS]
+
+
 def test_cli_table_names_the_shadowed_plugin_as_a_config_spells_it(installed):
     proc = _quash_cli(installed, "plugins", "--kind", "heuristics", columns=120)
-    rows = [line.split("│") for line in proc.stdout.splitlines() if "│" in line]
-    names = {(r[2].strip(), r[3].strip()) for r in rows}
+    rows = _table_rows(proc.stdout)
+    names = {(r[1], r[2]) for r in rows}
     assert ("none", "quash-plugins") in names
     assert ("quash-shadow-plugin:none", "quash-shadow-plugin") in names
 
 
 def test_cli_table_marks_the_shadowed_plugin_and_says_how_to_reach_it(installed):
     out = _quash_cli(installed, "plugins", "--kind", "heuristics", columns=160, check=True).stdout
-    rows = {
-        r[2].strip(): r[5].strip() for r in (ln.split("│") for ln in out.splitlines()) if len(r) > 5
-    }
+    rows = {r[1]: r[4] for r in _table_rows(out)}
     assert rows["quash-shadow-plugin:none"] == "ok, shadowed"
     assert rows["none"] == "ok"
     flat = " ".join(out.split())
