@@ -52,6 +52,8 @@ class Layout:
 
 #: Entity of the text log that names each step of the ``query`` timeline.
 QUERY_LIST = "query_list"
+#: Entities (one per config) of a query's evaluation scores in words.
+QUERY_SCORES = "query_scores"
 
 
 def _query_list_view(rrb: Any) -> Any:
@@ -108,9 +110,13 @@ def _config_panel(rrb: Any, layout: Layout, c: str | None, name: str) -> Any:
             ]
             only.append(rrb.Tabs(*images, name="images"))
         return only[0] if len(only) == 1 else rrb.Vertical(*only, name=name)
-    doc = _with_query_list(
-        rrb, layout, rrb.TextDocumentView(name=f"{name}: query set", origin=f"queries/{c}")
-    )
+    doc: Any = rrb.TextDocumentView(name=f"{name}: query set", origin=f"queries/{c}")
+    if layout.metrics:  # an evaluation: the query's scores above its query set
+        scores_doc = rrb.TextDocumentView(
+            name=f"{name}: this query's scores", origin=f"{QUERY_SCORES}/{c}"
+        )
+        doc = rrb.Vertical(scores_doc, doc, row_shares=[1, 4])
+    doc = _with_query_list(rrb, layout, doc)
     views: list[Any] = []
     if layout.has_world:
         matches = rrb.Spatial3DView(

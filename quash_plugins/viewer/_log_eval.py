@@ -11,6 +11,7 @@ import math
 from collections.abc import Sequence
 from typing import Any
 
+from ._blueprint import QUERY_SCORES
 from ._display import slugify
 from ._log_result import _same_query
 
@@ -36,6 +37,9 @@ SERIES_COLORS = (
 #: with an earlier one but not its marker.
 SERIES_MARKERS = ("circle", "diamond", "square", "cross", "up", "down", "asterisk")
 
+
+#: How the query scores document names a metric (as the tables' columns do).
+METRIC_NAMES = {"f1": "F1", "iou": "IoU", "ap": "AP", "inv_rank": "inv. rank"}
 
 #: Per-query metrics :meth:`EvalLogging.log_evaluation` plots, one plot each.
 EVAL_METRICS = ("f1", "precision", "recall", "iou", "ap")
@@ -89,6 +93,7 @@ class EvalLogging:
         if isinstance(step_or_query, str):
             self._list_query(step, step_or_query, "log_eval_scalars")
         cfg = self._config_slug(str(config_name))
+        shown: dict[str, float] = {}
         for key, value in metrics.items():
             try:
                 v = float(value)
@@ -113,6 +118,55 @@ class EvalLogging:
             rec.log(path, rr.Scalars([v]))
             self._eval_metrics.setdefault(metric, None)
             self._eval_last = max(self._eval_last, step)
+            shown[metric] = v
+        if shown:
+            self._log_query_scores(str(config_name), cfg, step, shown)
+
+    def _log_query_scores(
+        self, config_name: str, cfg: str, step: int, metrics: dict[str, float]
+    ) -> None:
+        """``query_scores/<config>`` at ``step``: the query's scores in words, beside its
+        query set in the config's tab (every metric logged at that step so far, and what
+        :meth:`log_evaluation` adds: the label, TP, FP and FN, or an absence query's
+        matched items)."""
+        rr = self.rr
+        docs = self.__dict__.setdefault("_query_scores", {})
+        doc = docs.setdefault((cfg, step), {"metrics": {}, "counts": None})
+        doc["metrics"].update(metrics)
+        query = self._listed.get(step)
+        head = f"**{config_name}**" + (f' on "{query}"' if query is not None else "")
+        lines = [head]
+        counts = doc["counts"] or {}
+        if counts.get("absent"):
+            lines[0] += " (absence query)"
+            matched = counts.get("matched")
+            if counts.get("empty"):
+                lines.append(f"Matched {matched} items: **empty, as it should be**.")
+            else:
+                lines.append(
+                    f"Matched {matched} items: **not empty** (an absent object should match "
+                    "nothing)."
+                )
+        else:
+            if counts.get("label") is not None:
+                lines[0] += f" (ground truth: label `{counts['label']}`)"
+            shown = [
+                f"{METRIC_NAMES.get(m, m)} {v:.3f}"
+                for m, v in doc["metrics"].items()
+                if m != "absence"
+            ]
+            if shown:
+                lines.append(" · ".join(shown))
+            tp, fp, fn = (counts.get(k) for k in ("tp", "fp", "fn"))
+            if all(isinstance(x, int) for x in (tp, fp, fn)):
+                lines.append(
+                    f"TP {tp} · FP {fp} · FN {fn}: {tp + fp} items matched, {tp + fn} carry "
+                    "the label"
+                )
+        text = "\n\n".join(lines)
+        self.recording.log(
+            f"{QUERY_SCORES}/{cfg}", rr.TextDocument(text, media_type=rr.MediaType.MARKDOWN)
+        )
 
     def _step_of(self, query: str) -> int:
         """The step of a query string: where a result (or an earlier call) named it, else
@@ -156,15 +210,28 @@ class EvalLogging:
                 self._list_query(i, q, "log_evaluation")
         for c in configs:
             per_query = c.get("per_query") or {}
+            cfg = self._config_slug(str(c["name"]))
+            docs = self.__dict__.setdefault("_query_scores", {})
             for i, q in enumerate(queries):
                 row = per_query.get(q)
                 if row:
+                    counts = {k: row.get(k) for k in ("tp", "fp", "fn")}
+                    counts["label"] = row.get("label", q)
+                    docs[(cfg, i)] = {"metrics": {}, "counts": counts}
                     self.log_eval_scalars(c["name"], {m: row.get(m) for m in metrics}, i)
             absence = (c.get("absence") or {}).get("per_query") or {}
             for j, q in enumerate(absent):
                 row = absence.get(q)
                 if row and isinstance(row.get("empty"), bool):
                     value = 1.0 if row["empty"] else 0.0
+                    docs[(cfg, len(queries) + j)] = {
+                        "metrics": {},
+                        "counts": {
+                            "absent": True,
+                            "empty": row["empty"],
+                            "matched": row.get("matched"),
+                        },
+                    }
                     self.log_eval_scalars(c["name"], {"absence": value}, len(queries) + j)
         if summary_markdown:
             self.log_summary(summary_markdown)

@@ -71,3 +71,61 @@ def test_a_metric_of_its_own_keeps_its_name(tmp_path):
     logger.close()
     rec.disconnect()
     assert _views(RrdReader(out))["eval/n_pred"] == "n_pred per query"
+
+
+def _docs(path) -> dict[tuple[str, int], str]:
+    """{(entity, step): text} of every text document logged at a query step."""
+    out = {}
+    for chunk in RrdReader(path).stream().to_chunks():
+        rb = chunk.to_record_batch()
+        if "TextDocument:text" in rb.schema.names and "query" in rb.schema.names:
+            for t, v in zip(
+                rb.column("query").to_pylist(), rb.column("TextDocument:text").to_pylist()
+            ):
+                if v:
+                    out[(chunk.entity_path.lstrip("/"), t)] = v[0]
+    return out
+
+
+def test_each_query_step_says_its_scores_tp_fp_fn_and_an_absence_querys_answer(tmp_path):
+    """The tab of a method showed what it matched but not how well: its scores were only
+    in the evaluation tab's plots. Each step now has the method's scores in words, with
+    TP, FP and FN (or, for an absence query, how many items it matched), read from the
+    report, beside the query set."""
+    from _viewer_maps import make_quash, voxel_map
+
+    from quash_plugins.evaluation import evaluate
+
+    lmap = voxel_map()
+    quash = make_quash()
+    rep = evaluate(lmap, [quash], queries=["chair", "sofa"], absent=["nothing"], keep_results=True)
+    [report] = rep.configs
+    out = tmp_path / "e.rrd"
+    rec = rr.RecordingStream("quash-eval-test")
+    rec.save(out)
+    logger = RerunLogger(rec)
+    for i, r in enumerate(rep.results[report["name"]]):
+        logger.log_result(lmap, r, index=i)
+    logger.log_evaluation(rep.configs, rep.queries, rep.to_markdown(), absent=rep.absent)
+    logger.close()
+    rec.disconnect()
+    docs = _docs(out)
+    c = "quash"
+    for i, q in enumerate(["chair", "sofa"]):
+        row = report["per_query"][q]
+        text = docs[(f"query_scores/{c}", i)]
+        assert text.startswith(
+            f'**{report["name"]}** on "{q}" (ground truth: label `{row["label"]}`)'
+        )
+        assert f"F1 {row['f1']:.3f}" in text and f"AP {row['ap']:.3f}" in text
+        assert f"TP {row['tp']} · FP {row['fp']} · FN {row['fn']}" in text
+        assert f"{row['tp'] + row['fp']} items matched" in text
+        # the same numbers as the mask logged at that step
+        assert row["tp"] + row["fp"] == rep.results[report["name"]][i].n_matched
+    absent = report["absence"]["per_query"]["nothing"]
+    text = docs[(f"query_scores/{c}", 2)]
+    assert "(absence query)" in text and f"Matched {absent['matched']} items" in text
+    assert ("empty, as it should be" in text) == absent["empty"]
+    # shown in the method's tab, above its query set
+    views = _views(RrdReader(out))
+    assert views[f"query_scores/{c}"] == f"{report['name']}: this query's scores"
