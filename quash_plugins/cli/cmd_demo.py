@@ -65,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
     from ..demo.runner import demo_config_paths, run_demo
     from ..evaluation.plot import plot_precision_recall
     from ._backend_opts import backend_overrides
-    from ._output import console, print_markdown
+    from ._output import console, print_markdown, safe_text
     from ._viewer_opts import open_viewer
 
     if args.list_configs:
@@ -91,7 +91,8 @@ def run(args: argparse.Namespace) -> int:
     atomic_write_text(outdir / "demo.md", f"# {title}\n\nScene: {scene}\n\n{md}")
     atomic_write_text(outdir / "demo.json", json.dumps(report.to_json(), indent=2) + "\n")
     plot_precision_recall(report.configs, outdir / "demo.png", title=title)
-    out.print(f"[bold]{title}[/] (scene {scene})")
+    out.print(f"[bold]{title}[/]")
+    out.print(f"scene: {safe_text(scene)}")  # a path: its '[v1]' is no markup
     print_markdown(out, md)
     if viewer is not None:
         viewer.close()  # with --serve-web this serves until Ctrl-C or SIGTERM
@@ -99,7 +100,8 @@ def run(args: argparse.Namespace) -> int:
         [Path(args.rrd).name] if args.rrd and Path(args.rrd).parent == outdir else []
     )
     out.print(
-        f"wrote {', '.join(str(outdir / w) for w in written)} in {time.perf_counter() - t0:.1f} s"
+        f"wrote {safe_text(', '.join(str(outdir / w) for w in written))} "
+        f"in {time.perf_counter() - t0:.1f} s"
     )
     return 0
 

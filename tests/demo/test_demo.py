@@ -303,3 +303,20 @@ def test_the_demo_says_how_far_it_is_method_by_method(tmp_path, monkeypatch, cap
     steps = [ln for ln in lines if ln.startswith(f"evaluating {len(configs)} methods: ")]
     assert [s.split(": ")[1].split(" ")[0] for s in steps] == ["1/2", "2/2"], lines
     assert len(report.configs) == len(configs)
+
+
+@pytest.mark.slow
+def test_demo_prints_its_paths_as_they_are(tmp_path, monkeypatch, capsys):
+    """The scene's path and --out were printed as rich markup: a '[v1]' folder vanished
+    from both ('/tmp/c/demo/...'), so the printed path named no file."""
+    monkeypatch.setenv("COLUMNS", "1000")  # one line each, no path folded
+    monkeypatch.setenv("QUASH_CACHE_DIR", str(tmp_path / "cache[v1]"))
+    out = tmp_path / "out[v1]"
+    assert main(["-q", "demo", "--tiny", "--no-rrd", "--out", str(out)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    [scene] = sorted(cache_root().glob("scene-v*-tiny-seed0-*.npz"))
+    assert f"scene: {scene}" in lines
+    [wrote] = [ln for ln in lines if ln.startswith("wrote ")]
+    written = wrote.removeprefix("wrote ").rsplit(" in ", 1)[0].split(", ")
+    assert written == [str(out / n) for n in ("demo.md", "demo.json", "demo.png")]
+    assert all(Path(w).is_file() for w in written)
