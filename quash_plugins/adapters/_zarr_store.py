@@ -176,7 +176,10 @@ def read_zarr_map(path: str | Path, *, dask: bool = False, chunk_rows: int | Non
     zarr = require("zarr", "dask", "Zarr maps")
     path = Path(path)
     try:
-        node = zarr.open(str(path), mode="r")
+        # by its absolute path: the array pickles with its store's path, and a Dask
+        # worker whose working directory is not this process's would read another
+        # folder (or none: zarr reads a missing chunk as zeros, a map never observed)
+        node = zarr.open(str(path.absolute()), mode="r")
     except Exception as exc:  # noqa: BLE001 - zarr raises many types for a bad store
         raise MapFormatError(f"{path}: not a readable zarr store ({exc}).") from None
     attrs: dict[str, Any] = {}

@@ -68,6 +68,7 @@ class ZarrRows:
         self.ndim = len(self.shape)
 
     def __getitem__(self, key: Any) -> np.ndarray:
+        self._check_store()
         try:
             return np.asarray(self.array[key])
         except Exception as exc:  # noqa: BLE001 - any failure to read rows is the map's
@@ -82,6 +83,24 @@ class ZarrRows:
             what = f"rows {start}-{stop - 1} of the embeddings" if stop > start else ""
             what += _chunk_keys(self.array, start, stop) if stop > start else ""
             raise map_read_error(self.where, exc, self.adapter, what) from exc
+
+    def _check_store(self) -> None:
+        """A local store that is not there (on a worker that does not share the map's
+        file system) is an error: zarr would read its chunks as zeros, unobserved rows
+        that never match."""
+        root = getattr(getattr(self.array, "store", None), "root", None)
+        if root is None or os.path.isdir(root):
+            return
+        import socket
+
+        from ..core.errors import MapFormatError
+
+        raise MapFormatError(
+            f"{self.where}: its zarr store {root} is not there on {socket.gethostname()}, "
+            "where a Dask worker reads its chunks. Every worker reads the map itself: put "
+            "it at the same path on every worker (a shared file system), or leave out "
+            "--scheduler to run a local cluster (see docs/scale.md)."
+        )
 
 
 def _reader(emb: Any) -> tuple[Any, str | None]:

@@ -411,3 +411,36 @@ def test_masks_equal_at_the_threshold_itself(client, world, name, params):
         assert (local.scores == threshold).any()  # rows sit exactly on the threshold
         np.testing.assert_array_equal(dask_result.scores, local.scores)
         np.testing.assert_array_equal(dask_result.mask, local.mask)
+
+
+def test_a_worker_without_the_map_store_says_so(world, tmp_path):
+    """A worker that does not see the map's store (no shared file system) fails naming
+    the store and the fix; zarr alone would read every chunk as zeros."""
+    import shutil
+
+    from quash_plugins.core.errors import MapFormatError
+    from quash_plugins.engine.dask_arrays import ZarrRows
+
+    path = tmp_path / "map.zarr"
+    shutil.copytree(world["path"], path)
+    lmap = read_map(path)
+    reader = ZarrRows(lmap.embeddings, str(path), "zarr")
+    assert np.abs(reader[0:10]).sum() > 0  # there: the stored rows
+    shutil.rmtree(path)
+    with pytest.raises(MapFormatError, match=r"same path on every worker.*--scheduler"):
+        reader[0:10]
+
+
+def test_a_zarr_map_read_by_a_relative_path_travels_by_its_absolute_one(
+    world, tmp_path, monkeypatch
+):
+    """The embeddings of a map read as ``map.zarr`` pickle with the store's absolute
+    path: a worker whose working directory is another folder reads the map's rows (a
+    relative store read nothing there: every chunk came back as zeros)."""
+    import pickle
+
+    monkeypatch.chdir(world["dir"])
+    emb = read_map(world["path"].name).embeddings
+    monkeypatch.chdir(tmp_path)  # a worker started elsewhere
+    again = pickle.loads(pickle.dumps(emb))
+    np.testing.assert_array_equal(np.asarray(again[:100]), world["emb"][:100])
