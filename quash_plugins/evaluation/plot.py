@@ -42,6 +42,36 @@ def is_plot_png(path: str | Path) -> bool:
     return False
 
 
+#: The methods' colours, in order: the Rerun viewer's evaluation plots'
+#: (``quash_plugins.viewer.SERIES_COLORS``, which this package may not import), so a
+#: method has the same colour in ``demo.png`` as in ``demo.rrd``: Okabe-Ito's eight
+#: colour-blind-safe colours, then four of Paul Tol's muted ones.
+SERIES_COLORS = (
+    (0, 114, 178),
+    (230, 159, 0),
+    (0, 158, 115),
+    (204, 121, 167),
+    (86, 180, 233),
+    (213, 94, 0),
+    (240, 228, 66),
+    (0, 0, 0),
+    (51, 34, 136),
+    (153, 153, 51),
+    (136, 34, 85),
+    (153, 153, 153),
+)
+#: Markers past the palette (the viewer's circle, diamond, square, cross, up, down,
+#: asterisk): a method that shares a colour with an earlier one has a marker of its own.
+SERIES_MARKERS = ("o", "D", "s", "X", "^", "v", "*")
+
+
+def series_style(k: int) -> tuple[tuple[float, float, float], str]:
+    """The colour (RGB in 0-1) and marker of the ``k``-th method, as the viewer's."""
+    r, g, b = SERIES_COLORS[k % len(SERIES_COLORS)]
+    marker = SERIES_MARKERS[k // len(SERIES_COLORS) % len(SERIES_MARKERS)]
+    return (r / 255, g / 255, b / 255), marker
+
+
 #: The iso-F1 curves drawn behind the points, each labelled with its F1 right of the axes.
 ISO_F1 = (0.2, 0.4, 0.6, 0.8)
 #: Room (points) right of the axes for those labels; the legend stands beyond it.
@@ -99,12 +129,12 @@ def _overlapping_means(xy: Any) -> list[int]:
     return max(linked, key=lambda m: (len(m), -gaps[np.ix_(m, m)].min()))
 
 
-def _zoom_on_the_means(ax: Any, means: list[tuple[float, float, Any]], points: Any) -> Any:
+def _zoom_on_the_means(ax: Any, means: list[tuple[float, float, Any, str]], points: Any) -> Any:
     """An inset that shows overlapping means apart (a table whose rows score alike: the
     antonyms all at recall ~1, precision ~0.05), in the corner of the axes that covers the
     fewest points, with the zoomed area marked; None when no two means overlap. Only the
     largest group of overlapping means is zoomed on."""
-    xy = np.array([(r, p) for r, p, _ in means], dtype=float).reshape(-1, 2)
+    xy = np.array([(m[0], m[1]) for m in means], dtype=float).reshape(-1, 2)
     picked = _overlapping_means(xy)
     if not picked:
         return None
@@ -132,8 +162,8 @@ def _zoom_on_the_means(ax: Any, means: list[tuple[float, float, Any]], points: A
 
     corner = min(ZOOM_CORNERS, key=crowd)
     inset = ax.inset_axes(list(corner))
-    for r, p, color in means:
-        inset.scatter([r], [p], s=60, color=color, edgecolor="black", zorder=3)
+    for r, p, color, marker in means:
+        inset.scatter([r], [p], s=60, color=color, marker=marker, edgecolor="black", zorder=3)
     inset.set(xlim=(lo[0], hi[0]), ylim=(lo[1], hi[1]))
     inset.set_title("the means, zoomed", fontsize=7)
     inset.tick_params(labelsize=6)
@@ -169,25 +199,30 @@ def precision_recall_figure(
         raise QuashError('Plots need matplotlib: pip install "quash-plugins[plots]"') from None
     n_lines = sum(1 + bool(c.get("given")) for c in configs) + 3
     fig, ax = plt.subplots(figsize=(AXES_WIDTH_IN + 0.9, max(5.2, 1.0 + 0.16 * n_lines)), dpi=110)
-    cmap = plt.get_cmap("tab10" if len(configs) <= 10 else "tab20")
     handles: list[Any] = []
-    means: list[tuple[float, float, Any]] = []
+    means: list[tuple[float, float, Any, str]] = []
     for i, c in enumerate(configs):
-        color = cmap(i % cmap.N)
+        color, marker = series_style(i)
         pq = list((c.get("per_query") or {}).values())
         if pq:
             ax.scatter(
-                [q["recall"] for q in pq], [q["precision"] for q in pq], s=9, alpha=0.3, color=color
+                [q["recall"] for q in pq],
+                [q["precision"] for q in pq],
+                s=9,
+                alpha=0.35,
+                color=color,
+                marker=marker,
             )
         if c["mean"]["f1"] is None:  # nothing scored (absence queries only): no mean to place
             continue
-        means.append((c["mean"]["recall"], c["mean"]["precision"], color))
+        means.append((c["mean"]["recall"], c["mean"]["precision"], color, marker))
         handles.append(
             ax.scatter(
                 [c["mean"]["recall"]],
                 [c["mean"]["precision"]],
                 s=90,
                 color=color,
+                marker=marker,
                 edgecolor="black",
                 label=_legend_label(c),
                 zorder=3,

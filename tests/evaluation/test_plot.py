@@ -206,3 +206,46 @@ def test_the_legend_says_what_the_dots_are_when_they_are_not_queries():
     texts = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
     assert texts[-3:] == ["mean over the seeds", "one seed", "iso-F1 curves"]
     plt.close(fig)
+
+
+def test_a_method_has_the_colour_it_has_in_the_recording(tmp_path):
+    """demo.png coloured the methods with matplotlib's tab10, demo.rrd with the viewer's
+    palette: the same method had two colours. Past the palette, the marker differs, as in
+    the viewer."""
+    import matplotlib.pyplot as plt
+
+    rr = pytest.importorskip("rerun")
+    from rerun.chunk import RrdReader
+
+    from quash_plugins.viewer import RerunLogger
+
+    configs = [
+        _config(f"method {k}", "the query alone", [(0.05 * k, 0.9 - 0.05 * k)], 0.0, 0)
+        for k in range(14)
+    ]
+    out = tmp_path / "e.rrd"
+    rec = rr.RecordingStream("quash-eval-test")
+    rec.save(out)
+    logger = RerunLogger(rec)
+    logger.log_evaluation(configs, ["q0"])
+    logger.close()
+    rec.disconnect()
+    logged = {}
+    for chunk in RrdReader(out).stream().to_chunks():
+        rb = chunk.to_record_batch()
+        path = chunk.entity_path.lstrip("/")
+        if path.startswith("eval/f1/") and "SeriesLines:colors" in rb.schema.names:
+            [[packed]] = rb.column("SeriesLines:colors").to_pylist()
+            logged[path.removeprefix("eval/f1/")] = packed  # 0xRRGGBBAA
+    fig = precision_recall_figure(configs)
+    legend = fig.axes[0].get_legend()
+    handles = legend.legend_handles[: len(configs)]
+    for k, (c, h) in enumerate(zip(configs, handles)):
+        packed = logged[c["name"].replace(" ", "_")]
+        want = [(packed >> s & 0xFF) / 255 for s in (24, 16, 8)]
+        assert list(h.get_facecolor()[0][:3]) == pytest.approx(want, abs=1e-6), k
+    # method 12 has method 0's colour and another marker
+    assert handles[12].get_facecolor()[0] == pytest.approx(handles[0].get_facecolor()[0])
+    shape = [h.get_paths()[0].vertices.tolist() for h in (handles[0], handles[12])]
+    assert shape[0] != shape[1]
+    plt.close(fig)
