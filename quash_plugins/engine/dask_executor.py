@@ -105,19 +105,20 @@ def _cluster_errors() -> tuple[type[BaseException], ...]:
     return tuple(errors)
 
 
-def compute(client: Any, *arrays: Any, progress: Any = None) -> tuple[Any, ...]:
+def compute(client: Any, *arrays: Any, progress: Any = None, weight: Any = None) -> tuple[Any, ...]:
     """Compute dask collections on ``client`` (or threads), turning cluster faults into
     :class:`ClusterError`.
 
     ``progress(rows)`` (one array given, row-chunked) is called as each row block of it
     finishes, from this thread: on threads through a dask callback, on a client as the
-    block's future completes.
+    block's future completes. ``weight(block)`` is what a finished block adds (default:
+    its rows), for an array whose blocks stand for more rows than they hold.
     """
     import dask
 
     try:
         if progress is not None and len(arrays) == 1:
-            return (_compute_counted(client, arrays[0], progress),)
+            return (_compute_counted(client, arrays[0], progress, weight),)
         if client is not None:
             return tuple(client.compute(list(arrays), sync=True))
         return dask.compute(*arrays, scheduler="threads")
@@ -131,8 +132,9 @@ def compute(client: Any, *arrays: Any, progress: Any = None) -> tuple[Any, ...]:
         raise _cluster_error(exc) from exc
 
 
-def _compute_counted(client: Any, array: Any, progress: Any) -> np.ndarray:
-    """``array`` computed with ``progress(rows)`` after each finished row block."""
+def _compute_counted(client: Any, array: Any, progress: Any, weight: Any = None) -> np.ndarray:
+    """``array`` computed with ``progress(rows)`` after each finished row block
+    (``weight(block)`` instead of its rows when given)."""
     import dask
 
     if client is None:
@@ -143,7 +145,7 @@ def _compute_counted(client: Any, array: Any, progress: Any) -> np.ndarray:
 
         def done(key, result, dsk, state, worker_id) -> None:
             if isinstance(key, tuple) and key and key[0] == name:
-                progress(rows.get(key[1], 0))
+                progress(weight(result) if weight else rows.get(key[1], 0))
 
         with Callback(posttask=done):
             (out,) = dask.compute(array, scheduler="threads")
@@ -157,7 +159,7 @@ def _compute_counted(client: Any, array: Any, progress: Any) -> np.ndarray:
     for fut in as_completed(futures):
         part = fut.result()  # raises the block's error here
         parts[index[fut.key]] = part
-        progress(len(part))
+        progress(weight(part) if weight else len(part))
     return np.concatenate(parts) if parts else np.empty(array.shape, array.dtype)
 
 

@@ -111,6 +111,35 @@ def _global_block(col: np.ndarray, observed: np.ndarray, fitted: BlockScorer, i:
     return out
 
 
+def _store_rows(block: np.ndarray, zarr_array: Any, block_info: Any = None) -> np.ndarray:
+    """Write one row block of raw scores into ``zarr_array``; ``[rows written]``."""
+    a, b = block_info[0]["array-location"][0] if block_info else (0, len(block))
+    zarr_array[a:b] = block
+    return np.array([b - a], np.int64)
+
+
+def _rows_written(part: np.ndarray) -> int:
+    return int(np.sum(part))
+
+
+def _check_written(zraw: Any, path: Path) -> None:
+    """Every chunk of ``zraw`` is in the store this process sees, or a usage error.
+
+    A worker that does not share this process's file system writes its chunks into a
+    folder of its own at the same path: the store here would read them as missing."""
+    from ..core.errors import UsageError
+
+    have, want = zraw.nchunks_initialized, zraw.nchunks
+    if have < want:
+        raise UsageError(
+            f"{path}: {want - have} of {want} chunks of the results the Dask workers wrote "
+            "are not in the store this process writes: the workers do not see "
+            f"{path.parent} as this process does. Write the results to storage the "
+            "workers share (the same path on every machine), or leave out --scheduler "
+            "to run a local cluster (see docs/scale.md)."
+        )
+
+
 class LazyQuery:
     """The lazy answer to several queries over one map (see :func:`query_lazy`).
 
@@ -280,20 +309,42 @@ class LazyQuery:
         """
         if self.skipped and self._pending:
             return self._write_answered(path, overwrite, group_mb, up)
+        from ..core.progress import progress
+
         zarr = require_zarr()
         da = require_dask()
         path = Path(path).expanduser()
         refuse_own_input(path, self.lmap.source, folder=True)
         n, q = self.raw.shape[0], len(self.classifiers)
         rows = max(1, self.raw.chunks[0][0])  # an empty map has one chunk of 0 rows
+        # the temporary store by its absolute path: the workers write its chunks, and a
+        # worker's working directory need not be this process's (a scheduler of its own)
         with atomic_dir(
-            path, overwrite=overwrite, replaceable=is_results_zarr, kind="results store"
+            path.absolute(), overwrite=overwrite, replaceable=is_results_zarr, kind="results store"
         ) as tmp:
             group = zarr.open_group(str(tmp), mode="w", zarr_format=3)
+            # NaN fill: every written chunk is stored (the observed column is 0 or 1), so
+            # a chunk missing here was written where this process cannot see it
             zraw = group.create_array(
-                "_raw", shape=(n, q + 1), chunks=(rows, q + 1), dtype="float32"
+                "_raw",
+                shape=(n, q + 1),
+                chunks=(rows, q + 1),
+                dtype="float32",
+                fill_value=np.float32(np.nan),
             )
-            (_,) = compute(self.client, da.store(self.raw, zraw, lock=False, compute=False))
+            written = self.raw.map_blocks(
+                _store_rows,
+                zarr_array=zraw,
+                drop_axis=1,
+                chunks=((1,) * self.raw.numblocks[0],),
+                dtype=np.int64,
+                meta=np.empty((0,), np.int64),
+            )
+            quer = "query" if q == 1 else "queries"
+            with progress(n, f"scoring {q} {quer} on {n} items") as advance:
+                advance(0)
+                compute(self.client, written, progress=advance, weight=_rows_written)
+            _check_written(zraw, path)
             raw = da.from_zarr(zraw, chunks=(rows, q + 1))
             post = self._post(raw)
             (floors,) = compute(self.client, self._floors(post))

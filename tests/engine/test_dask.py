@@ -413,6 +413,68 @@ def test_masks_equal_at_the_threshold_itself(client, world, name, params):
         np.testing.assert_array_equal(dask_result.mask, local.mask)
 
 
+@pytest.mark.parametrize("on", ["client", "threads"])
+def test_to_zarr_without_refine_shows_progress_of_the_map_pass(
+    client, world, tmp_path, monkeypatch, on
+):
+    """The fully lazy ``--out RESULT.zarr`` path (no refine, no presence) reads the whole
+    map in one pass: it moves a progress bar chunk by chunk, adding up to the map, as
+    ``quash query`` without ``--out`` does; the store is the in-memory answer."""
+    import contextlib
+
+    import quash_plugins.core.progress as progress_module
+
+    bars: list[tuple[int, str, list[int]]] = []
+
+    @contextlib.contextmanager
+    def recorded(total, what):
+        calls: list[int] = []
+        bars.append((total, what, calls))
+        yield calls.append
+
+    monkeypatch.setattr(progress_module, "progress", recorded)
+    expected = _reference(world, MinMaxContrast())
+    use = client if on == "client" else None  # None: local threads
+    q = _quash(world, MinMaxContrast(), backend="dask", client=use)
+    lazy = q.query_many_lazy(world["path"], ["chair", "sofa"])
+    out = lazy.to_zarr(tmp_path / "res.zarr")
+    (bar,) = [b for b in bars if b[0] == N and "scoring 2 queries" in b[1]]
+    moved = [n for n in bar[2] if n]
+    assert sum(moved) == N and len(moved) == lazy.raw.numblocks[0] > 1
+    g = zarr.open_group(str(out), mode="r")
+    for i, e in enumerate(expected):
+        np.testing.assert_array_equal(g["masks"][i], e.mask)
+        np.testing.assert_allclose(g["scores"][i], e.scores, atol=1e-5, rtol=0)
+
+
+def test_relative_paths_with_workers_in_another_directory(client, world, tmp_path, monkeypatch):
+    """A scheduler started elsewhere: its workers' working directory is not the
+    client's. A relative map path and a relative ``--out`` still read the map and write
+    the store the client names (they used to read a missing store as zeros, a map never
+    observed, and write the results into the workers' own directory: an empty answer)."""
+    elsewhere = tmp_path / "workers-cwd"
+    elsewhere.mkdir()
+    before = client.run(os.getcwd)
+    client.run(os.chdir, str(elsewhere))
+    try:
+        monkeypatch.chdir(world["dir"])
+        expected = _reference(world, MinMaxContrast())
+        q = _quash(world, MinMaxContrast(), backend="dask", client=client)
+        rel_map = world["path"].name
+        results = q.query_many(rel_map, ["chair", "sofa"])
+        _assert_same(results, expected)
+        out_rel = os.path.relpath(tmp_path / "res.zarr", world["dir"])
+        out = query_to_zarr(q, rel_map, ["chair", "sofa"], out_rel, client)
+        assert str(out) == out_rel  # the path as the caller gave it
+        g = zarr.open_group(str(tmp_path / "res.zarr"), mode="r")
+        for i, e in enumerate(expected):
+            np.testing.assert_array_equal(g["masks"][i], e.mask)
+        assert list(elsewhere.iterdir()) == []  # nothing written where the workers run
+    finally:
+        for addr, cwd in before.items():
+            client.run(os.chdir, cwd, workers=[addr])
+
+
 def test_a_worker_without_the_map_store_says_so(world, tmp_path):
     """A worker that does not see the map's store (no shared file system) fails naming
     the store and the fix; zarr alone would read every chunk as zeros."""
@@ -429,6 +491,26 @@ def test_a_worker_without_the_map_store_says_so(world, tmp_path):
     shutil.rmtree(path)
     with pytest.raises(MapFormatError, match=r"same path on every worker.*--scheduler"):
         reader[0:10]
+
+
+def test_results_written_where_the_client_cannot_see_them_are_an_error(
+    world, tmp_path, monkeypatch
+):
+    """Workers that write the result chunks to a file system of their own leave the
+    client's store without them: the query fails naming the fix, and leaves no store
+    (it used to be renamed into place with its scores missing)."""
+    from quash_plugins.core.errors import UsageError
+    from quash_plugins.engine import lazy_query
+
+    def lost(block, zarr_array, block_info=None):  # writes nowhere this process sees
+        a, b = block_info[0]["array-location"][0]
+        return np.array([b - a], np.int64)
+
+    monkeypatch.setattr(lazy_query, "_store_rows", lost)
+    q = _quash(world, MinMaxContrast())
+    with pytest.raises(UsageError, match=r"storage the\s+workers share"):
+        query_to_zarr(q, world["path"], ["chair"], tmp_path / "res.zarr")
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_a_zarr_map_read_by_a_relative_path_travels_by_its_absolute_one(
