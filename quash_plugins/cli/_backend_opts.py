@@ -50,10 +50,22 @@ def backend_overrides(args: argparse.Namespace) -> dict[str, Any]:
         backend = "dask"
     if backend != "dask":
         if workers is not None:
-            raise UsageError("--workers needs --backend dask.")
+            raise UsageError(
+                f"--workers {workers} needs --backend dask: add --backend dask to run on a "
+                "local Dask cluster, or leave out --workers."
+            )
         return {}
-    if workers is not None and (workers < 1 or address):
-        raise UsageError("--workers takes N >= 1 and applies only without --scheduler.")
+    if workers is not None and address:
+        raise UsageError(
+            f"--workers {workers} starts a local cluster, --scheduler {address} uses a "
+            "running one: give only one of them (the running cluster's workers are its "
+            "own: `dask worker ADDRESS --nworkers N`)."
+        )
+    if workers is not None and workers < 1:
+        raise UsageError(
+            f"--workers {workers}: the local cluster needs at least one worker process. "
+            "Give --workers N with N >= 1, or leave it out for one per core."
+        )
     from ..engine import client_from_cli, local_cluster_client
 
     client = local_cluster_client(workers) if workers else client_from_cli(address)

@@ -155,10 +155,15 @@ def test_backend_options_validate_without_starting_a_cluster():
     p = argparse.ArgumentParser()
     add_backend_arguments(p)
     assert backend_overrides(p.parse_args([])) == {}
-    with pytest.raises(UsageError, match="--workers needs --backend dask"):
+    with pytest.raises(UsageError, match="--workers 2 needs --backend dask: add --backend"):
         backend_overrides(p.parse_args(["--workers", "2"]))
-    with pytest.raises(UsageError, match="N >= 1"):
-        backend_overrides(p.parse_args(["--backend", "dask", "--workers", "0"]))
+    for n in ("0", "-1"):
+        with pytest.raises(UsageError, match=rf"--workers {n}: .* Give --workers N with N >= 1"):
+            backend_overrides(p.parse_args(["--backend", "dask", "--workers", n]))
+    # each its own message: not 'N >= 1' for a count that is fine beside --scheduler
+    with pytest.raises(UsageError, match=r"--workers 2 starts a local cluster, --scheduler") as e:
+        backend_overrides(p.parse_args(["--scheduler", "tcp://127.0.0.1:1", "--workers", "2"]))
+    assert "N >= 1" not in str(e.value)
     # --scheduler implies dask; an unreachable scheduler is a clear QuashError
     import dask
 
