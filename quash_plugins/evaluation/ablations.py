@@ -170,6 +170,17 @@ def _check_taxonomy(taxonomy: str) -> None:
         ) from exc
 
 
+def _plot_title(title: str, rows: list[dict[str, Any]]) -> str:
+    """A table's plot title: the table, then what each dot and mean is over (the present
+    queries, and the absence queries the legend's absence score counts)."""
+    n = max(len(r.get("per_query") or {}) for r in rows)
+    m = max(len((r.get("absence") or {}).get("per_query") or {}) for r in rows)
+    over = f"{n} quer{'y' if n == 1 else 'ies'}"
+    if m:
+        over += f", {m} absence quer{'y' if m == 1 else 'ies'}"
+    return f"{title}\n{over}"
+
+
 def run_bench(
     source: Any,
     taxonomy: str | None,
@@ -251,7 +262,9 @@ def run_bench(
         md += [f"## {titles[table]}", "", report_markdown(rows, per_query=False)]
         md += [*notes, ""] if notes else []
         if rows:
-            plot_precision_recall(rows, out / f"{table}.png", title=titles[table])
+            plot_precision_recall(
+                rows, out / f"{table}.png", title=_plot_title(titles[table], rows)
+            )
             md += [f"![{titles[table]}]({table}.png)", ""]
         if on_table is not None:
             on_table(table)
