@@ -163,6 +163,13 @@ def _compute_counted(client: Any, array: Any, progress: Any, weight: Any = None)
     return np.concatenate(parts) if parts else np.empty(array.shape, array.dtype)
 
 
+def _address(client: Any) -> str:
+    """The scheduler's address of ``client`` (``tls://127.0.0.1:40123``), not the repr of
+    its connection pool (``<pooled rpc to ...>``)."""
+    scheduler = getattr(client, "scheduler", None)
+    return str(getattr(scheduler, "address", None) or scheduler or client)
+
+
 def _cluster_error(exc: BaseException) -> ClusterError:
     return ClusterError(
         f"The Dask cluster failed during the query ({type(exc).__name__}: {exc}). No "
@@ -221,7 +228,7 @@ def classify_dask(
         graph.numblocks[0],
         graph.chunks[0][0],
         len(classifiers),
-        "client " + str(getattr(client, "scheduler", "")) if client is not None else "threads",
+        f"the scheduler at {_address(client)}" if client is not None else "local threads",
     )
     try:
         (out,) = compute(client, graph, progress=progress)

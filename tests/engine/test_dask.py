@@ -526,3 +526,17 @@ def test_a_zarr_map_read_by_a_relative_path_travels_by_its_absolute_one(
     monkeypatch.chdir(tmp_path)  # a worker started elsewhere
     again = pickle.loads(pickle.dumps(emb))
     np.testing.assert_array_equal(np.asarray(again[:100]), world["emb"][:100])
+
+
+def test_the_pass_log_names_the_scheduler_address(client, world, caplog):
+    """The 'dask pass' line names where the pass runs by the scheduler's address, not
+    by the repr of the client's connection pool ('<pooled rpc to ...>')."""
+    import logging
+
+    clf = Contrast().fit(np.eye(4, D, dtype=np.float32), np.array([1, 0, 0, 0]))
+    lmap = read_map(world["path"])
+    with caplog.at_level(logging.INFO, logger="quash_plugins.engine.dask_executor"):
+        classify_dask(lmap, [clf], chunk_bytes=2**22, client=client)
+    (line,) = [r.getMessage() for r in caplog.records if r.getMessage().startswith("dask pass")]
+    assert line.endswith(f"the scheduler at {client.scheduler.address}"), line
+    assert "pooled rpc" not in line
