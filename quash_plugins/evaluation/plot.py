@@ -10,6 +10,7 @@ import numpy as np
 
 from ..core.atomic import atomic_write
 from ..core.errors import QuashError
+from ..core.palette import series_style as palette_style
 
 #: The ``Software`` text of every PNG written here: how a previous plot is recognised.
 PNG_SOFTWARE = "quash-plugins"
@@ -42,34 +43,24 @@ def is_plot_png(path: str | Path) -> bool:
     return False
 
 
-#: The methods' colours, in order: the Rerun viewer's evaluation plots'
-#: (``quash_plugins.viewer.SERIES_COLORS``, which this package may not import), so a
-#: method has the same colour in ``demo.png`` as in ``demo.rrd``: Okabe-Ito's eight
-#: colour-blind-safe colours, then four of Paul Tol's muted ones.
-SERIES_COLORS = (
-    (0, 114, 178),
-    (230, 159, 0),
-    (0, 158, 115),
-    (204, 121, 167),
-    (86, 180, 233),
-    (213, 94, 0),
-    (240, 228, 66),
-    (0, 0, 0),
-    (51, 34, 136),
-    (153, 153, 51),
-    (136, 34, 85),
-    (153, 153, 153),
-)
-#: Markers past the palette (the viewer's circle, diamond, square, cross, up, down,
-#: asterisk): a method that shares a colour with an earlier one has a marker of its own.
-SERIES_MARKERS = ("o", "D", "s", "X", "^", "v", "*")
+#: matplotlib's spelling of the palette's markers (core.palette.SERIES_MARKERS).
+_MPL_MARKERS = {
+    "circle": "o",
+    "diamond": "D",
+    "square": "s",
+    "cross": "X",
+    "up": "^",
+    "down": "v",
+    "asterisk": "*",
+}
 
 
 def series_style(k: int) -> tuple[tuple[float, float, float], str]:
-    """The colour (RGB in 0-1) and marker of the ``k``-th method, as the viewer's."""
-    r, g, b = SERIES_COLORS[k % len(SERIES_COLORS)]
-    marker = SERIES_MARKERS[k // len(SERIES_COLORS) % len(SERIES_MARKERS)]
-    return (r / 255, g / 255, b / 255), marker
+    """The colour (RGB in 0-1) and matplotlib marker of the ``k``-th method: the Rerun
+    viewer's (:func:`quash_plugins.core.palette.series_style`), so a method has the same
+    colour in ``demo.png`` as in ``demo.rrd``."""
+    (r, g, b), marker = palette_style(k)
+    return (r / 255, g / 255, b / 255), _MPL_MARKERS[marker]
 
 
 #: The iso-F1 curves drawn behind the points, each labelled with its F1 right of the axes.

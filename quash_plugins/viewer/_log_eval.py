@@ -11,32 +11,10 @@ import math
 from collections.abc import Sequence
 from typing import Any
 
+from ..core.palette import series_style
 from ._blueprint import QUERY_SCORES
 from ._display import slugify
 from ._log_result import _same_query
-
-#: Colours of the configs' series in the evaluation plots (the same config has the same
-#: colour in every plot): colour-blind-safe qualitative palettes, Okabe-Ito's eight then
-#: four of Paul Tol's muted ones, so the twelve first configs (the demo's ten) each have a
-#: colour of their own.
-SERIES_COLORS = (
-    (0, 114, 178),
-    (230, 159, 0),
-    (0, 158, 115),
-    (204, 121, 167),
-    (86, 180, 233),
-    (213, 94, 0),
-    (240, 228, 66),
-    (0, 0, 0),
-    (51, 34, 136),
-    (153, 153, 51),
-    (136, 34, 85),
-    (153, 153, 153),
-)
-#: Point markers of the series: a config past the palette's last colour shares a colour
-#: with an earlier one but not its marker.
-SERIES_MARKERS = ("circle", "diamond", "square", "cross", "up", "down", "asterisk")
-
 
 #: How the query scores document names a metric (as the tables' columns do).
 METRIC_NAMES = {"f1": "F1", "iou": "IoU", "ap": "AP", "inv_rank": "inv. rank"}
@@ -106,8 +84,7 @@ class EvalLogging:
             if path not in self._eval_series:
                 self._eval_series.add(path)
                 k = self._eval_colors.setdefault(cfg, len(self._eval_colors))
-                color = SERIES_COLORS[k % len(SERIES_COLORS)]
-                marker = SERIES_MARKERS[k // len(SERIES_COLORS) % len(SERIES_MARKERS)]
+                color, marker = series_style(k)  # the PNG's too (core.palette)
                 name = str(config_name)
                 rec.log(path, rr.SeriesLines(names=name, colors=color), static=True)
                 rec.log(
