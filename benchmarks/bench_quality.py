@@ -414,7 +414,13 @@ def main() -> None:
             }
             for name, m in methods.items()
         ]
-        plot_precision_recall(rows, out / f"{gen}-{scen}.png", title=f"{gen}, {scen}")
+        plot_precision_recall(
+            rows,
+            out / f"{gen}-{scen}.png",
+            title=f"{gen}, {scen}",
+            dots="one seed",
+            mean="mean over the seeds",
+        )
     (out / "summary.md").write_text("\n".join(md) + "\n", encoding="utf-8")
     (out / "results.json").write_text(
         json.dumps({f"{g}|{s}": v for (g, s), v in {**agg, **kinds}.items()}, indent=1) + "\n",

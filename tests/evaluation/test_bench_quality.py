@@ -247,3 +247,35 @@ def test_a_refused_run_leaves_no_out_folder(bq, tmp_path, monkeypatch, argv):
     with pytest.raises(SystemExit):
         bq.main()
     assert not out.exists()
+
+
+def test_the_plots_say_their_dots_are_seeds(bq, tmp_path, monkeypatch):
+    """The quality plots show one dot per seed and the mean over the seeds: the legend
+    says so (the plot's default reads 'one query', which these dots are not)."""
+
+    def run_one(out, gen, seed, scen, encoder, cache):
+        cfgs = [
+            {
+                "name": name,
+                "given": "x",
+                "mean": {"f1": 0.5, "precision": 0.4 + seed / 10, "recall": 0.6, "ap": 0.5},
+                "per_query": {"chair": {}},
+                "absence": {"score": 1.0, "present_empty": 0, "per_query": {}},
+            }
+            for name in ("quash-labels", "vlmaps-labels")
+        ]
+        return {"generator": gen, "seed": seed, "scenario": scen, "seconds": 1.0, "configs": cfgs}
+
+    drawn = []
+    monkeypatch.setattr(bq, "run_one", run_one)
+    monkeypatch.setattr(bq.registry, "create", lambda *a, **k: None)
+    monkeypatch.setattr(
+        bq, "plot_precision_recall", lambda rows, path, **kw: drawn.append((rows, kw))
+    )
+    argv = ["bench_quality.py", "--out", str(tmp_path / "q"), "--seeds", "0,1"]
+    monkeypatch.setattr(sys, "argv", [*argv, "--generators", "project", "--scenarios", "closed"])
+    bq.main()
+    [(rows, kw)] = drawn
+    assert kw["dots"] == "one seed" and kw["mean"] == "mean over the seeds"
+    assert set(rows[0]["per_query"]) == {0, 1}  # the dots: one per seed
+    assert rows[0]["mean"]["precision"] == pytest.approx((0.4 + 0.5) / 2)
