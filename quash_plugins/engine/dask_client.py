@@ -84,6 +84,39 @@ class _OwnComputeFailures(logging.Filter):
         return not (args and TASK_PREFIX in repr(args[0]))
 
 
+#: The loggers of the scheduler and the nannies of quash's own LocalCluster, which run
+#: in the process that started it.
+RESTART_LOGGERS = ("distributed.scheduler", "distributed.nanny")
+
+
+class _OwnWorkerRestarts(logging.Filter):
+    """Replaces Dask's records of a worker of quash's own LocalCluster that stopped (the
+    scheduler's "Removing worker ... caused the cluster to lose already computed
+    task(s) ..." with every task key, the nanny's "Restarting worker", "Worker process
+    ... was killed") with one warning of quash's: Dask recomputes the chunks, the
+    result is unchanged, and the user needs to know only that and what to do if it
+    repeats. Errors (a cluster that gives up) pass."""
+
+    PREFIXES = ("Removing worker", "Restarting worker", "Worker process")
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.said = False
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.levelno >= logging.ERROR or not str(record.msg).startswith(self.PREFIXES):
+            return True
+        if not self.said:
+            self.said = True
+            log.warning(
+                "A worker process of the local Dask cluster stopped (killed, or over its "
+                "memory limit); Dask restarts it and computes its chunks again, so the "
+                "result is unchanged. If it repeats, lower chunk_mb or give fewer "
+                "--workers (docs/scale.md, Memory sizing)."
+            )
+        return False
+
+
 def quiet_compute_failures() -> None:
     """Install :class:`_OwnComputeFailures` on ``distributed.worker`` in this process
     (run on each worker of a LocalCluster quash started; idempotent)."""
@@ -127,6 +160,11 @@ def local_cluster_client(
         from ._dask_worker_plugin import QuietComputeFailures
 
         client.register_plugin(QuietComputeFailures())
+        restarts = _OwnWorkerRestarts()
+        for name in RESTART_LOGGERS:
+            logging.getLogger(name).addFilter(restarts)
+    else:
+        restarts = None
     log.info(
         "started a LocalCluster: %d worker processes x %d threads (%s)",
         n,
@@ -140,6 +178,8 @@ def local_cluster_client(
             cluster.close()
         except Exception:  # noqa: BLE001 - best effort at interpreter exit
             pass
+        for name in RESTART_LOGGERS:  # a cluster started later logs as Dask does
+            logging.getLogger(name).removeFilter(restarts)
 
     atexit.register(_close)
     _STARTED.append(_close)

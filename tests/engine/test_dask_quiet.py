@@ -79,3 +79,49 @@ def test_quiet_cli_says_a_damaged_chunk_once_on_its_own_cluster(tmp_path):
     lines = [ln for ln in done.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and lines[0].startswith("quash query: error: "), done.stderr
     assert "map.zarr" in lines[0] and "embeddings" in lines[0]
+
+
+def test_a_worker_restart_of_the_own_cluster_is_one_quash_warning(caplog):
+    """A worker of quash's LocalCluster that dies is recovered by Dask; the scheduler's
+    and the nanny's records of it (in distributed's own format, every lost task key) are
+    replaced by one warning of quash's that says the result is unchanged, whatever the
+    number of restarts. Errors pass."""
+    from quash_plugins.engine.dask_client import _OwnWorkerRestarts
+
+    keep = _OwnWorkerRestarts().filter
+
+    def rec(name, level, msg):
+        return logging.LogRecord(name, level, __file__, 1, msg, (), None)
+
+    lost = "Removing worker 'tls://127.0.0.1:4' caused the cluster to lose already computed"
+    with caplog.at_level(logging.WARNING, logger="quash_plugins"):
+        assert not keep(rec("distributed.scheduler", logging.WARNING, lost))
+        assert not keep(rec("distributed.nanny", logging.WARNING, "Restarting worker (x)"))
+        assert not keep(rec("distributed.nanny", logging.INFO, "Worker process 7 was killed"))
+        assert not keep(rec("distributed.scheduler", logging.WARNING, lost))
+    ours = [r.getMessage() for r in caplog.records if r.name.startswith("quash_plugins")]
+    assert len(ours) == 1 and "the result is unchanged" in ours[0]
+    assert keep(rec("distributed.scheduler", logging.ERROR, "Removing worker: gave up"))
+    assert keep(rec("distributed.scheduler", logging.WARNING, "Worker is at 85% memory"))
+
+
+def test_the_own_cluster_installs_the_restart_filter_and_removes_it_on_close():
+    from quash_plugins.engine import dask_client
+
+    def installed():
+        return [
+            name
+            for name in dask_client.RESTART_LOGGERS
+            if any(
+                isinstance(f, dask_client._OwnWorkerRestarts)
+                for f in logging.getLogger(name).filters
+            )
+        ]
+
+    client = dask_client.local_cluster_client(1)
+    try:
+        assert installed() == list(dask_client.RESTART_LOGGERS)
+    finally:
+        dask_client.close_started_clients()
+    assert installed() == []
+    assert client.status == "closed"
