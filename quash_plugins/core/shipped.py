@@ -196,11 +196,16 @@ def _near_files(path: Path) -> list[str]:
 
 
 def _near_shipped(path: Path, shipped: list[str]) -> list[str]:
-    """Shipped names whose part after the colon is ``path``'s stem, else close to it
-    (``quash-labels`` -> ``demo:quash-labels``, ``lseg:quash-labels``)."""
+    """Shipped names whose part after the colon is ``path``'s stem, or whose file name it
+    is (``demo-quash-labels.yaml``, as ``quash configs`` lists the files: that config
+    alone), else close to it (``quash-labels`` -> ``demo:quash-labels``,
+    ``lseg:quash-labels``)."""
     import difflib
 
     stem = path.stem if path.suffix in (".yaml", ".yml") else path.name
+    own_file = [n for n in shipped if n.replace(":", "-", 1) == stem]
+    if own_file:
+        return own_file
     exact = [n for n in shipped if n.split(":", 1)[-1] == stem]
     if exact or path.suffix in (".yaml", ".yml"):
         return exact  # a file name: only an exact stem, not every 'quash-*' config

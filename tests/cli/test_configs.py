@@ -130,6 +130,11 @@ def test_a_missing_config_suggests_the_near_names(tmp_path, monkeypatch, capsys)
         resolve_config_path("sub/quash.yml")
     with pytest.raises(ConfigError, match=r"shipped: .*demo:vlmaps"):
         resolve_config_path("nothing-like-it")
+    # a shipped config's own file name, as 'quash configs' lists the files: that one
+    for ref in ("demo-quash-labels.yaml", "lseg-quash-labels.yml", "demo-quash-labels"):
+        name = ref.split(".")[0].replace("-", ":", 1)
+        with pytest.raises(ConfigError, match=rf"Did you mean {name}\?$"):
+            resolve_config_path(ref)
     assert main(["query", "map.npz", "chair", "-c", "quash-labels"]) != 0
     assert "Did you mean demo:quash-labels or lseg:quash-labels?" in capsys.readouterr().err
 
