@@ -130,6 +130,15 @@ def compute(client: Any, *arrays: Any, progress: Any = None, weight: Any = None)
         raise _cluster_error(exc) from exc
     except _cluster_errors() as exc:
         raise _cluster_error(exc) from exc
+    except RuntimeError as exc:
+        if "deserialization of the task graph" not in str(exc):
+            raise
+        raise ClusterError(
+            "The Dask scheduler could not read the query's tasks: it runs other versions "
+            "of quash-plugins or of its dependencies (numpy, scikit-learn, dask) than "
+            "this process, or was started before they changed. Restart the scheduler "
+            "and the workers from this environment (see docs/scale.md)."
+        ) from exc
 
 
 def _compute_counted(client: Any, array: Any, progress: Any, weight: Any = None) -> np.ndarray:

@@ -540,3 +540,27 @@ def test_the_pass_log_names_the_scheduler_address(client, world, caplog):
     (line,) = [r.getMessage() for r in caplog.records if r.getMessage().startswith("dask pass")]
     assert line.endswith(f"the scheduler at {client.scheduler.address}"), line
     assert "pooled rpc" not in line
+
+
+def test_a_scheduler_of_other_versions_is_said_as_such(world):
+    """A scheduler started from another environment (or before quash-plugins changed)
+    cannot unpickle the tasks: a ClusterError that says so and how to fix it, not a
+    'damaged map' error (the pass's read errors are the map's) nor Dask's bare
+    RuntimeError."""
+    from quash_plugins.engine.dask_executor import compute
+
+    class SkewedClient:
+        scheduler = None
+
+        def compute(self, *args, **kwargs):
+            raise RuntimeError(
+                "Error during deserialization of the task graph. This frequently occurs "
+                "if the Scheduler and Client have different environments."
+            )
+
+    clf = Contrast().fit(np.eye(4, D, dtype=np.float32), np.array([1, 0, 0, 0]))
+    lmap = read_map(world["path"])
+    with pytest.raises(ClusterError, match=r"other versions.*Restart the scheduler"):
+        classify_dask(lmap, [clf], chunk_bytes=2**22, client=SkewedClient())
+    with pytest.raises(ClusterError, match="Restart the scheduler"):
+        compute(SkewedClient(), scores_graph(lmap, [clf], 2**22))
