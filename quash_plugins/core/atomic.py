@@ -185,8 +185,11 @@ def check_output(
                 "to replace it."
             )
         if not overwrite and not known:
+            # with replaceable, a previous output would have been replaced: say why not this
+            why = " and is not a previous output of this command" if replaceable else ""
             raise UsageError(
-                f"{what} {out} already exists. Pass --force to replace it, or choose another file."
+                f"{what} {out} already exists{why}. Pass --force to replace it, or choose "
+                "another file."
             )
     parent = out.parent if str(out.parent) else Path(".")
     if parent.exists() and not parent.is_dir():

@@ -75,8 +75,9 @@ def test_an_existing_file_needs_force_but_a_previous_result_does_not(world, tmp_
     np.savez(mine, important=np.arange(3))
     before = _sha(mine)
     assert _query("--out", mine, map_path=map_path, config=config) == 2
-    err = capsys.readouterr().err
-    assert "already exists" in err and "--force" in err
+    err = " ".join(capsys.readouterr().err.split())
+    assert "already exists and is not a previous output of this command" in err
+    assert "--force" in err
     assert _sha(mine) == before
     assert _query("--out", mine, "--force", map_path=map_path, config=config) == 0
     with np.load(mine) as z:
