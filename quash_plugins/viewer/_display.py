@@ -56,6 +56,55 @@ def thin(indices: np.ndarray, limit: int) -> np.ndarray:
     return indices if keep is None else indices[keep]
 
 
+#: A result's outcome against its query's ground truth, per item (``outcomes``): none (not
+#: drawn), true positive, false positive, false negative, and matched but not scored (an
+#: unlabelled item, or one of a label the evaluation excludes).
+OUTCOME_NONE, OUTCOME_TP, OUTCOME_FP, OUTCOME_FN, OUTCOME_UNSCORED = range(5)
+
+#: The colours of the outcomes (Okabe-Ito, told apart with any colour vision): true
+#: positives blue, false positives vermillion, false negatives yellow. A match that is not
+#: scored keeps the match colour (magenta, ``_log_map.MATCH_COLOR``).
+OUTCOME_COLORS = {
+    OUTCOME_TP: (0, 114, 178),
+    OUTCOME_FP: (213, 94, 0),
+    OUTCOME_FN: (240, 228, 66),
+}
+
+#: The outcomes' colours and meanings in words, for the legend of a query's document.
+OUTCOME_WORDS = {
+    OUTCOME_TP: ("blue", "true positives (matched, of the label)"),
+    OUTCOME_FP: ("vermillion", "false positives (matched, not of the label)"),
+    OUTCOME_FN: ("yellow", "false negatives (of the label, not matched)"),
+    OUTCOME_UNSCORED: ("magenta", "matched but not scored (unlabelled or excluded)"),
+}
+
+
+def outcomes(mask: np.ndarray, truth: np.ndarray, counted: np.ndarray | None = None) -> np.ndarray:
+    """``(N,) uint8``: each item's outcome (``OUTCOME_*``) for the predicted ``mask``
+    against the ground truth ``truth``; ``counted`` (None: every item) are the items an
+    evaluation scores, the others are neither right nor wrong (a match there is
+    ``OUTCOME_UNSCORED``, a miss nothing). An absence query's ``truth`` is all False, so
+    every counted match is a false positive.
+
+    >>> outcomes(np.array([1, 1, 0, 0, 1], bool), np.array([1, 0, 1, 0, 0], bool),
+    ...          np.array([1, 1, 1, 1, 0], bool)).tolist()
+    [1, 2, 3, 0, 4]
+    """
+    mask = np.asarray(mask, bool)
+    truth = np.asarray(truth, bool)
+    if truth.shape != mask.shape:
+        raise ValueError(f"truth has {truth.shape[0]} items, the result {mask.shape[0]}")
+    ok = np.ones_like(mask) if counted is None else np.asarray(counted, bool)
+    if ok.shape != mask.shape:
+        raise ValueError(f"counted has {ok.shape[0]} items, the result {mask.shape[0]}")
+    out = np.zeros(mask.shape, np.uint8)
+    out[mask & ~ok] = OUTCOME_UNSCORED
+    out[mask & ok & truth] = OUTCOME_TP
+    out[mask & ok & ~truth] = OUTCOME_FP
+    out[~mask & ok & truth] = OUTCOME_FN
+    return out
+
+
 #: Up axes a map can declare (:data:`~quash_plugins.core.types.UP_AXES`), as (axis
 #: index, sign): ``"-y"`` is ``(1, -1.0)``.
 UP_AXES = {a: ("xyz".index(a[1]), 1.0 if a[0] == "+" else -1.0) for a in AXES}

@@ -65,10 +65,16 @@ def _instances_words(result: QueryResult) -> str:
 
 
 def queryset_markdown(
-    lmap: LatentMap, result: QueryResult, index: int, notes: Sequence[str] = ()
+    lmap: LatentMap,
+    result: QueryResult,
+    index: int,
+    notes: Sequence[str] = (),
+    legend: Sequence[str] = (),
 ) -> str:
-    """Markdown for one result: the query and its config, what matched, the positives and
-    negatives (both at the top), classifier, timings, provenance and display notes."""
+    """Markdown for one result: the query and its config, what matched, the map's colours
+    by outcome when ground truth was given (``legend``: :func:`outcome_legend`), the
+    positives and negatives (both at the top), classifier, timings, provenance and display
+    notes."""
 
     qs = result.queryset
     config = result.config_name or "-"
@@ -79,6 +85,7 @@ def queryset_markdown(
         f"Matched **{result.n_matched:,}** of {lmap.n:,} items ({100 * result.share:.2f} %) · "
         f"{_instances_words(result)} · query {index}",
         "",
+        *legend,
         *_empty_words(result),
         f"Presence check: {_md(result.presence)}{_rejected_words(lmap, result)}",
         "",
@@ -124,6 +131,22 @@ def queryset_markdown(
         lines += [f"- {n}" for n in notes]
         lines.append("")
     return "\n".join(lines)
+
+
+def outcome_legend(counts: Sequence[int], label: str | None = None) -> list[str]:
+    """The legend of the map coloured by outcome: which colour is which, with the counts
+    (``counts[k]``: the items of outcome ``k``, ``_display.OUTCOME_*``), as lines of the
+    query's document."""
+    from ._display import OUTCOME_FN, OUTCOME_FP, OUTCOME_TP, OUTCOME_UNSCORED, OUTCOME_WORDS
+
+    against = f"the label {_md(label)}" if label else "no label of the map (an absence query)"
+    parts = []
+    for k in (OUTCOME_TP, OUTCOME_FP, OUTCOME_FN, OUTCOME_UNSCORED):
+        if k == OUTCOME_UNSCORED and not counts[k]:
+            continue
+        colour, words = OUTCOME_WORDS[k]
+        parts.append(f"**{colour}**: {words} {int(counts[k]):,}")
+    return [f"Colours against {against}: " + " · ".join(parts), ""]
 
 
 def _empty_words(result: QueryResult) -> list[str]:

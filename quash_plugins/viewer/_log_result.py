@@ -16,8 +16,18 @@ import numpy as np
 from ..core.errors import QuashError
 from ..core.types import Instance, LatentMap, QueryResult
 from ._blueprint import QUERY_LIST
-from ._display import colormap, score_classes, thin
-from ._document import queryset_markdown
+from ._display import (
+    OUTCOME_COLORS,
+    OUTCOME_FN,
+    OUTCOME_FP,
+    OUTCOME_TP,
+    OUTCOME_UNSCORED,
+    colormap,
+    outcomes,
+    score_classes,
+    thin,
+)
+from ._document import outcome_legend, queryset_markdown
 from ._log_map import MATCH_COLOR, REJECTED_COLOR
 
 #: Colour of instance boxes.
@@ -45,7 +55,16 @@ class ResultLogging:
         self._focus = self._config_slug(str(config_name))
         self._layout_changed()
 
-    def log_result(self, lmap: LatentMap, result: QueryResult, index: int) -> None:
+    def log_result(
+        self,
+        lmap: LatentMap,
+        result: QueryResult,
+        index: int,
+        *,
+        truth: np.ndarray | None = None,
+        counted: np.ndarray | None = None,
+        label: str | None = None,
+    ) -> None:
         """Log one query's result at ``query = index`` on the ``query`` timeline.
 
         Per config (``result.config_name``): ``world/matches/<config>`` (the matched
@@ -59,19 +78,38 @@ class ResultLogging:
         (another config's, or this one's again) is fine; another query at a step in use
         raises :class:`QuashError` naming both and a free index, before anything of it is
         logged. The map must be the one this logger logged (:meth:`log_map`).
+
+        ``truth``: the query's ground truth, ``(N,)`` bool (all False for an absence
+        query), and ``counted`` the items an evaluation scores (None: all; unlabelled and
+        excluded items are neither right nor wrong); ``label`` names the ground truth in
+        the document. With ``truth``, ``world/matches/<config>`` is coloured by outcome
+        (``_display.OUTCOME_COLORS``): true positives blue, false positives vermillion,
+        and the false negatives (the label's items not matched) in yellow with them; a
+        match on an item not counted stays magenta. The document says which colour is
+        which, with the counts. Without it (``quash query``) the matches are magenta.
+        :meth:`log_report` passes them for an evaluation's results.
         """
         self.log_map(lmap)  # nothing when this map is logged already; another is refused
         if len(result.mask) != lmap.n:
             raise QuashError(
                 f"Result for {result.query!r} has {len(result.mask)} items but the map has {lmap.n}."
             )
+        outcome = None
+        if truth is not None:
+            for what, arr in (("truth", truth), ("counted", counted)):
+                if arr is not None and np.shape(arr) != (lmap.n,):
+                    raise QuashError(
+                        f"log_result: {what} for {result.query!r} has shape {np.shape(arr)}; "
+                        f"the map has {lmap.n} items: give one bool per item."
+                    )
+            outcome = outcomes(result.mask, truth, counted)
         index = int(index)
         self._check_step(index, result.query, "log_result")
         name = str(result.config_name or "quash")
         c = self._config_slug(name)
         state = self._configs.setdefault(c, _ConfigState(name))
         with self._at_query_step(index):
-            self._log_result_at_step(lmap, result, index, c, state)
+            self._log_result_at_step(lmap, result, index, c, state, outcome, label)
         self._layout_changed()
 
     @contextlib.contextmanager
@@ -87,14 +125,21 @@ class ResultLogging:
             self.recording.disable_timeline("query")
 
     def _log_result_at_step(
-        self, lmap: LatentMap, result: QueryResult, index: int, c: str, state: _ConfigState
+        self,
+        lmap: LatentMap,
+        result: QueryResult,
+        index: int,
+        c: str,
+        state: _ConfigState,
+        outcome: np.ndarray | None = None,
+        label: str | None = None,
     ) -> None:
         """:meth:`log_result` once the ``query`` time is set."""
         rr, rec = self.rr, self.recording
         self._list_query(index, result.query)
         notes = list(self._notes)
         if self._has_world:
-            self._log_world(lmap, result, c, state, notes)
+            self._log_world(lmap, result, c, state, notes, outcome)
         for fname, frame in self._frames:
             sl = slice(frame.offset, frame.offset + frame.size)
             hw = (frame.height, frame.width)
@@ -108,7 +153,10 @@ class ResultLogging:
             heat = colormap(np.asarray(result.display_scores[sl]), self.colormap)
             rec.log(f"{base}/scores", rr.Image(heat.reshape(*hw, 3)))
             self._log_pixel_instances(lmap, result, base, frame.frame_id)
-        text = queryset_markdown(lmap, result, index, notes)
+        legend = []
+        if outcome is not None and self._has_world:
+            legend = outcome_legend(np.bincount(outcome, minlength=5), label)
+        text = queryset_markdown(lmap, result, index, notes, legend)
         rec.log(f"queries/{c}", rr.TextDocument(text, media_type=rr.MediaType.MARKDOWN))
 
     def _check_step(self, step: int, query: str, caller: str) -> None:
@@ -150,19 +198,36 @@ class ResultLogging:
         self._layout_changed()
 
     def _log_world(
-        self, lmap: LatentMap, result: QueryResult, c: str, state: _ConfigState, notes: list[str]
+        self,
+        lmap: LatentMap,
+        result: QueryResult,
+        c: str,
+        state: _ConfigState,
+        notes: list[str],
+        outcome: np.ndarray | None = None,
     ) -> None:
         rr, rec = self.rr, self.recording
-        matched = np.flatnonzero(result.mask)
-        shown = thin(matched, self.max_display_points)
+        if outcome is None:
+            matched = np.flatnonzero(result.mask)
+            shown = thin(matched, self.max_display_points)
+            colors: object = MATCH_COLOR
+            what = "matched items"
+        else:  # by outcome: the matches, and the label's items missed (false negatives)
+            matched = np.flatnonzero(outcome)
+            shown = thin(matched, self.max_display_points)
+            table = np.zeros((OUTCOME_UNSCORED + 1, 3), np.uint8)
+            for k in (OUTCOME_TP, OUTCOME_FP, OUTCOME_FN):
+                table[k] = OUTCOME_COLORS[k]
+            table[OUTCOME_UNSCORED] = MATCH_COLOR
+            colors = table[outcome[shown]]
+            what = "matched and missed items"
         if len(shown) < len(matched):
             notes.append(
-                f"The mask layer shows {len(shown):,} of {len(matched):,} matched items "
-                "(display only)."
+                f"The mask layer shows {len(shown):,} of {len(matched):,} {what} (display only)."
             )
         rec.log(
             f"world/matches/{c}",
-            self._primitive(lmap.positions[shown], 0.55, 0.6, colors=MATCH_COLOR),
+            self._primitive(lmap.positions[shown], 0.55, 0.6, colors=colors),
         )
         # what the presence check dropped: an absent object's look-alikes, in grey
         dropped = np.flatnonzero(result.rejected) if result.rejected is not None else []

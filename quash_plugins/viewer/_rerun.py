@@ -24,6 +24,13 @@ from ._log_result import ResultLogging, _ConfigState
 log = logging.getLogger(__name__)
 
 
+def _label_key(name: str) -> str:
+    """A label name as an evaluation matches names (case, spacing and underscores aside):
+    ``evaluation.queries.label_key``, which the viewer may not import (it imports core
+    only); ``tests/viewer/test_viewer_eval.py`` checks that both agree."""
+    return " ".join(str(name).replace("_", " ").split()).casefold()
+
+
 def import_rerun() -> Any:
     """Import ``rerun`` or raise a :class:`QuashError` naming the extra to install."""
     try:
@@ -170,6 +177,60 @@ class RerunLogger(MapLogging, ResultLogging, EvalLogging):
                 slug, k = f"{base}_{k}", k + 1
             self._config_slugs[name] = slug
         return slug
+
+    # ------------------------------------------------------------------ evaluations
+    def log_report(self, lmap: Any, report: Any) -> None:
+        """Log an evaluation whole: the map, every config's results coloured by outcome
+        against their ground truth, the per-query metrics and the comparison; the viewer
+        opens on the config with the best mean F1.
+
+        ``report`` is an :class:`~quash_plugins.evaluation.report.EvalReport` of
+        ``evaluate(lmap, ..., keep_results=True)`` on this map: result *i* of each config
+        is logged at step *i* (:meth:`log_result`; the present queries, then the absence
+        queries), with its ground truth: the items of its query's label (those of every
+        label of that name), none for an absence query, so that every match there is a
+        false positive; the items counted are those the evaluation scored (a label >= 0,
+        not one of the labels the evaluation excluded, ``report.provenance["exclude"]``).
+        Then :meth:`log_evaluation` and :meth:`focus`.
+
+        A report without results (``keep_results=False``) raises :class:`QuashError`
+        before anything is logged: log its metrics with :meth:`log_evaluation`.
+        """
+        results = dict(getattr(report, "results", None) or {})
+        configs = list(report.configs)
+        missing = [c["name"] for c in configs if c["name"] not in results]
+        if missing:
+            raise QuashError(
+                f"log_report: the report holds no results of {', '.join(map(repr, missing))}: "
+                "evaluate with keep_results=True, or log the metrics alone with "
+                "log_evaluation(report.configs, report.queries, report.to_markdown(), "
+                "absent=report.absent)."
+            )
+        if lmap.labels is None or not lmap.label_names:
+            raise QuashError(
+                "log_report: the map has no labels, so its results cannot be coloured by "
+                "outcome: give the map the report was evaluated on."
+            )
+        labels = np.asarray(lmap.labels)
+        names = list(lmap.label_names)
+        excluded = {_label_key(e) for e in (report.provenance or {}).get("exclude", ())}
+        dropped = [i for i, n in enumerate(names) if _label_key(n) in excluded]
+        counted = (labels >= 0) & ~np.isin(labels, dropped)
+        texts = [*report.queries, *report.absent]
+        self.log_map(lmap)
+        for c in configs:
+            per_query = c.get("per_query") or {}
+            absent = (c.get("absence") or {}).get("per_query") or {}
+            for i, r in enumerate(results[c["name"]]):
+                q = texts[i] if i < len(texts) else r.query
+                label = (per_query.get(q) or absent.get(q) or {}).get("label")
+                present = q in per_query
+                ids = [k for k, n in enumerate(names) if n == label] if present else []
+                truth = np.isin(labels, ids)
+                self.log_result(lmap, r, index=i, truth=truth, counted=counted, label=label)
+        self.log_evaluation(configs, report.queries, report.to_markdown(), absent=report.absent)
+        if configs:
+            self.focus(report.best("f1")["name"])
 
     # ------------------------------------------------------------------ lifecycle
     def _layout_changed(self) -> None:
