@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import textwrap
 from typing import Any
 
 from ..core.types import UP_CHOICES
@@ -42,9 +41,9 @@ def add_viewer_arguments(
 ) -> None:
     """Add ``--rrd``, ``--spawn``, ``--connect``, ``--serve-web``, ``--web-port``,
     ``--grpc-port``, ``--bind`` and, for a command that logs a map (``maps``), ``--up``;
-    ``logs`` says what the command logs (wrapped here, as the commands' raw descriptions
-    are, to 88 columns with the group's indent)."""
-    g = parser.add_argument_group("Rerun viewer", textwrap.fill(logs, width=86))
+    ``logs`` says what the command logs (refilled to the terminal's width, as every
+    description is: :class:`~quash_plugins.cli.main.HelpFormatter`)."""
+    g = parser.add_argument_group("Rerun viewer", logs)
     g.add_argument(
         "--rrd",
         metavar="FILE.rrd",

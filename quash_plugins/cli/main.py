@@ -124,6 +124,54 @@ def _output_options(suppress: bool) -> argparse.ArgumentParser:
     return common
 
 
+class HelpFormatter(argparse.RawDescriptionHelpFormatter):
+    """Descriptions and epilogs refilled to the terminal's width, their layout kept.
+
+    The texts are written wrapped at some width in the source; printed as they are, an
+    80-column terminal folds each of their lines mid-word. Here a paragraph (lines
+    between blank lines) is refilled to the width argparse uses for the options; a line
+    that starts with a space (an example command, a continued item) is kept as it is,
+    and one that starts with ``- `` begins an item of its own, refilled with a hanging
+    indent.
+    """
+
+    def _fill_text(self, text: str, width: int, indent: str) -> str:
+        import textwrap
+
+        out: list[str] = []
+        para: list[str] = []
+
+        def flush() -> None:
+            if para:
+                first = para[0]
+                hang = "  " if first.startswith("- ") else ""
+                out.append(
+                    textwrap.fill(
+                        " ".join(ln.strip() for ln in para),
+                        width,
+                        initial_indent=indent,
+                        subsequent_indent=indent + hang,
+                        break_long_words=False,
+                        break_on_hyphens=False,
+                    )
+                )
+                para.clear()
+
+        for line in text.splitlines():
+            if not line.strip():
+                flush()
+                out.append("")
+            elif line[0].isspace():
+                flush()
+                out.append(indent + line)
+            else:
+                if line.startswith("- "):
+                    flush()
+                para.append(line)
+        flush()
+        return "\n".join(out)
+
+
 def build_parser() -> argparse.ArgumentParser:
     common = _output_options(suppress=False)
     common_sub = _output_options(suppress=True)
@@ -133,7 +181,7 @@ def build_parser() -> argparse.ArgumentParser:
         description=DESCRIPTION,
         epilog=EPILOG,
         parents=[common],
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     parser.add_argument("--version", action="version", version=f"quash-plugins {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
@@ -143,7 +191,7 @@ def build_parser() -> argparse.ArgumentParser:
             help=mod.HELP,
             description=getattr(mod, "DESCRIPTION", mod.HELP),
             parents=[common_sub],
-            formatter_class=argparse.RawDescriptionHelpFormatter,
+            formatter_class=HelpFormatter,
             epilog=getattr(mod, "EPILOG", None),
         )
         mod.add_arguments(p)
