@@ -115,11 +115,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_runtime_options(p)
     add_viewer_arguments(
         p,
-        "Log the evaluation to Rerun: each config's per-query F1, precision, recall, IoU "
-        "and AP as plots, each absence query after them as 'absence' (1: it came back "
-        "empty), and the comparison table (needs the [rerun] extra). The map and "
-        "the masks are not logged: quash query --rrd logs those.",
-        maps=False,
+        "Log the evaluation to Rerun (needs the [rerun] extra): the map, each config's "
+        "results in a tab of its own, coloured by outcome against the ground truth (true "
+        "positives blue, false positives vermillion, false negatives yellow), each "
+        "config's per-query F1, precision, recall, IoU and AP as plots, each absence query "
+        "after them as 'absence' (1: it came back empty), and the comparison table.",
     )
     add_backend_arguments(p)
 
@@ -159,6 +159,8 @@ def run(args: argparse.Namespace) -> int:
     # Before the evaluation: a busy port is said before any work, and --serve-web's URL
     # can be opened meanwhile (docs/rerun.md).
     viewer = open_viewer(args, app_id="quash-eval")
+    if viewer is not None:  # a live viewer shows the map while the configs run
+        viewer.log_map(lmap)
     with (
         each_log_line_once(),
         progress(len(quashes), f"evaluating {len(quashes)} config(s)") as advance,
@@ -173,6 +175,7 @@ def run(args: argparse.Namespace) -> int:
             on_query=lambda name, n: advance(1),
             query_file=args.queries_file,
             absent_in_file=absent_in_file,
+            keep_results=viewer is not None,  # the masks, for the viewer only
         )
     if not report.absent:
         _warn_no_absence(args.map)
@@ -187,7 +190,7 @@ def run(args: argparse.Namespace) -> int:
     if args.plot:
         plot_precision_recall(report.configs, args.plot, title=f"quash eval: {args.map}")
     if viewer is not None:
-        viewer.log_evaluation(report.configs, report.queries, md, absent=report.absent)
+        viewer.log_report(lmap, report)
     out = console()
     out.print(
         safe_text(lmap.describe())

@@ -1,13 +1,15 @@
-"""RerunLogger.log_report: an evaluation's map and every method's results, coloured by
-outcome, read back from the .rrd and checked against TP, FP and FN computed here from the
-masks and the map's labels."""
+"""RerunLogger.log_report and ``quash eval --rrd``: an evaluation's map and every method's
+results, coloured by outcome, read back from the .rrd and checked against TP, FP and FN
+computed here from the masks and the map's labels."""
 
 from __future__ import annotations
+
+import json
 
 import numpy as np
 import pytest
 import rerun as rr
-from _viewer_maps import make_quash, voxel_map
+from _viewer_maps import make_quash, voxel_map, write_table_config
 from test_viewer_rrd import blueprint_contents, read_rrd, rows, view_names
 
 from quash_plugins.core.errors import QuashError
@@ -185,3 +187,76 @@ def test_the_viewers_label_key_is_the_evaluations():
 
     for name in ("TV_Monitor", "  Void ", "unlabelled", "Robot  Arm", "ÄPFEL_baum", "ß"):
         assert _label_key(name) == label_key(name)
+
+
+def test_cli_eval_rrd_logs_the_map_and_each_methods_results(tmp_path, monkeypatch):
+    """``quash eval --rrd``: the map, a tab per method with its results coloured by outcome
+    (TP, FP and FN those of the JSON report, counted here from the masks), the plots; and
+    the results are kept only for the viewer."""
+    from quash_plugins.adapters import write_npz_map
+    from quash_plugins.cli.main import main
+    from quash_plugins.evaluation import report as report_module
+
+    lmap = mislabelled_map()
+    map_path = write_npz_map(lmap, tmp_path / "map.npz")
+    cfg = write_table_config(tmp_path)
+    kept, masks = [], {}
+    real = report_module.evaluate
+
+    def spy(*args, **kwargs):
+        kept.append(kwargs.get("keep_results", False))
+        rep = real(*args, **kwargs)
+        masks.update({n: [r.mask for r in rs] for n, rs in rep.results.items()})
+        return rep
+
+    monkeypatch.setattr(report_module, "evaluate", spy)
+    out, js = tmp_path / "e.rrd", tmp_path / "e.json"
+    args = ["-q", "eval", str(map_path), "-c", str(cfg), "--queries", "chair,sofa"]
+    args += ["--absent", "other", "--exclude", "Floor", "--json", str(js)]
+    assert main([*args, "--rrd", str(out)]) == 0
+    assert main([*args[:-2], "--json", str(tmp_path / "plain.json")]) == 0
+    assert kept == [True, False]
+    [config] = json.loads(js.read_text())["configs"]
+    reader, by_path = read_rrd(out)
+    assert "world/map" in by_path
+    assert "table-contrast: map and matches" in view_names(reader)
+    for step, q in enumerate(["chair", "sofa", "other"]):
+        label = q if q != "other" else None
+        exp = _expected(lmap, masks["table-contrast"][step], label, exclude=["Floor"])
+        _check_step(by_path, lmap, "world/matches/table_contrast", step, exp)
+        if label:
+            m = config["per_query"][q]
+            assert (m["tp"], m["fp"], m["fn"]) == tuple(
+                int(exp[k].sum()) for k in ("tp", "fp", "fn")
+            )
+    # with floor excluded, the chair items labelled floor are matched but not scored
+    chair = _expected(lmap, masks["table-contrast"][0], "chair", exclude=["Floor"])
+    assert chair["unscored"].sum() >= 3 and chair["fn"].sum() == 4
+
+
+def test_cli_eval_logs_the_map_before_the_configs_run(tmp_path, monkeypatch):
+    """quash eval --serve-web prints its URL before the evaluation: the map is logged
+    then too, so a viewer opened meanwhile shows it."""
+    from quash_plugins.adapters import write_npz_map
+    from quash_plugins.cli.main import main
+    from quash_plugins.evaluation import report as report_module
+    from quash_plugins.viewer._log_map import MapLogging
+
+    map_path = write_npz_map(mislabelled_map(), tmp_path / "map.npz")
+    logged: list[str] = []
+    real_log_map = MapLogging.log_map
+
+    def log_map(self, lmap):
+        logged.append(f"map {lmap.n}")
+        return real_log_map(self, lmap)
+
+    def evaluate(*args, **kwargs):
+        logged.append("evaluate")
+        raise KeyboardInterrupt  # the rest of the command is not this test's
+
+    monkeypatch.setattr(MapLogging, "log_map", log_map)
+    monkeypatch.setattr(report_module, "evaluate", evaluate)
+    cfg = write_table_config(tmp_path)
+    code = main(["-q", "eval", str(map_path), "-c", str(cfg), "--rrd", str(tmp_path / "e.rrd")])
+    assert code == 130  # interrupted, as Ctrl-C is
+    assert logged[:2] == [f"map {mislabelled_map().n}", "evaluate"]

@@ -930,10 +930,12 @@ def test_cli_up_orients_a_map_whose_format_does_not_say(tmp_path, capsys):
         main([*argv, str(tmp_path / "bad.rrd"), "--up", "sideways"])
     assert exited.value.code == 2
     assert "--up" in capsys.readouterr().err and not (tmp_path / "bad.rrd").exists()
+    ev = tmp_path / "eval.rrd"
+    argv = ["-q", "eval", str(map_path), "-c", str(cfg), "--queries", "chair", "--rrd", str(ev)]
+    assert main([*argv, "--up=-y"]) == 0
+    assert _eye(read_rrd(ev)[0])[1] == [0.0, -1.0, 0.0]
     parsers = subcommand_parsers(build_parser())
-    # quash eval logs no map (only metrics), so it has no --up to ignore
-    assert not [a for a in parsers["eval"]._actions if "--up" in a.option_strings]
-    for command in ("query", "demo"):
+    for command in ("query", "eval", "demo"):  # eval logs the map with its results
         [up] = [a for a in parsers[command]._actions if "--up" in a.option_strings]
         assert up.default == "auto" and set(up.choices) == {
             "auto",
