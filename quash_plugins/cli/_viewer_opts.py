@@ -36,11 +36,9 @@ def _arg_type(check: Any, what: str) -> Any:
 LOGS_QUERIES = "Log the map and every query to Rerun (needs the [rerun] extra)."
 
 
-def add_viewer_arguments(
-    parser: argparse.ArgumentParser, logs: str = LOGS_QUERIES, maps: bool = True
-) -> None:
+def add_viewer_arguments(parser: argparse.ArgumentParser, logs: str = LOGS_QUERIES) -> None:
     """Add ``--rrd``, ``--spawn``, ``--connect``, ``--serve-web``, ``--web-port``,
-    ``--grpc-port``, ``--bind`` and, for a command that logs a map (``maps``), ``--up``;
+    ``--grpc-port``, ``--bind`` and ``--up`` (each command that logs to Rerun logs its map);
     ``logs`` says what the command logs (refilled to the terminal's width, as every
     description is: :class:`~quash_plugins.cli.main.HelpFormatter`)."""
     g = parser.add_argument_group("Rerun viewer", logs)
@@ -90,8 +88,6 @@ def add_viewer_arguments(
         "localhost means 127.0.0.1; 0.0.0.0 serves every network interface: only on a "
         "network you trust).",
     )
-    if not maps:  # quash eval logs no map: an --up there would be ignored
-        return
     g.add_argument(
         "--up",
         choices=UP_CHOICES,
