@@ -333,6 +333,16 @@ def _checked_templates(templates: list[str]) -> list[str]:
     return templates
 
 
+def label_key(name: str) -> str:
+    """A label name as a query's label is matched to a map's names, and an evaluation's
+    excluded names to them: case, spacing and underscores ignored.
+
+    >>> label_key("TV_Monitor")
+    'tv monitor'
+    """
+    return " ".join(str(name).replace("_", " ").split()).casefold()
+
+
 def head_index(words: Sequence[str]) -> int:
     """The position of a noun phrase's head noun: the word before "of", else the last.
 

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from ..core.errors import QuashError
+from ..core.text import label_key
 
 log = logging.getLogger(__name__)
 
@@ -122,16 +123,6 @@ def spelling(text: str) -> str:
     'bar stool'
     """
     return " ".join(str(text).split()).casefold()
-
-
-def label_key(name: str) -> str:
-    """A label name as a query's label is matched to the map's names: case, spacing and
-    underscores ignored (:func:`match_labels`).
-
-    >>> label_key("TV_Monitor")
-    'tv monitor'
-    """
-    return " ".join(str(name).replace("_", " ").split()).casefold()
 
 
 def match_labels(

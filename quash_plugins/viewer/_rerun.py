@@ -16,19 +16,13 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import QuashError
+from ..core.text import label_key
 from ._display import UP_AXES, slugify
 from ._log_eval import EvalLogging
 from ._log_map import MapLogging
 from ._log_result import ResultLogging, _ConfigState
 
 log = logging.getLogger(__name__)
-
-
-def _label_key(name: str) -> str:
-    """A label name as an evaluation matches names (case, spacing and underscores aside):
-    ``evaluation.queries.label_key``, which the viewer may not import (it imports core
-    only); ``tests/viewer/test_viewer_eval.py`` checks that both agree."""
-    return " ".join(str(name).replace("_", " ").split()).casefold()
 
 
 def import_rerun() -> Any:
@@ -213,8 +207,8 @@ class RerunLogger(MapLogging, ResultLogging, EvalLogging):
             )
         labels = np.asarray(lmap.labels)
         names = list(lmap.label_names)
-        excluded = {_label_key(e) for e in (report.provenance or {}).get("exclude", ())}
-        dropped = [i for i, n in enumerate(names) if _label_key(n) in excluded]
+        excluded = {label_key(e) for e in (report.provenance or {}).get("exclude", ())}
+        dropped = [i for i, n in enumerate(names) if label_key(n) in excluded]
         counted = (labels >= 0) & ~np.isin(labels, dropped)
         texts = [*report.queries, *report.absent]
         self.log_map(lmap)
