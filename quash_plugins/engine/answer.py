@@ -24,6 +24,7 @@ The pipeline's ``_answer`` is a thin delegate to :func:`answer`.
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
@@ -142,29 +143,30 @@ def refine_pass(
     presence = quash.presence
     keep_first = presence is not None and (presence.fallback is not None or presence.reseed)
     todo = []
-    for p in pending:
-        t = time.perf_counter()
-        seeds = resolve_seeds(quash.refine.seeds, p.queryset.provenance)
-        fitted = _refit(quash, lmap, p, p.raw, p.mask, observed, seeds)
-        seed_matches = int(p.mask.sum())
-        if fitted is None:
+    with _per_query(quash, pending, "refitting") as advance:
+        for p in _counted(pending, advance):
+            t = time.perf_counter()
+            seeds = resolve_seeds(quash.refine.seeds, p.queryset.provenance)
+            fitted = _refit(quash, lmap, p, p.raw, p.mask, observed, seeds)
+            seed_matches = int(p.mask.sum())
+            if fitted is None:
+                p.queryset.provenance["refine"] = {
+                    "applied": False,
+                    "seed_matches": seed_matches,
+                    "seeds": seeds,
+                }
+                p.timings["refine"] = time.perf_counter() - t
+                continue
+            refined, ym = fitted
             p.queryset.provenance["refine"] = {
-                "applied": False,
-                "seed_matches": seed_matches,
+                "applied": True,
                 "seeds": seeds,
+                "seed_matches": seed_matches,
+                "map_positives": int(ym.sum()),
+                "map_negatives": int(len(ym) - ym.sum()),
             }
             p.timings["refine"] = time.perf_counter() - t
-            continue
-        refined, ym = fitted
-        p.queryset.provenance["refine"] = {
-            "applied": True,
-            "seeds": seeds,
-            "seed_matches": seed_matches,
-            "map_positives": int(ym.sum()),
-            "map_negatives": int(len(ym) - ym.sum()),
-        }
-        p.timings["refine"] = time.perf_counter() - t
-        todo.append((p, refined))
+            todo.append((p, refined))
     if not todo:
         if progress is not None:
             progress(lmap.n)  # the second pass is not needed: count it as done
@@ -216,42 +218,43 @@ def presence_pass(
     topology, mu = quash._topology.get(lmap, rows_of)
     checked: list[tuple[Pending, Any, np.ndarray, dict[str, Any], float]] = []
     again: list[tuple[int, Any, dict[str, Any]]] = []
-    for p in pending:
-        if topology.kind is None:
-            p.queryset.provenance["presence"] = {"checked": False, "why": topology.why}
-            p.first = None
-            continue
-        t = time.perf_counter()
-        n_strings = len(p.queryset.positives) + len(p.queryset.negatives)
-        reps = max(1, len(p.y) // max(1, n_strings))  # prompt templates, mode "all"
-        groups = p.queryset.provenance.get("negative_groups")
-        if groups and reps > 1:
-            groups = [int(g) * reps for g in groups]
-        label = p.queryset.provenance.get("label")
-        head = p.queryset.positives.index(label) if label in p.queryset.positives else 0
+    with _per_query(quash, pending, "presence check of") as advance:
+        for p in _counted(pending, advance):
+            if topology.kind is None:
+                p.queryset.provenance["presence"] = {"checked": False, "why": topology.why}
+                p.first = None
+                continue
+            t = time.perf_counter()
+            n_strings = len(p.queryset.positives) + len(p.queryset.negatives)
+            reps = max(1, len(p.y) // max(1, n_strings))  # prompt templates, mode "all"
+            groups = p.queryset.provenance.get("negative_groups")
+            if groups and reps > 1:
+                groups = [int(g) * reps for g in groups]
+            label = p.queryset.provenance.get("label")
+            head = p.queryset.positives.index(label) if label in p.queryset.positives else 0
 
-        def check(mask, options, candidates=None, p=p, groups=groups, head=head, reps=reps):
-            return presence_check(
-                mask,
-                p.X,
-                p.y,
-                options,
-                topology,
-                mu,
-                rows_of,
-                groups=groups,
-                head=head,
-                reps=reps,
-                candidates=candidates,
-            )
+            def check(mask, options, candidates=None, p=p, groups=groups, head=head, reps=reps):
+                return presence_check(
+                    mask,
+                    p.X,
+                    p.y,
+                    options,
+                    topology,
+                    mu,
+                    rows_of,
+                    groups=groups,
+                    head=head,
+                    reps=reps,
+                    candidates=candidates,
+                )
 
-        keep, info = check(p.mask, opts, _candidates(quash, p, p.raw, observed))
-        if not info["present"] and groups and p.first is not None and opts.reseed:
-            clf, record = _reseeded(quash, lmap, p, observed, check, small_opts)
-            info["reseed"] = record
-            if clf is not None:
-                again.append((len(checked), clf, record))
-        checked.append((p, check, keep, info, time.perf_counter() - t))
+            keep, info = check(p.mask, opts, _candidates(quash, p, p.raw, observed))
+            if not info["present"] and groups and p.first is not None and opts.reseed:
+                clf, record = _reseeded(quash, lmap, p, observed, check, small_opts)
+                info["reseed"] = record
+                if clf is not None:
+                    again.append((len(checked), clf, record))
+            checked.append((p, check, keep, info, time.perf_counter() - t))
     if again:
         # the reseeded refits: one shared pass over the map for all of them
         t = time.perf_counter()
@@ -278,6 +281,24 @@ def presence_pass(
         t = time.perf_counter()
         _answer_presence(quash, p, check, keep, info, observed)
         p.timings["presence"] = spent + time.perf_counter() - t
+
+
+def _per_query(quash: Quash, pending: list[Pending], what: str) -> Any:
+    """Progress over ``pending``'s queries, ``"{config}: {what} {n} queries"``; from
+    :data:`~quash_plugins.engine.pipeline.PROGRESS_QUERIES` queries, as the text side's
+    (a refit and a presence check take about 0.1 s a query: 69 queries, 7 s and 11 s)."""
+    from ..core.progress import progress
+    from .pipeline import PROGRESS_QUERIES
+
+    n = len(pending)
+    return progress(n if n >= PROGRESS_QUERIES else 0, f"{quash.name}: {what} {n} queries")
+
+
+def _counted(items: list[Pending], advance: Any) -> Iterator[Pending]:
+    """``items``, ``advance(1)`` after each one's loop body (a ``continue`` included)."""
+    for item in items:
+        yield item
+        advance(1)
 
 
 def _candidates(quash: Quash, p: Pending, raw: np.ndarray, observed: np.ndarray) -> Any:
