@@ -1,4 +1,5 @@
-"""Progress of the map side: the refits and presence checks counted query by query.
+"""Progress of the map side: the refits and presence checks counted query by query, and
+each config's map passes in ``evaluate`` counted in items.
 
 Measured (demo:quash-labels, 69 queries, a 51,000-voxel scene, 2 cores): the two shared
 map passes took 18 s and 23 s, the refits 7 s, the presence checks 11 s, all without a
@@ -14,6 +15,7 @@ from test_presence import TAX, _encoder, _object_map
 
 import quash_plugins.core.progress as prog
 from quash_plugins import Quash
+from quash_plugins.evaluation import evaluate
 from quash_plugins.heuristics import TaxonomyHeuristic
 
 QUERIES = ["bed", "chair", "sofa", "cot", "futon"]
@@ -62,3 +64,21 @@ def test_refits_and_presence_checks_are_counted_per_query(logged, monkeypatch):
     for a, b in zip(quiet, shown):
         assert (a.mask == b.mask).all() and (a.scores == b.scores).all()
         assert a.queryset.provenance == b.queryset.provenance
+
+
+def test_evaluate_counts_each_configs_map_passes_in_items(logged):
+    m = _object_map()  # 57 items: one block, so one step a pass
+    report = evaluate(m, [_quash()], queries=["bed"], absent=["chair"])
+    lines = logged("checked: 2 queries, 2 passes over 57 items: ")
+    assert _counts(lines) == [57, 114]
+    assert lines[-1].startswith("checked: 2 queries, 2 passes over 57 items: 114/114 (100%")
+    one = evaluate(m, [_quash(refine=None, presence=None)], queries=["bed"])
+    assert _counts(logged("checked: 1 query, 1 pass over 57 items: ")) == [57]
+    assert report.configs[0]["name"] == "checked" and one.configs[0]["per_query"]["bed"]
+
+
+def test_quiet_logs_no_map_side_progress(logged, monkeypatch):
+    monkeypatch.setattr(prog, "QUIET", True)
+    monkeypatch.setattr("quash_plugins.engine.pipeline.PROGRESS_QUERIES", 1)
+    evaluate(_object_map(), [_quash()], queries=["bed"], absent=["chair"])
+    assert logged("checked") == []
