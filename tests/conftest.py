@@ -34,16 +34,20 @@ WORDS = [
 @pytest.fixture(autouse=True)
 def _package_logging_restored():
     """``main()`` routes the package's logging to its own stderr handler and stops it
-    propagating; restore that after each test, so that ``caplog`` in a later test of the
-    same process still sees the package's records."""
+    propagating, and ``-q`` silences progress; restore both after each test, so that
+    ``caplog`` in a later test of the same process still sees the package's records."""
     import logging
+
+    from quash_plugins.core import progress
 
     logger = logging.getLogger("quash_plugins")
     handlers, level, propagate = logger.handlers[:], logger.level, logger.propagate
+    quiet = progress.QUIET  # main(["-q", ...]) silences progress for the process
     yield
     logger.handlers[:] = handlers
     logger.setLevel(level)
     logger.propagate = propagate
+    progress.QUIET = quiet
 
 
 @pytest.fixture(autouse=True)

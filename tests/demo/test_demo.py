@@ -295,6 +295,10 @@ def test_the_demo_says_how_far_it_is_method_by_method(tmp_path, monkeypatch, cap
 
     monkeypatch.setenv("QUASH_CACHE_DIR", str(tmp_path))
     monkeypatch.setattr(progress_mod, "MIN_INTERVAL", 0.0)  # every step is news
+    monkeypatch.setattr(progress_mod, "QUIET", False)  # as a program's, not after quash -q
+    package = logging.getLogger("quash_plugins")  # propagating to caplog, as a program's
+    monkeypatch.setattr(package, "handlers", [])
+    monkeypatch.setattr(package, "propagate", True)
     monkeypatch.setattr(progress_mod.sys.stderr, "isatty", lambda: False, raising=False)
     caplog.set_level(logging.INFO, logger="quash_plugins.progress")
     configs = demo_config_paths()[:2]
