@@ -42,6 +42,7 @@ from ._open_clip_weights import (
     seeded,
 )
 from ._runtime import (
+    PROGRESS_MIN,
     hf_offline,
     legacy_weights_identity,
     read_json,
@@ -61,7 +62,6 @@ OPEN_CLIP_PRESETS: dict[str, tuple[str, str, int, str]] = {
 PRECISIONS = ("auto", "fp32", "fp16", "bf16")
 #: Values of ``pretrained`` meaning "random weights" even when a preset names a tag.
 RANDOM = ("random", "none")
-PROGRESS_MIN = 1000
 _LOADED: dict[tuple[Any, ...], tuple[Any, Any, Any]] = {}
 
 

@@ -56,6 +56,10 @@ def require(module: str, extra: str) -> Any:
 
 #: The loggers of the libraries the torch encoders load their models through; each
 #: puts a handler of its own on its logger when imported.
+#: Encodes of more strings than this show progress (the vocabulary heuristic's ~1,100
+#: names; the adjectives heuristic's ~1,000 phrases took 12 s on 2 cores unannounced at a
+#: threshold of 1,000): a bar on a terminal, else a line every ~10 % after 2 s.
+PROGRESS_MIN = 256
 LIBRARY_LOGGERS = ("huggingface_hub", "transformers", "sentence_transformers")
 
 

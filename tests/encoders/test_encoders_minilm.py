@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import socket
 
@@ -314,3 +315,27 @@ def test_default_model_id_falls_back_to_shipped_copy(minilm):
     assert enc._path is not None
     assert enc._path == minilm_model_dir() or (enc._path / "modules.json").exists()
     np.testing.assert_allclose(enc.encode_text(["sofa"]), minilm.encode_text(["sofa"]), atol=1e-5)
+
+
+def test_an_encode_of_some_hundred_strings_shows_progress_in_steps(minilm, monkeypatch):
+    """The adjectives heuristic's ~1,000 phrases ran 12 s with no line: an encode of more
+    than PROGRESS_MIN strings is counted, in steps of a few batches, not in one."""
+    import quash_plugins.core.progress as prog
+    from quash_plugins.encoders import _runtime
+    from quash_plugins.encoders import _sentence_transformers as mod
+
+    assert mod.PROGRESS_MIN == _runtime.PROGRESS_MIN < 1000
+    totals, steps = [], []
+    real = prog.progress
+
+    @contextlib.contextmanager
+    def spy(total, description):
+        totals.append(total)
+        with real(total, description) as advance:
+            yield lambda n: (steps.append(n), advance(n))
+
+    monkeypatch.setattr(prog, "progress", spy)
+    n = mod.PROGRESS_MIN + 44
+    rows = minilm.encode_text([f"thing {i}" for i in range(n)])
+    assert rows.shape[0] == n and totals == [n]
+    assert sum(steps) == n and len(steps) >= 2, steps
