@@ -168,7 +168,8 @@ class SentenceTransformerEncoder(Encoder):
         model = self._load()
         import torch
 
-        step = max(self.batch_size * 4, self.batch_size)  # a progress step (256 strings at batch_size 64)
+        # a progress step: 256 strings at batch_size 64
+        step = max(self.batch_size * 4, self.batch_size)
         out: list[np.ndarray] = []
         from ..core.progress import progress
 
