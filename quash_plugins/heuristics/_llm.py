@@ -567,6 +567,17 @@ class LLMHeuristic(Heuristic):
             self.api_key_env,
         )
 
+    def _known_models(self, client: Any) -> tuple[str, list[str]]:
+        """The server's models (:func:`known_models`), asked with this endpoint's
+        headers and query, and at most 5 s."""
+        return known_models(
+            client,
+            self.endpoint,
+            self._headers(),
+            min(self.timeout, 5.0),
+            urlsplit(self._url).query,
+        )
+
     def _status_hint(self, status: int, client: Any, body: str = "") -> str:
         """What to do about a status that is not retried (401, 403, 404, 400...);
         ``body``: the server's reply, which a 400 about the model is told by."""
@@ -578,23 +589,11 @@ class LLMHeuristic(Heuristic):
                 "variable that holds it (no key was sent)."
             )
         if status == 404:
-            base, models = known_models(
-                client,
-                self.endpoint,
-                self._headers(),
-                min(self.timeout, 5.0),
-                urlsplit(self._url).query,
-            )
+            base, models = self._known_models(client)
             return not_found_hint(self.endpoint, self.model, base, models)
         if status in (400, 422) and "model" in body.lower():
             # LiteLLM, some gateways and older vLLM answer an unknown model with a 400
-            base, models = known_models(
-                client,
-                self.endpoint,
-                self._headers(),
-                min(self.timeout, 5.0),
-                urlsplit(self._url).query,
-            )
+            base, models = self._known_models(client)
             if models and self.model not in models:
                 return not_found_hint(self.endpoint, self.model, base, models)
         if status in (400, 422) and self.json_mode:
