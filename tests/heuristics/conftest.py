@@ -1,4 +1,4 @@
-"""Fixtures of the heuristics tests: a private cache folder, and the loopback chat server."""
+"""Fixtures of the heuristics tests: a private cache folder, and the loopback servers."""
 
 from __future__ import annotations
 
@@ -19,3 +19,20 @@ def server():
     s = ChatServer()
     yield s
     s.close()
+
+
+@pytest.fixture
+def raw():
+    """``raw(handler)`` starts a RawServer of test_llm_http_limits (a socket server whose
+    handler writes the reply bytes itself) on 127.0.0.1; every one is closed after."""
+    from test_llm_http_limits import RawServer
+
+    servers: list[RawServer] = []
+
+    def start(handler) -> RawServer:
+        servers.append(RawServer(handler))
+        return servers[-1]
+
+    yield start
+    for s in servers:
+        s.close()

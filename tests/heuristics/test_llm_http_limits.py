@@ -66,19 +66,6 @@ class RawServer:
         self.httpd.server_close()
 
 
-@pytest.fixture
-def raw():
-    servers: list[RawServer] = []
-
-    def start(handler) -> RawServer:
-        servers.append(RawServer(handler))
-        return servers[-1]
-
-    yield start
-    for s in servers:
-        s.close()
-
-
 def _make(base_url, tmp_path, **kw):
     params = dict(
         model="m", base_url=base_url, max_retries=0, backoff=0.01, timeout=5.0,

@@ -13,25 +13,11 @@ import time
 
 import pytest
 from test_heuristics_llm import _completion, make
-from test_llm_http_limits import RawServer, _make
+from test_llm_http_limits import _make
 
 from quash_plugins.core.errors import HeuristicError
 
 pytest.importorskip("httpx")
-
-
-@pytest.fixture
-def raw():
-    """Start a RawServer of test_llm_http_limits with a POST handler; closed after."""
-    servers: list[RawServer] = []
-
-    def start(handler) -> RawServer:
-        servers.append(RawServer(handler))
-        return servers[-1]
-
-    yield start
-    for s in servers:
-        s.close()
 
 
 def _hang_up(handler, server) -> None:
