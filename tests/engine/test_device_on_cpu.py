@@ -222,9 +222,28 @@ def test_unsupported_and_missing_devices_are_refused():
             pass_device(bad)
     assert pass_device("cpu") is None and pass_device("mps") is None
     if not torch.cuda.is_available():
-        with pytest.raises(QuashError, match="no CUDA GPU; use device: cpu"):
+        with pytest.raises(QuashError, match="no CUDA GPU on this machine; use device: cpu"):
             Quash(enc, device="cuda", instances=None).query(lmap, "chair")
         assert pass_device("auto") is None
+
+
+@pytest.mark.parametrize("gpus", [0, 2])
+@pytest.mark.parametrize("device", ["cuda", "cuda:0", "cuda:1", "cuda:2"])
+def test_the_pass_refuses_a_device_exactly_when_the_cli_check_does(device, gpus, monkeypatch):
+    """pass_device and device_unavailable run one check: the pass raises the CLI's reason."""
+    from quash_plugins.core.errors import QuashError
+    from quash_plugins.engine.device import device_unavailable, pass_device
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: gpus > 0)
+    monkeypatch.setattr(torch.cuda, "device_count", lambda: gpus)
+    why = device_unavailable(device)
+    assert (why is None) == (gpus == 2 and device != "cuda:2")
+    if why is None:
+        assert pass_device(device) == device
+    else:
+        with pytest.raises(QuashError) as err:
+            pass_device(device)
+        assert f"device {device!r}: {why}; use device: cpu" in str(err.value)
 
 
 @pytest.mark.parametrize("budget", [None, 1000])

@@ -28,29 +28,17 @@ def pass_device(device: str | None) -> str | None:
     kind, _, index = text.partition(":")
     if kind in ("cpu", "mps"):
         return None
-    if kind == "auto" and not os.path.exists("/dev/nvidiactl"):
-        return None
-    try:
-        import torch
-    except ImportError:
-        if kind == "auto":
+    if kind == "auto":
+        if not os.path.exists("/dev/nvidiactl") or _cuda_unavailable("") is not None:
             return None
+        return "cuda"
+    why = _cuda_unavailable(index)
+    if why is not None:
         raise QuashError(
-            f'device {text!r} needs PyTorch with CUDA: pip install "quash-plugins[clip]", '
-            "or use device: cpu."
-        ) from None
-    if not torch.cuda.is_available():
-        if kind == "auto":
-            return None
-        raise QuashError(
-            f"device {text!r} was asked for but torch sees no CUDA GPU; use device: cpu "
+            f"device {text!r}: {why}; use device: cpu "
             "(or auto, which takes a GPU only when there is one)."
         )
-    if index and int(index) >= torch.cuda.device_count():
-        raise QuashError(
-            f"device {text!r}: torch sees {torch.cuda.device_count()} CUDA GPU(s), numbered from 0."
-        )
-    return text if kind == "cuda" else "cuda"
+    return text
 
 
 def device_unavailable(device: str | None) -> str | None:
@@ -70,15 +58,30 @@ def device_unavailable(device: str | None) -> str | None:
     kind, _, index = text.partition(":")
     if kind in ("auto", "cpu"):
         return None
-    try:
-        import torch
-    except ImportError:
-        return 'it needs PyTorch, which is not installed (pip install "quash-plugins[clip]")'
     if kind == "mps":
+        try:
+            import torch
+        except ImportError:
+            return _NO_TORCH
         mps = getattr(torch.backends, "mps", None)
         if mps is not None and mps.is_available():
             return None
         return "torch sees no Apple MPS device on this machine"
+    return _cuda_unavailable(index)
+
+
+_NO_TORCH = 'it needs PyTorch, which is not installed (pip install "quash-plugins[clip]")'
+
+
+def _cuda_unavailable(index: str) -> str | None:
+    """Why CUDA GPU number ``index`` (``""``: any) is not on this machine, or None.
+
+    The one check behind :func:`pass_device` (which raises it) and
+    :func:`device_unavailable` (which returns it)."""
+    try:
+        import torch
+    except ImportError:
+        return _NO_TORCH
     if not torch.cuda.is_available():
         return "torch sees no CUDA GPU on this machine"
     count = torch.cuda.device_count()
