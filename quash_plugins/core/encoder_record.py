@@ -12,10 +12,9 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
-import math
 from typing import Any
 
-from .interfaces import plugin_name
+from .interfaces import _plain, plugin_name
 from .redact import is_secret_param
 
 log = logging.getLogger(__name__)
@@ -42,23 +41,6 @@ def recorded_params(source: Any, where: Any = None) -> dict[str, Any] | None:
     where = where or (source.get("path") if isinstance(source, dict) else None) or "the map"
     log.debug("%s: encoder_params %.80r is %s; it is ignored", where, text, why)
     return None
-
-
-def _json_plain(value: Any) -> bool:
-    """True for data that JSON writes as it is: strings, finite numbers, booleans, None,
-    and lists or string-keyed mappings of them (no secret-named key inside)."""
-    if value is None or isinstance(value, (str, bool, int)):
-        return True
-    if isinstance(value, float):
-        return math.isfinite(value)
-    if isinstance(value, (list, tuple)):
-        return all(_json_plain(v) for v in value)
-    if isinstance(value, dict):
-        return all(
-            isinstance(k, str) and not is_secret_param(k) and _json_plain(v)
-            for k, v in value.items()
-        )
-    return False
 
 
 def encoder_params(encoder: Any) -> dict[str, Any] | None:
@@ -95,7 +77,7 @@ def encoder_params(encoder: Any) -> dict[str, Any] | None:
         and k not in ("name", *OUTPUT_NEUTRAL)
         and (accepted is None or k in accepted)
         and not is_secret_param(k)
-        and _json_plain(v)
+        and _plain(v, written=True)
     }
     if not params and accepted != []:
         log.debug(

@@ -12,6 +12,7 @@ import contextlib
 import hashlib
 import json
 import logging
+import math
 import weakref
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
@@ -26,6 +27,7 @@ from sklearn.utils import ClassifierTags
 from .errors import EncoderError
 from .expansions import CosineExpansion, KernelExpansion
 from .once import first_time
+from .redact import is_secret_param
 from .types import DEFAULT_NEGATIVES, LatentMap, QuerySet
 
 log = logging.getLogger(__name__)
@@ -225,14 +227,26 @@ def _package_digest(top: str) -> str | None:
     return sha.hexdigest()[:16]
 
 
-def _plain(value: Any) -> bool:
-    """True for JSON-like data: what a default :meth:`Encoder.config` records."""
-    if value is None or isinstance(value, (str, bool, int, float)):
+def _plain(value: Any, *, written: bool = False) -> bool:
+    """True for JSON-like data: strings, numbers, booleans, None, and lists or string-keyed
+    mappings of them; what a default :meth:`Encoder.config` records.
+
+    ``written``: as a map's file records it (``core.encoder_record``): finite numbers only
+    (JSON has no NaN or infinity), and no key inside named like a credential
+    (:func:`~quash_plugins.core.redact.is_secret_param`)."""
+    if value is None or isinstance(value, (str, bool, int)):
         return True
+    if isinstance(value, float):
+        return not written or math.isfinite(value)
     if isinstance(value, (list, tuple)):
-        return all(_plain(v) for v in value)
+        return all(_plain(v, written=written) for v in value)
     if isinstance(value, dict):
-        return all(isinstance(k, str) and _plain(v) for k, v in value.items())
+        return all(
+            isinstance(k, str)
+            and not (written and is_secret_param(k))
+            and _plain(v, written=written)
+            for k, v in value.items()
+        )
     return False
 
 

@@ -228,3 +228,27 @@ def test_parameters_that_never_change_the_output_are_not_recorded():
 
     assert set(OUTPUT_NEUTRAL) == {"device", "batch_size"}
     assert encoder_params(Batched(dim=12, batch_size=7)) == {"dim": 12}
+
+
+def test_a_non_finite_parameter_counts_in_the_fingerprint_but_is_not_recorded():
+    """One plain-data rule (core.interfaces._plain) serves both: config() keeps NaN and
+    infinity (they change the output, so the fingerprint), the map's JSON record drops
+    them (JSON has no NaN), nested in a list too."""
+    from quash_plugins.core.encoder_record import encoder_params
+
+    class Scaled(BagOfWords):
+        def __init__(self, dim: int = 8, salt: str = "", scale=1.0, ranges=None):
+            super().__init__(dim, salt)
+            self.scale, self.ranges = scale, ranges
+
+        def config(self):
+            return {"dim": self._dim, "scale": self.scale, "ranges": self.ranges}
+
+    odd = Scaled(scale=float("inf"), ranges=[0.5, float("nan")])
+    assert encoder_params(odd) == {"dim": 8}
+    assert encoder_params(Scaled(scale=2.0, ranges=[0.5, 1.0])) == {
+        "dim": 8,
+        "scale": 2.0,
+        "ranges": [0.5, 1.0],
+    }
+    assert odd.fingerprint() != Scaled(scale=2.0).fingerprint()
