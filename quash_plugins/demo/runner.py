@@ -131,22 +131,7 @@ def run_demo(
             on_query=lambda name, n: advance(1),
         )
     if viewer is not None:
-        _log_demo(viewer, lmap, quashes, report)
+        # as quash eval --rrd logs it: one tab per method, each result coloured by outcome
+        # against the scene's labels (TP, FP, FN), the evaluation, the best method in view
+        viewer.log_report(lmap, report)
     return report, scene_path
-
-
-def _log_demo(viewer: Any, lmap: Any, quashes: list[Any], report: EvalReport) -> None:
-    """The map once; each method's results on the ``query`` timeline (query ``i`` at step
-    ``i`` for every method, one viewer tab per method); per-query metrics; the comparison.
-
-    The viewer opens on the method with the best mean F1.
-    """
-    viewer.log_map(lmap)
-    for c in report.configs:
-        for i, r in enumerate(report.results.get(c["name"], [])):
-            viewer.log_result(lmap, r, index=i)
-    viewer.log_evaluation(
-        report.configs, report.queries, report.to_markdown(), absent=report.absent
-    )
-    if report.configs:
-        viewer.focus(report.best("f1")["name"])

@@ -105,6 +105,71 @@ def test_demo_tiny_end_to_end(demo):
     assert "|---" not in demo["stdout"] and "|---" in (out / "demo.md").read_text()
 
 
+#: The outcome colours of ``quash eval --rrd``, spelled here rather than read from the
+#: package: true positives blue, false positives vermillion, false negatives yellow.
+BLUE, VERMILLION, YELLOW = (0, 114, 178), (213, 94, 0), (240, 228, 66)
+
+
+def _outcome_counts(rrd: Path) -> tuple[dict[tuple[str, int], dict], dict[tuple[str, int], str]]:
+    """``{(matches entity, step): {colour: items drawn in it}}`` and ``{(config entity,
+    step): query document}`` of a recording."""
+    from rerun.chunk import RrdReader
+
+    colours: dict[tuple[str, int], dict] = {}
+    docs: dict[tuple[str, int], str] = {}
+    for chunk in RrdReader(rrd).stream().to_chunks():
+        entity = chunk.entity_path.lstrip("/")
+        rb = chunk.to_record_batch()
+        if "query" not in rb.schema.names:
+            continue
+        steps = rb.column("query").to_pylist()
+        if entity.startswith("queries/") and "TextDocument:text" in rb.schema.names:
+            for t, v in zip(steps, rb.column("TextDocument:text").to_pylist()):
+                docs[entity.removeprefix("queries/"), t] = str(v[0])
+        if not entity.startswith("world/matches/"):
+            continue
+        kind = "Boxes3D" if "Boxes3D:centers" in rb.schema.names else "Points3D"
+        centers = rb.column(f"{kind}:{'centers' if kind == 'Boxes3D' else 'positions'}")
+        packed = rb.column(f"{kind}:colors").to_pylist()
+        for t, c, p in zip(steps, centers.to_pylist(), packed):
+            p = (p or []) * (len(c or []) if len(p or []) == 1 else 1)
+            drawn: dict[tuple, int] = {}
+            for x in p:
+                rgb = ((x >> 24) & 255, (x >> 16) & 255, (x >> 8) & 255)
+                drawn[rgb] = drawn.get(rgb, 0) + 1
+            colours[entity.removeprefix("world/matches/"), t] = drawn
+    return colours, docs
+
+
+@pytest.mark.slow
+def test_demo_recording_colours_each_result_by_outcome(demo):
+    """demo.rrd coloured every method's matches magenta while ``quash eval --rrd`` coloured
+    them by outcome: each method's drawn items at each step are now exactly its TP in blue,
+    FP in vermillion and FN in yellow, as demo.json counts them (the scene has no
+    unlabelled item, so nothing is magenta), and each query's document names the colours."""
+    from quash_plugins.viewer import MATCH_COLOR, slugify
+
+    assert demo["code"] == 0, demo["stderr"]
+    colours, docs = _outcome_counts(demo["out"] / "demo.rrd")
+    assert colours, "no matches in demo.rrd"
+    magenta = [k for k, drawn in colours.items() if tuple(MATCH_COLOR) in drawn]
+    assert not magenta, f"matches drawn magenta, not by outcome: {magenta[:5]}"
+    for c in demo["json"]["configs"]:
+        slug = slugify(c["name"], "config")
+        absent = c["absence"]["per_query"]
+        texts = [*c["per_query"], *absent]
+        for step, q in enumerate(texts):
+            m = c["per_query"].get(q)
+            want = (m["tp"], m["fp"], m["fn"]) if m else (0, absent[q]["matched"], 0)
+            drawn = colours.get((slug, step), {})
+            got = tuple(drawn.get(rgb, 0) for rgb in (BLUE, VERMILLION, YELLOW))
+            assert got == want and sum(drawn.values()) == sum(want), (c["name"], q, drawn)
+            doc = docs[slug, step]
+            assert f"**blue**: true positives (matched, of the label) {want[0]:,}" in doc
+            assert f"**vermillion**: false positives (matched, not of the label) {want[1]:,}" in doc
+            assert f"**yellow**: false negatives (of the label, not matched) {want[2]:,}" in doc
+
+
 @pytest.mark.slow
 def test_demo_says_it_wrote_the_recording_it_wrote(tmp_path, monkeypatch, capsys):
     """--rrd names the recording, in --out too: the last line named demo.rrd, a file
