@@ -24,6 +24,20 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+#: The datasets VLMaps' camera-base ``VLMapBuilderCam.save_3d_map`` writes, in its order
+#: (what ``quash convert --format vlmaps`` writes and ``VLMap.load_map`` reads back).
+CAMERA_FIELDS = (
+    "mapped_iter_list",
+    "grid_feat",
+    "grid_pos",
+    "weight",
+    "occupied_ids",
+    "grid_rgb",
+    "pcd_min",
+    "pcd_max",
+    "cs",
+)
+
 
 def sha256(path: Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
@@ -240,15 +254,10 @@ def save_3d_map_cam(path, arrays):
     ``pcd_min``/``pcd_max`` and a scalar float64 ``cs`` dataset."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    cast = {"mapped_iter_list": lambda v: np.array(v, dtype=np.int32), "cs": np.float64}
     with h5py.File(path, "w") as f:
-        f.create_dataset(
-            "mapped_iter_list", data=np.array(arrays["mapped_iter_list"], dtype=np.int32)
-        )
-        for key in ("grid_feat", "grid_pos", "weight", "occupied_ids", "grid_rgb"):
-            f.create_dataset(key, data=arrays[key])
-        f.create_dataset("pcd_min", data=arrays["pcd_min"])
-        f.create_dataset("pcd_max", data=arrays["pcd_max"])
-        f.create_dataset("cs", data=np.float64(arrays["cs"]))
+        for key in CAMERA_FIELDS:
+            f.create_dataset(key, data=cast.get(key, np.asarray)(arrays[key]))
     return path
 
 

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _vlmaps_writers import CAMERA_FIELDS
 
 from quash_plugins.adapters import read_map
 from quash_plugins.cli.main import main
@@ -16,17 +17,7 @@ from quash_plugins.core.errors import MapFormatError, UsageError
 h5py = pytest.importorskip("h5py")
 
 #: What VLMaps' camera-base ``save_3d_map`` writes (``VLMapBuilderCam``).
-UPSTREAM = {
-    "mapped_iter_list",
-    "grid_feat",
-    "grid_pos",
-    "weight",
-    "occupied_ids",
-    "grid_rgb",
-    "pcd_min",
-    "pcd_max",
-    "cs",
-}
+UPSTREAM = set(CAMERA_FIELDS)
 
 
 def _digest(path):

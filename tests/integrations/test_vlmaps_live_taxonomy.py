@@ -14,6 +14,7 @@ import h5py
 import numpy as np
 import pytest
 import yaml
+from _vlmaps_writers import CAMERA_FIELDS
 
 from quash_plugins import LatentMap, Quash
 from quash_plugins.adapters import write_vlmaps_map
@@ -23,17 +24,6 @@ from quash_plugins.integrations.vlmaps import as_latent_map, patch_vlmap, query
 D = 9
 WORDS = ["chair", "armchair", "sofa", "couch", "table", "desk", "other", "background", "nothing"]
 TAXONOMY = {"chair": ["armchair"], "sofa": ["couch"], "table": ["desk"]}
-FIELDS = [
-    "mapped_iter_list",
-    "grid_feat",
-    "grid_pos",
-    "weight",
-    "occupied_ids",
-    "grid_rgb",
-    "pcd_min",
-    "pcd_max",
-    "cs",
-]
 
 
 class LoadedVLMap:
@@ -46,7 +36,7 @@ class LoadedVLMap:
         if remember_path:
             self.map_save_path = map_save_path
         with h5py.File(map_save_path, "r") as f:
-            for name in FIELDS:
+            for name in CAMERA_FIELDS:
                 setattr(self, name, f[name][()])
 
 
