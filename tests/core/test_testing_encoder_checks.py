@@ -231,6 +231,7 @@ def test_the_encoder_checks_have_a_module_of_their_own_and_are_importable_as_bef
     from quash_plugins.testing import _checks, _encoder_checks
 
     names = [c.__name__ for c in _encoder_checks.ENCODER_CHECKS]
+    # the one written list of the checks' names: other tests read ENCODER_CHECKS
     assert names == [
         "check_encoder_output",
         "check_encoder_deterministic",
