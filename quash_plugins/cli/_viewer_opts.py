@@ -163,7 +163,8 @@ def check_rrd(args: argparse.Namespace, inputs: Any = ()) -> None:
             "--force to replace it, or choose another file."
         )
     raise UsageError(
-        f"--rrd {out} already exists. Pass --force to replace it, or choose another file."
+        f"--rrd {out} already exists and is not a Rerun recording; refusing to replace it. "
+        "Pass --force to replace it, or choose another file."
     )
 
 

@@ -118,6 +118,19 @@ def test_rrd_naming_the_map_is_refused(world, capsys):
     assert _sha(map_path) == before
 
 
+def test_rrd_naming_a_file_that_is_no_recording_says_so(world, tmp_path, capsys):
+    """--rrd onto a user's file that is not a Rerun recording said only "already exists.
+    Pass --force", as if it were an old recording; it says what the file is not."""
+    map_path, config = world
+    mine = tmp_path / "notes.rrd"
+    mine.write_text("my notes\n")
+    assert _query("--rrd", mine, map_path=map_path, config=config) == 2
+    err = " ".join(capsys.readouterr().err.split())
+    assert f"--rrd {mine} already exists and is not a Rerun recording" in err
+    assert "--force" in err
+    assert mine.read_text() == "my notes\n"
+
+
 def test_out_into_an_unwritable_folder_names_the_output(world, tmp_path, capsys):
     if os.geteuid() == 0:
         pytest.skip("root can write into any folder")
