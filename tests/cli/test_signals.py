@@ -2,7 +2,8 @@
 
 A real ``quash convert`` runs in a subprocess on a map whose rows are read slowly; once
 its temporary output appears the test sends the signal and checks the exit status, that
-the destination was not created and that nothing hidden is left beside it.
+the destination was not created and that nothing hidden is left beside it. SIGKILL cannot
+be caught: its temporary output is removed by the next write of the same output.
 """
 
 from __future__ import annotations
@@ -69,7 +70,9 @@ def _hidden(folder):
         (signal.SIGTERM, 143, ".npz"),
         (signal.SIGINT, 130, ".npz"),
         (signal.SIGTERM, 143, ".zarr"),
+        (signal.SIGINT, 130, ".zarr"),
         (signal.SIGTERM, 143, ".rrd"),
+        (signal.SIGINT, 130, ".rrd"),
     ],
 )
 def test_signal_mid_write_leaves_no_temporary_file(tmp_path, sig, code, suffix):
@@ -122,3 +125,56 @@ def test_interrupt_right_after_the_temporary_file_is_created(tmp_path, monkeypat
     with pytest.raises(KeyboardInterrupt), atomic.atomic_write(tmp_path / "r.npz"):
         pass
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("suffix", [".npz", ".zarr"])
+def test_sigkill_mid_write_leaves_a_temporary_output_the_next_write_removes(tmp_path, suffix):
+    """SIGKILL cannot be caught: the hidden temporary output stays, and the next write of
+    the same output (a real ``quash convert``) removes it, saying so."""
+    if suffix == ".zarr":
+        pytest.importorskip("zarr")
+    import numpy as np
+
+    from quash_plugins.adapters import write_npz_map
+    from quash_plugins.core.types import LatentMap
+
+    src = tmp_path / "src.bin"
+    src.write_bytes(b"x")
+    small = write_npz_map(
+        LatentMap(np.eye(4, 8, dtype=np.float32), positions=np.zeros((4, 3))),
+        tmp_path / "small.npz",
+    )
+    out = tmp_path / "out"
+    out.mkdir()
+    dst = out / f"map{suffix}"
+    proc = subprocess.Popen(
+        [sys.executable, "-c", CHILD, str(src), str(dst)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
+    try:
+        deadline = time.monotonic() + 60
+        while not _hidden(out):
+            assert proc.poll() is None, proc.communicate()
+            assert time.monotonic() < deadline, "the temporary output never appeared"
+            time.sleep(0.05)
+        time.sleep(0.3)
+        proc.kill()
+        proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == -signal.SIGKILL
+    left = _hidden(out)
+    assert len(left) == 1 and ".quash-tmp-" in left[0] and f"-{proc.pid}-" in left[0], left
+    again = subprocess.run(
+        [sys.executable, "-m", "quash_plugins.cli.main", "convert", str(small), str(dst)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert again.returncode == 0, again.stderr
+    assert f"removed {out / left[0]}" in again.stderr
+    assert f"quash process {proc.pid}" in again.stderr
+    assert _hidden(out) == []
+    assert dst.exists()
