@@ -73,6 +73,8 @@ from ._vlmaps_common import (
 log = logging.getLogger(__name__)
 
 REQUIRED = ("grid_feat", "grid_pos")
+#: Where VLMaps forks keep per-cell label ids; a map without it has no ground truth.
+SEMANTIC_FIELD = "grid_semantic"
 #: File names VLMaps writes, looked up when the source is a directory.
 KNOWN_NAMES = ("vlmap/vlmaps.h5df", "vlmap_cam/vlmaps_cam.h5df", "vlmaps.h5df", "vlmaps_cam.h5df")
 
@@ -149,7 +151,8 @@ class VLMapsAdapter(MapAdapter):
         ``obj2cls_dict.txt``), ``.yaml``/``.json`` list or ``{id: name}``, or the
         list/mapping itself. Default: an ``obj2cls_dict.txt`` next to the map, if any.
     semantic_field
-        Dataset holding ground truth (``grid_semantic``); missing is fine.
+        Dataset holding ground truth (``grid_semantic``); missing is fine. Another name
+        that the file lacks is an error naming the file's datasets.
     check_finite
         Scan ``grid_feat`` once at read time for NaN/Inf and unreadable (truncated)
         chunks. Set False for very large maps: the query pass still rejects NaN/Inf.
@@ -177,7 +180,7 @@ class VLMapsAdapter(MapAdapter):
         cs: float | None = None,
         pose_type: str = "auto",
         label_names: Any = None,
-        semantic_field: str = "grid_semantic",
+        semantic_field: str = SEMANTIC_FIELD,
         check_finite: bool = True,
         positions: str = "centre",
     ) -> None:
@@ -360,6 +363,12 @@ class VLMapsAdapter(MapAdapter):
 
         labels = None
         sem = opts["semantic_field"]
+        if sem and sem not in f and sem != SEMANTIC_FIELD:  # named, not the default
+            raise MapFormatError(
+                f"{where}: semantic_field {sem!r} names no dataset of the file. Found: "
+                f"{', '.join(f.keys())}. Give the dataset of per-cell label ids (VLMaps "
+                f"forks write {SEMANTIC_FIELD!r}), or leave the option out."
+            )
         if sem and sem in f:
             labels = check_labels(f[sem][()], n, where, sem)
         names_spec = opts["label_names"]

@@ -185,6 +185,22 @@ def test_missing_label_ids_are_padded(tmp_path):
     assert lmap.label_names[1] == "label_1"
 
 
+def test_a_semantic_field_the_file_lacks_is_an_error(tmp_path):
+    """A misspelt semantic_field was ignored: the map read without ground truth, and
+    quash eval then said the map has no labels, naming neither the option nor the field."""
+    arrays = mobile_map(n=6, d=D)
+    sem = np.array([0, 1, 1, 0, 1, 0], dtype=np.int32)
+    path = write_vlmaps_h5df(tmp_path / "m.h5df", arrays, semantic=sem)
+    with pytest.raises(MapFormatError) as err:
+        vlmaps(semantic_field="grid_sem").read(path)
+    said = str(err.value)
+    assert str(path) in said and "semantic_field 'grid_sem'" in said
+    assert "grid_semantic" in said  # the file's datasets, the one meant among them
+    # the default field may be absent: a map without ground truth reads as before
+    unlabelled = write_vlmaps_h5df(tmp_path / "u.h5df", mobile_map(n=6, d=D))
+    assert vlmaps().read(unlabelled).labels is None
+
+
 # ---------------------------------------------------------------------- sniffing
 def test_sniff_by_content_not_suffix(tmp_path):
     arrays = mobile_map(n=8, d=D)
