@@ -319,8 +319,8 @@ def remember_params(plugin: Any, params: dict[str, Any]) -> None:
 
 def _varied_params(enc: Any) -> tuple[dict[str, Any], list[str]] | None:
     """The constructor's parameters with the values ``enc`` holds (as ``p`` or ``_p``,
-    else the default), and the numeric, boolean and string ones to vary; None when
-    they cannot be known."""
+    else the default), and the numeric, boolean, string, list and dict ones to vary;
+    None when they cannot be known."""
     import inspect
 
     try:
@@ -346,53 +346,71 @@ def _varied_params(enc: Any) -> tuple[dict[str, Any], list[str]] | None:
                 return None
             else:
                 values[name] = param.default
-    # numbers, switches (a `lowercase: True` changes the output as a size does) and
-    # strings (a prompt prefix, a salt, a mode)
+    # numbers, switches (a `lowercase: True` changes the output as a size does), strings
+    # (a prompt prefix, a salt, a mode), lists and dicts (prompt templates, weights)
     varied = [
         n
         for n, v in values.items()
         if n not in OUTPUT_NEUTRAL  # documented not to change the output: not varied
-        and isinstance(v, (int, float, str, np.integer, np.floating, np.bool_))
+        and isinstance(v, (int, float, str, list, tuple, dict, np.integer, np.floating, np.bool_))
     ]
     return values, varied
 
 
 def _other_values(enc: Any, name: str, old: Any) -> list[Any]:
-    """Values to try for parameter ``name`` in place of ``old``: the other switch, the
-    next number, and for a string the other choices its annotation lists
-    (``Literal["fast", "exact"]``), else ``old`` with a suffix (a value the class
-    refuses is skipped). A credential (``api_key``, ``token``) is never varied, nor is
-    a path or a URL: the kit would send a changed key to a server, or write a file
-    beside the one named, and a model path changed is only a model that does not load."""
+    """Values to try for parameter ``name`` in place of ``old``: for a string, the other
+    choices its annotation lists (``Literal["fast", "exact"]``), else what
+    :func:`_nudged` gives (a value the class refuses is skipped)."""
     import typing
 
+    from ..core.redact import is_secret_param
+
+    if isinstance(old, str) and not is_secret_param(name):
+        try:
+            hint = typing.get_type_hints(type(enc).__init__).get(name)
+        except Exception:  # noqa: BLE001 - an annotation that does not resolve: no choices
+            hint = None
+        # Literal["a", "b"], or one inside a union (Literal["a", "b"] | None)
+        choices = [
+            c
+            for arg in (hint, *typing.get_args(hint))
+            if typing.get_origin(arg) is typing.Literal
+            for c in typing.get_args(arg)
+        ]
+        others = [c for c in choices if isinstance(c, str) and c != old]
+        if others:
+            return others[:4]
+    return _nudged(name, old)[:4]
+
+
+def _nudged(name: str, old: Any) -> list[Any]:
+    """``old`` changed a little: the other switch, the next number, a string with a
+    suffix; a list or tuple less its last item, and with its last item nudged; a dict
+    with one value nudged (new containers: ``old`` is never changed in place).
+
+    A credential (``api_key``, ``token``, or a dict key so named) is never varied, nor is
+    a path or a URL: the kit would send a changed key to a server, or write a file
+    beside the one named, and a model path changed is only a model that does not load."""
     from ..core.redact import is_secret_param
 
     if isinstance(old, (bool, np.bool_)):
         return [not old]
     if isinstance(old, (int, np.integer)):
         return [old + 1]
-    if not isinstance(old, str):
+    if isinstance(old, (float, np.floating)):
         return [old * 1.5 + 0.5]
     if is_secret_param(name):
         return []
-    try:
-        hint = typing.get_type_hints(type(enc).__init__).get(name)
-    except Exception:  # noqa: BLE001 - an annotation that does not resolve: no choices
-        hint = None
-    # Literal["a", "b"], or one inside a union (Literal["a", "b"] | None)
-    choices = [
-        c
-        for arg in (hint, *typing.get_args(hint))
-        if typing.get_origin(arg) is typing.Literal
-        for c in typing.get_args(arg)
-    ]
-    others = [c for c in choices if isinstance(c, str) and c != old]
-    if others:
-        return others[:4]
-    if _path_like(old):
-        return []
-    return [f"{old}x"]
+    if isinstance(old, str):
+        return [] if _path_like(old) else [f"{old}x"]
+    if isinstance(old, dict):
+        return [{**old, k: v} for k, item in old.items() for v in _nudged(str(k), item)]
+    if isinstance(old, (list, tuple)) and old:
+        items = list(old)
+        others = [items[:-1]] if len(items) > 1 else []
+        others += [[*items[:-1], v] for v in _nudged(name, items[-1])]
+        return [tuple(o) if isinstance(old, tuple) else o for o in others]
+    return []
 
 
 def _path_like(text: str) -> bool:

@@ -331,3 +331,94 @@ def test_a_required_parameter_under_another_name_does_not_skip_the_fingerprint_c
     msg = str(err.value)
     assert msg.startswith("encoders:kit-vocab-file-check_encoder_fingerprint_follows_params: ")
     assert "parameter 'seed'" in msg and "seed=0 and seed=1" in msg
+
+
+class _PrivateTemplates(Encoder):
+    """Prompt templates (a list) and their weights (a dict), kept private: a config()
+    that names neither leaves both out of the fingerprint."""
+
+    name = "private-templates"
+
+    def __init__(
+        self, templates: list[str] | None = None, weights: dict[str, float] | None = None
+    ) -> None:
+        self._templates = list(templates or ["a photo of {}", "a {} in a room"])
+        self._weights = dict(weights or {"photo": 1.0, "room": 0.25})
+
+    @property
+    def dim(self) -> int:
+        return 8
+
+    def encode_text(self, texts):
+        rows = np.zeros((len(texts), 8), dtype=np.float32)
+        for template in self._templates:
+            weight = sum(w for word, w in self._weights.items() if word in template) or 1.0
+            rows += weight * HashingEncoder(8).encode_text([template.format(t) for t in texts])
+        return rows / np.linalg.norm(rows, axis=1, keepdims=True)
+
+    def config(self):
+        return {"templates": self._templates, "weights": self._weights}
+
+
+def test_the_kit_catches_a_list_parameter_the_fingerprint_misses(tmp_path):
+    """Only numbers, booleans and strings were varied: a list of prompt templates that
+    changes every row passed, and the text cache served one list's embeddings to the
+    other."""
+
+    class NoTemplates(_PrivateTemplates):
+        def config(self):
+            return {"weights": self._weights}
+
+    a, b = NoTemplates(), NoTemplates(["a photo of {}"])
+    assert a.fingerprint() == b.fingerprint()
+    assert not np.allclose(a.encode_text(["chair"]), b.encode_text(["chair"]))
+    msg = _failure(NoTemplates(), tmp_path)
+    assert msg.startswith("encoder 'private-templates': check_encoder_fingerprint_follows_params:")
+    assert "parameter 'templates'" in msg
+    assert "templates=['a photo of {}', 'a {} in a room'] and templates=['a photo of {}']" in msg
+
+
+def test_the_kit_catches_a_dict_parameter_the_fingerprint_misses(tmp_path):
+    class NoWeights(_PrivateTemplates):
+        def config(self):
+            return {"templates": self._templates}
+
+    msg = _failure(NoWeights(), tmp_path)
+    assert "parameter 'weights'" in msg
+    assert "weights={'photo': 1.0, 'room': 0.25} and weights={'photo': 2.0, 'room': 0.25}" in msg
+
+
+def test_list_and_dict_parameters_the_fingerprint_follows_pass(tmp_path):
+    check_encoder(_PrivateTemplates(), tmp_path / "config")
+
+    class Public(_PrivateTemplates):
+        """The default config(): public list and dict attributes are plain data."""
+
+        def __init__(self, templates=None, weights=None):
+            super().__init__(templates, weights)
+            self.templates, self.weights = self._templates, self._weights
+
+        config = Encoder.config
+
+    assert set(Public().config()) == {"templates", "weights"}
+    check_encoder(Public(), tmp_path / "default")
+
+
+class _RemoteOptions(_Remote):
+    """A dict of request options with a credential inside, and a list of log files:
+    the kit varies neither the key nor a path (a shorter list only writes less)."""
+
+    name = "remote-options"
+
+    def __init__(self, options: dict | None = None, logs: list[str] | None = None) -> None:
+        self.options = dict(options or {"api_key": "sk-test-0123456789", "retries": 2})
+        self.logs = list(logs or ["remote.log"])
+        super().__init__(self.options["api_key"], self.logs[0])
+
+
+def test_a_key_or_a_path_inside_a_list_or_dict_is_not_varied(tmp_path):
+    log = tmp_path / "remote.log"
+    _Remote.keys_sent = []
+    check_encoder(_RemoteOptions(logs=[str(log)]), tmp_path / "kit")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["kit", "remote.log"]
+    assert set(_Remote.keys_sent) == {"sk-test-0123456789"}
