@@ -55,7 +55,7 @@ from sklearn.base import clone
 
 from ..core.config import VLMAPS_MAP_CONFIG_KEYS
 from ..core.errors import QuashError
-from ..core.types import LatentMap, QueryResult
+from ..core.types import LatentMap, QueryResult, check_query
 from ..engine.map_fit import warn_unused_adapter_options
 
 log = logging.getLogger(__name__)
@@ -188,6 +188,7 @@ def query(
     QueryResult
         ``mask`` and ``scores`` are ``(N,)`` over the rows of ``vlmap.grid_feat``.
     """
+    language_desc = check_query(language_desc)  # a list, None...: refused before the categories
     q = resolve_quash(quash, vlmap)
     lmap = as_latent_map(vlmap, **read_options)
     warn_unused_adapter_options(getattr(q, "adapter", None), lmap, vlmap, read_options)

@@ -380,3 +380,15 @@ def test_a_vlmaps_example_config_points_to_a_shipped_config_of_its_own_encoder()
                 assert named["encoder"] == encoder, (example.name, name)
                 checked += 1
     assert checked
+
+
+@pytest.mark.parametrize("bad", [["chair", "sofa"], None, 3])
+def test_a_query_that_is_not_a_string_is_refused_as_the_pipeline_refuses_it(project, bad):
+    """index_map(vlmap, ["chair", "sofa"]) with categories set failed deep in the category
+    match ("AttributeError: 'list' object has no attribute 'replace'")."""
+    from quash_plugins.core.errors import QuashError
+
+    vlmap = FakeVLMap()
+    vlmap.categories = ["chair", "sofa"]
+    with pytest.raises(QuashError, match=rf"A query must be a string; got {type(bad).__name__}"):
+        index_map(vlmap, bad, quash="quash.yaml")
