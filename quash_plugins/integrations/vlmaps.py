@@ -54,7 +54,7 @@ import numpy as np
 from sklearn.base import clone
 
 from ..core.config import VLMAPS_MAP_CONFIG_KEYS
-from ..core.errors import QuashError
+from ..core.errors import MapFormatError, QuashError
 from ..core.types import LatentMap, QueryResult, check_query
 from ..engine.map_fit import warn_unused_adapter_options
 
@@ -189,6 +189,12 @@ def query(
         ``mask`` and ``scores`` are ``(N,)`` over the rows of ``vlmap.grid_feat``.
     """
     language_desc = check_query(language_desc)  # a list, None...: refused before the categories
+    if isinstance(vlmap, (str, Path)):
+        raise MapFormatError(
+            f"{vlmap}: index_map and query take a live VLMap object (after VLMap.load_map), "
+            f"not a path. For the map on disk use Quash.from_config(CONFIG).query({str(vlmap)!r}, "
+            "TEXT), or quash query PATH TEXT -c CONFIG."
+        )
     q = resolve_quash(quash, vlmap)
     lmap = as_latent_map(vlmap, **read_options)
     warn_unused_adapter_options(getattr(q, "adapter", None), lmap, vlmap, read_options)

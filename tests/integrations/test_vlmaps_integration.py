@@ -392,3 +392,15 @@ def test_a_query_that_is_not_a_string_is_refused_as_the_pipeline_refuses_it(proj
     vlmap.categories = ["chair", "sofa"]
     with pytest.raises(QuashError, match=rf"A query must be a string; got {type(bad).__name__}"):
         index_map(vlmap, bad, quash="quash.yaml")
+
+
+def test_a_path_in_place_of_the_vlmap_names_the_call_that_reads_a_file(project):
+    """query("data/scene/vlmap/vlmaps.h5df", ...) said only that the live adapter reads
+    objects, not files: it names the call that reads the file."""
+    from quash_plugins.core.errors import MapFormatError
+
+    path = "data/scene/vlmap/vlmaps.h5df"
+    with pytest.raises(MapFormatError) as err:
+        index_map(path, "chair", quash="quash.yaml")
+    said = str(err.value)
+    assert said.startswith(f"{path}:") and f"Quash.from_config(CONFIG).query('{path}'" in said
