@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import atexit
+import contextlib
 import logging
 import os
+import signal
+import threading
 from typing import Any
 
 from ..core.errors import QuashError
@@ -125,6 +128,65 @@ def quiet_compute_failures() -> None:
         logger.addFilter(_OwnComputeFailures())
 
 
+def _close_quietly(*closables: Any) -> None:
+    """Close each of ``closables`` (a Dask client or cluster), saying nothing if it fails:
+    the command is stopping for another reason, the one the user is told."""
+    for c in closables:
+        if c is not None:
+            with contextlib.suppress(Exception):
+                c.close()
+
+
+def _start_without_sigint(start: Any, **kwargs: Any) -> Any:
+    """``start(**kwargs)`` (a ``LocalCluster``) from a thread that blocks SIGINT.
+
+    Every thread the cluster starts, and every worker process, inherits that mask, so
+    Ctrl-C, which a terminal sends to the whole process group, reaches only this
+    process: no worker prints a traceback of its own, and none dies while Dask starts or
+    stops it. Here Ctrl-C (or SIGTERM) while the cluster starts waits for the start to
+    end, closes the cluster, and is raised again: the ``quash`` command then prints one
+    line ("interrupted", exit status 130), and no worker process is left running. A
+    second Ctrl-C stops the wait. Without ``pthread_sigmask`` (Windows) the start runs
+    here as it is.
+    """
+    if not hasattr(signal, "pthread_sigmask"):  # pragma: no cover - not POSIX
+        return start(**kwargs)
+    outcome: dict[str, Any] = {}
+    done = threading.Event()
+
+    def run() -> None:
+        # multiprocessing starts its resource tracker with SIGINT blocked, then unblocks
+        # it in the calling thread, whatever the mask was: started first, it does not
+        # undo the mask when the first worker process is started.
+        from multiprocessing import resource_tracker
+
+        try:
+            with contextlib.suppress(Exception):
+                resource_tracker.ensure_running()
+            signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+            outcome["value"] = start(**kwargs)
+        except BaseException as exc:  # noqa: BLE001 - raised again in the caller
+            outcome["error"] = exc
+        finally:
+            done.set()
+
+    threading.Thread(target=run, name="quash: local Dask cluster start", daemon=True).start()
+    try:
+        # Event.wait, not Thread.join: a join interrupted by Ctrl-C marks the thread
+        # stopped (CPython), and the wait below would not wait
+        done.wait()
+    except KeyboardInterrupt:  # Ctrl-C, or SIGTERM (the CLI's Terminated)
+        log.debug("interrupted while the local Dask cluster starts: closing it")
+        try:
+            done.wait()
+        finally:
+            _close_quietly(outcome.get("value"))
+        raise
+    if "error" in outcome:
+        raise outcome["error"]
+    return outcome["value"]
+
+
 def local_cluster_client(
     n_workers: int | None = None, threads_per_worker: int = 1, memory_limit: Any = "auto"
 ) -> Any:
@@ -142,7 +204,8 @@ def local_cluster_client(
     distributed = _require_distributed()
     n = int(n_workers or machine_cores())
     security = local_cluster_security()
-    cluster = distributed.LocalCluster(
+    cluster = _start_without_sigint(
+        distributed.LocalCluster,
         n_workers=n,
         threads_per_worker=threads_per_worker,
         processes=True,
@@ -153,18 +216,23 @@ def local_cluster_client(
         memory_limit=memory_limit,
         security=security,
     )
-    client = distributed.Client(cluster, security=security)
-    if not logging.getLogger("quash_plugins").isEnabledFor(logging.DEBUG):
-        # our own cluster only (a scheduler the user runs keeps its logging as it is);
-        # a plugin, so that a worker the nanny restarts gets the filter too
-        from ._dask_worker_plugin import QuietComputeFailures
+    client = None
+    try:
+        client = distributed.Client(cluster, security=security)
+        if not logging.getLogger("quash_plugins").isEnabledFor(logging.DEBUG):
+            # our own cluster only (a scheduler the user runs keeps its logging as it is);
+            # a plugin, so that a worker the nanny restarts gets the filter too
+            from ._dask_worker_plugin import QuietComputeFailures
 
-        client.register_plugin(QuietComputeFailures())
-        restarts = _OwnWorkerRestarts()
-        for name in RESTART_LOGGERS:
-            logging.getLogger(name).addFilter(restarts)
-    else:
-        restarts = None
+            client.register_plugin(QuietComputeFailures())
+            restarts = _OwnWorkerRestarts()
+            for name in RESTART_LOGGERS:
+                logging.getLogger(name).addFilter(restarts)
+        else:
+            restarts = None
+    except BaseException:  # Ctrl-C, SIGTERM or a failure: no worker process left behind
+        _close_quietly(client, cluster)
+        raise
     log.info(
         "started a LocalCluster: %d worker processes x %d threads (%s)",
         n,
