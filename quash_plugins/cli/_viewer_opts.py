@@ -178,6 +178,7 @@ def viewer_options(args: argparse.Namespace) -> ViewerOptions:
         web_port=args.web_port,
         grpc_port=args.grpc_port,
         bind=args.bind,
+        quiet=bool(getattr(args, "quiet", False)),  # --quiet: no "wrote FILE.rrd" line
     )
 
 

@@ -94,15 +94,13 @@ def run(args: argparse.Namespace) -> int:
     out.print(f"[bold]{title}[/]")
     out.print(f"scene: {safe_text(scene)}")  # a path: its '[v1]' is no markup
     print_markdown(out, md)
+    if not args.quiet:  # --quiet: warnings and errors only
+        written = ", ".join(str(outdir / w) for w in ("demo.md", "demo.json", "demo.png"))
+        out.print(f"wrote {safe_text(written)} in {time.perf_counter() - t0:.1f} s")
     if viewer is not None:
-        viewer.close()  # with --serve-web this serves until Ctrl-C or SIGTERM
-    written = ["demo.md", "demo.json", "demo.png"] + (
-        [Path(args.rrd).name] if args.rrd and Path(args.rrd).parent == outdir else []
-    )
-    out.print(
-        f"wrote {safe_text(', '.join(str(outdir / w) for w in written))} "
-        f"in {time.perf_counter() - t0:.1f} s"
-    )
+        # says "wrote DEMO.rrd" itself (the recording's one announcement, wherever --rrd
+        # put it); with --serve-web it then serves until Ctrl-C or SIGTERM
+        viewer.close()
     return 0
 
 

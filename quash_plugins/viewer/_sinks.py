@@ -80,6 +80,10 @@ class ViewerOptions:
     bind
         Address the served ports listen on: 127.0.0.1 unless you ask for another
         (``0.0.0.0`` serves every interface).
+    quiet
+        Say nothing of what was written or streamed (``wrote FILE.rrd``, ``streamed to
+        ...``), as ``quash --quiet`` asks; warnings are still logged, and ``serve_web``
+        still prints its URL (the one way to open what it serves).
     """
 
     rrd: str | Path | None = None
@@ -89,6 +93,7 @@ class ViewerOptions:
     web_port: int = DEFAULT_WEB_PORT
     grpc_port: int = DEFAULT_GRPC_PORT
     bind: str = DEFAULT_BIND
+    quiet: bool = False
 
     @property
     def requested(self) -> bool:
@@ -221,6 +226,7 @@ class SinkRerunLogger(RerunLogger):
             warn_if_exposed(self.bind, self.web_port, self.grpc_port)
         self.url: str | None = None
         self.streaming: list[str] = []  # streaming sinks, for messages
+        self.quiet = bool(sinks.quiet)  # no "wrote FILE" / "streamed to" line
         self._tmp: Path | None = None
         self._file = contextlib.ExitStack()
         self._web: subprocess.Popen | None = None
@@ -460,13 +466,14 @@ class SinkRerunLogger(RerunLogger):
             where = ", ".join(self.streaming) or "a streaming sink"
             log.warning("could not stream everything to %s (%s); carrying on.", where, exc)
         else:
-            for where in self.streaming:  # as "wrote FILE.rrd" confirms a file
+            for where in [] if self.quiet else self.streaming:  # as "wrote FILE.rrd" does
                 print(f"streamed to {where}", file=sys.stderr, flush=True)
         if self._tmp is not None:
             _finalize_files(rec)
             self._file.close()  # chmod to the umask, rename over the target
             self._finalizer.detach()
-            print(f"wrote {self.rrd_path}", file=sys.stderr, flush=True)
+            if not self.quiet:
+                print(f"wrote {self.rrd_path}", file=sys.stderr, flush=True)
         if self.serve_web:
             self._serve_until_stopped()
         with contextlib.suppress(Exception):

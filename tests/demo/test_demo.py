@@ -170,17 +170,44 @@ def test_demo_recording_colours_each_result_by_outcome(demo):
             assert f"**yellow**: false negatives (of the label, not matched) {want[2]:,}" in doc
 
 
+def _announced(text: str) -> list[str]:
+    """The paths of every ``wrote A, B in 1.2 s`` / ``wrote A`` line of ``text``."""
+    paths = []
+    for line in text.splitlines():
+        if line.startswith("wrote "):
+            paths += line.removeprefix("wrote ").rsplit(" in ", 1)[0].split(", ")
+    return paths
+
+
 @pytest.mark.slow
-def test_demo_says_it_wrote_the_recording_it_wrote(tmp_path, monkeypatch, capsys):
-    """--rrd names the recording, in --out too: the last line named demo.rrd, a file
-    that was not written, instead of the one that was."""
+def test_demo_announces_each_output_once(tmp_path, monkeypatch, capsys):
+    """Each file written is named once, the recording where --rrd put it: demo.rrd in
+    --out was named twice (the recording's own line, then the demo's list), and an
+    earlier list named demo.rrd where --rrd had written another file."""
     monkeypatch.setenv("COLUMNS", "1000")  # one line, no path folded
     out = tmp_path / "out"
-    assert main(["-q", "demo", "--tiny", "--out", str(out), "--rrd", str(out / "mine.rrd")]) == 0
-    [line] = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("wrote ")]
-    written = line.removeprefix("wrote ").rsplit(" in ", 1)[0].split(", ")
-    assert str(out / "mine.rrd") in written
-    assert written and all(Path(w).is_file() for w in written), line
+    assert main(["demo", "--tiny", "--out", str(out), "--rrd", str(out / "mine.rrd")]) == 0
+    said = capsys.readouterr()
+    announced = _announced(said.out) + _announced(said.err)
+    expected = [str(out / n) for n in ("demo.md", "demo.json", "demo.png", "mine.rrd")]
+    assert sorted(announced) == sorted(expected), said
+    assert all(Path(w).is_file() for w in announced)
+
+
+@pytest.mark.slow
+def test_demo_quiet_says_only_warnings_and_errors(tmp_path, monkeypatch, capsys):
+    """--quiet: no "wrote ..." line (the demo's and its recording's were printed all the
+    same), no progress or INFO line; the comparison is still printed, and every file
+    is written."""
+    monkeypatch.setenv("COLUMNS", "1000")
+    out = tmp_path / "out"
+    assert main(["-q", "demo", "--tiny", "--out", str(out)]) == 0
+    said = capsys.readouterr()
+    assert not _announced(said.out) and not _announced(said.err), said
+    assert not [ln for ln in said.err.splitlines() if ln.startswith("INFO")], said.err
+    assert "quash demo: " in said.out
+    for name in ("demo.md", "demo.json", "demo.png", "demo.rrd"):
+        assert (out / name).is_file(), name
 
 
 @pytest.mark.slow
@@ -381,7 +408,7 @@ def test_demo_prints_its_paths_as_they_are(tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("COLUMNS", "1000")  # one line each, no path folded
     monkeypatch.setenv("QUASH_CACHE_DIR", str(tmp_path / "cache[v1]"))
     out = tmp_path / "out[v1]"
-    assert main(["-q", "demo", "--tiny", "--no-rrd", "--out", str(out)]) == 0
+    assert main(["demo", "--tiny", "--no-rrd", "--out", str(out)]) == 0
     lines = capsys.readouterr().out.splitlines()
     [scene] = sorted(cache_root().glob("scene-v*-tiny-seed0-*.npz"))
     assert f"scene: {scene}" in lines

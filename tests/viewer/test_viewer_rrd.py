@@ -774,6 +774,30 @@ def test_sink_logger_refuses_bad_ports_and_addresses(opts, tmp_path):
     assert not list(tmp_path.iterdir())
 
 
+@pytest.mark.parametrize("quiet", [False, True])
+def test_a_quiet_sink_does_not_announce_its_file(quiet, tmp_path, capsys):
+    """``quash -q ... --rrd F`` printed "wrote F" all the same: ViewerOptions(quiet=True)
+    (the CLI's --quiet) writes the recording and says nothing of it."""
+    from quash_plugins.adapters import write_npz_map
+    from quash_plugins.cli.main import main
+    from quash_plugins.viewer import SinkRerunLogger, ViewerOptions
+
+    rrd = tmp_path / "x.rrd"
+    logger = SinkRerunLogger(ViewerOptions(rrd=rrd, quiet=quiet), app_id="quash-query")
+    logger.log_map(voxel_map())
+    logger.close()
+    assert rrd.is_file()
+    assert (f"wrote {rrd}" in capsys.readouterr().err) is not quiet
+    # and the CLI hands its --quiet to the sinks
+    cfg = write_table_config(tmp_path)
+    map_path = write_npz_map(voxel_map(), tmp_path / "map.npz")
+    out = tmp_path / "q.rrd"
+    args = ["query", str(map_path), "chair", "-c", str(cfg), "--rrd", str(out)]
+    assert main((["-q"] if quiet else []) + args) == 0
+    assert out.is_file()
+    assert (f"wrote {out}" in capsys.readouterr().err) is not quiet
+
+
 def test_cli_query_rrd_per_image_feature_map(tmp_path):
     pytest.importorskip("PIL")
     from PIL import Image
