@@ -8,8 +8,9 @@ and checks the entity paths and mask counts. It then takes a screenshot and chec
 that the highlighted matches are drawn.
 
 A second test opens ``quash demo --serve-web`` the same way and checks that the rooms and
-the matches are in view. Set ``QUASH_UPDATE_SCREENSHOT=1`` to run it on the full demo
-and store its screenshot as docs/images/rerun-demo.png.
+the matches, coloured by outcome against the scene's labels, are in view. Set
+``QUASH_UPDATE_SCREENSHOT=1`` to run it on the full demo and store its screenshot as
+docs/images/rerun-demo.png.
 """
 
 from __future__ import annotations
@@ -33,6 +34,8 @@ pytest.importorskip("rerun")
 pytest.importorskip("tornado")
 
 from _procs import Lines, free_port  # noqa: E402
+
+from quash_plugins.viewer import MATCH_COLOR  # noqa: E402
 
 CHROMIUM = "/usr/bin/chromium"
 REPO = Path(__file__).resolve().parents[2]
@@ -118,6 +121,39 @@ def magenta_pixels(png: bytes) -> int:
     return int(((r > 120) & (g < 0.35 * r) & (b > 0.5 * r)).sum())
 
 
+#: The outcome colours of ``quash eval --rrd`` and ``quash demo`` (Okabe-Ito), spelled here
+#: rather than read from the package: true positives, false positives, false negatives.
+OUTCOMES = {"tp": (0, 114, 178), "fp": (213, 94, 0), "fn": (240, 228, 66)}
+
+
+def outcome_pixels(img: np.ndarray) -> dict[str, int]:
+    """Pixels of each outcome colour (every channel within 20 of it) in an ``(H, W, 3)``
+    image. The demo scene's own colours are farther from them: its books (60, 100, 200),
+    lamps (250, 220, 100), cushions (240, 160, 60) and chairs (200, 60, 60), +-12."""
+    return {
+        k: int((np.abs(img - np.array(rgb)).max(axis=-1) <= 20).sum())
+        for k, rgb in OUTCOMES.items()
+    }
+
+
+def match_colours(path: Path) -> set[tuple[int, int, int]]:
+    """Every colour the matches (``world/matches/*``) are drawn in, in an .rrd."""
+    from rerun.chunk import RrdReader
+
+    out = set()
+    for chunk in RrdReader(path).stream().to_chunks():
+        if not chunk.entity_path.lstrip("/").startswith("world/matches/"):
+            continue
+        rb = chunk.to_record_batch()
+        for col in ("Boxes3D:colors", "Points3D:colors"):
+            if col in rb.schema.names:
+                for packed in rb.column(col).to_pylist():
+                    out |= {
+                        ((c >> 24) & 255, (c >> 16) & 255, (c >> 8) & 255) for c in packed or []
+                    }
+    return out
+
+
 def logged_steps(path: Path) -> dict[str, set]:
     """``{entity: query steps}`` of the matches, documents and summary in an .rrd."""
     from rerun.chunk import RrdReader
@@ -142,7 +178,8 @@ def rooms_and_matches(png: bytes) -> dict[str, float]:
 
     ``coverage``: share of its pixels that are not the viewer's plain background;
     ``colours``: distinct colours (16 levels per channel) covering 0.2 % of it or more,
-    i.e. the map's own colours, not one grey slab; ``magenta``: matched voxels.
+    i.e. the map's own colours, not one grey slab; ``tp``, ``fp``, ``fn``: matched and
+    missed voxels coloured by outcome (:func:`outcome_pixels`).
     """
     import io
 
@@ -160,7 +197,7 @@ def rooms_and_matches(png: bytes) -> dict[str, float]:
     return {
         "coverage": float((~light).mean()),
         "colours": int((counts >= 0.002 * len(pixels)).sum()),
-        "magenta": magenta_pixels(png),
+        **outcome_pixels(view),
     }
 
 
@@ -300,7 +337,10 @@ def test_serve_web_in_headless_chromium(tmp_path):
 
 def test_demo_in_headless_chromium_shows_the_rooms_and_the_matches(tmp_path):
     """``quash demo --serve-web`` as a user opens it: the tab of the best method, the
-    rooms seen from above (ceiling hidden), the first query's matches in magenta.
+    rooms seen from above (ceiling hidden), the first query's matches coloured by outcome
+    as ``quash eval --rrd`` colours them (they were magenta): the true positives blue
+    in view, and no magenta in the recording the viewer holds (the scene has no
+    unlabelled item, so every match is scored).
 
     The tiny scene by default; the full demo with ``QUASH_DEMO_FULL=1`` or when
     refreshing the docs' screenshot (``QUASH_UPDATE_SCREENSHOT=1``:
@@ -327,7 +367,7 @@ def test_demo_in_headless_chromium_shows_the_rooms_and_the_matches(tmp_path):
 
         def good(png: bytes) -> bool:
             seen = rooms_and_matches(png)
-            return seen["magenta"] > 50 and seen["colours"] >= 8
+            return seen["tp"] > 50 and seen["colours"] >= 8
 
         browser, port = start_chromium(tmp_path)
         png = asyncio.run(drive(url, port, tmp_path, loaded, good, wait_s=600))
@@ -335,8 +375,12 @@ def test_demo_in_headless_chromium_shows_the_rooms_and_the_matches(tmp_path):
             target = REPO / "docs" / "images" / "rerun-demo.png"
             target.parent.mkdir(parents=True, exist_ok=True)
             target.write_bytes(png)
+        (tmp_path / "screenshot.png").write_bytes(png)  # to look at when this fails
         seen = rooms_and_matches(png)
-        assert seen["magenta"] > 50, f"the matches are not drawn: {seen}"
+        assert seen["tp"] > 50, f"the true positives are not drawn blue: {seen}"
+        drawn = match_colours(tmp_path / "from-browser.rrd")
+        assert set(OUTCOMES.values()) <= drawn, f"not every outcome is drawn: {drawn}"
+        assert tuple(MATCH_COLOR) not in drawn, "matches drawn magenta, not by outcome"
         assert seen["coverage"] > 0.08, f"the map is not in view: {seen}"
         assert seen["colours"] >= 8, f"no rooms to see (one grey slab?): {seen}"
         cli.send_signal(signal.SIGINT)
