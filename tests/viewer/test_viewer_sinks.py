@@ -30,6 +30,22 @@ from _procs import Lines, free_port  # noqa: E402
 from quash_plugins.viewer import display_available, rerun_executable  # noqa: E402
 
 CLI = [sys.executable, "-c", "from quash_plugins.cli.main import main; raise SystemExit(main())"]
+
+
+def viewer_port_cli(port: int) -> list[str]:
+    """The CLI with the native viewer ``--spawn`` opens, and the default ``--grpc-port``,
+    on ``port`` instead of 9876: a viewer that another run, or a test running beside this
+    one, opened there made ``--spawn`` take it for this run's ('already listens')."""
+    code = (
+        "from quash_plugins.viewer import _sinks\n"
+        "assert _sinks.DEFAULT_GRPC_PORT == 9876, 'the native viewer port moved'\n"
+        f"_sinks.DEFAULT_GRPC_PORT = {int(port)}\n"
+        "from quash_plugins.cli.main import main\n"
+        "raise SystemExit(main())"
+    )
+    return [sys.executable, "-c", code]
+
+
 pytestmark = pytest.mark.skipif(
     rerun_executable() is None, reason="the rerun executable of the SDK is not installed"
 )
@@ -79,9 +95,9 @@ def small_map(tmp_path):
     return write_npz_map(voxel_map(), tmp_path / "map.npz"), write_table_config(tmp_path)
 
 
-def run_cli(args: list[str], cwd: Path, env: dict, timeout: float = 300):
+def run_cli(args: list[str], cwd: Path, env: dict, timeout: float = 300, cli=CLI):
     return subprocess.run(
-        [*CLI, *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout
+        [*cli, *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout
     )
 
 
@@ -116,6 +132,7 @@ def test_spawn_when_the_viewer_cannot_start(tmp_path, small_map):
         ["query", str(map_path), "chair", "-c", str(cfg), "--spawn", "--rrd", str(rrd)],
         tmp_path,
         env,
+        cli=viewer_port_cli(free_port()),
     )
     assert proc.returncode == 0, proc.stderr
     spawn_lines = [ln for ln in proc.stderr.splitlines() if "--spawn" in ln]
@@ -339,15 +356,18 @@ def test_spawn_beside_serve_web_on_one_port_is_refused_before_a_viewer_starts(tm
     map_path, cfg = small_map
     rrd = tmp_path / "out.rrd"
     env = headless_env(DISPLAY=":93517")
+    port = free_port()  # the viewer's and the default --grpc-port (9876 in a release)
     proc = run_cli(
         ["query", str(map_path), "chair", "-c", str(cfg), "--spawn", "--serve-web"]
-        + ["--rrd", str(rrd)],
+        + ["--rrd", str(rrd), "--web-port", str(free_port())],
         tmp_path,
         env,
         timeout=120,
+        cli=viewer_port_cli(port),
     )
     assert proc.returncode == 2, proc.stderr
-    assert "--grpc-port 9877" in proc.stderr and "--spawn" in proc.stderr
+    assert f"both need port {port} on 127.0.0.1" in proc.stderr
+    assert f"--grpc-port {port + 1}" in proc.stderr and "--spawn" in proc.stderr
     assert "chair" not in proc.stdout and not rrd.exists()  # before any query or file
     assert_no_tmp(tmp_path)
     opts = ViewerOptions(spawn=True, serve_web=True, grpc_port=free_port())
