@@ -120,6 +120,17 @@ class _EscapeControls(logging.Filter):
         return True
 
 
+def say_done(out: Any, args: Any, text: str) -> None:
+    """Print ``text``, a line that says what a command did rather than what it found
+    (``wrote FILE``, ``table fair: done``), on the console ``out``, unless ``--quiet``
+    (``args.quiet``) asks for warnings and errors only. A command's own result (the
+    table of ``quash eval``, the answers of ``quash query``) is printed with ``out.print``
+    whatever ``--quiet`` says; so are warnings and errors, which are logged. ``text`` is
+    printed as it is: control characters escaped, nothing read as markup."""
+    if not getattr(args, "quiet", False):
+        out.print(safe_text(text))
+
+
 def print_json(data: Any) -> None:
     json.dump(data, sys.stdout, indent=2, ensure_ascii=False, default=str)
     sys.stdout.write("\n")

@@ -103,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.errors import UsageError
     from ..evaluation.ablations import TABLES, run_bench
     from ._backend_opts import backend_overrides
-    from ._output import console, each_log_line_once, print_markdown
+    from ._output import console, each_log_line_once, print_markdown, say_done
     from .cmd_eval import queries_from_options
 
     tables = tuple(t.strip() for t in args.tables.split(",") if t.strip())
@@ -148,8 +148,7 @@ def run(args: argparse.Namespace) -> int:
             absent=tuple(absent),
             query_file=args.queries_file,
             absent_in_file=absent_in_file,
-            # progress, not a result: --quiet leaves it out
-            on_table=None if args.quiet else lambda t: out.print(f"table {t}: done"),
+            on_table=lambda t: say_done(out, args, f"table {t}: done"),  # progress
         )
     print_markdown(out, (Path(args.out) / "bench.md").read_text(encoding="utf-8"), Path(args.out))
     return 0

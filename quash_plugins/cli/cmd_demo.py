@@ -65,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
     from ..demo.runner import demo_config_paths, run_demo
     from ..evaluation.plot import plot_precision_recall
     from ._backend_opts import backend_overrides
-    from ._output import console, print_markdown, safe_text
+    from ._output import console, print_markdown, safe_text, say_done
     from ._viewer_opts import open_viewer
 
     if args.list_configs:
@@ -94,9 +94,8 @@ def run(args: argparse.Namespace) -> int:
     out.print(f"[bold]{title}[/]")
     out.print(f"scene: {safe_text(scene)}")  # a path: its '[v1]' is no markup
     print_markdown(out, md)
-    if not args.quiet:  # --quiet: warnings and errors only
-        written = ", ".join(str(outdir / w) for w in ("demo.md", "demo.json", "demo.png"))
-        out.print(f"wrote {safe_text(written)} in {time.perf_counter() - t0:.1f} s")
+    written = ", ".join(str(outdir / w) for w in ("demo.md", "demo.json", "demo.png"))
+    say_done(out, args, f"wrote {written} in {time.perf_counter() - t0:.1f} s")
     if viewer is not None:
         # says "wrote DEMO.rrd" itself (the recording's one announcement, wherever --rrd
         # put it); with --serve-web it then serves until Ctrl-C or SIGTERM

@@ -141,7 +141,7 @@ def run(args: argparse.Namespace) -> int:
         fair_default_configs,
         load_config,
     )
-    from ._output import console, each_log_line_once, print_markdown, safe_text
+    from ._output import console, each_log_line_once, print_markdown, safe_text, say_done
     from ._viewer_opts import open_viewer
 
     if args.configs:
@@ -200,7 +200,7 @@ def run(args: argparse.Namespace) -> int:
     print_markdown(out, md)
     for f in (args.json, args.markdown, args.plot):
         if f:
-            out.print(f"wrote {safe_text(f)}")
+            say_done(out, args, f"wrote {f}")
     if viewer is not None:
         viewer.close()  # with --serve-web this serves until Ctrl-C or SIGTERM
     return 0

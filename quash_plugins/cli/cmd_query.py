@@ -208,7 +208,7 @@ def _query_to_zarr(args, quash) -> int:
     ``query_many``'s (``LazyQuery.to_zarr`` applies the config's refine and presence)."""
     from ..core.errors import UsageError
     from ._config_opts import adapter_options
-    from ._output import console, print_json, safe_text
+    from ._output import console, print_json, safe_text, say_done
     from ._viewer_opts import viewer_requested
 
     if viewer_requested(args):
@@ -247,13 +247,13 @@ def _query_to_zarr(args, quash) -> int:
             f"{safe_text(r['query'])}: {r['matched']} of {n} items ({100 * r['share']:.2f}%)"
             f"{safe_text(said)}"
         )
-    out.print(f"wrote {safe_text(path)}")
+    say_done(out, args, f"wrote {path}")
     return 0
 
 
 def _report(args, cfg, lmap, results) -> None:
 
-    from ._output import console, print_json, safe_text, timings_table
+    from ._output import console, print_json, safe_text, say_done, timings_table
 
     if args.json:
         print_json(
@@ -306,4 +306,4 @@ def _report(args, cfg, lmap, results) -> None:
             )
     out.print(timings_table(results, width=out.width))
     if args.out:
-        out.print(f"wrote {safe_text(args.out)}")
+        say_done(out, args, f"wrote {args.out}")
