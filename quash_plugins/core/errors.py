@@ -10,7 +10,8 @@ from __future__ import annotations
 import difflib
 import importlib.util
 import sys
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
+from pathlib import Path
 
 
 class QuashError(Exception):
@@ -64,6 +65,93 @@ def close_names(name: str, known: Iterable[str], n: int = 3, cutoff: float = 0.5
     ['bed', 'beds', 'shed']
     """
     return difflib.get_close_matches(name, list(known), n=n, cutoff=cutoff)
+
+
+def near_paths(
+    path: Path,
+    suffixes: Iterable[str] | None = None,
+    keep: Callable[[Path], bool] | None = None,
+    limit: int = 3,
+    *,
+    cutoff: float = 0.8,
+    depth: int = 2,
+) -> list[str]:
+    """Existing paths whose names are close to a missing ``path``'s, written as ``path``
+    was (a relative path stays relative), for "Did you mean ...?".
+
+    Beside ``path``: the names with its stem and another suffix (``quash.yml`` ->
+    ``quash.yaml``), else names close to its own. When ``path``'s folder is missing
+    too, the same is looked for in the folders with a name close to that folder's
+    (``vlmap/vlmaps.h5df`` -> ``vlmap_cam/vlmaps_cam.h5df``). ``suffixes``: only files
+    with one of these suffixes; ``keep``: only the paths it accepts; ``cutoff``: how
+    alike a close name is (difflib's ratio; folders are matched at 0.6); ``depth``: how
+    many missing folders up are looked past. At most the first 1,000 entries of a folder
+    are looked at.
+
+    >>> import tempfile, pathlib
+    >>> d = pathlib.Path(tempfile.mkdtemp())
+    >>> (d / "quash.yaml").write_text("")
+    0
+    >>> [pathlib.Path(p).name for p in near_paths(d / "quash.yml")]
+    ['quash.yaml']
+    """
+    path = Path(path)
+    suffixes = tuple(suffixes) if suffixes is not None else None
+    folder = path.parent
+    if _is_dir(folder):
+        found = _near_in(folder, path.name, suffixes, keep, cutoff)
+    elif depth > 0 and folder.name and folder != folder.parent:
+        found = []  # the folder is missing: look in the folders named like it
+        for other in near_paths(folder, keep=_is_dir, cutoff=0.6, depth=depth - 1):
+            inside = Path(other) / path.name
+            if inside.exists() and _kept(inside, suffixes, keep):
+                found.append(str(inside))
+            else:
+                found += _near_in(Path(other), path.name, suffixes, keep, cutoff)
+    else:
+        return []
+    return found[:limit]
+
+
+def _near_in(
+    folder: Path,
+    name: str,
+    suffixes: tuple[str, ...] | None,
+    keep: Callable[[Path], bool] | None,
+    cutoff: float,
+) -> list[str]:
+    """Entries of ``folder`` with ``name``'s stem, else a name close to it (closest first)."""
+    import itertools
+    import os
+
+    try:
+        with os.scandir(folder) as it:
+            names = sorted(e.name for e in itertools.islice(it, 1000) if not e.name.startswith("."))
+    except OSError:
+        return []
+    if suffixes is not None:
+        names = [n for n in names if Path(n).suffix in suffixes and (folder / n).is_file()]
+    stem = Path(name).stem
+    for close in ([n for n in names if Path(n).stem == stem], close_names(name, names, 10, cutoff)):
+        kept = [str(folder / n) for n in close if keep is None or keep(folder / n)]
+        if kept:
+            return kept
+    return []
+
+
+def _kept(
+    path: Path, suffixes: tuple[str, ...] | None, keep: Callable[[Path], bool] | None
+) -> bool:
+    if suffixes is not None and not (path.suffix in suffixes and path.is_file()):
+        return False
+    return keep is None or keep(path)
+
+
+def _is_dir(path: Path) -> bool:
+    try:
+        return path.is_dir()
+    except OSError:
+        return False
 
 
 def check_options(section: str, options: Iterable[object], known: Iterable[str]) -> None:

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from . import registry
-from .errors import MapFormatError, PluginError, QuashError
+from .errors import MapFormatError, PluginError, QuashError, near_paths
 from .types import LatentMap, record_inputs
 
 log = logging.getLogger(__name__)
@@ -225,7 +225,9 @@ def _maps_inside(source: Any, limit: int = 64) -> str:
 
 def check_map_path(path: Path) -> Path:
     """Refuse a map path that does not exist, is a symbolic-link loop or a broken link,
-    or cannot be inspected; the message names the path and the fix."""
+    or cannot be inspected; the message names the path and the fix: for a missing map,
+    the maps with a near name (:func:`~quash_plugins.core.errors.near_paths`: another
+    suffix, a close name, or in a folder named like a missing one)."""
     try:
         path.stat()
     except FileNotFoundError:
@@ -233,7 +235,9 @@ def check_map_path(path: Path) -> Path:
             raise MapFormatError(
                 f"Map {path} is a symbolic link to {_readlink(path)}, which does not exist."
             ) from None
-        raise MapFormatError(f"Map not found: {path}. Check the path.") from None
+        near = near_paths(path, keep=_a_map)
+        hint = f"Did you mean {' or '.join(near)}?" if near else "Check the path."
+        raise MapFormatError(f"Map not found: {path}. {hint}") from None
     except OSError as exc:
         if exc.errno == errno.ELOOP:
             raise MapFormatError(
@@ -242,6 +246,12 @@ def check_map_path(path: Path) -> Path:
             ) from None
         raise MapFormatError(_os_message(path, exc)) from None
     return path
+
+
+def _a_map(path: Path) -> bool:
+    """Whether an adapter claims or reads ``path``: a near name offered for a missing map
+    is a map (``scene.npz`` for ``scene.npy``), not the recording or taxonomy beside it."""
+    return claimed_by(path) is not None or any(_sniffs(cls, path) for _, cls in _ordered_adapters())
 
 
 def _readlink(path: Path) -> str:

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
-from .errors import ConfigError, closest
+from .errors import ConfigError, closest, near_paths
 
 #: A ``key: value`` entry of a config line (block or flow style) with a plain value.
 _ENTRY_RE = re.compile(r"\b([a-z_]+):[ \t]+([^\s,{}\[\]#'\"]+)")
@@ -168,7 +168,7 @@ def resolve_config_path(ref: str | Path) -> Path:
     if NAME_RE.match(text):
         return find_shipped(text).path
     shipped = [c.name for c in shipped_configs()]
-    near = _near_files(path) + _near_shipped(path, shipped)
+    near = near_paths(path, suffixes=(".yaml", ".yml")) + _near_shipped(path, shipped)
     if near:
         hint = f" Did you mean {' or '.join(near)}?"
     else:
@@ -177,22 +177,6 @@ def resolve_config_path(ref: str | Path) -> Path:
             f"shipped: {', '.join(shipped)}."
         )
     raise ConfigError(f"Config file not found: {text}.{hint}")
-
-
-def _near_files(path: Path) -> list[str]:
-    """YAML files beside ``path`` with a close name (``quash.yml`` -> ``quash.yaml``)."""
-    import difflib
-
-    folder = path.parent
-    try:
-        names = sorted(
-            p.name for p in folder.iterdir() if p.suffix in (".yaml", ".yml") and p.is_file()
-        )
-    except OSError:
-        return []
-    same_stem = [n for n in names if Path(n).stem == path.stem]
-    close = same_stem or difflib.get_close_matches(path.name, names, n=3, cutoff=0.8)
-    return [n if str(folder) == "." else str(folder / n) for n in close]
 
 
 def _near_shipped(path: Path, shipped: list[str]) -> list[str]:

@@ -566,6 +566,25 @@ def test_a_scene_folder_whose_vlmap_folder_has_no_file_says_so(tmp_path, capsys)
         read_map(tmp_path / "cam")
 
 
+def test_a_missing_map_path_names_the_map_with_a_near_name(tmp_path, monkeypatch):
+    """A mistyped map path said only 'Map not found: ... Check the path.' (the config
+    loader says 'Did you mean quash.yaml?'). It now names the maps with a near name: the
+    camera-base file for the mobile-base path typed, another suffix, a close file name;
+    files no adapter reads (a recording beside the map) are not offered."""
+    arrays, cam = camera_arrays()
+    write_vlmaps_h5df(tmp_path / "vlmap_cam" / "vlmaps_cam.h5df", arrays, camera=cam)
+    (tmp_path / "vlmap_cam" / "vlmaps.rrd").write_bytes(b"RRF2" + bytes(16))
+    monkeypatch.chdir(tmp_path)
+    near = "Did you mean vlmap_cam/vlmaps_cam.h5df?"
+    for typed in ("vlmap/vlmaps.h5df", "vlmap_cam/vlmaps_cam.h5", "vlmap_cam/vlmaps.h5df"):
+        with pytest.raises(MapFormatError) as info:
+            read_map(typed)
+        assert str(info.value) == f"Map not found: {typed}. {near}"
+    with pytest.raises(MapFormatError) as info:
+        read_map(tmp_path / "elsewhere" / "scene.npz")
+    assert str(info.value).endswith("scene.npz. Check the path.")
+
+
 def test_a_scene_folder_whose_map_has_a_forks_name_names_that_file(tmp_path, capsys):
     """A fork saves vlmap/vlmaps-lseg-0.05.h5df; the scene folder was refused with 'has
     no vlmaps.h5df ... build or copy the map', as if there were none."""

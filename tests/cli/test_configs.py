@@ -128,6 +128,9 @@ def test_a_missing_config_suggests_the_near_names(tmp_path, monkeypatch, capsys)
     (tmp_path / "sub" / "quash.yaml").write_text("encoder: minilm\n")
     with pytest.raises(ConfigError, match=r"Did you mean sub/quash\.yaml\?"):
         resolve_config_path("sub/quash.yml")
+    # a mistyped folder: the file in the folder of a near name
+    with pytest.raises(ConfigError, match=r"Did you mean sub/quash\.yaml\?"):
+        resolve_config_path("subs/quash.yaml")
     with pytest.raises(ConfigError, match=r"shipped: .*demo:vlmaps"):
         resolve_config_path("nothing-like-it")
     # a shipped config's own file name, as 'quash configs' lists the files: that one
