@@ -246,13 +246,18 @@ def _refuse_empty(parser: argparse.ArgumentParser, args: argparse.Namespace) -> 
 
 @contextlib.contextmanager
 def _dask_clients_closed() -> Iterator[None]:
-    """Close the Dask clients a command started (``--backend dask``) when it ends."""
+    """Close the Dask clients a command started (``--backend dask``) when it ends;
+    quietly after Ctrl-C or SIGTERM, so that the command's one line is all it says."""
+    interrupted = False
     try:
         yield
+    except KeyboardInterrupt:
+        interrupted = True
+        raise
     finally:
         started = sys.modules.get("quash_plugins.engine.dask_client")
         if started is not None:
-            started.close_started_clients()
+            started.close_started_clients(quiet=interrupted)
 
 
 #: The negative axes ``--up`` takes, which argparse would read as options of their own.

@@ -8,6 +8,7 @@ import logging
 import os
 import signal
 import threading
+from collections.abc import Iterator
 from typing import Any
 
 from ..core.errors import QuashError
@@ -240,10 +241,16 @@ def local_cluster_client(
         "TLS, this process's own certificate" if security is not None else "plain TCP",
     )
 
-    def _close() -> None:
+    def _close(quiet: bool = False) -> None:
         try:
-            client.close()
-            cluster.close()
+            if quiet:
+                _silence_workers(client)
+                with _logging_silenced():
+                    client.close()
+                    cluster.close()
+            else:
+                client.close()
+                cluster.close()
         except Exception:  # noqa: BLE001 - best effort at interpreter exit
             pass
         for name in RESTART_LOGGERS:  # a cluster started later logs as Dask does
@@ -252,6 +259,63 @@ def local_cluster_client(
     atexit.register(_close)
     _STARTED.append(_close)
     return client
+
+
+#: Seconds :func:`_silence_workers` waits for the workers to answer.
+SILENCE_TIMEOUT_S = 5.0
+
+
+def _silence_logging() -> None:
+    """Run on each worker of quash's own LocalCluster when the command is interrupted:
+    the worker is about to be closed mid-task, and says so in warnings and tracebacks
+    (tasks cancelled, heartbeats to a scheduler that is closing) the user does not need."""
+    logging.disable(logging.CRITICAL)
+
+
+def _silence_workers(client: Any, timeout: float = SILENCE_TIMEOUT_S) -> None:
+    """:func:`_silence_logging` on every worker of ``client``, waiting at most ``timeout``
+    seconds (a worker that does not answer is closed all the same)."""
+    thread = threading.Thread(
+        target=lambda: client.run(_silence_logging, on_error="ignore"),
+        name="quash: silence Dask workers",
+        daemon=True,
+    )
+    thread.start()
+    thread.join(timeout)
+
+
+@contextlib.contextmanager
+def _logging_silenced() -> Iterator[None]:
+    """No log record in this process while quash's own cluster is closed on Ctrl-C (its
+    scheduler and nannies run here), and afterwards none of the client's abandoned
+    waits ("Task exception was never retrieved ... AllExit")."""
+    _drop_abandoned_waits()
+    previous = logging.root.manager.disable
+    logging.disable(logging.CRITICAL)
+    try:
+        yield
+    finally:
+        logging.disable(previous)
+
+
+class _AbandonedWaits(logging.Filter):
+    """Drops asyncio's "Task exception was never retrieved" of a wait of a Dask client
+    that was closed while it waited (``distributed.client.AllExit``, Dask's own signal
+    to stop waiting, which no caller retrieves once the command was interrupted)."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        exc = record.exc_info[1] if record.exc_info else None
+        return not (
+            str(record.msg).startswith("Task exception was never retrieved")
+            and type(exc).__name__ == "AllExit"
+            and type(exc).__module__.startswith("distributed")
+        )
+
+
+def _drop_abandoned_waits() -> None:
+    logger = logging.getLogger("asyncio")
+    if not any(isinstance(f, _AbandonedWaits) for f in logger.filters):
+        logger.addFilter(_AbandonedWaits())
 
 
 #: Seconds :func:`check_scheduler_address` waits for a TCP connection to the scheduler.
@@ -376,7 +440,8 @@ def client_from_cli(address: str | None) -> Any:
             "its dashboard (a web page, not the scheduler) on 8787."
         ) from None
     atexit.register(client.close)
-    _STARTED.append(client.close)
+    # the user's own scheduler and workers: closed as Dask closes them, quiet or not
+    _STARTED.append(lambda quiet=False: client.close())
     return client
 
 
@@ -385,18 +450,23 @@ def client_from_cli(address: str | None) -> Any:
 _STARTED: list[Any] = []
 
 
-def close_started_clients() -> int:
+def close_started_clients(quiet: bool = False) -> int:
     """Close every client and local cluster this module started; how many were closed.
 
     The ``quash`` command calls it when a command ends, so that a command run inside a
     longer-lived process (a notebook, a test) leaves no default client behind for the
     next Dask computation to find. Also registered at interpreter exit.
+
+    ``quiet`` (the command was interrupted: Ctrl-C or SIGTERM): a local cluster quash
+    started is closed without a word from its workers, scheduler or client, which
+    would otherwise print the tasks they cancel and heartbeat tracebacks under the
+    command's one line. A normal end closes as Dask does, errors and all.
     """
     n = 0
     while _STARTED:
         close = _STARTED.pop()
         try:
-            close()
+            close(quiet=quiet)
         except Exception:  # noqa: BLE001 - closing must never hide the command's result
             log.debug("closing a Dask client failed", exc_info=True)
         n += 1

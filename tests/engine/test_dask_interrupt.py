@@ -8,6 +8,7 @@ worker process it starts); the command closes the cluster and says "interrupted"
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -130,3 +131,83 @@ def _in_session(p, sid: int) -> bool:
         return os.getsid(p.pid) == sid and p.status() != psutil.STATUS_ZOMBIE
     except (OSError, psutil.Error):
         return False
+
+
+@needs_sigmask
+def test_ctrl_c_of_a_real_query_mid_compute_says_one_line(tmp_path):
+    """``quash query MAP.zarr chair --backend dask --out r.zarr``, Ctrl-C to its process
+    group once the result store is being written: the workers (cancelled tasks,
+    heartbeats to a closing scheduler) and the client (an abandoned wait's AllExit) used
+    to print warnings and tracebacks under "interrupted". Now: that line only, 130, no
+    process left and no temporary in place of the output."""
+    from quash_plugins.adapters import convert_map, write_npz_map
+    from quash_plugins.core.types import LatentMap
+
+    rows = 3_000_000  # 96 MiB of embeddings: seconds of compute on a worker
+    emb = np.zeros((rows, 8), dtype=np.float32)
+    emb[::2, 0] = emb[1::2, 1] = 1
+    npz = write_npz_map(LatentMap(emb, positions=np.zeros((rows, 3))), tmp_path / "s.npz")
+    scene = convert_map(npz, tmp_path / "scene.zarr")
+    npz.unlink()
+    config = tmp_path / "c.yaml"
+    config.write_text(
+        "encoder: {name: table, table: {chair: [1, 0, 0, 0, 0, 0, 0, 0], "
+        "other: [0, 1, 0, 0, 0, 0, 0, 0]}}\nnegatives: [other]\ninstances: false\n"
+        "cache: false\nchunk_mb: 64\n"
+    )
+    out = tmp_path / "r.zarr"
+    cmd = [sys.executable, "-m", "quash_plugins.cli.main", "-q", "query", str(scene), "chair"]
+    cmd += ["-c", str(config), "--backend", "dask", "--workers", "1", "--out", str(out)]
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True, text=True
+    )
+    try:
+        deadline = time.monotonic() + 120
+        while not list(tmp_path.glob(".r.zarr.quash-tmp-*")):  # the compute has begun
+            assert proc.poll() is None, proc.communicate()
+            assert time.monotonic() < deadline, "the result store was never begun"
+            time.sleep(0.02)
+        os.killpg(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert (proc.returncode, err) == (130, "interrupted\n")
+    assert not out.exists()
+    deadline = time.monotonic() + 10
+    while True:
+        left = [p for p in psutil.process_iter(["pid", "status"]) if _in_session(p, proc.pid)]
+        if not left or time.monotonic() > deadline:
+            break
+        time.sleep(0.2)
+    assert left == []
+
+
+def test_the_command_closes_its_clients_quietly_only_when_interrupted(monkeypatch):
+    from quash_plugins.cli import main as cli
+
+    seen = []
+    monkeypatch.setattr(dask_client, "_STARTED", [])
+    for stop in (KeyboardInterrupt, None):
+        dask_client._STARTED.append(lambda quiet=False: seen.append(quiet))
+        expect = pytest.raises(KeyboardInterrupt) if stop else contextlib.nullcontext()
+        with expect, cli._dask_clients_closed():
+            if stop:
+                raise stop
+    assert seen == [True, False]
+
+
+def test_only_abandoned_waits_of_a_closed_client_are_dropped():
+    import logging
+
+    from distributed.client import AllExit
+
+    def record(msg, exc):
+        return logging.LogRecord(
+            "asyncio", logging.ERROR, __file__, 1, msg, None, (type(exc), exc, None)
+        )
+
+    keep = dask_client._AbandonedWaits().filter
+    assert not keep(record("Task exception was never retrieved\nfuture: ...", AllExit()))
+    assert keep(record("Task exception was never retrieved\nfuture: ...", ValueError("x")))
+    assert keep(record("Exception in callback ...", AllExit()))
