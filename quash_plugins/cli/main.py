@@ -285,6 +285,14 @@ def _join_negative_axes(argv: Sequence[str]) -> list[str]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:  # Ctrl-C before the command runs (imports, the parser)
+        print("interrupted", file=sys.stderr)
+        return 130
+
+
+def _main(argv: Sequence[str] | None) -> int:
     parser = build_parser()
     argv = _join_negative_axes(sys.argv[1:] if argv is None else argv)
     args, extra = parser.parse_known_args(argv)

@@ -178,3 +178,16 @@ def test_sigkill_mid_write_leaves_a_temporary_output_the_next_write_removes(tmp_
     assert f"quash process {proc.pid}" in again.stderr
     assert _hidden(out) == []
     assert dst.exists()
+
+
+def test_ctrl_c_while_the_parser_is_built_is_one_line_and_130(monkeypatch, capsys):
+    """Ctrl-C before the command runs (quash imports its commands while it builds its
+    parser) used to end in a traceback and death by SIGINT."""
+    from quash_plugins.cli import main as cli
+
+    def interrupted():
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "build_parser", interrupted)
+    assert cli.main(["plugins"]) == 130
+    assert capsys.readouterr().err == "interrupted\n"
