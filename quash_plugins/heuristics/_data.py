@@ -26,7 +26,7 @@ def read_word_list(spec: str | list[str] | None, default: str, what: str) -> lis
         path = Path(str(spec)).expanduser()
         where = str(path)
         if not path.exists():
-            raise _not_found(path, what)
+            raise _not_found(path, what, suffixes=(".txt", ".yaml", ".yml"))
         if path.suffix in (".yaml", ".yml"):
             from ..core.yaml_files import load_yaml
 
@@ -44,8 +44,21 @@ def read_word_list(spec: str | list[str] | None, default: str, what: str) -> lis
     return items
 
 
-def read_mapping(spec: str | dict[str, Any] | None, default: str | None, what: str) -> dict:
-    """A YAML mapping from ``spec`` (path, dict) or the shipped ``default`` file."""
+def read_mapping(
+    spec: str | dict[str, Any] | None,
+    default: str | None,
+    what: str,
+    *,
+    form: tuple[str, str] | None = None,
+    option: str = "",
+) -> dict:
+    """A YAML mapping from ``spec`` (path, dict) or the shipped ``default`` file.
+
+    ``form``: what a key and an item of its list are (``("label", "sub-class")``): a file
+    that is not a mapping is answered with the form, and a list with an example built
+    from its own first entries. ``option``: a sentence naming the option that names the
+    file and what to give it, said when the file is missing.
+    """
     from ..core.yaml_files import load_yaml, load_yaml_text
 
     if isinstance(spec, dict):
@@ -57,24 +70,56 @@ def read_mapping(spec: str | dict[str, Any] | None, default: str | None, what: s
         return load_yaml_text(text, default)
     path = Path(str(spec)).expanduser()
     if not path.exists():
-        raise _not_found(path, what)
+        raise _not_found(path, what, option, (".yaml", ".yml", ".json"))
     data, _ = load_yaml(path)
     if not isinstance(data, dict):
-        raise ConfigError(f"{path}: expected a YAML mapping for the {what}.")
+        raise ConfigError(_not_a_mapping(path, data, what, form))
     return data
 
 
-def _not_found(path: Path, what: str) -> ConfigError:
+def _not_a_mapping(path: Path, data: Any, what: str, form: tuple[str, str] | None) -> str:
+    """``path`` holds ``data``, not a mapping: the form expected and, for a list, the
+    form written with its own first entries (``- chair`` -> ``chair: [SUB-CLASS, ...]``)."""
+    if form is None:
+        return f"{path}: expected a YAML mapping for the {what}."
+    key, item = form
+    message = f"{path}: expected a YAML mapping {{{key}: [{item}, ...]}} for the {what}"
+    names = [
+        str(next(iter(e))) if isinstance(e, dict) and len(e) == 1 else " ".join(str(e).split())
+        for e in (data if isinstance(data, list) else [])
+        if isinstance(e, (str, int, float)) or (isinstance(e, dict) and len(e) == 1)
+    ]
+    if not isinstance(data, list) or len(names) < len(data) or not names:
+        got = "an empty file" if data is None else f"a {type(data).__name__}"
+        return f"{message}; got {got}" + (f", {data!r}." if isinstance(data, str) else ".")
+    first, *rest = names
+    second = f"\n  {rest[0]}: []" if rest else ""
+    items = f"{item}es" if item.endswith("s") else f"{item}s"
+    return (
+        f"{message}; it holds a list of {len(names)} {key}s. Give each {key} as a key with "
+        f"its list of {items} (an empty list: none), e.g.:\n  {first}: [{item.upper()}, ...]"
+        f"{second}"
+    )
+
+
+def _not_found(
+    path: Path, what: str, option: str = "", suffixes: tuple[str, ...] | None = None
+) -> ConfigError:
     """A missing file, naming the folder a relative path was read from: the working
     directory, since a config given as a mapping (a dict, a section of a Hydra config)
-    has no folder of its own (a YAML config's paths are made absolute from its folder)."""
+    has no folder of its own (a YAML config's paths are made absolute from its folder);
+    the files beside it with a near name, and the ``option`` that names it."""
+    from ..core.errors import near_paths
+
     message = f"{what.capitalize()} file not found: {path}"
     if not path.is_absolute():
         message += (
             f" (a relative path is read from the working directory, {Path.cwd()}; a config "
             "given as a mapping has no folder of its own: give an absolute path)"
         )
-    return ConfigError(message)
+    near = near_paths(path, suffixes)
+    message += f". Did you mean {' or '.join(near)}?" if near else "."
+    return ConfigError(f"{message} {option}".rstrip())
 
 
 def _lines(text: str) -> list[str]:

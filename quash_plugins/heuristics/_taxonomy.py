@@ -24,9 +24,17 @@ _QUERY_FILE_KEYS = frozenset(
 )
 
 
-def load_taxonomy(spec: str | dict | None) -> dict[str, list[str]]:
-    """``{label: [sub-class, ...]}`` from a YAML file or a dict; ``null`` means no sub-classes."""
-    data = read_mapping(spec, None, "taxonomy")
+def load_taxonomy(spec: str | dict | None, key: str = "file") -> dict[str, list[str]]:
+    """``{label: [sub-class, ...]}`` from a YAML file or a dict; ``null`` means no sub-classes.
+
+    ``key``: the heuristic's option that named the file, said when it is missing.
+    """
+    option = (
+        f"The heuristic's {key!r} option names it: give a YAML file of {{label: [sub-class, "
+        "...]} (quash make-scene writes one, SCENE.taxonomy.yaml), or leave it out to use "
+        "the map's label names."
+    )
+    data = read_mapping(spec, None, "taxonomy", form=("label", "sub-class"), option=option)
     where = spec if isinstance(spec, str) else "the taxonomy"
     if data and set(data) <= _QUERY_FILE_KEYS and ({"present", "absent"} & set(data)):
         raise ConfigError(
@@ -187,7 +195,8 @@ class TaxonomyHeuristic(Heuristic):
         if self.n_synonyms < 0 or (self.n_antonyms is not None and self.n_antonyms < 0):
             raise ConfigError("Heuristic 'taxonomy': n_synonyms and n_antonyms must be >= 0.")
         spec = file if file is not None else taxonomy
-        self._tax = load_taxonomy(spec) if spec is not None else None
+        key = "file" if file is not None else "taxonomy"
+        self._tax = load_taxonomy(spec, key) if spec is not None else None
 
     def _labels(self, context: ExpansionContext) -> dict[str, list[str]]:
         if self._tax is not None:

@@ -158,6 +158,42 @@ def test_taxonomy_sampling_and_seed(tmp_path):
     assert set(full.negatives) == {"chair", *TAX["chair"], "lamp", *TAX["lamp"], "wall"}
 
 
+def test_a_missing_taxonomy_file_names_its_option_and_a_near_file(tmp_path):
+    """'Taxonomy file not found: PATH' gave no fix: it now names the option that names
+    the file (file, or taxonomy when the path was given there), what to give it, and a
+    file beside it with a near name."""
+    (tmp_path / "tax.yml").write_text(yaml.safe_dump(TAX))
+    with pytest.raises(ConfigError) as info:
+        registry.create("heuristics", "taxonomy", file=str(tmp_path / "tax.yaml"))
+    text = str(info.value)
+    assert text.startswith(f"Taxonomy file not found: {tmp_path / 'tax.yaml'}. ")
+    assert f"Did you mean {tmp_path / 'tax.yml'}?" in text
+    assert "The heuristic's 'file' option names it: give a YAML file of {label: [sub-class" in text
+    with pytest.raises(ConfigError) as info:
+        registry.create("heuristics", "taxonomy", taxonomy=str(tmp_path / "none" / "t.yaml"))
+    assert "Did you mean" not in str(info.value)
+    assert "The heuristic's 'taxonomy' option names it" in str(info.value)
+
+
+def test_a_taxonomy_file_holding_a_list_is_shown_the_form_with_its_labels(tmp_path):
+    """A plain YAML list of labels said only 'expected a YAML mapping': the form is now
+    shown, written with the file's own first labels."""
+    f = tmp_path / "labels.yaml"
+    f.write_text("- chair\n- coffee table\n- lamp\n")
+    with pytest.raises(ConfigError) as info:
+        registry.create("heuristics", "label-list", file=str(f))
+    assert str(info.value) == (
+        f"{f}: expected a YAML mapping {{label: [sub-class, ...]}} for the taxonomy; it holds "
+        "a list of 3 labels. Give each label as a key with its list of sub-classes (an empty "
+        "list: none), e.g.:\n  chair: [SUB-CLASS, ...]\n  coffee table: []"
+    )
+    f.write_text("chair\n")
+    with pytest.raises(
+        ConfigError, match=r"\{label: \[sub-class, \.\.\.\]\} for the taxonomy; got a str"
+    ):
+        registry.create("heuristics", "taxonomy", file=str(f))
+
+
 def test_taxonomy_resolves_non_label_through_encoder(caplog):
     table = {
         "chair": [1, 0, 0, 0],
