@@ -67,6 +67,7 @@ from ._vlmaps_common import (
     load_label_names,
     mobile_base_positions,
     mobile_grid_size,
+    refuse_camera_base_gs,
     rgb_to_uint8,
 )
 
@@ -134,7 +135,8 @@ class VLMapsAdapter(MapAdapter):
     gs
         Grid size in cells of mobile-base maps (VLMaps ``map_config.grid_size``). Read
         from ``occupied_ids`` when the file has it; a value here must then agree. Used
-        (default 1000) only for files without ``occupied_ids``.
+        (default 1000) only for files without ``occupied_ids``. A camera-base map has no
+        grid size: a value here is refused.
     cs
         Cell size in metres (``map_config.cell_size``, default 0.05) of mobile-base maps,
         whose files do not store it. Camera-base files store ``cs``; a value here must
@@ -304,6 +306,7 @@ class VLMapsAdapter(MapAdapter):
             pcd_min = np.asarray(f["pcd_min"][()], dtype=np.float64).reshape(-1)
             if pcd_min.shape != (3,) or not np.isfinite(pcd_min).all():
                 raise MapFormatError(f"{where}: field 'pcd_min' must be 3 finite numbers.")
+            refuse_camera_base_gs(opts["gs"], where)
             cs = opts["cs"]
             if "cs" in f:
                 stored = np.asarray(f["cs"][()], dtype=np.float64).reshape(-1)

@@ -113,20 +113,32 @@ def camera_base_positions(grid_pos: np.ndarray, pcd_min: np.ndarray, cs: float) 
 def check_against_stored(
     option: Any, stored: float, name: str, where: str, field: str, fix: str
 ) -> None:
-    """Raise :class:`MapFormatError` when a configured ``option`` disagrees with the map's.
+    """Raise :class:`MapFormatError` when a configured ``option`` disagrees with the map's,
+    or is not a number.
 
     The message names both values, the field they come from and the fix.
     """
     if option is None:
         return
     try:
-        same = bool(np.isclose(float(option), float(stored), rtol=1e-9, atol=0.0))
+        value = float(option)
     except (TypeError, ValueError):
-        same = False
-    if not same:
+        raise MapFormatError(f"{where}: option {name}={option!r} is not a number. {fix}") from None
+    if not np.isclose(value, float(stored), rtol=1e-9, atol=0.0):
         raise MapFormatError(
             f"{where}: option {name}={option!r} disagrees with the map, whose {field} gives "
             f"{name} = {stored:g}. {fix}"
+        )
+
+
+def refuse_camera_base_gs(option: Any, where: str) -> None:
+    """Refuse a ``gs`` option on a camera-base map, which has no grid size: its cells
+    are placed by ``pcd_min`` and ``cs``, so a ``gs`` would be silently ignored."""
+    if option is not None:
+        raise MapFormatError(
+            f"{where}: option gs={option!r} does not apply to a camera-base map: its cells "
+            "are placed by pcd_min and cs, with no grid size. Drop the gs option (it is read "
+            "only for mobile-base maps)."
         )
 
 

@@ -43,6 +43,7 @@ from ._vlmaps_common import (
     load_label_names,
     mobile_base_positions,
     mobile_grid_size,
+    refuse_camera_base_gs,
     rgb_to_uint8,
 )
 
@@ -110,7 +111,8 @@ class VLMapsLiveAdapter(MapAdapter):
     ----------
     gs
         Grid size of mobile-base maps; must agree with ``occupied_ids`` when the object
-        has it. Otherwise it overrides the object's ``gs`` (default 1000).
+        has it. Otherwise it overrides the object's ``gs`` (default 1000). Refused on a
+        camera-base map, which has no grid size.
     cs
         Cell size in metres; overrides the object's ``cs`` (default 0.05). For
         camera-base maps (whose ``cs`` ``VLMap.load_map`` reads from the file) it must agree.
@@ -240,6 +242,7 @@ class VLMapsLiveAdapter(MapAdapter):
                 raise MapFormatError(
                     f"{where}: a camera_base map needs attribute 'pcd_min' (3,); it is missing."
                 )
+            refuse_camera_base_gs(opts["gs"], where)
             positions = camera_base_positions(grid_pos, np.asarray(pcd_min).reshape(3), cs)
         elif pose_type == "mobile_base":
             occupied = getattr(getattr(source, "occupied_ids", None), "shape", None)

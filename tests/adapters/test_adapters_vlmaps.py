@@ -659,6 +659,41 @@ def test_an_option_from_the_configs_adapter_section_is_said_to_come_from_it(tmp_
     assert q.read_map(path, cs=0.04).voxel_size == pytest.approx(0.04)
 
 
+def test_an_option_a_camera_base_map_cannot_use_is_refused_saying_why(tmp_path):
+    """On a camera-base map a gs option was silently ignored (its cells are placed by
+    pcd_min and cs), and cs=abc said it 'disagrees with the map'. gs is now refused,
+    file and live object alike, and a value that is not a number is said to be one;
+    a gs from the config's adapter: section names that section."""
+    arrays, cam = camera_arrays()
+    path = write_vlmaps_h5df(tmp_path / "vlmap_cam" / "vlmaps_cam.h5df", arrays, camera=cam)
+    gs = "option gs=400 does not apply to a camera-base map: its cells are placed by pcd_min"
+    with pytest.raises(MapFormatError, match=gs + r".*Drop the gs option"):
+        read_map(path, gs=400)
+    live = SimpleNamespace(
+        grid_feat=arrays["grid_feat"], grid_pos=arrays["grid_pos"], **cam, gs=1000
+    )
+    live.map_config = {"pose_info": {"pose_type": "camera_base"}}
+    with pytest.raises(MapFormatError, match=gs):
+        read_map(live, "vlmaps-live", gs=400)
+    assert read_map(live, "vlmaps-live").n == 25  # its own gs attribute is no option
+    with pytest.raises(MapFormatError) as info:
+        read_map(path, cs="abc")
+    assert str(info.value) == (
+        f"{path}: option cs='abc' is not a number. Drop the cs option: camera-base maps "
+        "store their cell size."
+    )
+    mobile = write_vlmaps_h5df(tmp_path / "m.h5df", mobile_map(n=5, d=D))
+    with pytest.raises(MapFormatError, match=r"option gs='x' is not a number\. Drop the gs"):
+        read_map(mobile, gs="x")
+    config = tmp_path / "quash.yaml"
+    config.write_text(
+        "encoder: {name: table, table: {chair: [1, 0, 0, 0, 0, 0, 0, 0]}}\n"
+        "heuristic: none\nadapter: {name: vlmaps, gs: 1000}\ncache: false\n"
+    )
+    with pytest.raises(MapFormatError, match=r"gs=1000 comes from the adapter: section of"):
+        Quash.from_config(str(config)).read_map(path)
+
+
 def test_a_scene_with_both_releases_maps_says_which_it_read(tmp_path, caplog):
     """A scene folder holding VLMaps' 3D vlmap/vlmaps.h5df and the 2023 top-down
     map/grid_lseg_1.npy: auto reads the 3D map, as before, and now says so and how to
