@@ -208,7 +208,8 @@ class SinkRerunLogger(RerunLogger):
     * ``connect``: streams to a running viewer (``rerun+http://host:9876/proxy``); when
       nothing listens there, says so and carries on.
     * ``serve_web``: hosts a gRPC server and the web viewer on ``bind`` (127.0.0.1),
-      prints the URL, and keeps serving in :meth:`close` until SIGINT or SIGTERM.
+      prints the URL once, as soon as it is up, and keeps serving in :meth:`close`
+      until SIGINT or SIGTERM (saying so, and pointing at that URL).
     """
 
     def __init__(self, sinks: ViewerOptions, app_id: str = "quash", **options: Any) -> None:
@@ -481,8 +482,11 @@ class SinkRerunLogger(RerunLogger):
         rec.disconnect()
 
     def _serve_until_stopped(self) -> None:
+        # The URL was said once, when the viewer came up ("Rerun web viewer: URL", so it
+        # could be opened while the command worked): this line says that everything is
+        # logged and how to stop, and points there rather than printing the URL again.
         print(
-            f"Serving the Rerun web viewer at {self.url}\nPress Ctrl-C to stop.",
+            "Serving the Rerun web viewer (the URL above); press Ctrl-C to stop.",
             file=sys.stderr,
             flush=True,
         )
