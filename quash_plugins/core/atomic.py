@@ -25,6 +25,7 @@ two outputs of one command naming the same file; :func:`atomic_write` and
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import os
 import secrets
@@ -361,6 +362,9 @@ def atomic_dir(
         os.replace(tmp, path)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
+        # a worker process of the same command (Dask) may still write a chunk into it
+        # until the command stops its workers: removed again when this process exits
+        atexit.register(shutil.rmtree, tmp, ignore_errors=True)
         if old.exists() and not path.exists():
             os.replace(old, path)  # put the previous store back
         raise

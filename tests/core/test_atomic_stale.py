@@ -139,3 +139,21 @@ def test_the_names_made_carry_this_process_and_machine(tmp_path):
         m = atomic._STALE.fullmatch(name, len(f".{out}."))
         assert m is not None, name
         assert (m["kind"], m["host"], int(m["pid"])) == ("tmp", atomic._host(), os.getpid())
+
+
+def test_a_temporary_folder_written_into_after_an_interrupt_is_removed_at_exit(
+    tmp_path, monkeypatch
+):
+    """A Dask worker of the interrupted command may write one more chunk into the
+    temporary store after it was removed; it is removed again when the process exits."""
+    at_exit = []
+    monkeypatch.setattr(atomic.atexit, "register", lambda f, *a, **k: at_exit.append((f, a, k)))
+    out = tmp_path / "r.zarr"
+    with pytest.raises(KeyboardInterrupt), atomic.atomic_dir(out) as tmp:
+        (tmp / "c").mkdir(parents=True)
+        raise KeyboardInterrupt
+    assert not tmp.exists()
+    (tmp / "c" / "5").mkdir(parents=True)  # the late write
+    for f, a, k in at_exit:
+        f(*a, **k)
+    assert sorted(p.name for p in tmp_path.iterdir()) == []

@@ -181,6 +181,7 @@ def test_ctrl_c_of_a_real_query_mid_compute_says_one_line(tmp_path):
             break
         time.sleep(0.2)
     assert left == []
+    assert list(tmp_path.glob(".r.zarr.*")) == []  # no chunk a worker wrote late
 
 
 def test_the_command_closes_its_clients_quietly_only_when_interrupted(monkeypatch):
