@@ -53,6 +53,7 @@ from ..core.types import LatentMap, record_inputs
 from ._npz import encoder_record
 from ._rows import scan_finite
 from ._vlmaps_common import (
+    CS_FIX,
     DEFAULT_CS,
     FINITE_FIX,
     POSE_TYPES,
@@ -67,6 +68,7 @@ from ._vlmaps_common import (
     load_label_names,
     mobile_base_positions,
     mobile_grid_size,
+    option_number,
     refuse_camera_base_gs,
     rgb_to_uint8,
 )
@@ -337,7 +339,8 @@ class VLMapsAdapter(MapAdapter):
         else:
             gs, gs_from = mobile_grid_size(occupied, opts["gs"], where, "occupied_ids")
             check_cells_in_grid(grid_pos, gs, where, "grid_pos")
-            cs = DEFAULT_CS if opts["cs"] is None else opts["cs"]
+            cs = opts["cs"]
+            cs = DEFAULT_CS if cs is None else option_number(cs, "cs", where, CS_FIX)
             source["cs_from"] = "default" if opts["cs"] is None else "option"
             if opts["cs"] is None:  # mobile-base files never store it: positions scale by it
                 log.info(

@@ -120,15 +120,31 @@ def check_against_stored(
     """
     if option is None:
         return
-    try:
-        value = float(option)
-    except (TypeError, ValueError):
-        raise MapFormatError(f"{where}: option {name}={option!r} is not a number. {fix}") from None
-    if not np.isclose(value, float(stored), rtol=1e-9, atol=0.0):
+    if not np.isclose(option_number(option, name, where, fix), float(stored), rtol=1e-9, atol=0.0):
         raise MapFormatError(
             f"{where}: option {name}={option!r} disagrees with the map, whose {field} gives "
             f"{name} = {stored:g}. {fix}"
         )
+
+
+def option_number(option: Any, name: str, where: str, fix: str, *, whole: bool = False) -> Any:
+    """``option`` as a float (an int when ``whole``), else :class:`MapFormatError`:
+    ``WHERE: option NAME=VALUE is not a (whole) number. FIX`` (a bool is no number)."""
+    try:
+        value = float(option)
+        ok = not isinstance(option, bool) and (not whole or value.is_integer())
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        kind = "a whole number" if whole else "a number"
+        raise MapFormatError(f"{where}: option {name}={option!r} is not {kind}. {fix}")
+    return int(value) if whole else value
+
+
+#: What to give a ``cs`` option that is not a number.
+CS_FIX = (
+    "Give the map config's cell_size, in metres (VLMaps' default: 0.05), or drop the cs option."
+)
 
 
 def refuse_camera_base_gs(option: Any, where: str) -> None:
@@ -162,7 +178,11 @@ def mobile_grid_size(occupied_shape: Any, option: Any, where: str, field: str) -
         )
         return shape[0], field
     if option is not None:
-        return int(option), "option"
+        fix = (
+            "Give the map config's grid_size, in cells per side (VLMaps' default: 1000), or "
+            "drop the gs option."
+        )
+        return option_number(option, "gs", where, fix, whole=True), "option"
     log.warning(
         "%s: no %r to read the grid size from; assuming VLMaps' default gs = %d (pass the "
         "map config's grid_size as option gs if it differs)",

@@ -31,6 +31,7 @@ from ..core.interfaces import MapAdapter
 from ..core.types import LatentMap, record_inputs
 from ._rows import scan_finite
 from ._vlmaps_common import (
+    CS_FIX,
     DEFAULT_CS,
     POSE_TYPES,
     UP_AXIS,
@@ -43,6 +44,7 @@ from ._vlmaps_common import (
     load_label_names,
     mobile_base_positions,
     mobile_grid_size,
+    option_number,
     refuse_camera_base_gs,
     rgb_to_uint8,
 )
@@ -226,8 +228,10 @@ class VLMapsLiveAdapter(MapAdapter):
                 "attribute 'cs' (read from the camera-base file by VLMap.load_map)",
                 "Drop the cs option.",
             )
-        cs = opts["cs"] if opts["cs"] is not None else own_cs
-        cs = float(DEFAULT_CS if cs is None else cs)
+        if opts["cs"] is not None:
+            cs = option_number(opts["cs"], "cs", where, CS_FIX)
+        else:
+            cs = DEFAULT_CS if own_cs is None else own_cs
         if not np.isfinite(cs) or cs <= 0:
             raise MapFormatError(f"{where}: cell size cs must be a positive number; got {cs}.")
         source_meta: dict[str, Any] = {

@@ -694,6 +694,48 @@ def test_an_option_a_camera_base_map_cannot_use_is_refused_saying_why(tmp_path):
         Quash.from_config(str(config)).read_map(path)
 
 
+def test_a_gs_or_cs_option_that_is_not_a_number_names_the_option_and_the_fix(tmp_path):
+    """On a mobile-base file without occupied_ids, gs='x' said 'cannot read the VLMaps
+    map (invalid literal for int() ...)' and gs=12.5 was cut to 12; on a live map with no
+    cs of its own, cs='abc' failed with float()'s ValueError. Each now names the option,
+    the map and what to give it; a whole number written as text still reads."""
+    path = write_vlmaps_h5df(tmp_path / "m.h5df", mobile_map(n=5, d=D), drop=("occupied_ids",))
+    gs_fix = (
+        "Give the map config's grid_size, in cells per side (VLMaps' default: 1000), or drop "
+        "the gs option."
+    )
+    cs_fix = (
+        "Give the map config's cell_size, in metres (VLMaps' default: 0.05), or drop the cs option."
+    )
+    for bad in ("x", "12.5", 12.5, True):
+        with pytest.raises(MapFormatError) as info:
+            read_map(path, gs=bad)
+        assert str(info.value) == f"{path}: option gs={bad!r} is not a whole number. {gs_fix}"
+    assert read_map(path, gs="60").source["gs"] == 60
+    with pytest.raises(MapFormatError) as info:
+        read_map(path, cs="abc")
+    assert str(info.value) == f"{path}: option cs='abc' is not a number. {cs_fix}"
+    arrays = mobile_map(n=5, d=D)
+    live = SimpleNamespace(grid_feat=arrays["grid_feat"], grid_pos=arrays["grid_pos"])
+    live.map_config = {"pose_info": {"pose_type": "mobile_base"}}
+    adapter = registry.create("adapters", "vlmaps-live")
+    with pytest.raises(MapFormatError) as info:
+        adapter.read(live, cs="abc")
+    where = "live SimpleNamespace object"
+    assert str(info.value) == f"{where}: option cs='abc' is not a number. {cs_fix}"
+    with pytest.raises(MapFormatError) as info:
+        adapter.read(live, gs="x")
+    assert str(info.value) == f"{where}: option gs='x' is not a whole number. {gs_fix}"
+    assert adapter.read(live, cs="0.1").voxel_size == pytest.approx(0.1)
+    config = tmp_path / "quash.yaml"  # an option from the config says where it came from
+    config.write_text(
+        "encoder: {name: table, table: {chair: [1, 0, 0, 0, 0, 0, 0, 0]}}\n"
+        "heuristic: none\nadapter: {name: vlmaps, gs: x}\ncache: false\n"
+    )
+    with pytest.raises(MapFormatError, match=r"gs='x' comes from the adapter: section of"):
+        Quash.from_config(str(config)).read_map(path)
+
+
 def test_a_scene_with_both_releases_maps_says_which_it_read(tmp_path, caplog):
     """A scene folder holding VLMaps' 3D vlmap/vlmaps.h5df and the 2023 top-down
     map/grid_lseg_1.npy: auto reads the 3D map, as before, and now says so and how to
