@@ -14,7 +14,12 @@ from ._data import read_mapping
 
 def load_adjectives(file: str | dict | None = None) -> dict[str, list[str]]:
     """``{type: [adjective, ...]}`` in phrase order; the shipped list has 44 in 7 types."""
-    data = read_mapping(file, "adjectives.yaml", "adjective list")
+    option = (
+        "The adjectives heuristic's 'file' option names it: give a YAML file of {type: "
+        "[adjective, ...]} with at least 3 types, or leave it out to use the shipped list "
+        "(quash_plugins/data/adjectives.yaml)."
+    )
+    data = read_mapping(file, "adjectives.yaml", "adjective list", option=option)
     where = file if isinstance(file, str) else "the adjective list"
     out: dict[str, list[str]] = {}
     seen: set[str] = set()

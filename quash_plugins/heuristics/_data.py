@@ -9,11 +9,15 @@ from typing import Any
 from ..core.errors import ConfigError
 
 
-def read_word_list(spec: str | list[str] | None, default: str, what: str) -> list[str]:
+def read_word_list(
+    spec: str | list[str] | None, default: str, what: str, *, option: str = ""
+) -> list[str]:
     """Names from ``spec``: None for the shipped ``default`` file, a list, or a path.
 
     Text files hold one entry per line; blank lines and lines starting with ``#`` are
-    skipped; duplicates are dropped (first kept). YAML files hold a list.
+    skipped; duplicates are dropped (first kept). YAML files hold a list. ``option``: a
+    sentence naming the option that names the file and what to give it, said when the
+    file is missing.
     """
     if spec is None or spec == "default":
         text = resources.files("quash_plugins.data").joinpath(default).read_text(encoding="utf-8")
@@ -26,7 +30,7 @@ def read_word_list(spec: str | list[str] | None, default: str, what: str) -> lis
         path = Path(str(spec)).expanduser()
         where = str(path)
         if not path.exists():
-            raise _not_found(path, what, suffixes=(".txt", ".yaml", ".yml"))
+            raise _not_found(path, what, option, (".txt", ".yaml", ".yml"))
         if path.suffix in (".yaml", ".yml"):
             from ..core.yaml_files import load_yaml
 

@@ -31,7 +31,11 @@ class LexiconHeuristic(Heuristic):
         self.file = file
         if self.n_synonyms < 0 or self.n_antonyms < 0:
             raise ConfigError("Heuristic 'lexicon': n_synonyms and n_antonyms must be >= 0.")
-        self._words = read_word_list(file, "lexicon.txt", "lexicon")
+        option = (
+            "The lexicon heuristic's 'file' option names it: give a word list (one word a "
+            "line, or a YAML list), or leave it out to use the shipped one."
+        )
+        self._words = read_word_list(file, "lexicon.txt", "lexicon", option=option)
 
     def expand(self, query: str, context: ExpansionContext | None = None) -> QuerySet:
         ctx = context or ExpansionContext()

@@ -71,9 +71,13 @@ def add_map_negatives(
     if int(n) <= 0:
         return qs
     from ..core.text import encode_texts
-    from ._vocabulary import load_vocabulary, vocabulary_embeddings
+    from ._vocabulary import VOCABULARY_FIX, load_vocabulary, vocabulary_embeddings
 
-    names = load_vocabulary(vocabulary)
+    option = (
+        f"The 'vocabulary' option of map_negatives names it: {VOCABULARY_FIX}, or leave it "
+        "out to use the shipped vocabulary."
+    )
+    names = load_vocabulary(vocabulary, option)
     V = vocabulary_embeddings(encoder, names, cache)
     P = encode_texts(encoder, list(qs.positives), cache)
     if V.shape[1] != lmap.dim:

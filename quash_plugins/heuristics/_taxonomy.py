@@ -406,9 +406,13 @@ def _unlisted_names(spec: str | list[str] | None) -> frozenset[str]:
     """The normalised names of ``unlisted`` (empty when off)."""
     if spec is None:
         return frozenset()
-    from ._vocabulary import load_vocabulary
+    from ._vocabulary import VOCABULARY_FIX, load_vocabulary
 
-    names = load_vocabulary(None if spec == "vocabulary" else spec)
+    option = (
+        f"The heuristic's 'unlisted' option names it: {VOCABULARY_FIX}, 'vocabulary' for "
+        "the shipped vocabulary, or leave it out to turn it off."
+    )
+    names = load_vocabulary(None if spec == "vocabulary" else spec, option)
     return frozenset(normalise_name(n) for n in names)
 
 

@@ -25,11 +25,24 @@ _MEMO: dict[tuple[str, str], np.ndarray] = {}
 _MEMO_MAX = 8
 
 
-def load_vocabulary(spec: str | Sequence[str] | None = None) -> list[str]:
-    """Vocabulary names: the shipped list (1,000+ everyday names), a list or a file."""
-    return read_word_list(
-        spec if not isinstance(spec, tuple) else list(spec), "vocabulary.txt", "vocabulary"
-    )
+#: What to give a missing vocabulary file (after "The ... option names it: ").
+VOCABULARY_FIX = "give a file of names (one a line, or a YAML list)"
+
+
+def load_vocabulary(
+    spec: str | Sequence[str] | None = None,
+    option: str = (
+        f"The heuristic's 'vocabulary' option names it: {VOCABULARY_FIX}, or leave it out "
+        "to use the shipped vocabulary."
+    ),
+) -> list[str]:
+    """Vocabulary names: the shipped list (1,000+ everyday names), a list or a file.
+
+    ``option``: a sentence naming the option that named the file and what to give it,
+    said when the file is missing.
+    """
+    spec = spec if not isinstance(spec, tuple) else list(spec)
+    return read_word_list(spec, "vocabulary.txt", "vocabulary", option=option)
 
 
 def vocabulary_embeddings(encoder: Encoder, names: Sequence[str], cache: Any = None) -> np.ndarray:

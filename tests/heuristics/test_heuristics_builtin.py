@@ -175,6 +175,57 @@ def test_a_missing_taxonomy_file_names_its_option_and_a_near_file(tmp_path):
     assert "The heuristic's 'taxonomy' option names it" in str(info.value)
 
 
+@pytest.mark.parametrize(
+    ("make", "kind", "option"),
+    [
+        (
+            lambda f: registry.create("heuristics", "adjectives", file=f),
+            "Adjective list",
+            "The adjectives heuristic's 'file' option names it: give a YAML file of {type: "
+            "[adjective, ...]}",
+        ),
+        (
+            lambda f: registry.create("heuristics", "lexicon", file=f),
+            "Lexicon",
+            "The lexicon heuristic's 'file' option names it: give a word list",
+        ),
+        (
+            lambda f: registry.create("heuristics", "vocabulary", vocabulary=f),
+            "Vocabulary",
+            "The heuristic's 'vocabulary' option names it: give a file of names",
+        ),
+        (
+            lambda f: registry.create("heuristics", "auto", vocabulary=f)._vocabulary(),
+            "Vocabulary",
+            "The heuristic's 'vocabulary' option names it",
+        ),
+        (
+            lambda f: registry.create("heuristics", "label-list", unlisted=f),
+            "Vocabulary",
+            "The heuristic's 'unlisted' option names it: give a file of names (one a line, or "
+            "a YAML list), 'vocabulary' for the shipped vocabulary, or leave it out",
+        ),
+        (
+            lambda f: add_map_negatives(QuerySet("chair", ["chair"], []), None, None, vocabulary=f),
+            "Vocabulary",
+            "The 'vocabulary' option of map_negatives names it",
+        ),
+    ],
+)
+def test_a_missing_word_file_names_its_option_and_a_near_file(tmp_path, make, kind, option):
+    """The adjective, lexicon and vocabulary files said only 'FILE not found: PATH' (the
+    'unlisted' option's file was called a vocabulary file, naming no option): each now
+    names the option that names it, what to give it, and a file beside it with a near
+    name."""
+    near = tmp_path / "words.yml"
+    near.write_text("condition: [new]\nage: [old]\ncolour: [red]\n")
+    with pytest.raises(ConfigError) as info:
+        make(str(tmp_path / "words.yaml"))
+    text = str(info.value)
+    assert text.startswith(f"{kind} file not found: {tmp_path / 'words.yaml'}. ")
+    assert f"Did you mean {near}? {option}" in text
+
+
 def test_a_taxonomy_file_holding_a_list_is_shown_the_form_with_its_labels(tmp_path):
     """A plain YAML list of labels said only 'expected a YAML mapping': the form is now
     shown, written with the file's own first labels."""
