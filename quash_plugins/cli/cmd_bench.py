@@ -97,6 +97,21 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_backend_arguments(p)
 
 
+def _taxonomy_missing(spec: str) -> str:
+    """A missing ``--taxonomy``: the files beside it with a near name and what to give."""
+    from pathlib import Path
+
+    from ..core.errors import near_paths
+
+    near = near_paths(Path(spec), (".yaml", ".yml", ".json"))
+    hint = f" Did you mean {' or '.join(near)}?" if near else ""
+    return (
+        f"Taxonomy file not found: {spec}.{hint} --taxonomy names it: give a YAML file of "
+        "{label: [sub-class, ...]} (quash make-scene writes one, SCENE.taxonomy.yaml), or "
+        "leave it out to skip the rows that need it."
+    )
+
+
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
@@ -120,7 +135,7 @@ def run(args: argparse.Namespace) -> int:
         args.queries, args.queries_file, args.absent
     )
     if args.taxonomy and not Path(args.taxonomy).exists():
-        raise UsageError(f"Taxonomy file not found: {args.taxonomy}")
+        raise UsageError(_taxonomy_missing(args.taxonomy))
     if args.llm_base_url and not args.llm_model:
         raise UsageError(
             "--llm-base-url needs --llm-model (the model whose cached query sets to read)."

@@ -210,6 +210,18 @@ def test_bench_usage_errors(scene, tmp_path, capsys, args, message):
     assert not (tmp_path / "o").exists()
 
 
+def test_bench_missing_taxonomy_names_a_near_file_and_the_fix(scene, tmp_path, capsys):
+    """'Taxonomy file not found: PATH' gave no fix: --taxonomy's file is now answered,
+    as a heuristic's is, with a file beside it with a near name and what to give."""
+    (tmp_path / "tax.yml").write_text("chair: [armchair]\n")
+    args = ["bench", str(scene / "scene.npz"), "--out", str(tmp_path / "o")]
+    assert main([*args, "--taxonomy", str(tmp_path / "tax.yaml")]) == 2
+    err = " ".join(capsys.readouterr().err.split())
+    assert f"Taxonomy file not found: {tmp_path / 'tax.yaml'}. Did you mean " in err
+    assert f"{tmp_path / 'tax.yml'}? --taxonomy names it: give a YAML file of {{label:" in err
+    assert not (tmp_path / "o").exists()
+
+
 @pytest.mark.parametrize(
     "args,message",
     [
