@@ -20,9 +20,14 @@ Which reader a chunk task gets depends on what :attr:`LatentMap.embeddings` is:
   dtype), frames as their files, each reopened on the worker. The graph does not grow
   with the table. Only arrays that live in memory with no file behind them (a
   ConceptGraphs table, a legacy ``.pt`` OpenScene file) travel with their values;
-- numpy array (or anything else with ``shape``/``dtype``/slicing): chunks are sliced on
-  the client and travel inside the graph, which suits maps that fit in memory (an NPZ
-  map is read into memory: its rows travel in the graph; a zarr store does not).
+- numpy array in memory (an NPZ map, an array built in Python), given a distributed
+  client: its row chunks are scattered to the workers (``Client.scatter``), each chunk
+  once and to one worker, and the graph holds only their futures: a few kB whatever
+  the size of the map, where the rows inside the graph made Dask warn "Sending large
+  graph" (and the scheduler hold the whole map) from about 10 MB on. Not broadcast:
+  every worker would hold the whole map. Without a client (local threads), or for
+  anything else with ``shape``/``dtype``/slicing, chunks are sliced on the client and
+  travel inside the graph.
 """
 
 from __future__ import annotations
@@ -118,11 +123,32 @@ def _reader(emb: Any) -> tuple[Any, str | None]:
     return emb, None
 
 
-def as_dask(lmap: LatentMap, chunk_rows: int) -> Any:
+def _scattered(emb: np.ndarray, rows: int, client: Any) -> Any:
+    """``emb`` as a dask array of ``rows``-row chunks scattered to ``client``'s workers.
+
+    Each chunk is sent once, to one worker (spread over them); the graph holds only the
+    futures, which keep the chunks on the workers as long as the array lives.
+    """
+    da = require_dask()
+    parts = [emb[start : start + rows] for start in range(0, emb.shape[0], rows)]
+    # hash=False: fresh keys, without hashing every byte of the map, and no key shared
+    # with the previous pass's chunks while the scheduler releases them
+    futures = client.scatter(parts, hash=False)
+    meta = np.empty((0,) * emb.ndim, emb.dtype)
+    blocks = [
+        da.from_delayed(f, shape=p.shape, dtype=p.dtype, meta=meta)
+        for f, p in zip(futures, parts, strict=True)
+    ]
+    return da.concatenate(blocks, axis=0) if len(blocks) > 1 else blocks[0]
+
+
+def as_dask(lmap: LatentMap, chunk_rows: int, client: Any = None) -> Any:
     """``lmap.embeddings`` as an ``(N, D)`` dask array in chunks of ``chunk_rows`` rows.
 
     The values are the stored ones (not yet cast, checked or normalised; see
-    :func:`prepared_blocks`). Nothing is read until the array is computed.
+    :func:`prepared_blocks`). Nothing is read until the array is computed. With a
+    distributed ``client``, a numpy array in memory is scattered to its workers now,
+    chunk by chunk, rather than carried in the graph.
 
     Examples
     --------
@@ -151,6 +177,8 @@ def as_dask(lmap: LatentMap, chunk_rows: int) -> Any:
 
         name = f"quash-embeddings-{tokenize(token, chunks)}"
         return da.from_array(reader, chunks=chunks, name=name, lock=False, asarray=True)
+    if client is not None and isinstance(emb, np.ndarray) and emb.ndim == 2 and len(emb):
+        return _scattered(emb, rows, client)
     return da.from_array(emb, chunks=chunks, asarray=True)
 
 
@@ -161,14 +189,12 @@ def _prepare(block: np.ndarray, normalize: bool, source: dict, block_info: Any =
     return prepare_block(np.array(block, dtype=np.float32), start, normalize, source, owned=True)
 
 
-def prepared_blocks(lmap: LatentMap, chunk_rows: int) -> Any:
+def prepared_blocks(lmap: LatentMap, chunk_rows: int, client: Any = None) -> Any:
     """:func:`as_dask` cast to float32, checked for NaN/Inf and L2-normalised if asked.
 
     A bad row raises :class:`MapFormatError` naming its global row index.
     """
-    import numpy as np
-
-    x = as_dask(lmap, chunk_rows)
+    x = as_dask(lmap, chunk_rows, client)
     return x.map_blocks(
         _prepare,
         bool(lmap.normalize),

@@ -72,7 +72,14 @@ def scores_graph(
     rows = lmap.chunk_rows(int(chunk_bytes), extra_bytes_per_row(classifiers))
     warn_small_chunks(lmap, rows, int(chunk_bytes))
     warn_stored_chunks(lmap, rows, int(chunk_bytes))
-    emb = as_dask(lmap, rows)
+    try:  # an in-memory map is scattered to the workers here
+        emb = as_dask(lmap, rows, client)
+    except OSError as exc:
+        if exc.filename is not None:  # a file of the map, not the cluster
+            raise
+        raise _cluster_error(exc) from exc
+    except _cluster_errors() as exc:
+        raise _cluster_error(exc) from exc
     if held is None:
         held = ship(BlockScorer(classifiers, chunk_bytes))
     return emb.map_blocks(
