@@ -117,7 +117,10 @@ def _output_options(suppress: bool) -> argparse.ArgumentParser:
         "-q",
         "--quiet",
         action="store_true",
-        help="Only warnings and errors (the Hugging Face libraries': errors only).",
+        help=(
+            "Warnings, errors and the command's result; no progress, INFO or 'wrote' "
+            "lines (the Hugging Face libraries': errors only)."
+        ),
         **none,
     )
     g.add_argument("--debug", action="store_true", help="Show tracebacks on errors.", **none)

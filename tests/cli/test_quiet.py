@@ -93,3 +93,14 @@ def test_quiet_says_nothing_of_what_was_written(
             if command != "bench":  # bench names its folder's files in its tables
                 assert wrote.count(f.name) == 1, (f, done)
     assert result in said.out, said.out  # the command's own result, quiet or not
+
+
+def test_the_help_of_quiet_says_what_still_prints():
+    """``-q``'s help said "Only warnings and errors" while the result prints too (the
+    rule above): on the main parser and on every subcommand's."""
+    from quash_plugins.cli.main import build_parser, subcommand_parsers
+
+    parser = build_parser()
+    for p in [parser, *subcommand_parsers(parser).values()]:
+        (quiet,) = [a for a in p._actions if "--quiet" in a.option_strings]
+        assert "result" in quiet.help and "Only warnings" not in quiet.help, (p.prog, quiet.help)
