@@ -122,13 +122,15 @@ class _EscapeControls(logging.Filter):
 
 def say_done(out: Any, args: Any, text: str) -> None:
     """Print ``text``, a line that says what a command did rather than what it found
-    (``wrote FILE``, ``table fair: done``), on the console ``out``, unless ``--quiet``
-    (``args.quiet``) asks for warnings and errors only. A command's own result (the
-    table of ``quash eval``, the answers of ``quash query``) is printed with ``out.print``
-    whatever ``--quiet`` says; so are warnings and errors, which are logged. ``text`` is
-    printed as it is: control characters escaped, nothing read as markup."""
+    (``wrote FILE``, ``table fair: done``), on stderr, unless ``--quiet``
+    (``args.quiet``). Status goes to stderr, as the recording's ``wrote FILE.rrd`` does
+    and logging does; stdout holds the command's own result (the table of ``quash
+    eval``, the answers of ``quash query``, printed with ``out.print`` whatever
+    ``--quiet`` says), so ``quash query ... > answers.txt`` holds only answers. ``out``
+    (the command's stdout console) is not written to. ``text`` is printed as it is, on
+    one line: control characters escaped, nothing read as markup."""
     if not getattr(args, "quiet", False):
-        out.print(safe_text(text))
+        print(safe_text(text, markup=False), file=sys.stderr, flush=True)
 
 
 def print_json(data: Any) -> None:

@@ -87,7 +87,8 @@ def test_quiet_says_nothing_of_what_was_written(
     if quiet:
         assert done == [], said
         assert not [ln for ln in said.err.splitlines() if ln.startswith("INFO")], said.err
-    else:  # said once each, where the file is
+    else:  # said once each, where the file is: on stderr, stdout holds the result
+        assert not [ln for ln in said.out.splitlines() if DONE.match(ln)], said.out
         wrote = " ".join(ln for ln in done if ln.startswith("wrote "))
         for f in files:
             if command != "bench":  # bench names its folder's files in its tables

@@ -409,10 +409,11 @@ def test_demo_prints_its_paths_as_they_are(tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("QUASH_CACHE_DIR", str(tmp_path / "cache[v1]"))
     out = tmp_path / "out[v1]"
     assert main(["demo", "--tiny", "--no-rrd", "--out", str(out)]) == 0
-    lines = capsys.readouterr().out.splitlines()
+    said = capsys.readouterr()
+    lines = said.out.splitlines()
     [scene] = sorted(cache_root().glob("scene-v*-tiny-seed0-*.npz"))
     assert f"scene: {scene}" in lines
-    [wrote] = [ln for ln in lines if ln.startswith("wrote ")]
+    [wrote] = [ln for ln in said.err.splitlines() if ln.startswith("wrote ")]
     written = wrote.removeprefix("wrote ").rsplit(" in ", 1)[0].split(", ")
     assert written == [str(out / n) for n in ("demo.md", "demo.json", "demo.png")]
     assert all(Path(w).is_file() for w in written)
