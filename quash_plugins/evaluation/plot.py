@@ -88,14 +88,30 @@ def _legend_label(c: dict[str, Any]) -> str:
 
 #: Where a zoom of the means may go (axes fraction: x0, y0, width, height), the corner
 #: holding the fewest points is taken.
+#: The left and bottom corners leave room for the inset's own tick labels, which would
+#: otherwise be drawn over the main axes' labels.
 ZOOM_CORNERS = (
-    (0.05, 0.55, 0.4, 0.4),
-    (0.05, 0.05, 0.4, 0.4),
-    (0.55, 0.55, 0.4, 0.4),
-    (0.55, 0.05, 0.4, 0.4),
+    (0.13, 0.55, 0.36, 0.4),
+    (0.13, 0.14, 0.36, 0.36),
+    (0.58, 0.55, 0.38, 0.4),
+    (0.58, 0.14, 0.38, 0.36),
 )
 #: Means closer than this (in recall and precision) overlap at the plot's scale.
 ZOOM_BELOW = 0.03
+#: Means closer than this are the same point (equal to the three decimals the tables
+#: print): no zoom shows them apart, so the legend says which mean each one shares.
+SAME_POINT = 0.0005
+
+
+def _same_point_as(xy: Any) -> list[int | None]:
+    """For each mean, the index of the first earlier mean at the same point (within
+    :data:`SAME_POINT` in recall and precision), or None."""
+    xy = np.asarray(xy, dtype=float).reshape(-1, 2)
+    first: list[int | None] = []
+    for i in range(len(xy)):
+        roots = (j for j in range(i) if first[j] is None)
+        first.append(next((j for j in roots if np.abs(xy[i] - xy[j]).max() < SAME_POINT), None))
+    return first
 
 
 def _overlapping_means(xy: Any) -> list[int]:
@@ -126,7 +142,10 @@ def _zoom_on_the_means(ax: Any, means: list[tuple[float, float, Any, str]], poin
     fewest points, with the zoomed area marked; None when no two means overlap. Only the
     largest group of overlapping means is zoomed on."""
     xy = np.array([(m[0], m[1]) for m in means], dtype=float).reshape(-1, 2)
-    picked = _overlapping_means(xy)
+    # means at the same point stand for one: a zoom cannot show them apart (the legend
+    # names them), and a group of such means alone gets no zoom at all
+    distinct = [i for i, same in enumerate(_same_point_as(xy)) if same is None]
+    picked = [distinct[i] for i in _overlapping_means(xy[distinct])]
     if not picked:
         return None
     lo, hi = xy[picked].min(axis=0), xy[picked].max(axis=0)
@@ -177,7 +196,8 @@ def precision_recall_figure(
     with nothing), how many present queries it answered with nothing and what it was given, then what the markers and the dotted iso-F1
     curves (each labelled with its F1) mean: ``mean`` and ``dots`` say what the markers are
     (a plot whose dots are seeds, not queries: ``dots="one seed"``). When means overlap,
-    an inset in the emptiest corner shows them apart.
+    an inset in the emptiest corner shows them apart; a mean at the same point as
+    another one (two rules that answer alike) has a legend line naming that one.
     """
     try:
         import matplotlib
@@ -188,7 +208,13 @@ def precision_recall_figure(
         from matplotlib.transforms import ScaledTranslation
     except ImportError:
         raise QuashError('Plots need matplotlib: pip install "quash-plugins[plots]"') from None
-    n_lines = sum(1 + bool(c.get("given")) for c in configs) + 3
+    placed = [c for c in configs if c["mean"]["f1"] is not None]
+    same = _same_point_as([(c["mean"]["recall"], c["mean"]["precision"]) for c in placed])
+    # a mean drawn over another one's: the legend says so, as no zoom can show them apart
+    shares = {
+        c["name"]: placed[j]["name"] for c, j in zip(placed, same, strict=True) if j is not None
+    }
+    n_lines = sum(1 + bool(c.get("given")) for c in configs) + 3 + len(shares)
     fig, ax = plt.subplots(figsize=(AXES_WIDTH_IN + 0.9, max(5.2, 1.0 + 0.16 * n_lines)), dpi=110)
     handles: list[Any] = []
     means: list[tuple[float, float, Any, str]] = []
@@ -215,7 +241,12 @@ def precision_recall_figure(
                 color=color,
                 marker=marker,
                 edgecolor="black",
-                label=_legend_label(c),
+                label=_legend_label(c)
+                + (
+                    f"\nits mean at the same point as {shares[c['name']]}'s"
+                    if c["name"] in shares
+                    else ""
+                ),
                 zorder=3,
             )
         )

@@ -190,6 +190,68 @@ def test_means_that_overlap_are_shown_apart_in_a_zoom():
     plt.close(fig)
 
 
+def test_the_zoom_draws_no_tick_label_over_the_axes_labels():
+    """The inset sat at 5 % of the axes' width: its own tick labels (four decimals for
+    means a thousandth apart) were drawn over the main axes' precision labels."""
+    import matplotlib.pyplot as plt
+
+    for r, p in ((0.95, 0.95), (0.5, 0.05), (0.05, 0.5), (0.97, 0.03)):
+        configs = [
+            _config(f"m{k}", "x", [(r + 0.0007 * k, p + 0.0006 * k)], 0.0, 0) for k in range(3)
+        ]
+        fig = precision_recall_figure(configs)
+        fig.canvas.draw()
+        [ax] = fig.axes
+        [inset] = ax.child_axes
+        renderer = fig.canvas.get_renderer()
+        inner = inset.get_tightbbox(renderer)
+        for label in [*ax.get_xticklabels(), *ax.get_yticklabels()]:
+            box = label.get_window_extent(renderer)
+            assert not (label.get_text() and inner.overlaps(box)), label.get_text()
+        plt.close(fig)
+
+
+def test_means_at_the_same_point_are_named_in_the_legend_and_not_zoomed_on():
+    """The classifiers table: three rules that match nothing sit at (0, 0) and two that
+    answer alike at one point. A zoom on them showed one marker on an axis of
+    -0.0100 to 0.0100; which colours lay under the top one could not be read."""
+    import matplotlib.pyplot as plt
+
+    configs = [
+        _config("svm-rbf", "the label list", [(0.0, 0.0)], 1.0, 1),
+        _config("svm-cosine", "the label list", [(0.0, 0.0)], 1.0, 1),
+        _config("contrast", "the label list", [(0.6, 0.5)], 0.2, 0),
+        _config("lerf-relevancy", "the label list", [(0.6, 0.5)], 0.2, 0),
+        _config("nearest", "the label list", [(0.7, 0.75)], 0.2, 0),
+    ]
+    fig = precision_recall_figure(configs)
+    fig.canvas.draw()
+    [ax] = fig.axes
+    assert ax.child_axes == []  # no two means apart enough for a zoom to show
+    texts = [t.get_text() for t in ax.get_legend().get_texts()]
+    said = [t for t in texts if "at the same point as" in t]
+    assert len(said) == 2
+    assert said[0].startswith("svm-cosine") and said[0].endswith("as svm-rbf's")
+    assert said[1].startswith("lerf-relevancy") and said[1].endswith("as contrast's")
+    assert not any("same point" in t for t in texts if t.startswith(("svm-rbf", "contrast")))
+    plt.close(fig)
+
+
+def test_means_one_thousandth_apart_are_zoomed_on_not_called_the_same():
+    import matplotlib.pyplot as plt
+
+    configs = [
+        _config("other", "the query alone", [(0.991, 0.049)], 0.0, 0),
+        _config("nothing", "the query alone", [(0.990, 0.048)], 0.0, 0),
+    ]
+    fig = precision_recall_figure(configs)
+    fig.canvas.draw()
+    assert len(fig.axes[0].child_axes) == 1
+    texts = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    assert not any("same point" in t for t in texts)
+    plt.close(fig)
+
+
 def test_means_apart_get_no_zoom():
     import matplotlib.pyplot as plt
 
