@@ -129,15 +129,19 @@ def check_against_stored(
 
 def option_number(option: Any, name: str, where: str, fix: str, *, whole: bool = False) -> Any:
     """``option`` as a float (an int when ``whole``), else :class:`MapFormatError`:
-    ``WHERE: option NAME=VALUE is not a (whole) number. FIX`` (a bool is no number)."""
+    ``WHERE: option NAME=VALUE is not a (whole) number. FIX`` (a bool is no number), or
+    ``... must be a positive (whole) number. FIX``: every such option is a size."""
+    kind = "whole number" if whole else "number"
     try:
         value = float(option)
         ok = not isinstance(option, bool) and (not whole or value.is_integer())
     except (TypeError, ValueError):
         ok = False
     if not ok:
-        kind = "a whole number" if whole else "a number"
-        raise MapFormatError(f"{where}: option {name}={option!r} is not {kind}. {fix}")
+        raise MapFormatError(f"{where}: option {name}={option!r} is not a {kind}. {fix}")
+    if not (0 < value < np.inf):  # 0 or less, NaN or infinite
+        size = "positive" if np.isfinite(value) else "finite, positive"
+        raise MapFormatError(f"{where}: option {name}={option!r} must be a {size} {kind}. {fix}")
     return int(value) if whole else value
 
 

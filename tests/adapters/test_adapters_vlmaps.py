@@ -736,6 +736,38 @@ def test_a_gs_or_cs_option_that_is_not_a_number_names_the_option_and_the_fix(tmp
         Quash.from_config(str(config)).read_map(path)
 
 
+def test_a_gs_or_cs_option_of_zero_or_less_is_refused_where_it_is_read(tmp_path):
+    """gs=0 or a negative gs on a mobile-base map without occupied_ids was reported only
+    as 'grid_pos holds rows/columns outside [0, 0)', and cs=0 as 'cell size cs must be a
+    positive number' naming neither the option nor the fix. Each now names the option,
+    the map and what to give it, file and live object alike."""
+    path = write_vlmaps_h5df(tmp_path / "m.h5df", mobile_map(n=5, d=D), drop=("occupied_ids",))
+    gs_fix = (
+        "Give the map config's grid_size, in cells per side (VLMaps' default: 1000), or drop "
+        "the gs option."
+    )
+    cs_fix = (
+        "Give the map config's cell_size, in metres (VLMaps' default: 0.05), or drop the cs option."
+    )
+    arrays = mobile_map(n=5, d=D)
+    live = SimpleNamespace(grid_feat=arrays["grid_feat"], grid_pos=arrays["grid_pos"])
+    live.map_config = {"pose_info": {"pose_type": "mobile_base"}}
+    adapter = registry.create("adapters", "vlmaps-live")
+    for source, where in ((path, str(path)), (live, "live SimpleNamespace object")):
+        for bad in (0, -4, "0", -1.0):
+            with pytest.raises(MapFormatError) as info:
+                adapter.read(source, gs=bad) if source is live else read_map(source, gs=bad)
+            msg = f"{where}: option gs={bad!r} must be a positive whole number. {gs_fix}"
+            assert str(info.value) == msg
+        for bad, size in ((0, "positive"), (-0.05, "positive"), ("inf", "finite, positive")):
+            with pytest.raises(MapFormatError) as info:
+                adapter.read(source, cs=bad) if source is live else read_map(source, cs=bad)
+            assert (
+                str(info.value) == f"{where}: option cs={bad!r} must be a {size} number. {cs_fix}"
+            )
+    assert read_map(path, gs="60", cs="0.1").source["gs"] == 60
+
+
 def test_a_scene_with_both_releases_maps_says_which_it_read(tmp_path, caplog):
     """A scene folder holding VLMaps' 3D vlmap/vlmaps.h5df and the 2023 top-down
     map/grid_lseg_1.npy: auto reads the 3D map, as before, and now says so and how to
