@@ -50,15 +50,17 @@ from ..core.interfaces import MapAdapter
 from ..core.types import LatentMap, record_inputs
 from ._npy import load_npy
 from ._vlmaps_common import (
-    DEFAULT_CS,
     RowSubset,
     cell_centres,
     check_labels,
-    check_positions_option,
     find_obj2cls,
     fit_label_names,
     load_label_names,
     rgb_to_uint8,
+)
+from ._vlmaps_options import (
+    DEFAULT_CS,
+    check_positions_option,
 )
 
 log = logging.getLogger(__name__)

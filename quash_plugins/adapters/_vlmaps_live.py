@@ -31,22 +31,24 @@ from ..core.interfaces import MapAdapter
 from ..core.types import LatentMap, record_inputs
 from ._rows import scan_finite
 from ._vlmaps_common import (
-    CS_FIX,
-    DEFAULT_CS,
     POSE_TYPES,
     UP_AXIS,
     camera_base_positions,
-    check_against_stored,
-    check_cells_in_grid,
     check_labels,
-    check_positions_option,
     fit_label_names,
     load_label_names,
     mobile_base_positions,
+    rgb_to_uint8,
+)
+from ._vlmaps_options import (
+    CS_FIX,
+    DEFAULT_CS,
+    check_against_stored,
+    check_cells_in_grid,
+    check_positions_option,
     mobile_grid_size,
     option_number,
     refuse_camera_base_gs,
-    rgb_to_uint8,
 )
 
 log = logging.getLogger(__name__)
