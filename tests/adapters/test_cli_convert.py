@@ -129,7 +129,7 @@ def test_convert_carries_the_taxonomy_beside_the_map(tiny_world, tmp_path, capsy
     tax.write_text("chair: [armchair, stool]\nsofa: [couch]\ntable: [desk]\n")
     out = tmp_path / "copy.zarr"
     assert main(["convert", str(src), str(out)]) == 0
-    assert "copy.taxonomy.yaml" in capsys.readouterr().out
+    assert "copy.taxonomy.yaml" in capsys.readouterr().err
     carried = tmp_path / "copy.taxonomy.yaml"
     assert carried.read_bytes() == tax.read_bytes()
     assert taxonomy_beside(read_map(out))[1] == {

@@ -95,17 +95,20 @@ def test_quash_bench_cli_writes_the_tables_it_was_asked_for(scene, tmp_path, cap
         ]
     )
     assert code == 0, capsys.readouterr().err
-    printed = capsys.readouterr().out
+    printed, status = capsys.readouterr()
     data = json.loads((out / "bench.json").read_text())
     assert list(data) == ["antonyms"]  # classifiers need --taxonomy
     md = (out / "bench.md").read_text()
     assert "## Classifiers\n\n_skipped: needs --taxonomy_" in md
-    assert "table antonyms: done" in printed and "\nAntonyms (baseline)\n" in printed
+    # the table on stdout, the progress line on stderr (status never mixes with results)
+    assert "table antonyms: done" in status and "table antonyms: done" not in printed
+    assert "\nAntonyms (baseline)\n" in printed
     # --quiet: the tables, without the progress lines between them
     args = ["bench", str(scene / "scene.npz"), "--encoder", ENCODER, "--tables", "antonyms"]
     assert main([*args, "--no-cache", "--out", str(out), "-q"]) == 0
-    quiet = capsys.readouterr().out
-    assert "table antonyms: done" not in quiet and "\nAntonyms (baseline)\n" in quiet
+    quiet, quiet_status = capsys.readouterr()
+    assert "table antonyms: done" not in quiet + quiet_status
+    assert "\nAntonyms (baseline)\n" in quiet
     assert "|---" not in printed  # rich tables on the console; the Markdown is in bench.md
     # a plot is named on the console, not linked as Markdown; bench.md keeps the link
     assert "![" not in printed and "](antonyms.png)" not in printed
