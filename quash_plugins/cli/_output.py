@@ -120,15 +120,15 @@ class _EscapeControls(logging.Filter):
         return True
 
 
-def say_done(out: Any, args: Any, text: str) -> None:
+def say_done(args: Any, text: str) -> None:
     """Print ``text``, a line that says what a command did rather than what it found
     (``wrote FILE``, ``table fair: done``), on stderr, unless ``--quiet``
     (``args.quiet``). Status goes to stderr, as the recording's ``wrote FILE.rrd`` does
     and logging does; stdout holds the command's own result (the table of ``quash
-    eval``, the answers of ``quash query``, printed with ``out.print`` whatever
-    ``--quiet`` says), so ``quash query ... > answers.txt`` holds only answers. ``out``
-    (the command's stdout console) is not written to. ``text`` is printed as it is, on
-    one line: control characters escaped, nothing read as markup."""
+    eval``, the answers of ``quash query``, printed on the command's console whatever
+    ``--quiet`` says), so ``quash query ... > answers.txt`` holds only answers. ``text``
+    is printed as it is, on one line: control characters escaped, nothing read as
+    markup."""
     if not getattr(args, "quiet", False):
         print(safe_text(text, markup=False), file=sys.stderr, flush=True)
 

@@ -163,7 +163,7 @@ def run(args: argparse.Namespace) -> int:
             absent=tuple(absent),
             query_file=args.queries_file,
             absent_in_file=absent_in_file,
-            on_table=lambda t: say_done(out, args, f"table {t}: done"),  # progress
+            on_table=lambda t: say_done(args, f"table {t}: done"),  # progress
         )
     print_markdown(out, (Path(args.out) / "bench.md").read_text(encoding="utf-8"), Path(args.out))
     return 0

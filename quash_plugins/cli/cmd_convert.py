@@ -107,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core import registry
     from ..core.errors import UsageError
     from ._config_opts import adapter_options
-    from ._output import console, print_json, say_done
+    from ._output import print_json, say_done
 
     options = adapter_options(args)
     _check_destination(args)
@@ -146,10 +146,9 @@ def run(args: argparse.Namespace) -> int:
             }
         )
     else:
-        out = console()
-        say_done(out, args, f"wrote {written} (read with adapter {name!r})")
+        say_done(args, f"wrote {written} (read with adapter {name!r})")
         if taxonomy:
-            say_done(out, args, f"wrote {taxonomy} (the map's taxonomy, copied)")
+            say_done(args, f"wrote {taxonomy} (the map's taxonomy, copied)")
     return 0
 
 

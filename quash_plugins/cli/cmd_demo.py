@@ -95,7 +95,7 @@ def run(args: argparse.Namespace) -> int:
     out.print(f"scene: {safe_text(scene)}")  # a path: its '[v1]' is no markup
     print_markdown(out, md)
     written = ", ".join(str(outdir / w) for w in ("demo.md", "demo.json", "demo.png"))
-    say_done(out, args, f"wrote {written} in {time.perf_counter() - t0:.1f} s")
+    say_done(args, f"wrote {written} in {time.perf_counter() - t0:.1f} s")
     if viewer is not None:
         # says "wrote DEMO.rrd" itself (the recording's one announcement, wherever --rrd
         # put it); with --serve-web it then serves until Ctrl-C or SIGTERM

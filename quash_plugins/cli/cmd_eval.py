@@ -200,7 +200,7 @@ def run(args: argparse.Namespace) -> int:
     print_markdown(out, md)
     for f in (args.json, args.markdown, args.plot):
         if f:
-            say_done(out, args, f"wrote {f}")
+            say_done(args, f"wrote {f}")
     if viewer is not None:
         viewer.close()  # with --serve-web this serves until Ctrl-C or SIGTERM
     return 0

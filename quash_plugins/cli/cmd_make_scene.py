@@ -96,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
     from ..demo.scene import SceneOptions, make_scene, write_scene
     from ..engine.cache import open_cache
     from ._config_opts import key_values
-    from ._output import console, say_done
+    from ._output import say_done
 
     opts = SceneOptions(**{f.name: getattr(args, f.name) for f in dataclasses.fields(SceneOptions)})
     if args.show_classes:
@@ -113,15 +113,13 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--encoder {args.encoder}: {exc}") from exc.__cause__
     scene = make_scene(encoder, opts, cache=open_cache(not args.no_cache))
     paths = write_scene(scene, args.out, opts)
-    out = console()
     say_done(
-        out,
         args,
         f"{scene.map.n} voxels, {scene.n_objects} objects, rooms: "
         f"{', '.join(scene.room_types)} (seed {opts.seed}, encoder {encoder.name})",
     )
     for k, v in paths.items():
-        say_done(out, args, f"wrote {k}: {v}")
+        say_done(args, f"wrote {k}: {v}")
     return 0
 
 

@@ -247,7 +247,7 @@ def _query_to_zarr(args, quash) -> int:
             f"{safe_text(r['query'])}: {r['matched']} of {n} items ({100 * r['share']:.2f}%)"
             f"{safe_text(said)}"
         )
-    say_done(out, args, f"wrote {path}")
+    say_done(args, f"wrote {path}")
     return 0
 
 
@@ -306,4 +306,4 @@ def _report(args, cfg, lmap, results) -> None:
             )
     out.print(timings_table(results, width=out.width))
     if args.out:
-        say_done(out, args, f"wrote {args.out}")
+        say_done(args, f"wrote {args.out}")
