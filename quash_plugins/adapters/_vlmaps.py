@@ -82,6 +82,12 @@ REQUIRED = ("grid_feat", "grid_pos")
 SEMANTIC_FIELD = "grid_semantic"
 #: File names VLMaps writes, looked up when the source is a directory.
 KNOWN_NAMES = ("vlmap/vlmaps.h5df", "vlmap_cam/vlmaps_cam.h5df", "vlmaps.h5df", "vlmaps_cam.h5df")
+#: What to give a ``cs`` option on a camera-base file that stores no ``cs``: it cannot be
+#: dropped there (the cells are placed by ``pcd_min + grid_pos * cs``).
+CAMERA_CS_FIX = (
+    "Give the map config's cell_size, in metres (VLMaps' default: 0.05): this camera-base "
+    "map stores no cs of its own."
+)
 
 
 def import_h5py() -> Any:
@@ -328,12 +334,14 @@ class VLMapsAdapter(MapAdapter):
                     "Drop the cs option: camera-base maps store their cell size.",
                 )
                 cs = float(stored[0])
+                _check_stored_cs(cs, where)
             elif cs is None:
                 raise MapFormatError(
                     f"{where}: camera-base map lacks field 'cs'; pass the map config's "
                     "cell_size as option cs."
                 )
-            _check_cs(cs, where)
+            else:  # no cs of its own: the option gives it, checked like any other
+                cs = option_number(cs, "cs", where, CAMERA_CS_FIX)
             positions = camera_base_positions(grid_pos, pcd_min, float(cs))
             source["pcd_min"] = pcd_min.tolist()
             if occupied is not None:
@@ -351,7 +359,6 @@ class VLMapsAdapter(MapAdapter):
                     where,
                     DEFAULT_CS,
                 )
-            _check_cs(cs, where)
             positions = mobile_base_positions(grid_pos, gs, float(cs), opts["positions"])
             source["gs"] = int(gs)
             source["gs_from"] = gs_from
@@ -465,10 +472,9 @@ def _scenes_inside(source: Any, limit: int = 256, shown: int = 5) -> str:
     return f" It holds scene folders with a VLMaps map: {listed}{more}; pass one of them."
 
 
-def _check_cs(cs: Any, where: str) -> None:
-    try:
-        ok = float(cs) > 0 and np.isfinite(float(cs))
-    except (TypeError, ValueError):
-        ok = False
-    if not ok:
-        raise MapFormatError(f"{where}: cell size cs must be a positive number; got {cs!r}.")
+def _check_stored_cs(cs: float, where: str) -> None:
+    """A camera-base file's own ``cs`` (options are checked by ``option_number``)."""
+    if not (0 < cs < np.inf):
+        raise MapFormatError(
+            f"{where}: field 'cs' (the cell size) must be a positive number; got {cs:g}."
+        )

@@ -59,8 +59,10 @@ from ._vlmaps_common import (
     rgb_to_uint8,
 )
 from ._vlmaps_options import (
+    CS_FIX,
     DEFAULT_CS,
     check_positions_option,
+    option_number,
 )
 
 log = logging.getLogger(__name__)
@@ -174,6 +176,7 @@ class VLMaps2DAdapter(MapAdapter):
                 f"{source}: no {GRID} found. Pass the .npy file or the map/ folder that holds it."
             )
         where = str(grid_path)
+        cs = option_number(opts["cs"], "cs", where, CS_FIX)  # the grids store no cell size
         grid = _load_npy(grid_path)
         if grid.ndim != 3 or grid.shape[0] != grid.shape[1]:
             raise MapFormatError(
@@ -189,9 +192,6 @@ class VLMaps2DAdapter(MapAdapter):
         index = np.arange(gs * gs, dtype=np.int64) if opts["keep_empty"] else observed
         embeddings: Any = flat if opts["keep_empty"] else RowSubset(flat, index)
         rows, cols = np.divmod(index, gs)
-        cs = float(opts["cs"])
-        if not np.isfinite(cs) or cs <= 0:
-            raise MapFormatError(f"{where}: cell size cs must be positive; got {cs}.")
         positions = np.zeros((len(index), 3), dtype=np.float32)
         if opts["positions"] == "upstream":  # grid_id2pos, turned into the base frame
             positions[:, 0] = (gs / 2.0 - rows) * cs

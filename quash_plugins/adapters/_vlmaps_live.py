@@ -253,13 +253,11 @@ class VLMapsLiveAdapter(MapAdapter):
         elif pose_type == "mobile_base":
             occupied = getattr(getattr(source, "occupied_ids", None), "shape", None)
             own_gs = getattr(source, "gs", None)
-            fallback = opts["gs"]
-            if fallback is None and occupied is None and own_gs is not None:
-                fallback = int(own_gs)
-            gs, gs_from = mobile_grid_size(occupied, fallback, where, "occupied_ids")
-            if gs_from == "option" and opts["gs"] is None:
-                gs_from = "attribute"
-            if occupied is not None and own_gs is not None and int(own_gs) != gs:
+            if occupied is None and opts["gs"] is None and own_gs is not None:
+                gs, gs_from = _own_gs(own_gs, where), "attribute"
+            else:
+                gs, gs_from = mobile_grid_size(occupied, opts["gs"], where, "occupied_ids")
+            if occupied is not None and own_gs is not None and not _equals(own_gs, gs):
                 log.warning(
                     "%s: vlmap.gs = %s (the map config's grid_size) disagrees with "
                     "occupied_ids, which gives gs = %d; using %d. Fix grid_size in your "
@@ -328,3 +326,25 @@ class VLMapsLiveAdapter(MapAdapter):
             cs=0.05,
             map_config={"pose_info": {"pose_type": "mobile_base"}},
         )
+
+
+def _own_gs(own_gs: Any, where: str) -> int:
+    """A live map's own ``vlmap.gs`` (its map config's grid_size), a positive whole
+    number, else :class:`MapFormatError` naming the attribute, not an option."""
+    return option_number(
+        own_gs,
+        "gs",
+        where,
+        "Set grid_size in its map config, in cells per side (VLMaps' default: 1000), or "
+        "pass the gs option.",
+        whole=True,
+        what=f"the VLMap object's gs attribute (vlmap.gs={own_gs!r}, its map config's grid_size)",
+    )
+
+
+def _equals(value: Any, number: int) -> bool:
+    """Whether ``value`` is ``number`` (False for a value that is no number)."""
+    try:
+        return float(value) == number
+    except (TypeError, ValueError):
+        return False

@@ -52,21 +52,27 @@ def check_against_stored(
         )
 
 
-def option_number(option: Any, name: str, where: str, fix: str, *, whole: bool = False) -> Any:
+def option_number(
+    option: Any, name: str, where: str, fix: str, *, whole: bool = False, what: str = ""
+) -> Any:
     """``option`` as a float (an int when ``whole``), else :class:`MapFormatError`:
     ``WHERE: option NAME=VALUE is not a (whole) number. FIX`` (a bool is no number), or
-    ``... must be a positive (whole) number. FIX``: every such option is a size."""
+    ``... must be a positive (whole) number. FIX``: every such option is a size.
+
+    ``what`` names the value when it is no option (a live map's own attribute); it
+    replaces ``option NAME=VALUE`` in the message."""
     kind = "whole number" if whole else "number"
+    what = what or f"option {name}={option!r}"
     try:
         value = float(option)
         ok = not isinstance(option, bool) and (not whole or value.is_integer())
     except (TypeError, ValueError):
         ok = False
     if not ok:
-        raise MapFormatError(f"{where}: option {name}={option!r} is not a {kind}. {fix}")
+        raise MapFormatError(f"{where}: {what} is not a {kind}. {fix}")
     if not (0 < value < np.inf):  # 0 or less, NaN or infinite
         size = "positive" if np.isfinite(value) else "finite, positive"
-        raise MapFormatError(f"{where}: option {name}={option!r} must be a {size} {kind}. {fix}")
+        raise MapFormatError(f"{where}: {what} must be a {size} {kind}. {fix}")
     return int(value) if whole else value
 
 
