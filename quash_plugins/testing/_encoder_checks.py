@@ -388,29 +388,42 @@ def _nudged(name: str, old: Any) -> list[Any]:
     suffix; a list or tuple less its last item, and with its last item nudged; a dict
     with one value nudged (new containers: ``old`` is never changed in place).
 
-    A credential (``api_key``, ``token``, or a dict key so named) is never varied, nor is
-    a path or a URL: the kit would send a changed key to a server, or write a file
-    beside the one named, and a model path changed is only a model that does not load."""
+    A credential (``api_key``, ``token``, or a dict key so named, whatever its type) is
+    never varied, nor is a path or a URL, nor a list holding one: the kit would send a
+    changed key to a server, or write a file beside the one named, and a model path
+    changed (or a list of weight files shortened) is only a model that does not load."""
     from ..core.redact import is_secret_param
 
+    if is_secret_param(name):  # before the numbers: a key may be one (api_key=12345)
+        return []
     if isinstance(old, (bool, np.bool_)):
         return [not old]
     if isinstance(old, (int, np.integer)):
         return [old + 1]
     if isinstance(old, (float, np.floating)):
         return [old * 1.5 + 0.5]
-    if is_secret_param(name):
-        return []
     if isinstance(old, str):
         return [] if _path_like(old) else [f"{old}x"]
-    if isinstance(old, dict):
+    if isinstance(old, dict):  # each value by its own key: a path or a key stays as it is
         return [{**old, k: v} for k, item in old.items() for v in _nudged(str(k), item)]
-    if isinstance(old, (list, tuple)) and old:
+    if isinstance(old, (list, tuple)) and old and not _holds_path(old):
         items = list(old)
         others = [items[:-1]] if len(items) > 1 else []
         others += [[*items[:-1], v] for v in _nudged(name, items[-1])]
         return [tuple(o) if isinstance(old, tuple) else o for o in others]
     return []
+
+
+def _holds_path(value: Any) -> bool:
+    """True for a list, tuple or dict with a path or a URL (:func:`_path_like`) among its
+    items, at any depth: shortened, a list of weight files names one file fewer."""
+    if isinstance(value, str):
+        return _path_like(value)
+    if isinstance(value, dict):
+        return any(_holds_path(v) for v in value.values())
+    if isinstance(value, (list, tuple)):
+        return any(_holds_path(v) for v in value)
+    return False
 
 
 def _path_like(text: str) -> bool:

@@ -11,6 +11,19 @@ import pytest
 from quash_plugins import Encoder
 from quash_plugins.testing import HashingEncoder, check_encoder
 
+#: The one written list of the encoder checks, in the kit's order: a check dropped from
+#: ENCODER_CHECKS fails here and in tests/core/test_third_party_plugin.py, which imports it.
+ENCODER_CHECK_NAMES = [
+    "check_encoder_output",
+    "check_encoder_deterministic",
+    "check_encoder_same_in_another_process",
+    "check_encoder_batch_independent",
+    "check_encoder_empty",
+    "check_encoder_empty_string",
+    "check_encoder_fingerprint",
+    "check_encoder_fingerprint_follows_params",
+]
+
 
 class _Faulty(Encoder):
     """HashingEncoder's rows with one fault chosen by ``fault``."""
@@ -231,17 +244,7 @@ def test_the_encoder_checks_have_a_module_of_their_own_and_are_importable_as_bef
     from quash_plugins.testing import _checks, _encoder_checks
 
     names = [c.__name__ for c in _encoder_checks.ENCODER_CHECKS]
-    # the one written list of the checks' names: other tests read ENCODER_CHECKS
-    assert names == [
-        "check_encoder_output",
-        "check_encoder_deterministic",
-        "check_encoder_same_in_another_process",
-        "check_encoder_batch_independent",
-        "check_encoder_empty",
-        "check_encoder_empty_string",
-        "check_encoder_fingerprint",
-        "check_encoder_fingerprint_follows_params",
-    ]
+    assert names == ENCODER_CHECK_NAMES
     for name in names:
         assert getattr(_checks, name) is getattr(_encoder_checks, name)
         assert getattr(_encoder_checks, name).__module__ == _encoder_checks.__name__
@@ -280,6 +283,43 @@ def test_a_key_or_a_path_is_not_varied(tmp_path):
     assert log.is_file()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["kit", "remote.log"]
     assert set(_Remote.keys_sent) == {"sk-test-0123456789"}
+
+
+def test_a_key_in_a_dict_is_not_varied_whatever_its_type():
+    """A number under a credential's name (``api_key=12345``) was nudged: the numbers
+    were tried before the name."""
+    from quash_plugins.testing._encoder_checks import _nudged
+
+    assert _nudged("api_key", 12345) == [] and _nudged("token", 7.5) == []
+    assert _nudged("options", {"api_key": 12345, "token": 7.5}) == []
+    assert _nudged("options", {"api_key": 12345, "scale": 2}) == [{"api_key": 12345, "scale": 3}]
+
+
+@pytest.mark.parametrize(
+    "old",
+    [
+        ["/models/a.pt", "/models/b.pt"],
+        ("/models/a.pt",),
+        ["https://example.com/a.pt", "b"],
+        [["/models/a.pt"], ["/models/b.pt"]],
+        [{"file": "/models/a.pt"}, {"file": "/models/b.pt"}],
+    ],
+)
+def test_a_list_of_paths_or_urls_is_not_varied(old):
+    """A list of weight files was shortened (``[['/models/a.pt']]``): one file fewer is
+    only a model that does not load, or a file written beside the one named."""
+    from quash_plugins.testing._encoder_checks import _nudged
+
+    assert _nudged("weights_files", old) == []
+    assert _nudged("options", {"files": old}) == []
+
+
+def test_lists_and_dicts_of_plain_values_are_still_varied():
+    from quash_plugins.testing._encoder_checks import _nudged
+
+    assert _nudged("sizes", [1, 2]) == [[1], [1, 3]]
+    assert _nudged("words", ("a", "b")) == [("a",), ("a", "bx")]
+    assert _nudged("opts", {"files": ["/a.pt"], "n": 1}) == [{"files": ["/a.pt"], "n": 2}]
 
 
 class _VocabFile(Encoder):
