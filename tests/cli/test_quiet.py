@@ -20,8 +20,9 @@ from quash_plugins.testing import HashingEncoder
 
 ENCODER = "hashing-quiet"
 
-#: A line that only says what was done: what --quiet leaves out.
-DONE = re.compile(r"^(wrote |streamed to |table \S+: done$)")
+#: A line that only says what was done: what --quiet leaves out (make-scene's summary,
+#: "N voxels, N objects, rooms: ...", among them).
+DONE = re.compile(r"^(wrote |streamed to |table \S+: done$|\d+ voxels, \d+ objects, rooms: )")
 
 
 @pytest.fixture(scope="module")
@@ -89,6 +90,9 @@ def test_quiet_says_nothing_of_what_was_written(
         assert not [ln for ln in said.err.splitlines() if ln.startswith("INFO")], said.err
     else:  # said once each, where the file is: on stderr, stdout holds the result
         assert not [ln for ln in said.out.splitlines() if DONE.match(ln)], said.out
+        if command == "make-scene":  # its summary, said once, on stderr
+            summary = [ln for ln in said.err.splitlines() if " voxels, " in ln]
+            assert len(summary) == 1 and DONE.match(summary[0]), said
         wrote = " ".join(ln for ln in done if ln.startswith("wrote "))
         for f in files:
             if command != "bench":  # bench names its folder's files in its tables
