@@ -22,17 +22,24 @@ Which reader a chunk task gets depends on what :attr:`LatentMap.embeddings` is:
   ConceptGraphs table, a legacy ``.pt`` OpenScene file) travel with their values;
 - numpy array in memory (an NPZ map, an array built in Python), given a distributed
   client: its row chunks are scattered to the workers (``Client.scatter``), each chunk
-  once and to one worker, and the graph holds only their futures: a few kB whatever
-  the size of the map, where the rows inside the graph made Dask warn "Sending large
-  graph" (and the scheduler hold the whole map) from about 10 MB on. Not broadcast:
-  every worker would hold the whole map. Without a client (local threads), or for
-  anything else with ``shape``/``dtype``/slicing, chunks are sliced on the client and
-  travel inside the graph.
+  to one worker, once per map and client (not once per pass: the array of their
+  futures is kept while the map's embeddings array lives, and every later pass, a
+  refinement pass, another ``query_many`` call or ``LazyQuery.to_zarr``, reuses it,
+  rechunked on the workers if its pass wants other chunk rows). The graph holds only
+  the futures: a few kB whatever the size of the map, where the rows inside the graph
+  made Dask warn "Sending large graph" (and the scheduler hold the whole map) from
+  about 10 MB on. Not broadcast: every worker would hold the whole map. A chunk lost
+  with a worker that died, or a client that was closed, is not reused: the next pass
+  scatters the map again. Without a client (local threads), or for anything else with
+  ``shape``/``dtype``/slicing, chunks are sliced on the client and travel inside the
+  graph.
 """
 
 from __future__ import annotations
 
 import os
+import threading
+import weakref
 from typing import Any
 
 import numpy as np
@@ -123,23 +130,94 @@ def _reader(emb: Any) -> tuple[Any, str | None]:
     return emb, None
 
 
+#: The scattered arrays of in-memory maps: ``id(embeddings)`` -> (a weak reference to
+#: the embeddings array, {client id: (client, dask array, the chunks' futures)}).
+#: numpy arrays are weak-referenceable but not hashable, hence the id with its weak
+#: reference, whose callback drops the entry when the array dies (its futures then
+#: release the chunks on the workers).
+_SCATTERED: dict[int, tuple[weakref.ref, dict[str, tuple[Any, Any, tuple]]]] = {}
+_SCATTERED_LOCK = threading.Lock()
+
+
+def _forget(key: int) -> Any:
+    def drop(_ref: Any) -> None:
+        with _SCATTERED_LOCK:
+            entry = _SCATTERED.get(key)
+            if entry is not None and entry[0] is _ref:
+                del _SCATTERED[key]
+
+    return drop
+
+
+def _usable(client: Any, futures: tuple) -> bool:
+    """Whether chunks scattered to ``client`` can serve a pass: the client is still
+    running and every chunk is still held by a worker (a worker that died loses its
+    chunks: their futures turn ``lost`` or ``cancelled``)."""
+    if getattr(client, "status", None) != "running":
+        return False
+    return all(f.status == "finished" for f in futures)
+
+
+def scattered_array(emb: np.ndarray, client: Any) -> Any:
+    """The cached scattered array of ``emb`` on ``client``, or None (nothing usable)."""
+    with _SCATTERED_LOCK:
+        entry = _SCATTERED.get(id(emb))
+        if entry is None or entry[0]() is not emb:
+            return None
+        held = entry[1].get(str(client.id))
+    if held is None or held[0] is not client or not _usable(client, held[2]):
+        return None
+    return held[1]
+
+
+def forget_scattered(emb: Any, client: Any = None) -> None:
+    """Drop the scattered chunks of ``emb`` (on ``client``, default every client): the
+    next pass scatters the map again. Their futures are released when unreferenced."""
+    with _SCATTERED_LOCK:
+        entry = _SCATTERED.get(id(emb))
+        if entry is None or entry[0]() is not emb:
+            return
+        if client is None:
+            entry[1].clear()
+        else:
+            entry[1].pop(str(client.id), None)
+
+
 def _scattered(emb: np.ndarray, rows: int, client: Any) -> Any:
     """``emb`` as a dask array of ``rows``-row chunks scattered to ``client``'s workers.
 
-    Each chunk is sent once, to one worker (spread over them); the graph holds only the
-    futures, which keep the chunks on the workers as long as the array lives.
+    Each chunk is sent once, to one worker (spread over them), and once per map and
+    client: the array is kept (see :data:`_SCATTERED`) and reused by every later pass
+    while ``emb`` lives, rechunked on the workers when ``rows`` differs. The graph holds
+    only the futures, which keep the chunks on the workers as long as the array lives.
     """
     da = require_dask()
+    chunks = (rows, emb.shape[1])
+    x = scattered_array(emb, client)
+    if x is not None:  # rechunk returns x itself when its chunks are these
+        return x.rechunk(chunks)
     parts = [emb[start : start + rows] for start in range(0, emb.shape[0], rows)]
     # hash=False: fresh keys, without hashing every byte of the map, and no key shared
-    # with the previous pass's chunks while the scheduler releases them
+    # with the chunks of a map scattered before while the scheduler releases them
     futures = client.scatter(parts, hash=False)
     meta = np.empty((0,) * emb.ndim, emb.dtype)
     blocks = [
         da.from_delayed(f, shape=p.shape, dtype=p.dtype, meta=meta)
         for f, p in zip(futures, parts, strict=True)
     ]
-    return da.concatenate(blocks, axis=0) if len(blocks) > 1 else blocks[0]
+    del parts  # views of emb: the cached array must not keep the map alive
+    x = da.concatenate(blocks, axis=0) if len(blocks) > 1 else blocks[0]
+    key = id(emb)
+    with _SCATTERED_LOCK:
+        entry = _SCATTERED.get(key)
+        if entry is None or entry[0]() is not emb:
+            entry = (weakref.ref(emb, _forget(key)), {})
+            _SCATTERED[key] = entry
+        held = entry[1]
+        for cid in [c for c, h in held.items() if getattr(h[0], "status", None) != "running"]:
+            del held[cid]  # the arrays of closed clients
+        held[str(client.id)] = (client, x, tuple(futures))
+    return x
 
 
 def as_dask(lmap: LatentMap, chunk_rows: int, client: Any = None) -> Any:

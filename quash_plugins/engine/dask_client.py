@@ -98,8 +98,9 @@ class _OwnWorkerRestarts(logging.Filter):
     scheduler's "Removing worker ... caused the cluster to lose already computed
     task(s) ..." with every task key, the nanny's "Restarting worker", "Worker process
     ... was killed") with one warning of quash's: Dask recomputes the chunks, the
-    result is unchanged, and the user needs to know only that and what to do if it
-    repeats. Errors (a cluster that gives up) pass."""
+    result is unchanged (a map held in memory, scattered to the workers, is the
+    exception: its lost chunks fail the query, which sends it again when run again),
+    and the user needs to know only that and what to do if it repeats. Errors (a cluster that gives up) pass."""
 
     PREFIXES = ("Removing worker", "Restarting worker", "Worker process")
 
@@ -115,8 +116,11 @@ class _OwnWorkerRestarts(logging.Filter):
             log.warning(
                 "A worker process of the local Dask cluster stopped (killed, or over its "
                 "memory limit); Dask restarts it and computes its chunks again, so the "
-                "result is unchanged. If it repeats, lower chunk_mb or give fewer "
-                "--workers (docs/scale.md, Memory sizing)."
+                "result is unchanged, except for a map held in memory (an NPZ map), "
+                "whose chunks that worker held are lost: that query then fails with a "
+                "ClusterError, and running it again sends the map to the workers again. "
+                "If it repeats, lower chunk_mb or give fewer --workers (docs/scale.md, "
+                "Memory sizing)."
             )
         return False
 

@@ -12,7 +12,7 @@ from ..core.errors import QuashError
 from ..core.maps import map_read_error
 from ..core.types import LatentMap
 from .classify import BlockScorer, extra_bytes_per_row
-from .dask_arrays import as_dask
+from .dask_arrays import as_dask, forget_scattered
 from .dask_client import current_client, require_dask
 from .stored_chunks import warn_small_chunks, warn_stored_chunks
 
@@ -190,7 +190,9 @@ def _cluster_error(exc: BaseException) -> ClusterError:
     return ClusterError(
         f"The Dask cluster failed during the query ({type(exc).__name__}: {exc}). No "
         "result was written. Check that the workers have enough memory for the chunk "
-        "size (lower chunk_mb), then run the query again."
+        "size (lower chunk_mb), then run the query again (a map held in memory, whose "
+        "chunks were scattered to the workers and lost with a worker that died, is "
+        "then sent to them again)."
     )
 
 
@@ -248,6 +250,11 @@ def classify_dask(
     )
     try:
         (out,) = compute(client, graph, progress=progress)
+    except ClusterError:
+        # a map scattered to the workers may have lost chunks with a worker that died
+        # (scattered data is not recomputed): the next pass scatters it again
+        forget_scattered(lmap.embeddings, client)
+        raise
     except QuashError:
         raise
     except Exception as exc:  # noqa: BLE001 - a chunk that cannot be read is the map's fault
