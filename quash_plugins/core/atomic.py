@@ -14,9 +14,10 @@ The policy, the same for every file quash-plugins writes:
   otherwise replace the file they are given, as ``open(path, "w")`` does.
 - Every write goes to a hidden temporary file (or folder) beside the target, renamed
   over it at the end; an error, Ctrl-C or SIGTERM removes it. Its name says that quash
-  made it, on which machine and in which process (``.NAME.quash-tmp-HOST-PID-RANDOM``):
-  a process killed outright (SIGKILL, a power cut) cannot remove it, so the next write
-  of the same output removes those whose process is gone (:func:`remove_stale`).
+  made it, on which machine and in which process (``.NAME.quash-tmp-HOST-PID-RANDOM``),
+  and the writer holds a lock on ``.NAME.quash-lck-HOST-PID-RANDOM`` meanwhile: a
+  process killed outright (SIGKILL, a power cut) cannot remove it, so the next write of
+  the same output removes those whose lock is free and process gone (:func:`remove_stale`).
 
 :func:`check_output` applies the first two rules, :func:`check_distinct_outputs` refuses
 two outputs of one command naming the same file; :func:`atomic_write` and
@@ -40,7 +41,7 @@ from typing import Any
 from ._atomic_stale import _STALE as _STALE
 from ._atomic_stale import _host as _host
 from ._atomic_stale import _process_gone as _process_gone
-from ._atomic_stale import _tag
+from ._atomic_stale import _retag, _tag, hold_lock
 from ._atomic_stale import remove_stale as remove_stale
 from .errors import UsageError
 from .types import source_inputs
@@ -242,26 +243,30 @@ def atomic_write(path: str | Path, suffix: str = "") -> Iterator[Path]:
     _refuse_non_regular(path)
     _make_parent(path)
     remove_stale(path)
-    tmp_path = path.parent / f".{path.name}.{_tag('tmp')}{suffix or '.tmp'}"
+    tag = _tag("tmp")
+    tmp_path = path.parent / f".{path.name}.{tag}{suffix or '.tmp'}"
     # The temporary file is created inside the try block, so that an interrupt at any
-    # moment (even between creating it and yielding it) removes it.
-    try:
+    # moment (even between creating it and yielding it) removes it. The lock says to
+    # remove_stale that it is being written, whatever PID namespace or machine we are.
+    with hold_lock(path, tag):
         try:
-            fd = os.open(tmp_path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
-        except OSError as exc:
-            raise UsageError(
-                f"Cannot write {path}: {exc.strerror} ({path.parent}). Choose a writable folder."
-            ) from None
-        os.close(fd)
-        yield tmp_path
-        if tmp_path.is_file():
-            # Created 0600; give the output the permissions of a normal new file.
-            os.chmod(tmp_path, 0o666 & ~_umask())
-        os.replace(tmp_path, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            tmp_path.unlink()
-        raise
+            try:
+                fd = os.open(tmp_path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+            except OSError as exc:
+                raise UsageError(
+                    f"Cannot write {path}: {exc.strerror} ({path.parent}). "
+                    "Choose a writable folder."
+                ) from None
+            os.close(fd)
+            yield tmp_path
+            if tmp_path.is_file():
+                # Created 0600; give the output the permissions of a normal new file.
+                os.chmod(tmp_path, 0o666 & ~_umask())
+            os.replace(tmp_path, path)
+        except BaseException:
+            with contextlib.suppress(FileNotFoundError):
+                tmp_path.unlink()
+            raise
 
 
 def _refuse_non_regular(path: Path) -> None:
@@ -353,22 +358,25 @@ def atomic_dir(
                 "replace it. Choose another name."
             )
     _make_parent(path)
-    tmp = path.parent / f".{path.name}.{_tag('tmp')}"
-    old = path.parent / f".{path.name}.{_tag('old')}"
-    try:
-        yield tmp
-        if path.exists():
-            os.replace(path, old)
-        os.replace(tmp, path)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        # a worker process of the same command (Dask) may still write a chunk into it
-        # until the command stops its workers: removed again when this process exits
-        atexit.register(shutil.rmtree, tmp, ignore_errors=True)
-        if old.exists() and not path.exists():
-            os.replace(old, path)  # put the previous store back
-        raise
-    shutil.rmtree(old, ignore_errors=True)
+    tag = _tag("tmp")
+    tmp = path.parent / f".{path.name}.{tag}"
+    old = path.parent / f".{path.name}.{_retag(tag, 'old')}"
+    # held while tmp or old may exist (tmp is made by the caller, after the yield)
+    with hold_lock(path, tag):
+        try:
+            yield tmp
+            if path.exists():
+                os.replace(path, old)
+            os.replace(tmp, path)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            # a worker process of the same command (Dask) may still write a chunk into it
+            # until the command stops its workers: removed again when this process exits
+            atexit.register(shutil.rmtree, tmp, ignore_errors=True)
+            if old.exists() and not path.exists():
+                os.replace(old, path)  # put the previous store back
+            raise
+        shutil.rmtree(old, ignore_errors=True)
 
 
 def _umask() -> int:

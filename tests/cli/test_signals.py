@@ -110,15 +110,18 @@ def test_signal_mid_write_leaves_no_temporary_file(tmp_path, sig, code, suffix):
     assert _hidden(out) == []
 
 
-def test_interrupt_right_after_the_temporary_file_is_created(tmp_path, monkeypatch):
+@pytest.mark.parametrize("made", [".quash-tmp-", ".quash-lck-"])
+def test_interrupt_right_after_the_temporary_file_is_created(tmp_path, monkeypatch, made):
     """The window that left a 0-byte hidden file: Ctrl-C between creating the temporary
-    file and entering the block that removes it."""
+    file (or the lock file its writer holds) and entering the block that removes it."""
     from quash_plugins.core import atomic
 
     real_open = os.open
 
     def open_then_interrupt(*args, **kwargs):
-        real_open(*args, **kwargs)
+        fd = real_open(*args, **kwargs)
+        if made not in str(args[0]):
+            return fd
         raise KeyboardInterrupt
 
     monkeypatch.setattr(atomic.os, "open", open_then_interrupt)
@@ -165,8 +168,10 @@ def test_sigkill_mid_write_leaves_a_temporary_output_the_next_write_removes(tmp_
         if proc.poll() is None:
             proc.kill()
     assert proc.returncode == -signal.SIGKILL
-    left = _hidden(out)
-    assert len(left) == 1 and ".quash-tmp-" in left[0] and f"-{proc.pid}-" in left[0], left
+    hidden = _hidden(out)  # the temporary output, and the lock file its writer held
+    left = [n for n in hidden if ".quash-tmp-" in n]
+    assert len(hidden) == 2 and len(left) == 1 and f"-{proc.pid}-" in left[0], hidden
+    assert any(".quash-lck-" in n and f"-{proc.pid}-" in n for n in hidden), hidden
     again = subprocess.run(
         [sys.executable, "-m", "quash_plugins.cli.main", "convert", str(small), str(dst)],
         capture_output=True,

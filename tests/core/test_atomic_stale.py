@@ -2,8 +2,11 @@
 write of the same output; nothing else is ever touched (core/atomic.py, remove_stale).
 
 A process killed with SIGKILL cannot clean up; its temporary names carry the machine and
-the process number, so a later write knows which ones are stale. The end-to-end case (a
-real ``quash convert`` killed mid-write) is in tests/cli/test_signals.py.
+the process number, and it held a lock on their lock file (``.NAME.quash-lck-...``) that
+the kernel released, so a later write knows which ones are stale. A writer that still
+runs holds its lock, even where its process number means nothing (another PID namespace:
+simulated by forcing ``_process_gone``). The end-to-end case (a real ``quash convert``
+killed mid-write) is in tests/cli/test_signals.py.
 """
 
 from __future__ import annotations
@@ -12,10 +15,11 @@ import logging
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
-from quash_plugins.core import atomic
+from quash_plugins.core import _atomic_stale, atomic
 
 
 @pytest.fixture(scope="module")
@@ -34,9 +38,15 @@ def _name(
     return f".{out}.quash-{kind}-{host or atomic._host()}-{pid}-{rand}{suffix}"
 
 
+def _lock(folder: Path, out: str, pid: int, host: str | None = None, rand: str = "0123abcd"):
+    """The lock file a writer left, held by nobody now."""
+    (folder / _name(out, "lck", pid, host=host, rand=rand)).write_text("")
+
+
 def test_a_dead_process_s_temporary_file_is_removed_by_the_next_write(tmp_path, dead_pid, caplog):
     stale = tmp_path / _name("r.npz", "tmp", dead_pid, ".npz")
     stale.write_bytes(b"half a result")
+    _lock(tmp_path, "r.npz", dead_pid)
     with (
         caplog.at_level(logging.INFO, "quash_plugins"),
         atomic.atomic_write(tmp_path / "r.npz", ".npz") as tmp,
@@ -51,6 +61,7 @@ def test_a_dead_process_s_temporary_store_is_removed_by_the_next_write(tmp_path,
     stale = tmp_path / _name("r.zarr", "tmp", dead_pid)
     (stale / "scores").mkdir(parents=True)
     (stale / "zarr.json").write_text("{}")
+    _lock(tmp_path, "r.zarr", dead_pid)
     with atomic.atomic_dir(tmp_path / "r.zarr") as tmp:
         tmp.mkdir()
         (tmp / "zarr.json").write_text("{}")
@@ -83,6 +94,17 @@ def test_only_what_quash_certainly_made_for_this_output_is_removed(tmp_path, dea
     (target / "precious").write_text("mine")
     link = tmp_path / _name("r.npz", "tmp", dead_pid, rand="4567cdef")
     link.symlink_to(target)  # a folder's name, on a link to a folder
+    for pid, host, rand in [
+        (os.getppid(), None, "0123abcd"),
+        (os.getpid(), None, "0123abcd"),
+        (dead_pid, "abcdef", "0123abcd"),
+        (dead_pid, None, "0123abcd"),
+        (dead_pid, None, "4567cdef"),
+    ]:  # their lock files, held by nobody: the other checks alone keep them
+        _lock(tmp_path, "r.npz", pid, host=host, rand=rand)
+    _lock(tmp_path, "s.npz", dead_pid)
+    # the temporary of a process gone, but without a lock file (quash before locks)
+    keep[_name("r.npz", "tmp", dead_pid, ".npz", rand="89abcdef")] = "file"
     for name, kind in keep.items():
         p = tmp_path / name
         if kind == "dir":
@@ -107,6 +129,7 @@ def test_a_previous_store_moved_aside_comes_back_when_its_replacement_never_came
     old = tmp_path / _name("r.zarr", "old", dead_pid)
     old.mkdir()
     (old / "zarr.json").write_text("previous")
+    _lock(tmp_path, "r.zarr", dead_pid)
     assert atomic.remove_stale(out) == []
     assert (out / "zarr.json").read_text() == "previous"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["r.zarr"]
@@ -122,6 +145,7 @@ def test_a_previous_store_moved_aside_is_removed_once_its_replacement_is_in_plac
     old = tmp_path / _name("r.zarr", "old", dead_pid)
     old.mkdir()
     (old / "zarr.json").write_text("previous")
+    _lock(tmp_path, "r.zarr", dead_pid)
     assert atomic.remove_stale(out) == [old]
     assert (out / "zarr.json").read_text() == "new"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["r.zarr"]
@@ -157,3 +181,146 @@ def test_a_temporary_folder_written_into_after_an_interrupt_is_removed_at_exit(
     for f, a, k in at_exit:
         f(*a, **k)
     assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+# A writer in a child process: atomic_dir or atomic_write of argv[1], which holds its
+# temporary (a store, or a file) until the file argv[2] appears. With argv[3] == "aside"
+# it stops instead once the previous store is moved aside; with "fork" it first forks a
+# child that sleeps on (and would keep the lock, were it inherited).
+WRITER = """
+import os, sys, time
+from pathlib import Path
+from quash_plugins.core import atomic
+out, go, how = Path(sys.argv[1]), Path(sys.argv[2]), sys.argv[3]
+def wait():
+    print("ready", flush=True)
+    while not go.exists():
+        time.sleep(0.02)
+replace = os.replace
+def replace_then_wait(a, b):
+    replace(a, b)
+    if how == "aside" and ".quash-old-" in str(b):
+        wait()
+os.replace = replace_then_wait
+if how == "fork" and os.fork() == 0:
+    for _ in range(6000):  # until the test ends (go), at most two minutes
+        if go.exists():
+            break
+        time.sleep(0.02)
+    os._exit(0)
+if out.suffix == ".zarr":
+    with atomic.atomic_dir(out) as tmp:
+        tmp.mkdir()
+        (tmp / "zarr.json").write_text("new")
+        if how != "aside":
+            wait()
+else:
+    with atomic.atomic_write(out, out.suffix) as tmp:
+        tmp.write_text("new")
+        wait()
+print("done", flush=True)
+"""
+
+
+def _writer(tmp_path: Path, out: Path, how: str = "hold") -> tuple[subprocess.Popen, Path]:
+    go = tmp_path / "go"
+    proc = subprocess.Popen(
+        [sys.executable, "-c", WRITER, str(out), str(go), how],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    assert proc.stdout.readline() == "ready\n", proc.communicate()
+    return proc, go
+
+
+def _hidden(folder: Path) -> list[str]:
+    return sorted(p.name for p in folder.iterdir() if p.name.startswith("."))
+
+
+@pytest.fixture
+def any_pid_gone(monkeypatch):
+    """Every process looks gone, as a writer in another PID namespace does."""
+    monkeypatch.setattr(_atomic_stale, "_process_gone", lambda pid: True)
+
+
+@pytest.mark.parametrize("name", ["r.zarr", "r.npz"])
+def test_a_running_writer_s_temporary_is_left_even_when_its_process_looks_gone(
+    tmp_path, any_pid_gone, name
+):
+    """Another PID namespace (a container, unshare --pid) or a machine of the same name
+    sharing the folder: os.kill says its process is gone; its lock says it runs."""
+    out = tmp_path / "out"
+    out.mkdir()
+    proc, go = _writer(tmp_path, out / name)
+    try:
+        before = _hidden(out)
+        assert atomic.remove_stale(out / name) == []
+        assert _hidden(out) == before
+        assert any(".quash-tmp-" in n for n in before) and any(".quash-lck-" in n for n in before)
+        go.touch()
+        stdout, stderr = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert (proc.returncode, stdout) == (0, "done\n"), stderr
+    assert _hidden(out) == []
+    assert (out / name / "zarr.json" if name.endswith(".zarr") else out / name).exists()
+
+
+@pytest.mark.parametrize("name", ["r.zarr", "r.npz"])
+def test_a_killed_writer_s_temporary_is_removed_even_with_a_child_still_running(
+    tmp_path, caplog, name
+):
+    """SIGKILL: the kernel releases the writer's lock; a child it forked does not keep it."""
+    out = tmp_path / "out"
+    out.mkdir()
+    proc, go = _writer(tmp_path, out / name, "fork")
+    proc.kill()
+    proc.wait()
+    try:
+        left = _hidden(out)
+        tmp = [n for n in left if ".quash-tmp-" in n]
+        assert len(left) == 2 and len(tmp) == 1 and any(".quash-lck-" in n for n in left), left
+        with caplog.at_level(logging.INFO, "quash_plugins"):
+            assert atomic.remove_stale(out / name) == [out / tmp[0]]
+    finally:
+        go.touch()  # the forked child ends
+    assert f"quash process {proc.pid}" in caplog.text
+    assert _hidden(out) == []
+
+
+def test_a_store_moved_aside_is_put_back_only_once_its_writer_is_gone(tmp_path, monkeypatch):
+    """Between the two renames of a swap the output is missing; a writer that runs still
+    holds its lock, so its store moved aside is not put back under it."""
+    out = tmp_path / "out"
+    out.mkdir()
+    store = out / "r.zarr"
+    store.mkdir()
+    (store / "zarr.json").write_text("previous")
+    monkeypatch.setattr(_atomic_stale, "_process_gone", lambda pid: True)
+    proc, go = _writer(tmp_path, store, "aside")
+    try:
+        assert not store.exists()
+        before = _hidden(out)
+        assert atomic.remove_stale(store) == []
+        assert not store.exists() and _hidden(out) == before
+        go.touch()
+        stdout, stderr = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert (proc.returncode, stdout) == (0, "done\n"), stderr
+    assert (store / "zarr.json").read_text() == "new" and _hidden(out) == []
+    # the same writer killed there: its lock is free, the previous store comes back
+    monkeypatch.undo()
+    go.unlink()
+    proc, go = _writer(tmp_path, store, "aside")
+    proc.kill()
+    proc.wait()
+    assert not store.exists()
+    half_made = [n for n in _hidden(out) if ".quash-tmp-" in n]  # its new store
+    assert [p.name for p in atomic.remove_stale(store)] == half_made
+    assert (store / "zarr.json").read_text() == "new" and _hidden(out) == []
