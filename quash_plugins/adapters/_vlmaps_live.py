@@ -20,6 +20,7 @@ formulas as the ``vlmaps`` file adapter.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 from pathlib import Path
 from typing import Any
@@ -219,8 +220,14 @@ class VLMapsLiveAdapter(MapAdapter):
             pose_type = pose_type_of(source) or (
                 "camera_base" if getattr(source, "pcd_min", None) is not None else "mobile_base"
             )
-        own_cs = getattr(source, "cs", None)
-        own_cs = None if own_cs is None else float(np.asarray(own_cs).reshape(-1)[0])
+        own_cs = None
+        if getattr(source, "cs", None) is not None:
+            try:
+                own_cs = _own_cs(source.cs, where)
+            except MapFormatError:
+                if opts["cs"] is None:
+                    raise
+                # the fix it names: a cs option replaces an own cs that is no size
         if pose_type == "camera_base" and own_cs is not None:
             check_against_stored(
                 opts["cs"],
@@ -234,8 +241,6 @@ class VLMapsLiveAdapter(MapAdapter):
             cs = option_number(opts["cs"], "cs", where, CS_FIX)
         else:
             cs = DEFAULT_CS if own_cs is None else own_cs
-        if not np.isfinite(cs) or cs <= 0:
-            raise MapFormatError(f"{where}: cell size cs must be a positive number; got {cs}.")
         source_meta: dict[str, Any] = {
             "adapter": self.name,
             "live": type(source).__name__,
@@ -339,6 +344,28 @@ def _own_gs(own_gs: Any, where: str) -> int:
         "pass the gs option.",
         whole=True,
         what=f"the VLMap object's gs attribute (vlmap.gs={own_gs!r}, its map config's grid_size)",
+    )
+
+
+def _own_cs(own_cs: Any, where: str) -> float:
+    """A live map's own ``vlmap.cs`` (its map config's cell_size; a one-element array is
+    read as its value), a positive number, else :class:`MapFormatError` naming the
+    attribute, not an option."""
+    value = own_cs
+    with contextlib.suppress(Exception):
+        arr = np.asarray(own_cs)
+        if arr.size == 1 and arr.dtype.kind in "biuf":
+            value = arr.reshape(-1)[0].item()
+    return float(
+        option_number(
+            value,
+            "cs",
+            where,
+            "Set cell_size in its map config, in metres (VLMaps' default: 0.05), or pass "
+            "the cs option.",
+            what=f"the VLMap object's cs attribute (vlmap.cs={value!r}, its map config's "
+            "cell_size)",
+        )
     )
 
 

@@ -118,3 +118,37 @@ def test_a_live_maps_own_gs_that_is_no_number_beside_occupied_ids_is_a_warning(c
         lmap = adapter.read(live)
     assert lmap.source["gs"] == arrays["gs"]
     assert "vlmap.gs = x (the map config's grid_size) disagrees with occupied_ids" in caplog.text
+
+
+def test_a_live_maps_own_cs_is_named_as_its_attribute_not_as_an_option():
+    """vlmap.cs (its map config's cell_size) that is no positive number said 'cell size cs
+    must be a positive number; got 0.0', naming neither the attribute nor the fix, and
+    vlmap.cs='abc' raised float()'s ValueError."""
+    adapter = registry.create("adapters", "vlmaps-live")
+    where = "live SimpleNamespace object"
+    fix = (
+        "Set cell_size in its map config, in metres (VLMaps' default: 0.05), or pass the cs option."
+    )
+    for bad, what in (
+        ("abc", "is not a number"),
+        (True, "is not a number"),
+        (0, "must be a positive number"),
+        (-0.05, "must be a positive number"),
+        (float("nan"), "must be a finite, positive number"),
+    ):
+        live = _live(60)
+        live.cs = bad
+        with pytest.raises(MapFormatError) as info:
+            adapter.read(live)
+        assert str(info.value) == (
+            f"{where}: the VLMap object's cs attribute (vlmap.cs={bad!r}, its map config's "
+            f"cell_size) {what}. {fix}"
+        )
+        # the fix it names works: a cs option replaces the attribute
+        assert adapter.read(live, cs=0.1).source["cs"] == pytest.approx(0.1)
+    live = _live(60)
+    live.cs = np.array([0.0])  # as VLMap.load_map reads it: named by its value
+    with pytest.raises(MapFormatError, match=r"\(vlmap\.cs=0\.0, its map config's cell_size\)"):
+        adapter.read(live)
+    live.cs = np.array([0.1])
+    assert adapter.read(live).source["cs"] == pytest.approx(0.1)
