@@ -7,42 +7,45 @@ experiment can be re-run with ``offline: true`` and no server at all.
 
 from __future__ import annotations
 
-import json
 import logging
-import os
-import time
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
 
-from ..core.errors import ConfigError, HeuristicError, QuashError
+from ..core.errors import HeuristicError
 from ..core.interfaces import ExpansionContext, Heuristic
-from ..core.redact import RedactingFilter, redact, redact_url, url_secrets
+from ..core.redact import RedactingFilter, redact_url, url_secrets
 from ..core.types import QuerySet
-from ._llm_cache import cache_file_name, llm_cache_root
-from ._llm_endpoint import chat_endpoint, check_key_env, request_url
-from ._llm_http import (
-    MAX_REPLY_BYTES,
-    MAX_RETRY_AFTER,
-    REDIRECT_STATUSES,
-    ReplyError,
-    bounded_request,
-    check_key,
-    cleartext_host,
-    client_options,
-    connect_reason,
-    content_of,
-    failure_fix,
-    known_models,
-    not_found_hint,
-    proxy_note,
-    redirect_hint,
-    retry_after,
-    snippet,
-    tls_failure,
+from ._llm_cache import (
+    cache_file_name,
+    llm_cache_root,
+    offline_miss,
+    read_query_set,
+    write_query_set,
 )
-from ._parse import clean_lists, parse_reply
+from ._llm_endpoint import (
+    chat_endpoint,
+    check_config,
+    check_key_env,
+    request_headers,
+    request_url,
+)
+from ._llm_http import bounded_request, cleartext_host, client_options, known_models
+from ._llm_prompt import PROMPT_VERSION, SYSTEM_PROMPT, USER_PROMPT, chat_request
+from ._llm_retry import RETRY_STATUSES, ask_with_retries, status_hint
+from ._parse import clean_lists
+
+# The prompt and the retried statuses, long defined here, are still importable from here.
+__all__ = [
+    "LLM_DEFAULT_BASE_URL",
+    "PROMPT_VERSION",
+    "RETRY_STATUSES",
+    "SYSTEM_PROMPT",
+    "USER_PROMPT",
+    "LLMHeuristic",
+    "chat_endpoint",
+]
 
 log = logging.getLogger(__name__)
 # Whoever configures logging, nothing this module logs carries a key-like token.
@@ -53,40 +56,11 @@ _httpx_log = logging.getLogger("httpx")
 if not any(isinstance(f, RedactingFilter) for f in _httpx_log.filters):
     _httpx_log.addFilter(RedactingFilter())
 
-#: Bumped whenever the prompt wording changes; part of every cache key.
-PROMPT_VERSION = "quash-llm-2"
 #: The endpoint asked when a config gives no ``base_url`` (vLLM's default port).
 LLM_DEFAULT_BASE_URL = "http://127.0.0.1:8000/v1"
 
-SYSTEM_PROMPT = (
-    "You help a robot find things in a map of an indoor or outdoor scene. "
-    "You reply with a single JSON object and no other text."
-)
-
-USER_PROMPT = """The robot was asked to find: "{query}".
-
-1. List {n_synonyms} semantic synonyms: words or short noun phrases that refer to the same \
-thing or to things a person would accept as a match, such as closely related words, more \
-specific kinds (sub-classes), more general kinds (super-classes) and objects that are part \
-of it or usually attached to it.
-2. List {n_antonyms} semantic antonyms: objects, furniture, structures, surfaces or places \
-that plausibly appear in the same environment as "{query}" but are clearly not it.
-
-Use lowercase singular nouns or short noun phrases, with no explanations and no duplicates. \
-Reply exactly in this form:
-{{"synonyms": ["...", "..."], "antonyms": ["...", "..."]}}"""
-
-#: HTTP statuses worth retrying.
-RETRY_STATUSES = frozenset({408, 409, 425, 429, 500, 502, 503, 504})
-
 #: Hosts warned about once: an http:// endpoint elsewhere that is sent the key.
 _CLEARTEXT_WARNED: set[str] = set()
-
-
-def _dropped_errors(httpx: Any) -> tuple[type[Exception], ...]:
-    """httpx's errors for a connection the server closed after it was made (not a
-    connection that could not be made: httpx.ConnectError)."""
-    return (httpx.ReadError, httpx.WriteError, httpx.CloseError, httpx.RemoteProtocolError)
 
 
 def _import_httpx() -> Any:
@@ -176,20 +150,13 @@ class LLMHeuristic(Heuristic):
         json_mode: bool = False,
         send_seed: bool = True,
     ) -> None:
-        if not model:
-            raise ConfigError(
-                "Heuristic 'llm' needs 'model', e.g. heuristic: {name: llm, model: gpt-4o, "
-                "base_url: http://127.0.0.1:8000/v1}."
-            )
-        for field, value in (
-            ("n_synonyms", n_synonyms),
-            ("n_antonyms", n_antonyms),
-            ("max_retries", max_retries),
-        ):
-            if int(value) < 0:
-                raise ConfigError(f"Heuristic 'llm': {field!r} must be >= 0; got {value!r}.")
-        if float(timeout) <= 0:
-            raise ConfigError(f"Heuristic 'llm': 'timeout' must be positive; got {timeout!r}.")
+        check_config(
+            model,
+            n_synonyms=n_synonyms,
+            n_antonyms=n_antonyms,
+            max_retries=max_retries,
+            timeout=timeout,
+        )
         self.api_key_env = check_key_env(api_key_env)
         self.model = str(model)
         self.endpoint = chat_endpoint(base_url)
@@ -263,27 +230,12 @@ class LLMHeuristic(Heuristic):
         return self._cache_root() / cache_file_name(self.cache_key(query, seed))
 
     def _read_cache(self, query: str, seed: int | None = None) -> dict[str, Any] | None:
-        path = self.cache_path(query, seed)
-        if not path.exists() and not path.is_symlink():
-            return None
-        if path.is_symlink() or not path.is_file():
-            log.warning("ignoring LLM cache entry %s: not a regular file", path)
-            return None
-        try:
-            data = json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, ValueError) as exc:
-            log.warning("ignoring unreadable LLM cache file %s: %s", path, exc)
-            return None
-        if not isinstance(data, dict) or data.get("key") != self.cache_key(query, seed):
-            return None
-        lists = [data.get(side) for side in ("synonyms", "antonyms")]
-        if not all(isinstance(v, list) and all(isinstance(w, str) for w in v) for v in lists):
-            log.warning(
-                "ignoring LLM cache file %s: 'synonyms' and 'antonyms' must be lists of strings",
-                path,
-            )
+        key = self.cache_key(query, seed)
+        data = read_query_set(self.cache_path(query, seed), key, log.warning)
+        if data is None:
             return None
         # a file edited by hand is cleaned as a reply is (case, duplicates, the query, caps)
+        lists = (data["synonyms"], data["antonyms"])
         syn, ant = clean_lists(query, *lists, self.n_synonyms, self.n_antonyms)
         return {**data, "synonyms": syn, "antonyms": ant}
 
@@ -291,10 +243,6 @@ class LLMHeuristic(Heuristic):
         self, query: str, synonyms: list[str], antonyms: list[str], seed: int | None = None
     ) -> Path | None:
         """Cache a query set; its file, or None (with a warning) when it cannot be written."""
-        from ..core.atomic import atomic_write_text
-        from ..core.cache_dirs import make_private_dirs
-
-        path = self.cache_path(query, seed)
         record = {
             "key": self.cache_key(query, seed),
             "synonyms": synonyms,
@@ -302,14 +250,7 @@ class LLMHeuristic(Heuristic):
             "temperature": self.temperature,
             "created": datetime.now(UTC).isoformat(timespec="seconds"),
         }
-        try:
-            make_private_dirs(path.parent)
-            atomic_write_text(path, json.dumps(record, indent=1, ensure_ascii=False))
-        # unwritable, or a link or folder planted at the cache path (never followed)
-        except (OSError, QuashError) as exc:
-            log.warning("llm: query set for %r not cached: %s", query, exc)
-            return None
-        return path
+        return write_query_set(self.cache_path(query, seed), record, log.warning)
 
     # ------------------------------------------------------------------ expansion
     def expand(self, query: str, context: ExpansionContext | None = None) -> QuerySet:
@@ -327,18 +268,7 @@ class LLMHeuristic(Heuristic):
                 )
         elif self.offline:
             where = self._cache_root() if self.cache else "(cache disabled)"
-            sampled = (
-                f", temperature {self.temperature}, seed {self.cache_key(query, seed)['seed']}"
-                if self.temperature > 0
-                else ""
-            )
-            raise HeuristicError(
-                f"Heuristic 'llm' is offline and has no cached query set for {query!r} "
-                f"(model {self.model!r}, endpoint {self.endpoint}, prompt {PROMPT_VERSION}, "
-                f"n_synonyms {self.n_synonyms}, n_antonyms {self.n_antonyms}{sampled}) in "
-                f"{where}. Run once with offline: false, or point cache_dir at the cache "
-                "that has it."
-            )
+            raise offline_miss(self.cache_key(query, seed), where)
         else:
             try:
                 synonyms, antonyms = self.ask(query, seed)
@@ -380,39 +310,22 @@ class LLMHeuristic(Heuristic):
 
     def request_body(self, query: str, seed: int | None = None) -> dict[str, Any]:
         """The chat-completions request for ``query``."""
-        user = USER_PROMPT.format(
-            query=query, n_synonyms=self.n_synonyms, n_antonyms=self.n_antonyms
+        return chat_request(
+            query,
+            model=self.model,
+            n_synonyms=self.n_synonyms,
+            n_antonyms=self.n_antonyms,
+            temperature=self.temperature,
+            json_mode=self.json_mode,
+            seed=seed if self.send_seed else None,
         )
-        body: dict[str, Any] = {
-            "model": self.model,
-            "messages": [
-                {"role": "system", "content": SYSTEM_PROMPT},
-                {"role": "user", "content": user},
-            ],
-            "temperature": self.temperature,
-        }
-        if self.json_mode:
-            body["response_format"] = {"type": "json_object"}
-        if self.send_seed and seed is not None:
-            body["seed"] = int(seed)
-        return body
 
     def _headers(self) -> dict[str, str]:
-        headers = {"Content-Type": "application/json", "Accept": "application/json"}
-        if self.api_key_env:
-            key = os.environ.get(self.api_key_env)
-            if key is None or not key.strip():
-                state = "is not set" if key is None else "is empty"
-                raise HeuristicError(
-                    f"Heuristic 'llm': environment variable {self.api_key_env!r} (api_key_env) "
-                    f"{state}. Export the API key there, or set api_key_env: null for a "
-                    "server without authentication."
-                )
-            headers["Authorization"] = f"Bearer {check_key(key, self.api_key_env)}"
-        return headers
+        return request_headers(self.api_key_env)
 
     def ask(self, query: str, seed: int | None = None) -> tuple[list[str], list[str]]:
-        """Call the server (with retries) and return cleaned ``(synonyms, antonyms)``.
+        """Call the server (with retries: :func:`ask_with_retries`) and return cleaned
+        ``(synonyms, antonyms)``.
 
         Whatever the server answers is passed through :func:`redact` (with the key itself
         and base_url's credential-like query values) before it reaches an error message or
@@ -426,8 +339,6 @@ class LLMHeuristic(Heuristic):
         secrets = [key, *self._url_secrets]
         if key:
             self._warn_cleartext()
-        last, why = "no attempt made", "connect"
-        attempts = self.max_retries + 1
         # one connection per request: bounded_request's deadline watches the sockets it
         # sees connected
         with httpx.Client(
@@ -435,120 +346,17 @@ class LLMHeuristic(Heuristic):
             limits=httpx.Limits(max_keepalive_connections=0),
             **client_options(self.endpoint),
         ) as client:
-            for attempt in range(attempts):
-                wait = self.backoff * (2**attempt)
-                log.info(
-                    "llm: asking %s (%s) for %r, attempt %d/%d",
-                    self.endpoint,
-                    self.model,
-                    query,
-                    attempt + 1,
-                    attempts,
-                )
-                try:
-                    resp = bounded_request(
-                        client, "POST", self._url, json=body, headers=headers, timeout=self.timeout
-                    )
-                except httpx.TimeoutException:
-                    last, why = f"timed out after {self.timeout:g} s", "timeout"
-                except _dropped_errors(httpx) as exc:
-                    # the server took the request and closed the connection without a
-                    # whole reply: it is there (crashed, killed, or a proxy cut it off)
-                    text = redact(str(exc), secrets)
-                    last = (
-                        "the server closed the connection before a whole reply "
-                        f"({type(exc).__name__}{': ' + text if text else ''})"
-                    )
-                    why = "dropped"
-                except httpx.TransportError as exc:
-                    last = connect_reason(exc, self.endpoint, secrets)
-                    why = {"plain": "tls-plain", "cert": "tls-cert"}.get(
-                        tls_failure(exc) or "", "connect"
-                    )
-                except httpx.RequestError as exc:  # none other is known; never "unexpected"
-                    last = f"request failed ({type(exc).__name__}: {redact(exc, secrets)})"
-                    why = "status"
-                else:
-                    status = resp.status_code
-                    if resp.decode_error:
-                        encoding = resp.headers.get("content-encoding", "")
-                        last = (
-                            f"status {status} with a body that cannot be decoded as its "
-                            f"Content-Encoding {encoding!r} says ({redact(resp.decode_error, secrets)})"
-                        )
-                        why = "decode"
-                    elif status == 200 and resp.truncated:
-                        last = (
-                            f"status 200 with a reply over {MAX_REPLY_BYTES // 2**20} MiB "
-                            "(the most the llm heuristic reads), left unread"
-                        )
-                        why = "size"
-                    elif status == 200:
-                        finish = None
-                        try:
-                            content, finish = content_of(resp, secrets)
-                            syn, ant = parse_reply(content, secrets, finish == "length")
-                            # A reply that echoes a credential never reaches a query set,
-                            # a cache file or a log line.
-                            return clean_lists(
-                                query,
-                                syn,
-                                ant,
-                                self.n_synonyms,
-                                self.n_antonyms,
-                                keep=lambda w: redact(w, secrets) == w,
-                            )
-                        except ValueError as exc:
-                            reason = redact(exc, secrets)
-                            last = f"status 200 with an unusable reply ({reason})"
-                            why = exc.kind if isinstance(exc, ReplyError) else "reply"
-                            if finish == "length":  # a reply cut off at the token limit
-                                last += " (finish_reason 'length': the model ran out of tokens)"
-                                why = "length"
-                    elif status in RETRY_STATUSES:
-                        last, why = f"status {status}", "rate" if status == 429 else "status"
-                        if resp.text.strip():
-                            last += f": {snippet(resp.text, secrets, 120)}"
-                        wait = max(wait, retry_after(resp))
-                    elif status in REDIRECT_STATUSES:
-                        location = resp.headers.get("location")
-                        raise HeuristicError(
-                            f"Heuristic 'llm': {self.endpoint} answered status {status}, a "
-                            f"redirect.{redirect_hint(self.endpoint, location, secrets)}"
-                        )
-                    else:
-                        raise HeuristicError(
-                            f"Heuristic 'llm': {self.endpoint} answered status {status}: "
-                            f"{snippet(resp.text, secrets)}."
-                            f"{redact(self._status_hint(status, client, resp.text), secrets)}"
-                            f"{proxy_note(self.endpoint)}"
-                        )
-                if why in ("tls-plain", "tls-cert"):  # the same on every attempt: no retry
-                    log.warning("llm: %s %s", self.endpoint, last)
-                    attempts = attempt + 1
-                    break
-                if attempt + 1 < attempts:
-                    wait = min(wait, MAX_RETRY_AFTER)
-                    log.warning("llm: %s %s; retrying in %.3g s", self.endpoint, last, wait)
-                    time.sleep(wait)
-                else:
-                    log.warning("llm: %s %s", self.endpoint, last)
-        proxied = (
-            "connect",
-            "tls-plain",
-            "tls-cert",
-            "dropped",
-            "timeout",
-            "status",
-            "api",
-            "decode",
-        )
-        raise HeuristicError(
-            f"Heuristic 'llm': no usable reply from {self.endpoint} (model {self.model!r}) for "
-            f"{query!r} after {attempts} attempt(s); last: {last}. "
-            f"{failure_fix(why, self.timeout, self.json_mode, self.base_url)}"
-            f"{proxy_note(self.endpoint) if why in proxied else ''}"
-        )
+            return ask_with_retries(
+                self,
+                query,
+                secrets,
+                httpx=httpx,
+                send=lambda: bounded_request(
+                    client, "POST", self._url, json=body, headers=headers, timeout=self.timeout
+                ),
+                hint=lambda status, text: self._status_hint(status, client, text),
+                log=log,
+            )
 
     def _warn_cleartext(self) -> None:
         """Once per host: the key goes over plain http to a host that is not this
@@ -567,38 +375,22 @@ class LLMHeuristic(Heuristic):
             self.api_key_env,
         )
 
-    def _known_models(self, client: Any) -> tuple[str, list[str]]:
-        """The server's models (:func:`known_models`), asked with this endpoint's
-        headers and query, and at most 5 s."""
-        return known_models(
-            client,
-            self.endpoint,
-            self._headers(),
-            min(self.timeout, 5.0),
-            urlsplit(self._url).query,
-        )
-
     def _status_hint(self, status: int, client: Any, body: str = "") -> str:
-        """What to do about a status that is not retried (401, 403, 404, 400...);
-        ``body``: the server's reply, which a 400 about the model is told by."""
-        if status in (401, 403):
-            if self.api_key_env:
-                return f" Check the API key in {self.api_key_env!r} (api_key_env)."
-            return (
-                " The server wants a key: set api_key_env to the name of the environment "
-                "variable that holds it (no key was sent)."
-            )
-        if status == 404:
-            base, models = self._known_models(client)
-            return not_found_hint(self.endpoint, self.model, base, models)
-        if status in (400, 422) and "model" in body.lower():
-            # LiteLLM, some gateways and older vLLM answer an unknown model with a 400
-            base, models = self._known_models(client)
-            if models and self.model not in models:
-                return not_found_hint(self.endpoint, self.model, base, models)
-        if status in (400, 422) and self.json_mode:
-            return (
-                " json_mode: true sends response_format, which this server may not support: "
-                "set json_mode: false (replies are parsed anyway)."
-            )
-        return ""
+        """What to do about a status that is not retried (:func:`status_hint`); the
+        server's models (:func:`known_models`) are asked with this endpoint's headers and
+        query, and at most 5 s, when that helps."""
+        return status_hint(
+            status,
+            body,
+            endpoint=self.endpoint,
+            model=self.model,
+            api_key_env=self.api_key_env,
+            json_mode=self.json_mode,
+            known_models=lambda: known_models(
+                client,
+                self.endpoint,
+                self._headers(),
+                min(self.timeout, 5.0),
+                urlsplit(self._url).query,
+            ),
+        )

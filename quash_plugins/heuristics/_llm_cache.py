@@ -1,7 +1,8 @@
 """Where the ``llm`` heuristic keeps its query sets, and ``quash cache``'s view of them.
 
 One JSON file per query set, named by a hash of its key (:func:`cache_file_name`), in
-:func:`llm_cache_root`. The heuristic reads and writes single files; ``quash cache info``
+:func:`llm_cache_root`. The heuristic reads and writes single files
+(:func:`read_query_set`, :func:`write_query_set`); ``quash cache info``
 and ``quash cache clear --llm`` list and delete them (:func:`llm_cache_info`,
 :func:`clear_llm_cache`), touching only files named like a set, never through a link.
 """
@@ -14,10 +15,12 @@ import json
 import logging
 import os
 import re
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from ..core.cache_dirs import cache_dir
+from ..core.errors import HeuristicError, QuashError
 
 log = logging.getLogger(__name__)
 
@@ -41,6 +44,64 @@ def cache_file_name(key: dict[str, Any]) -> str:
     :data:`CACHE_FILE_RE`)."""
     blob = json.dumps(key, sort_keys=True).encode()
     return f"{hashlib.sha256(blob).hexdigest()[:32]}.json"
+
+
+def read_query_set(
+    path: Path, key: dict[str, Any], warn: Callable[..., None]
+) -> dict[str, Any] | None:
+    """The record cached at ``path`` for ``key``, its ``synonyms`` and ``antonyms`` lists
+    of strings (not yet cleaned); None when there is none, or another key's. A file that
+    cannot serve (a link, unreadable, lists of other things) is None too, said through
+    ``warn`` (the heuristic's ``log.warning``)."""
+    if not path.exists() and not path.is_symlink():
+        return None
+    if path.is_symlink() or not path.is_file():
+        warn("ignoring LLM cache entry %s: not a regular file", path)
+        return None
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        warn("ignoring unreadable LLM cache file %s: %s", path, exc)
+        return None
+    if not isinstance(data, dict) or data.get("key") != key:
+        return None
+    lists = [data.get(side) for side in ("synonyms", "antonyms")]
+    if not all(isinstance(v, list) and all(isinstance(w, str) for w in v) for v in lists):
+        warn(
+            "ignoring LLM cache file %s: 'synonyms' and 'antonyms' must be lists of strings",
+            path,
+        )
+        return None
+    return data
+
+
+def write_query_set(path: Path, record: dict[str, Any], warn: Callable[..., None]) -> Path | None:
+    """Write ``record`` (its ``key`` holds the query) to ``path`` atomically, in private
+    folders; ``path``, or None, said through ``warn``, when it cannot be written."""
+    from ..core.atomic import atomic_write_text
+    from ..core.cache_dirs import make_private_dirs
+
+    try:
+        make_private_dirs(path.parent)
+        atomic_write_text(path, json.dumps(record, indent=1, ensure_ascii=False))
+    # unwritable, or a link or folder planted at the cache path (never followed)
+    except (OSError, QuashError) as exc:
+        warn("llm: query set for %r not cached: %s", record["key"]["query"], exc)
+        return None
+    return path
+
+
+def offline_miss(key: dict[str, Any], where: Path | str) -> HeuristicError:
+    """The error of an offline heuristic that has no query set for ``key`` in ``where``
+    (its cache folder, or why there is none): what was looked for, and what to do."""
+    sampled = f", temperature {key['temperature']}, seed {key['seed']}" if "seed" in key else ""
+    return HeuristicError(
+        f"Heuristic 'llm' is offline and has no cached query set for {key['query']!r} "
+        f"(model {key['model']!r}, endpoint {key['endpoint']}, prompt "
+        f"{key['prompt_version']}, n_synonyms {key['n_synonyms']}, n_antonyms "
+        f"{key['n_antonyms']}{sampled}) in {where}. Run once with offline: false, or point "
+        "cache_dir at the cache that has it."
+    )
 
 
 def _cache_files(directory: Path) -> list[Path]:

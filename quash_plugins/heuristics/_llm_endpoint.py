@@ -1,8 +1,10 @@
 """What an ``llm`` config says about where requests go and what they carry: the
 chat-completions URL made of ``base_url`` (:func:`chat_endpoint`, without credentials or
 query string, for everything recorded or shown; :func:`request_url`, with the query
-string, for the request itself) and ``api_key_env``, checked to be the name of a
-variable and not a key pasted in its place (:func:`check_key_env`)."""
+string, for the request itself), ``api_key_env``, checked to be the name of a
+variable and not a key pasted in its place (:func:`check_key_env`), the headers that carry
+the key it names (:func:`request_headers`), and the model and numbers a config must give
+(:func:`check_config`)."""
 
 from __future__ import annotations
 
@@ -11,16 +13,55 @@ import re
 from typing import Any
 from urllib.parse import urlsplit, urlunsplit
 
-from ..core.errors import ConfigError
+from ..core.errors import ConfigError, HeuristicError
 from ..core.redact import redact_url
+from ._llm_http import check_key
 
-__all__ = ["chat_endpoint", "check_key_env", "request_url"]
+__all__ = ["chat_endpoint", "check_config", "check_key_env", "request_headers", "request_url"]
 
 #: What ``api_key_env`` must be: the name of an environment variable.
 _ENV_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 #: A part (between underscores) of a name that looks like a key's random characters:
 #: 16 or more letters and digits, both present (``gsk_ZQX9secretkey7731abcdef``).
 _RANDOM_PART = re.compile(r"(?=[A-Za-z0-9]*[0-9])(?=[A-Za-z0-9]*[A-Za-z])[A-Za-z0-9]{16,}")
+
+
+def check_config(
+    model: Any, *, n_synonyms: Any, n_antonyms: Any, max_retries: Any, timeout: Any
+) -> None:
+    """ConfigError unless ``model`` is given, the counts are >= 0 and ``timeout`` > 0."""
+    if not model:
+        raise ConfigError(
+            "Heuristic 'llm' needs 'model', e.g. heuristic: {name: llm, model: gpt-4o, "
+            "base_url: http://127.0.0.1:8000/v1}."
+        )
+    for field, value in (
+        ("n_synonyms", n_synonyms),
+        ("n_antonyms", n_antonyms),
+        ("max_retries", max_retries),
+    ):
+        if int(value) < 0:
+            raise ConfigError(f"Heuristic 'llm': {field!r} must be >= 0; got {value!r}.")
+    if float(timeout) <= 0:
+        raise ConfigError(f"Heuristic 'llm': 'timeout' must be positive; got {timeout!r}.")
+
+
+def request_headers(api_key_env: str | None) -> dict[str, str]:
+    """The headers of every request: JSON, and the key in the variable ``api_key_env``
+    names as a Bearer token (HeuristicError, never showing it, when it is unset, empty or
+    cannot be sent)."""
+    headers = {"Content-Type": "application/json", "Accept": "application/json"}
+    if api_key_env:
+        key = os.environ.get(api_key_env)
+        if key is None or not key.strip():
+            state = "is not set" if key is None else "is empty"
+            raise HeuristicError(
+                f"Heuristic 'llm': environment variable {api_key_env!r} (api_key_env) "
+                f"{state}. Export the API key there, or set api_key_env: null for a "
+                "server without authentication."
+            )
+        headers["Authorization"] = f"Bearer {check_key(key, api_key_env)}"
+    return headers
 
 
 def check_key_env(value: Any) -> str | None:
