@@ -142,6 +142,12 @@ def _close_quietly(*closables: Any) -> None:
                 c.close()
 
 
+#: How long Ctrl-C raised from ``Thread.start`` waits for the start thread to run (it
+#: always does unless Ctrl-C came before the thread was made; it closes what it starts
+#: itself once the caller has given up, so this only bounds the wait).
+START_BEGAN_S = 5.0
+
+
 def _start_without_sigint(start: Any, **kwargs: Any) -> Any:
     """``start(**kwargs)`` (a ``LocalCluster``) from a thread that blocks SIGINT.
 
@@ -151,15 +157,19 @@ def _start_without_sigint(start: Any, **kwargs: Any) -> Any:
     stops it. Here Ctrl-C (or SIGTERM) while the cluster starts waits for the start to
     end, closes the cluster, and is raised again: the ``quash`` command then prints one
     line ("interrupted", exit status 130), and no worker process is left running. A
-    second Ctrl-C stops the wait. Without ``pthread_sigmask`` (Windows) the start runs
-    here as it is.
+    second Ctrl-C stops the wait; the start thread then closes the cluster itself once
+    its start ends. Without ``pthread_sigmask`` (Windows) the start runs here as it is.
     """
     if not hasattr(signal, "pthread_sigmask"):  # pragma: no cover - not POSIX
         return start(**kwargs)
     outcome: dict[str, Any] = {}
     done = threading.Event()
+    given_up = threading.Event()  # the caller was interrupted: nobody takes the cluster
+    handover = threading.Lock()  # exactly one of the two closes it
+    began = threading.Event()
 
     def run() -> None:
+        began.set()
         # multiprocessing starts its resource tracker with SIGINT blocked, then unblocks
         # it in the calling thread, whatever the mask was: started first, it does not
         # undo the mask when the first worker process is started.
@@ -169,23 +179,34 @@ def _start_without_sigint(start: Any, **kwargs: Any) -> Any:
             with contextlib.suppress(Exception):
                 resource_tracker.ensure_running()
             signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
-            outcome["value"] = start(**kwargs)
+            value = start(**kwargs)
+            with handover:
+                outcome["value"] = value
+                abandoned = given_up.is_set()
+            if abandoned:  # a second Ctrl-C stopped the caller's wait: close it here
+                log.debug("the local Dask cluster started after the command gave up: closing it")
+                _close_quietly(value)
         except BaseException as exc:  # noqa: BLE001 - raised again in the caller
             outcome["error"] = exc
         finally:
             done.set()
 
-    threading.Thread(target=run, name="quash: local Dask cluster start", daemon=True).start()
+    thread = threading.Thread(target=run, name="quash: local Dask cluster start", daemon=True)
     try:
+        thread.start()  # Ctrl-C may be raised from it too (and the thread run all the same)
         # Event.wait, not Thread.join: a join interrupted by Ctrl-C marks the thread
         # stopped (CPython), and the wait below would not wait
         done.wait()
     except KeyboardInterrupt:  # Ctrl-C, or SIGTERM (the CLI's Terminated)
-        log.debug("interrupted while the local Dask cluster starts: closing it")
         try:
-            done.wait()
-        finally:
-            _close_quietly(outcome.get("value"))
+            log.debug("interrupted while the local Dask cluster starts: closing it")
+            if began.wait(START_BEGAN_S):  # else no thread ran: nothing was started
+                done.wait()
+        finally:  # the cluster if it has started, else the start thread closes it
+            with handover:
+                given_up.set()
+                value = outcome.pop("value", None)
+            _close_quietly(value)
         raise
     if "error" in outcome:
         raise outcome["error"]

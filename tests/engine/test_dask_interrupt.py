@@ -13,6 +13,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 
 import numpy as np
@@ -55,6 +56,44 @@ def test_ctrl_c_while_the_cluster_starts_closes_it_and_is_raised(monkeypatch):
     assert made[0].sigint_blocked  # so the threads and workers it starts ignore Ctrl-C
     assert made[0].closed
     assert started == dask_client._STARTED
+
+
+@needs_sigmask
+def test_a_second_ctrl_c_leaves_the_start_thread_to_close_the_cluster(monkeypatch):
+    """A second Ctrl-C stops the wait for the start; the cluster was then closed only if
+    it had already started (outcome["value"] was still None), so one that finished its
+    start afterwards kept its worker processes until the interpreter exited."""
+    waiting = threading.Event()  # the caller waits again after the first Ctrl-C
+    release = threading.Event()  # the start ends once the caller has given up
+    made = []
+
+    class SlowCluster:
+        def __init__(self, **kwargs):
+            self.closed = False
+            os.kill(os.getpid(), signal.SIGINT)
+            assert waiting.wait(10)
+            time.sleep(0.05)
+            os.kill(os.getpid(), signal.SIGINT)  # the second Ctrl-C
+            assert release.wait(10)
+            made.append(self)
+
+        def close(self):
+            self.closed = True
+
+    def debug(msg, *args):
+        if msg.startswith("interrupted while the local Dask cluster starts"):
+            waiting.set()
+
+    monkeypatch.setattr(dask_client.log, "debug", debug)
+    with pytest.raises(KeyboardInterrupt):
+        dask_client._start_without_sigint(SlowCluster)
+    assert made == []  # the caller stopped waiting before the start ended
+    release.set()
+    deadline = time.monotonic() + 10
+    while not (made and made[0].closed) and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert len(made) == 1
+    assert made[0].closed
 
 
 @needs_sigmask
