@@ -32,6 +32,7 @@ import os
 import secrets
 import shutil
 import stat
+import threading
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
@@ -327,6 +328,36 @@ def is_store_dir(path: str | Path) -> bool:
     )
 
 
+class _LeftAtExit:
+    """The temporary folders of failed writes, removed once more when the process exits
+    by ONE exit handler (registered on the first): a long-lived process (a notebook) that
+    writes many stores that fail does not pile up a handler per write."""
+
+    def __init__(self) -> None:
+        self.paths: set[Path] = set()
+        self.registered = False
+        self.lock = threading.Lock()
+
+    def add(self, path: Path) -> None:
+        with self.lock:
+            self.paths.add(path)
+            if not self.registered:
+                atexit.register(self.remove_all)
+                self.registered = True
+
+    def remove_all(self) -> None:
+        with self.lock:
+            paths = list(self.paths)
+        for p in paths:
+            shutil.rmtree(p, ignore_errors=True)
+            if not os.path.lexists(p):
+                with self.lock:
+                    self.paths.discard(p)
+
+
+_LEFT = _LeftAtExit()
+
+
 @contextlib.contextmanager
 def atomic_dir(
     path: str | Path,
@@ -372,7 +403,7 @@ def atomic_dir(
             shutil.rmtree(tmp, ignore_errors=True)
             # a worker process of the same command (Dask) may still write a chunk into it
             # until the command stops its workers: removed again when this process exits
-            atexit.register(shutil.rmtree, tmp, ignore_errors=True)
+            _LEFT.add(tmp)
             if old.exists() and not path.exists():
                 os.replace(old, path)  # put the previous store back
             raise

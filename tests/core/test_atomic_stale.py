@@ -171,6 +171,7 @@ def test_a_temporary_folder_written_into_after_an_interrupt_is_removed_at_exit(
     """A Dask worker of the interrupted command may write one more chunk into the
     temporary store after it was removed; it is removed again when the process exits."""
     at_exit = []
+    monkeypatch.setattr(atomic, "_LEFT", atomic._LeftAtExit())  # none registered yet
     monkeypatch.setattr(atomic.atexit, "register", lambda f, *a, **k: at_exit.append((f, a, k)))
     out = tmp_path / "r.zarr"
     with pytest.raises(KeyboardInterrupt), atomic.atomic_dir(out) as tmp:
@@ -181,6 +182,29 @@ def test_a_temporary_folder_written_into_after_an_interrupt_is_removed_at_exit(
     for f, a, k in at_exit:
         f(*a, **k)
     assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+def test_many_failed_writes_register_one_exit_handler_that_removes_every_temporary(
+    tmp_path, monkeypatch
+):
+    """Each failed write registered an exit handler of its own: a long-lived process (a
+    notebook writing many stores that fail) piled them up. One handler removes them all."""
+    at_exit = []
+    monkeypatch.setattr(atomic, "_LEFT", atomic._LeftAtExit())
+    monkeypatch.setattr(atomic.atexit, "register", lambda f, *a, **k: at_exit.append((f, a, k)))
+    tmps = []
+    for i in range(5):
+        with pytest.raises(RuntimeError), atomic.atomic_dir(tmp_path / f"r{i}.zarr") as tmp:
+            (tmp / "c").mkdir(parents=True)
+            raise RuntimeError("write failed")
+        tmps.append(tmp)
+        (tmp / "c" / "5").mkdir(parents=True)  # a late write by a worker
+    assert len(at_exit) == 1
+    assert atomic._LEFT.paths == set(tmps)
+    f, a, k = at_exit[0]
+    f(*a, **k)
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+    assert atomic._LEFT.paths == set()  # removed: no longer kept
 
 
 # A writer in a child process: atomic_dir or atomic_write of argv[1], which holds its
