@@ -41,21 +41,33 @@ from ..core.config import (
     QuashConfig,
     check_device,
 )
-from ..core.errors import ConfigError, MapFormatError, QuashError
-from ..core.interfaces import Encoder, ExpansionContext, Heuristic, plugin_name
-from ..core.text import TextCache, encode_texts, resolve_templates
+from ..core.errors import ConfigError, QuashError
+from ..core.interfaces import Encoder, ExpansionContext, Heuristic
+from ..core.text import TextCache
 from ..core.types import DEFAULT_NEGATIVES, LatentMap, QueryResult, QuerySet, check_query
-from .answer import Pending, answer, classifier_words
+from ._pipeline_config import (  # BACKENDS and the _ names: as they were here
+    BACKENDS,  # noqa: F401
+    _check_chunk_mb,
+    _queryset_words,
+    adapter_spec,
+    check_backend,
+    check_cache,
+    check_prompt_templates,
+    check_queryset,
+    describe,
+    instance_options,
+    templates_provenance,
+)
+from ._pipeline_maps import _none_ref, check_adapter_section
+from ._pipeline_maps import read_map as _read_map
+from ._pipeline_results import query_results
+from ._pipeline_text import prepare
+from .answer import Pending, answer
 from .build import plugin_argument
 from .classify import classify_local
 from .map_cache import MapCache
-from .map_fit import (
-    check_encoder_fits,
-    option_source,
-    warn_if_empty,
-    warn_unused_adapter_options,
-)
-from .training import CallCache, training_sets
+from .map_fit import check_encoder_fits, warn_if_empty
+from .training import training_sets
 
 log = logging.getLogger(__name__)
 
@@ -164,20 +176,8 @@ class Quash:
             # A heuristic may ask for templates (the `templates` heuristic); config wins.
             prompt_templates = getattr(self.heuristic, "prompt_templates", None)
         self.prompt_templates = prompt_templates
-        self._templates = None
         #: Where the prompt templates came from, in words (None without templates).
-        self.templates_source: str | None = None
-        if prompt_templates is not None:
-            unknown = set(prompt_templates) - {"mode", "templates", "normalize"}
-            if unknown:
-                raise ConfigError(
-                    f"prompt_templates does not accept {sorted(unknown)}; it takes mode, "
-                    "templates and normalize."
-                )
-            if not isinstance(prompt_templates.get("normalize", True), bool):
-                raise ConfigError("prompt_templates: normalize must be true or false.")
-            resolved = resolve_templates(prompt_templates.get("templates", "default"))
-            self._templates, self.templates_source = resolved
+        self._templates, self.templates_source = check_prompt_templates(prompt_templates)
         self.map_negatives = map_negatives
         if map_negatives is not None:
             self.heuristic = registry.create(
@@ -195,23 +195,10 @@ class Quash:
 
             self.presence = PresenceOptions.parse(dict(presence))
             self._topology = TopologyCache()
-        if isinstance(adapter, Mapping) and isinstance(adapter.get("name"), str):
-            # the config's form, {name: vlmaps, cs: 0.05}: its options apply to read_map
-            adapter = PluginSpec(adapter["name"], {k: v for k, v in adapter.items() if k != "name"})
-        self.adapter = adapter if isinstance(adapter, PluginSpec) else PluginSpec(str(adapter))
-        if instances is True:
-            instances = {}
-        self.instances = dict(instances) if isinstance(instances, dict) else None
+        self.adapter = adapter_spec(adapter)
+        self.instances = instance_options(instances)
         self.seed = seed
-        if cache is True or cache is False:
-            if cache:
-                raise ConfigError(
-                    "Quash(cache=True): pass a cache object, e.g. "
-                    "quash_plugins.engine.TextEmbeddingCache(), or build with "
-                    "Quash.from_config (which opens the default cache for 'cache: true')."
-                )
-            cache = None
-        self.cache = cache
+        self.cache = check_cache(cache)
         self.chunk_mb = _check_chunk_mb(chunk_mb)
         self.name = name
         #: The config file this pipeline was built from (set by :meth:`from_config`).
@@ -219,16 +206,7 @@ class Quash:
         #: The arguments :meth:`from_config` was given over the file's (``adapter=``...):
         #: an error about one of them names the argument, not the file.
         self.config_overrides: frozenset[str] = frozenset()
-        if backend not in BACKENDS:
-            raise ConfigError(
-                f"Unknown backend {backend!r}. Known: {', '.join(b for b in BACKENDS if b)}."
-            )
-        if isinstance(client, str):
-            raise ConfigError(
-                f"client={client!r}: pass a dask.distributed.Client, e.g. "
-                f"Client({client!r}), not its address (quash --scheduler ADDRESS connects "
-                "on the command line)."
-            )
+        check_backend(backend, client)
         self.backend = backend
         self.client = client
         self._maps = MapCache()  # the maps read_map has read
@@ -237,20 +215,7 @@ class Quash:
     def __repr__(self) -> str:
         """One line: the config's name and the plugins and stages that answer a query
         (``refine`` names the re-fitted classifier; ``presence`` is on or off)."""
-        refine = self.refine.classifier if self.refine is not None else None
-        if isinstance(refine, dict):
-            refine = refine.get("name")
-        parts = [
-            f"name={self.name!r}",
-            f"encoder={plugin_name(self.encoder)!r}",
-            f"heuristic={plugin_name(self.heuristic)!r}",
-            f"classifier={plugin_name(self.classifier)!r}",
-            f"refine={str(refine) if refine is not None else None!r}",
-            f"presence={'on' if self.presence is not None else 'off'!r}",
-            f"backend={self.backend!r}",
-            f"device={self.device!r}",
-        ]
-        return f"Quash({', '.join(parts)})"
+        return describe(self)
 
     # ------------------------------------------------------------------ building
     @classmethod
@@ -283,56 +248,12 @@ class Quash:
         adapter that does (``vlmaps-live``), with ``options`` only: the config's
         ``adapter:`` options that disagree with the object are logged as a warning.
         """
-        from ..core.maps import live_adapter, read_map, resolve_adapter
-
-        if isinstance(source, LatentMap):
-            return source
-        name = adapter or self.adapter.name
-        live = live_adapter(source, name) if adapter is None and name != "auto" else None
-        if live is not None:
-            lmap = self.read_map(source, live, **options)
-            warn_unused_adapter_options(self.adapter, lmap, source, options)
-            return lmap
-        if name in (None, "auto"):
-            # Resolve "auto" first, so the options the config gives for the adapter it
-            # picks (or for "auto" itself) apply.
-            source, name = resolve_adapter(source, name)
-        configured = self.adapter.name in (name, "auto")
-        opts = {**self.adapter.params, **options} if configured else options
-        if configured and self.adapter.params:
-            self._check_adapter_section(name)
-        kept, token = self._maps.lookup(source, name, opts)
-        if kept is not None:
-            return kept
-        try:
-            lmap = read_map(source, name, **opts)
-        except MapFormatError as exc:
-            given = options if configured else None
-            origin = (
-                "the adapter= argument of Quash.from_config"
-                if "adapter" in self.config_overrides
-                else None
-            )
-            raise option_source(exc, self.adapter, self.config_source, given, origin) from None
-        self._maps.store(token, lmap, self.keep_maps)
-        # the query sets of maps that are gone go too (here, not on every expand)
-        for k in [k for k, (r, _) in self._querysets.items() if k[1] and r() is None]:
-            del self._querysets[k]
-        return lmap
+        return _read_map(self, source, adapter, options)
 
     def _check_adapter_section(self, name: str) -> None:
         """Build adapter ``name`` with the config's own ``adapter:`` options, so that a bad
         one is reported as the config's (``q.yaml: adapter: ...``), not the command's."""
-        from ..core import registry
-        from ..core.errors import ConfigError
-
-        try:
-            registry.create("adapters", name, **self.adapter.params)
-        except ConfigError as exc:
-            if "adapter" in self.config_overrides:
-                raise ConfigError(f"Quash.from_config(adapter=...): {exc}") from None
-            where = f"{self.config_source}: " if self.config_source else ""
-            raise ConfigError(f"{where}adapter: {exc}") from None
+        check_adapter_section(self.adapter, name, self.config_source, self.config_overrides)
 
     def _source_of(self, section: str) -> str | None:
         """The config file a section came from; None when :meth:`from_config` was given it
@@ -372,24 +293,11 @@ class Quash:
         if cached is not None and cached[0]() is lmap:
             return cached[1]
         qs = self.heuristic.expand(text, self.context(lmap, cache))
-        if not isinstance(qs, QuerySet):
-            raise QuashError(
-                f"Heuristic {plugin_name(self.heuristic)!r} returned "
-                f"{type(qs).__name__}, not a QuerySet."
-            )
-        qs = qs.with_negatives(self.negatives)
-        if not qs.negatives:
-            raise QuashError(
-                f"Query set for {text!r} has no negatives; configure 'negatives' or a heuristic "
-                "that produces antonyms."
-            )
+        qs = check_queryset(qs, self.heuristic, text, self.negatives)
         if self.prompt_templates is not None:
-            qs.provenance["prompt_templates"] = {
-                "mode": self.prompt_templates.get("mode", "mean"),
-                "count": len(self._templates or []),
-                "source": self.templates_source,
-                "normalize": bool(self.prompt_templates.get("normalize", True)),
-            }
+            qs.provenance["prompt_templates"] = templates_provenance(
+                self.prompt_templates, self._templates, self.templates_source
+            )
         if log.isEnabledFor(logging.DEBUG):  # -v: what the heuristic made of the query
             log.debug("query set for %r: %s", text, _queryset_words(qs))
         # A weak reference to the map guards against a new map reusing a freed one's id.
@@ -447,66 +355,13 @@ class Quash:
         warn_if_empty(lmap)
         pending = self._prepare(lmap, texts, t_read)
         self._answer(lmap, pending, progress)
-        results = []
-        for p in pending:
-            instances = []
-            if self.instances is not None:
-                from .instances import find_instances
-
-                t = time.perf_counter()
-                instances = find_instances(lmap, p.mask, p.display, **self.instances)
-                p.timings["instances"] = time.perf_counter() - t
-            p.timings["total"] = sum(p.timings.values())
-            results.append(
-                QueryResult(
-                    queryset=p.queryset,
-                    mask=p.mask,
-                    scores=p.raw,
-                    display_scores=p.display,
-                    threshold=self.threshold,
-                    instances=instances,
-                    timings=p.timings,
-                    classifier=classifier_words(p),
-                    config_name=self.name,
-                    map_source=dict(lmap.source),
-                    rejected=p.rejected,
-                )
-            )
-        return results
+        return query_results(self, lmap, pending)
 
     def _prepare(self, lmap: LatentMap, texts: list[str], t_read: float) -> list[Pending]:
         """The text side of every query: expand each (once), embed the strings of all
         query sets in one encoder call, fit one classifier per query."""
-        from ..core.progress import progress
-
-        many = len(texts) >= PROGRESS_QUERIES
-        timings = [{"read": t_read / len(texts)} for _ in texts]
-        call_cache = CallCache(self.cache)
-        t = time.perf_counter()
-        if len(texts) > 1:  # one encoder call for every query, for heuristics that embed it
-            encode_texts(self.encoder, list(dict.fromkeys(texts)), call_cache)
-        t_queries = (time.perf_counter() - t) / len(texts)
-        querysets = []
-        with progress(len(texts) if many else 0, f"expanding {len(texts)} queries") as advance:
-            for text, tm in zip(texts, timings):
-                t = time.perf_counter()
-                querysets.append(self.expand(text, lmap, cache=call_cache))
-                tm["expand"] = time.perf_counter() - t
-                advance(1)
-        t = time.perf_counter()
-        with progress(len(texts) if many else 0, f"encoding {len(texts)} query sets") as advance:
-            sets = self.training_sets(querysets, progress=advance, cache=call_cache)
-        t_encode = (time.perf_counter() - t) / len(texts) + t_queries
-        pending = []
-        with progress(len(texts) if many else 0, f"fitting {len(texts)} classifiers") as advance:
-            for qs, (X, y, _), tm in zip(querysets, sets, timings):
-                tm["encode"] = t_encode
-                t = time.perf_counter()
-                clf = clone(self.classifier).fit(X, y)
-                tm["fit"] = time.perf_counter() - t
-                pending.append(Pending(qs, X, y, clf, tm))
-                advance(1)
-        return pending
+        many = len(texts) >= PROGRESS_QUERIES  # read here: tests set it on this module
+        return prepare(self, lmap, texts, t_read, many)
 
     def training_sets(
         self, querysets: Sequence[QuerySet], progress: Any = None, cache: Any = None
@@ -573,42 +428,3 @@ class Quash:
         from .lazy_query import query_lazy
 
         return query_lazy(self, source, texts, self.client, **read_options)
-
-
-#: The backends a Quash takes (None and "local": the in-memory pass, as "numpy").
-BACKENDS = ("numpy", "local", "dask", None)
-
-
-def _check_chunk_mb(value: Any) -> float:
-    """``chunk_mb`` as a float, refused unless positive and finite (as a config's is)."""
-    import math
-
-    try:
-        out = float(value)
-    except (TypeError, ValueError):
-        out = math.nan
-    if not (math.isfinite(out) and out > 0):
-        raise ConfigError(f"chunk_mb must be a positive, finite number of MiB; got {value!r}.")
-    return out
-
-
-def _queryset_words(qs: QuerySet, limit: int = 24) -> str:
-    """``heuristic (source); N positives: a, b, ...; M negatives: ...``, each list cut at
-    ``limit`` names (the log line of ``-v``)."""
-
-    def head(words: Sequence[str]) -> str:
-        shown = ", ".join(words[:limit])
-        return shown + (f", ... and {len(words) - limit} more" if len(words) > limit else "")
-
-    prov = qs.provenance or {}
-    how = str(prov.get("heuristic", "?"))
-    if prov.get("source"):  # llm: server or cache
-        how += f" from {prov['source']}"
-    return (
-        f"{how}; {len(qs.positives)} positives: {head(qs.positives)}; "
-        f"{len(qs.negatives)} negatives: {head(qs.negatives)}"
-    )
-
-
-def _none_ref() -> None:
-    return None
