@@ -14,6 +14,18 @@ def _fmt(v: Any) -> str:
     return "n/a" if v is None else f"{v:.3f}"
 
 
+def _per_query_head(first: str, label: bool, configs: Sequence[dict[str, Any]]) -> list[str]:
+    """The header and rule of a table with a row per query: ``first``, a label column
+    when ``label``, then one right-aligned column per config."""
+    return [
+        f"| {first} | "
+        + ("label | " if label else "")
+        + " | ".join(c["name"] for c in configs)
+        + " |",
+        "|---|" + ("---|" if label else "") + "---:|" * len(configs),
+    ]
+
+
 def report_markdown(
     configs: Sequence[dict[str, Any]], per_query: bool = True, title: str | None = None
 ) -> str:
@@ -46,16 +58,7 @@ def report_markdown(
     if per_query and configs and configs[0]["per_query"]:
         label_of = {q: m.get("label", q) for q, m in configs[0]["per_query"].items()}
         show = any(q != label for q, label in label_of.items())
-        lines += [
-            "",
-            "F1 per query:",
-            "",
-            "| query | "
-            + ("label | " if show else "")
-            + " | ".join(c["name"] for c in configs)
-            + " |",
-            "|---|" + ("---|" if show else "") + "---:|" * len(configs),
-        ]
+        lines += ["", "F1 per query:", "", *_per_query_head("query", show, configs)]
         for q, label in label_of.items():
             row = [_fmt(c["per_query"].get(q, {}).get("f1")) for c in configs]
             lines.append(f"| {q} | " + (f"{label} | " if show else "") + " | ".join(row) + " |")
@@ -69,11 +72,7 @@ def report_markdown(
             "",
             f"Items matched by absence queries ({correct}):",
             "",
-            "| absence query | "
-            + ("label | " if show else "")
-            + " | ".join(c["name"] for c in configs)
-            + " |",
-            "|---|" + ("---|" if show else "") + "---:|" * len(configs),
+            *_per_query_head("absence query", show, configs),
         ]
         for q in ab_q:
             row = [str(c["absence"]["per_query"][q]["matched"]) for c in configs]
