@@ -64,6 +64,15 @@ def _hidden(folder):
     return [p.name for p in folder.iterdir() if p.name.startswith(".")]
 
 
+def _wait_for_temporary(proc, out):
+    """Until the child ``proc`` has made its temporary output in ``out`` (at most 60 s)."""
+    deadline = time.monotonic() + 60
+    while not _hidden(out):
+        assert proc.poll() is None, proc.communicate()
+        assert time.monotonic() < deadline, "the temporary output never appeared"
+        time.sleep(0.05)
+
+
 @pytest.mark.parametrize(
     ("sig", "code", "suffix"),
     [
@@ -94,11 +103,7 @@ def test_signal_mid_write_leaves_no_temporary_file(tmp_path, sig, code, suffix):
         env={**os.environ, "PYTHONUNBUFFERED": "1"},
     )
     try:
-        deadline = time.monotonic() + 60
-        while not _hidden(out):
-            assert proc.poll() is None, proc.communicate()
-            assert time.monotonic() < deadline, "the temporary output never appeared"
-            time.sleep(0.05)
+        _wait_for_temporary(proc, out)
         time.sleep(0.3)  # well inside the write
         proc.send_signal(sig)
         _, err = proc.communicate(timeout=60)
@@ -156,11 +161,7 @@ def test_sigkill_mid_write_leaves_a_temporary_output_the_next_write_removes(tmp_
         stderr=subprocess.PIPE,
     )
     try:
-        deadline = time.monotonic() + 60
-        while not _hidden(out):
-            assert proc.poll() is None, proc.communicate()
-            assert time.monotonic() < deadline, "the temporary output never appeared"
-            time.sleep(0.05)
+        _wait_for_temporary(proc, out)
         time.sleep(0.3)
         proc.kill()
         proc.communicate(timeout=60)

@@ -258,6 +258,20 @@ def _writer(tmp_path: Path, out: Path, how: str = "hold") -> tuple[subprocess.Po
     return proc, go
 
 
+def _let_finish(proc: subprocess.Popen, go: Path) -> None:
+    """Tell the writer to end its write; it must end well."""
+    go.touch()
+    stdout, stderr = proc.communicate(timeout=120)
+    assert (proc.returncode, stdout) == (0, "done\n"), stderr
+
+
+def _reap(proc: subprocess.Popen) -> None:
+    """Kill the writer if a failed assertion left it running."""
+    if proc.poll() is None:
+        proc.kill()
+        proc.wait()
+
+
 def _hidden(folder: Path) -> list[str]:
     return sorted(p.name for p in folder.iterdir() if p.name.startswith("."))
 
@@ -282,13 +296,9 @@ def test_a_running_writer_s_temporary_is_left_even_when_its_process_looks_gone(
         assert atomic.remove_stale(out / name) == []
         assert _hidden(out) == before
         assert any(".quash-tmp-" in n for n in before) and any(".quash-lck-" in n for n in before)
-        go.touch()
-        stdout, stderr = proc.communicate(timeout=120)
+        _let_finish(proc, go)
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-    assert (proc.returncode, stdout) == (0, "done\n"), stderr
+        _reap(proc)
     assert _hidden(out) == []
     assert (out / name / "zarr.json" if name.endswith(".zarr") else out / name).exists()
 
@@ -330,13 +340,9 @@ def test_a_store_moved_aside_is_put_back_only_once_its_writer_is_gone(tmp_path, 
         before = _hidden(out)
         assert atomic.remove_stale(store) == []
         assert not store.exists() and _hidden(out) == before
-        go.touch()
-        stdout, stderr = proc.communicate(timeout=120)
+        _let_finish(proc, go)
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-    assert (proc.returncode, stdout) == (0, "done\n"), stderr
+        _reap(proc)
     assert (store / "zarr.json").read_text() == "new" and _hidden(out) == []
     # the same writer killed there: its lock is free, the previous store comes back
     monkeypatch.undo()
