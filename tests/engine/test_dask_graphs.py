@@ -24,35 +24,24 @@ distributed = pytest.importorskip("distributed")
 cloudpickle = pytest.importorskip("cloudpickle")
 torch = pytest.importorskip("torch")
 
+from _dask_table import WORDS, one_worker_client  # noqa: E402
+from _dask_table import table_quash as _quash  # noqa: E402
+from _dask_table import words as _words  # noqa: E402
 from _openscene_writers import preprocess_scannet, save_fused_feature  # noqa: E402
 
-from quash_plugins import Quash  # noqa: E402
 from quash_plugins.adapters import read_map  # noqa: E402
 from quash_plugins.adapters._rows import IndexedRows  # noqa: E402
 from quash_plugins.core import registry  # noqa: E402
 from quash_plugins.core.types import LatentMap  # noqa: E402
-from quash_plugins.encoders import TableEncoder  # noqa: E402
 from quash_plugins.engine import classify_dask, classify_local  # noqa: E402
 from quash_plugins.engine.classify import BlockScorer  # noqa: E402
 from quash_plugins.engine.dask_arrays import as_dask  # noqa: E402
-from quash_plugins.engine.dask_client import close_started_clients, local_cluster_client  # noqa: E402
-
-WORDS = ["chair", "sofa", "table", "other", "background", "nothing"]
 
 
 @pytest.fixture(scope="module")
 def client():
-    """One worker process (the package's own LocalCluster, as ``--backend dask`` starts
-    it): every task and the graph are really pickled and unpickled."""
-    c = local_cluster_client(n_workers=1, threads_per_worker=2, memory_limit="2GiB")
-    yield c
-    close_started_clients()
-
-
-def _words(d: int, seed: int = 3) -> dict[str, np.ndarray]:
-    rng = np.random.default_rng(seed)
-    q, _ = np.linalg.qr(rng.normal(size=(d, d)))
-    return {w: q[i].astype(np.float32) for i, w in enumerate(WORDS)}
+    """One worker process: every task and the graph are really pickled and unpickled."""
+    yield from one_worker_client()
 
 
 def _openscene(root, n: int, d: int, seed: int = 0):
@@ -83,17 +72,6 @@ def _table_bytes(lmap: LatentMap) -> int:
     rows = lmap.embeddings
     table = getattr(rows, "table", rows)
     return int(np.prod(table.shape)) * np.dtype(table.dtype).itemsize
-
-
-def _quash(vecs, **kw) -> Quash:
-    table = {w: v.tolist() for w, v in vecs.items()}
-    return Quash(
-        TableEncoder(table=table),
-        classifier=registry.create("classifiers", "contrast"),
-        instances=None,
-        chunk_mb=0.05,  # several chunks on these small maps
-        **kw,
-    )
 
 
 def _assert_same_answers(lmap, vecs, client, texts=("chair", "sofa")):

@@ -19,23 +19,19 @@ import pytest
 distributed = pytest.importorskip("distributed")
 zarr = pytest.importorskip("zarr")
 
-from quash_plugins import Quash  # noqa: E402
-from quash_plugins.core import registry  # noqa: E402
+from _dask_table import WORDS, one_worker_client, table_quash  # noqa: E402
+from _dask_table import words as _words  # noqa: E402
+
 from quash_plugins.core.types import LatentMap  # noqa: E402
-from quash_plugins.encoders import TableEncoder  # noqa: E402
 from quash_plugins.engine import dask_arrays  # noqa: E402
 from quash_plugins.engine.dask_arrays import as_dask, scattered_array  # noqa: E402
-from quash_plugins.engine.dask_client import close_started_clients, local_cluster_client  # noqa: E402
 
-WORDS = ["chair", "sofa", "table", "other", "background", "nothing"]
 TEXTS = ["chair", "sofa"]
 
 
 @pytest.fixture(scope="module")
 def client():
-    c = local_cluster_client(n_workers=1, threads_per_worker=2, memory_limit="2GiB")
-    yield c
-    close_started_clients()
+    yield from one_worker_client()
 
 
 @pytest.fixture
@@ -52,12 +48,6 @@ def scatters(monkeypatch):
     return calls
 
 
-def _words(d: int) -> dict[str, np.ndarray]:
-    rng = np.random.default_rng(3)
-    q, _ = np.linalg.qr(rng.normal(size=(d, d)))
-    return {w: q[i].astype(np.float32) for i, w in enumerate(WORDS)}
-
-
 def _map(vecs, n: int = 3000, seed: int = 5) -> LatentMap:
     rng = np.random.default_rng(seed)
     labels = rng.integers(0, 3, size=n)
@@ -66,16 +56,9 @@ def _map(vecs, n: int = 3000, seed: int = 5) -> LatentMap:
     return LatentMap(emb.astype(np.float32))
 
 
-def _quash(vecs, **kw) -> Quash:
-    table = {w: v.tolist() for w, v in vecs.items()}
-    return Quash(
-        TableEncoder(table=table),
-        classifier=registry.create("classifiers", "contrast"),
-        instances=None,
-        chunk_mb=0.05,  # several chunks
-        refine={},
-        **kw,
-    )
+def _quash(vecs, **kw):
+    """Two passes a query (refine), several chunks each."""
+    return table_quash(vecs, refine={}, **kw)
 
 
 def test_two_query_many_calls_with_refine_scatter_the_map_once(client, scatters):
