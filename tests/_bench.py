@@ -1,4 +1,5 @@
-"""Load a script of ``benchmarks/`` as a module (they are scripts, not a package)."""
+"""Load a script of ``benchmarks/`` as a module (they are scripts, not a package), and
+the small scene the ``quash bench`` tests run on."""
 
 from __future__ import annotations
 
@@ -21,3 +22,18 @@ def load_bench(name: str) -> ModuleType:
     finally:
         sys.path.remove(str(BENCHMARKS))
     return mod
+
+
+def hashing_scene(tmp_path_factory, encoder: str):
+    """A fixture's body: a one-room ``quash make-scene`` folder (``scene.npz`` and its
+    side files) embedded by the hashing encoder registered as ``encoder`` meanwhile."""
+    from quash_plugins.cli.main import main
+    from quash_plugins.core import registry
+    from quash_plugins.testing import HashingEncoder
+
+    registry.register("encoders", encoder, HashingEncoder, replace=True)
+    d = tmp_path_factory.mktemp("bench")
+    args = ["make-scene", str(d / "scene.npz"), "--encoder", encoder, "--no-cache"]
+    assert main([*args, "--rooms", "1", "--voxel-size", "0.25"]) == 0
+    yield d
+    registry.unregister("encoders", encoder)

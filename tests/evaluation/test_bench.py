@@ -11,9 +11,9 @@ import json
 
 import numpy as np
 import pytest
+from _bench import hashing_scene
 
 from quash_plugins.cli.main import main
-from quash_plugins.core import registry
 from quash_plugins.core.config import QuashConfig
 from quash_plugins.core.text import ZERO_TOKEN
 from quash_plugins.engine.pipeline import Quash
@@ -27,19 +27,13 @@ from quash_plugins.evaluation.ablations import (
 )
 from quash_plugins.evaluation.metrics import macro_mean, query_metrics, valid_items
 from quash_plugins.evaluation.report import DEFAULT_EXCLUDE
-from quash_plugins.testing import HashingEncoder
 
 ENCODER = "hashing-bench"
 
 
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory):
-    registry.register("encoders", ENCODER, HashingEncoder, replace=True)
-    d = tmp_path_factory.mktemp("bench")
-    args = ["make-scene", str(d / "scene.npz"), "--encoder", ENCODER, "--no-cache"]
-    assert main([*args, "--rooms", "1", "--voxel-size", "0.25"]) == 0
-    yield d
-    registry.unregister("encoders", ENCODER)
+    yield from hashing_scene(tmp_path_factory, ENCODER)
 
 
 def _names(cfgs):

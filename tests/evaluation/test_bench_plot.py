@@ -3,23 +3,16 @@
 from __future__ import annotations
 
 import pytest
+from _bench import hashing_scene
 
-from quash_plugins.cli.main import main
-from quash_plugins.core import registry
 from quash_plugins.evaluation import ablations
-from quash_plugins.testing import HashingEncoder
 
 ENCODER = "hashing-bench-plot"
 
 
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory):
-    registry.register("encoders", ENCODER, HashingEncoder, replace=True)
-    d = tmp_path_factory.mktemp("bench")
-    args = ["make-scene", str(d / "scene.npz"), "--encoder", ENCODER, "--no-cache"]
-    assert main([*args, "--rooms", "1", "--voxel-size", "0.25"]) == 0
-    yield d
-    registry.unregister("encoders", ENCODER)
+    yield from hashing_scene(tmp_path_factory, ENCODER)
 
 
 def test_a_tables_plot_says_how_many_queries_its_points_are_over(scene, tmp_path, monkeypatch):
